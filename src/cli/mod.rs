@@ -1,0 +1,94 @@
+//! The `gangway` command line: one file per subcommand, each a clap `Args`
+//! struct and a `run` function. Subcommands only wire stages together; the work
+//! is in the library modules.
+
+mod check;
+mod plan;
+mod record;
+mod replay;
+mod run;
+mod simulate;
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+/// BLE edge gateway: hears iBeacons, locates people and devices on a site grid,
+/// and publishes locations and walkable routes over MQTT.
+#[derive(Parser)]
+#[command(name = "gangway", version, about, long_about = None)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Scan with the local Bluetooth adapter and write what this host hears to a log.
+    Record(record::Args),
+    /// Run the gateway pipeline over a recorded log.
+    Replay(replay::Args),
+    /// Simulate walkers on a site and write their adverts, truth and requests to a log.
+    Simulate(simulate::Args),
+    /// Run the gateway daemon: scan BLE, locate, plan, publish over MQTT.
+    Run(run::Args),
+    /// Load and validate a config with its site, survey and models.
+    Check(check::Args),
+    /// Plan one route on a site and print it.
+    Plan(plan::Args),
+    /// Train path and localization models (not built yet).
+    Train(NotBuilt),
+    /// Evaluate localization or planning (not built yet).
+    Eval(NotBuilt),
+}
+
+/// Arguments of a subcommand that does not exist yet.
+#[derive(clap::Args)]
+struct NotBuilt {
+    #[arg(trailing_var_arg = true, allow_hyphen_values = true, hide = true)]
+    _args: Vec<String>,
+}
+
+/// Where `--config` points when it is not given.
+fn default_config() -> PathBuf {
+    PathBuf::from("config/gangway.toml")
+}
+
+impl Cli {
+    pub fn run(self) -> anyhow::Result<ExitCode> {
+        match self.command {
+            Command::Record(args) => record::run(args),
+            Command::Replay(args) => replay::run(args),
+            Command::Simulate(args) => simulate::run(args),
+            Command::Run(args) => run::run(args),
+            Command::Check(args) => check::run(args),
+            Command::Plan(args) => plan::run(args),
+            Command::Train(_) => not_built("train", "the path-model training issue"),
+            Command::Eval(_) => {
+                not_built("eval", "the localization and planning evaluation issues")
+            }
+        }
+    }
+}
+
+fn not_built(name: &str, by: &str) -> anyhow::Result<ExitCode> {
+    eprintln!("gangway {name}: not built yet (it comes with {by}); nothing was run.");
+    Ok(ExitCode::from(2))
+}
+
+/// Loads a config and its site.
+fn load(
+    config: &std::path::Path,
+) -> anyhow::Result<(crate::config::Config, std::sync::Arc<crate::site::Site>)> {
+    let config = crate::config::Config::load(config)?;
+    let site = crate::site::Site::load(&config.site)?;
+    Ok((config, std::sync::Arc::new(site)))
+}
+
+/// A tokio runtime for subcommands that do network I/O.
+fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
+    Ok(tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?)
+}

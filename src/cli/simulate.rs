@@ -1,0 +1,88 @@
+//! `gangway simulate`: walkers on a site, written as an advert log.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+
+use anyhow::Context;
+
+use crate::locate::pathloss::PathLossConfig;
+use crate::locate::survey::Survey;
+use crate::site::Site;
+use crate::source::log::LogWriter;
+use crate::source::simulate::{SimConfig, simulate};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The site file.
+    #[arg(long)]
+    site: PathBuf,
+    /// The log to write (JSON Lines).
+    #[arg(long)]
+    out: PathBuf,
+    #[arg(long, default_value_t = SimConfig::default().walkers)]
+    walkers: usize,
+    /// Seconds of simulated time.
+    #[arg(long, default_value_t = SimConfig::default().duration_s)]
+    duration: f64,
+    #[arg(long, default_value_t = SimConfig::default().seed)]
+    seed: u64,
+    /// Scans per second of each walker's phone.
+    #[arg(long, default_value_t = SimConfig::default().scan_hz)]
+    scan_hz: f64,
+    /// Share of adverts lost.
+    #[arg(long, default_value_t = SimConfig::default().dropout)]
+    dropout: f64,
+    /// Route requests per walker.
+    #[arg(long, default_value_t = SimConfig::default().requests_per_walker)]
+    requests: usize,
+    /// Replay real readings from this survey (CSV) at each walker's cell instead
+    /// of the path-loss model.
+    #[arg(long)]
+    survey: Option<PathBuf>,
+    /// "Not heard" value in the survey.
+    #[arg(long, default_value_t = -200, allow_negative_numbers = true)]
+    not_heard: i16,
+}
+
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(args.scan_hz > 0.0, "--scan-hz must be positive");
+    anyhow::ensure!(
+        (0.0..1.0).contains(&args.dropout),
+        "--dropout must be in [0, 1)"
+    );
+    anyhow::ensure!(args.duration > 0.0, "--duration must be positive seconds");
+    let site = Arc::new(Site::load(&args.site)?);
+    let survey = match &args.survey {
+        Some(path) => {
+            let anchors: Vec<String> = site.beacons.iter().map(|b| b.id.clone()).collect();
+            let survey = Survey::load(path, &site, &anchors, args.not_heard)?;
+            anyhow::ensure!(
+                !survey.samples.is_empty(),
+                "{}: the survey has no rows",
+                path.display()
+            );
+            Some(survey)
+        }
+        None => None,
+    };
+    let config = SimConfig {
+        walkers: args.walkers,
+        duration_s: args.duration,
+        seed: args.seed,
+        scan_hz: args.scan_hz,
+        dropout: args.dropout,
+        requests_per_walker: args.requests,
+        pathloss: PathLossConfig::default(),
+        ..SimConfig::default()
+    };
+    let events = simulate(&site, &config, survey.as_ref());
+    let mut writer = LogWriter::create(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    for event in &events {
+        writer.write(event)?;
+    }
+    writer.flush()?;
+    tracing::info!(events = events.len(), out = %args.out.display(), "simulation written");
+    Ok(ExitCode::SUCCESS)
+}

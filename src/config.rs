@@ -1,0 +1,101 @@
+//! The gateway config file (`config/gangway.toml`): one table per pipeline
+//! stage, each owned by its module (`[window]` by `locate::window`, `[planner]` by
+//! `plan`, …); this file only composes them and resolves paths.
+//!
+//! Relative paths in the file resolve against the directory of the config file,
+//! so a config and its site can move together.
+
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+use crate::locate::LocalizerConfig;
+use crate::locate::tracker::TrackerConfig;
+use crate::locate::window::WindowConfig;
+use crate::mqtt::MqttConfig;
+use crate::plan::PlannerConfig;
+use crate::source::ble::BleConfig;
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    /// This gateway's id: the observer name of what it hears, and part of the
+    /// default MQTT topic prefix.
+    pub gateway_id: String,
+    /// The site file.
+    pub site: PathBuf,
+    #[serde(default)]
+    pub ble: BleConfig,
+    #[serde(default)]
+    pub window: WindowConfig,
+    #[serde(default)]
+    pub localizer: LocalizerConfig,
+    #[serde(default)]
+    pub tracker: TrackerConfig,
+    #[serde(default)]
+    pub planner: PlannerConfig,
+    #[serde(default)]
+    pub mqtt: MqttConfig,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("{path}: cannot read the config file: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: {source}")]
+    Toml {
+        path: PathBuf,
+        source: toml::de::Error,
+    },
+    #[error("{path}: {message}")]
+    Invalid { path: PathBuf, message: String },
+}
+
+impl Config {
+    /// Reads a config file and resolves its relative paths.
+    pub fn load(path: &Path) -> Result<Config, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
+        let mut config: Config = toml::from_str(&text).map_err(|source| ConfigError::Toml {
+            path: path.to_owned(),
+            source,
+        })?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        config.site = base.join(&config.site);
+        config.validate().map_err(|message| ConfigError::Invalid {
+            path: path.to_owned(),
+            message,
+        })?;
+        Ok(config)
+    }
+
+    fn validate(&self) -> Result<(), String> {
+        if self.gateway_id.is_empty() || !crate::publish::valid_device_id(&self.gateway_id) {
+            return Err(format!(
+                "`gateway_id` {:?} cannot be used in MQTT topics; use letters, digits, '-' or '_'",
+                self.gateway_id
+            ));
+        }
+        let w = &self.window;
+        if !(w.length_s > 0.0 && w.stride_s > 0.0) {
+            return Err("[window] `length_s` and `stride_s` must be positive seconds".into());
+        }
+        if !(self.tracker.max_speed_mps > 0.0) {
+            return Err("[tracker] `max_speed_mps` must be positive".into());
+        }
+        Ok(())
+    }
+
+    /// The MQTT topic prefix: `[mqtt] prefix`, or `gangway/<gateway_id>`.
+    pub fn topic_prefix(&self) -> String {
+        self.mqtt
+            .prefix
+            .clone()
+            .unwrap_or_else(|| format!("gangway/{}", self.gateway_id))
+    }
+}

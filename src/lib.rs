@@ -1,0 +1,27 @@
+//! gangway: a BLE edge gateway.
+//!
+//! Data flows one way, one module per stage:
+//!
+//! ```text
+//! source ──Event──▶ locate::window ──Fingerprint──▶ Localizer ──▶ locate::tracker
+//!    (ble, log, simulate)                                               │ Fix
+//!                                  publish ◀──Location / RouteReply── pipeline ◀── plan
+//!                                     │
+//!                               mqtt, --print
+//! ```
+//!
+//! [`site`] and [`config`] describe the building and the gateway; [`pipeline`]
+//! wires the stages together without doing I/O; [`daemon`] and the [`cli`]
+//! drive it.
+
+pub mod cli;
+pub mod config;
+pub mod daemon;
+pub mod locate;
+pub mod mqtt;
+pub mod pipeline;
+pub mod plan;
+pub mod publish;
+pub mod sighting;
+pub mod site;
+pub mod source;

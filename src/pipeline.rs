@@ -1,0 +1,194 @@
+//! The pipeline every mode runs: events → fingerprint windows → localizer →
+//! tracker → planner → outgoing messages.
+//!
+//! It does no I/O and keeps no clock of its own: the daemon, `replay` and the
+//! tests feed it [`Event`]s and send on the [`Message`]s it returns. That keeps
+//! replay as fast as the CPU allows and makes the daemon's behaviour testable
+//! from a log.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use crate::config::Config;
+use crate::locate::tracker::Tracker;
+use crate::locate::window::{Fingerprint, Windows};
+use crate::locate::{self, Localizer};
+use crate::plan::{self, Planner};
+use crate::publish::{
+    ErrorBody, LOCATION_SCHEMA, Location, Message, PATH_SCHEMA, RouteBody, RouteOutcome,
+    RouteReply, Topics, valid_device_id,
+};
+use crate::site::Site;
+use crate::source::{Event, RouteRequest};
+
+/// Counters a gateway reports about its pipeline.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Stats {
+    pub sightings: u64,
+    pub fixes: u64,
+    pub requests: u64,
+    pub routes: u64,
+    pub request_errors: u64,
+    /// Entities whose id cannot be a topic level; their fixes are not published.
+    pub bad_device_ids: u64,
+}
+
+pub struct Pipeline {
+    site: Arc<Site>,
+    windows: Windows,
+    localizer: Box<dyn Localizer>,
+    tracker: Tracker,
+    planner: Box<dyn Planner>,
+    topics: Topics,
+    log_likelihood: Vec<f32>,
+    stats: Stats,
+}
+
+impl Pipeline {
+    /// Builds the pipeline a config describes, on an already loaded site.
+    pub fn new(config: &Config, site: Arc<Site>) -> anyhow::Result<Pipeline> {
+        let localizer = locate::build(&config.localizer, &site, config.window.orientation)?;
+        Ok(Pipeline {
+            windows: Windows::new(config.window.clone(), &site),
+            localizer,
+            tracker: Tracker::new(config.tracker.clone(), site.clone()),
+            planner: plan::build(&config.planner, site.clone()),
+            topics: Topics::new(config.topic_prefix()),
+            log_likelihood: vec![0.0; site.open_cells().len()],
+            site,
+            stats: Stats::default(),
+        })
+    }
+
+    pub fn site(&self) -> &Arc<Site> {
+        &self.site
+    }
+
+    pub fn topics(&self) -> &Topics {
+        &self.topics
+    }
+
+    pub fn stats(&self) -> Stats {
+        self.stats
+    }
+
+    /// Sightings of anchors the site does not know.
+    pub fn unknown_anchor_sightings(&self) -> u64 {
+        self.windows.unknown_anchor_count()
+    }
+
+    /// Number of entities with a track.
+    pub fn tracked(&self) -> usize {
+        self.tracker.len()
+    }
+
+    /// Handles one event, appending what it causes to publish to `out`.
+    pub fn handle(&mut self, event: &Event, out: &mut Vec<Message>) {
+        match event {
+            Event::Advert(sighting) => {
+                self.stats.sightings += 1;
+                if let Some(fp) = self.windows.push(sighting) {
+                    self.fix(&fp, out);
+                }
+            }
+            Event::Request(request) => {
+                let reply = self.route(request);
+                out.push(self.topics.encode_route(&reply));
+            }
+            // Ground truth is for scoring a replay, not for the pipeline.
+            Event::Truth(_) => {}
+        }
+    }
+
+    /// Closes all open windows (end of a replay).
+    pub fn finish(&mut self, out: &mut Vec<Message>) {
+        for fp in self.windows.flush() {
+            self.fix(&fp, out);
+        }
+    }
+
+    fn fix(&mut self, fp: &Fingerprint, out: &mut Vec<Message>) {
+        if fp.heard_count() == 0 {
+            return;
+        }
+        if !valid_device_id(&fp.entity) {
+            self.stats.bad_device_ids += 1;
+            return;
+        }
+        self.localizer
+            .log_likelihood(&fp.rssi, &fp.heard, &mut self.log_likelihood);
+        let fix = self.tracker.update(&fp.entity, fp.t, &self.log_likelihood);
+        self.stats.fixes += 1;
+        let (x_m, y_m) = self.site.metres(fix.cell);
+        let location = Location {
+            schema: LOCATION_SCHEMA,
+            device: fp.entity.to_string(),
+            t: fp.t,
+            cell: fix.cell,
+            label: self.site.label(fix.cell),
+            x_m,
+            y_m,
+            place: self.site.nearest_place(fix.cell, 2.0).map(str::to_owned),
+            confidence: fix.confidence,
+            anchors_heard: fp.heard_count(),
+        };
+        out.push(self.topics.encode_location(&location));
+    }
+
+    /// Plans a route from the device's tracked cell; every failure becomes an
+    /// error reply with a stable code.
+    pub fn route(&mut self, request: &RouteRequest) -> RouteReply {
+        let started = Instant::now();
+        self.stats.requests += 1;
+        let outcome = self.plan_request(request, started);
+        match &outcome {
+            RouteOutcome::Route(_) => self.stats.routes += 1,
+            RouteOutcome::Error { .. } => self.stats.request_errors += 1,
+        }
+        RouteReply {
+            schema: PATH_SCHEMA,
+            device: request.device.clone(),
+            request_id: request.request_id.clone(),
+            t: request.t,
+            outcome,
+        }
+    }
+
+    fn plan_request(&self, request: &RouteRequest, started: Instant) -> RouteOutcome {
+        let error = |code: &'static str, message: String| RouteOutcome::Error {
+            error: ErrorBody { code, message },
+        };
+        if let Some(profile) = &request.profile {
+            return error(
+                "unknown_profile",
+                format!(
+                    "profile `{profile}` is not supported; omit `profile` for the default route"
+                ),
+            );
+        }
+        let Some(fix) = self.tracker.last_fix(&request.device) else {
+            return error(
+                "unknown_device",
+                format!(
+                    "device `{}` has no location yet; a device must be heard before it can ask for a route",
+                    request.device
+                ),
+            );
+        };
+        let to = match request.to.resolve(&self.site) {
+            Ok(cell) => cell,
+            Err(e) => return error(e.code(), e.to_string()),
+        };
+        match self.planner.plan(fix.cell, to) {
+            Ok(route) => RouteOutcome::Route(RouteBody {
+                from: fix.cell,
+                to,
+                planner: self.planner.mode(),
+                length_m: route.length_m(&self.site),
+                waypoints: route.waypoints(&self.site),
+                latency_us: started.elapsed().as_micros() as u64,
+            }),
+            Err(e) => error(e.code(), e.to_string()),
+        }
+    }
+}

@@ -1,0 +1,75 @@
+//! What a planner returns, and the check every returned route must pass.
+
+use serde::Serialize;
+
+use super::Connectivity;
+use crate::site::{Cell, Site};
+
+/// An ordered walk from the first cell to the last.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Route {
+    pub cells: Vec<Cell>,
+}
+
+/// One step of a route as published: the cell and its centre in metres.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Waypoint {
+    pub cell: Cell,
+    pub x_m: f64,
+    pub y_m: f64,
+}
+
+impl Route {
+    /// Length in metres along cell centres.
+    pub fn length_m(&self, site: &Site) -> f64 {
+        self.cells
+            .windows(2)
+            .map(|w| w[0].distance(w[1]))
+            .sum::<f64>()
+            * site.cell_m
+    }
+
+    pub fn waypoints(&self, site: &Site) -> Vec<Waypoint> {
+        self.cells
+            .iter()
+            .map(|&cell| {
+                let (x_m, y_m) = site.metres(cell);
+                Waypoint { cell, x_m, y_m }
+            })
+            .collect()
+    }
+
+    /// Checks that the route is walkable from `from` to `to`: exact endpoints,
+    /// every cell walkable, every step allowed by `connectivity`, no cell twice.
+    pub fn validate(
+        &self,
+        site: &Site,
+        from: Cell,
+        to: Cell,
+        connectivity: Connectivity,
+    ) -> Result<(), String> {
+        let (Some(&first), Some(&last)) = (self.cells.first(), self.cells.last()) else {
+            return Err("the route is empty".into());
+        };
+        if first != from || last != to {
+            return Err(format!(
+                "the route runs {first} → {last}, not {from} → {to}"
+            ));
+        }
+        if let Some(c) = self.cells.iter().find(|&&c| !site.walkable(c)) {
+            return Err(format!("the route crosses {c}, which is not walkable"));
+        }
+        if let Some(w) = self
+            .cells
+            .windows(2)
+            .find(|w| !connectivity.step_ok(site, w[0], w[1]))
+        {
+            return Err(format!("the step {} → {} is not allowed", w[0], w[1]));
+        }
+        let mut seen = std::collections::HashSet::with_capacity(self.cells.len());
+        if let Some(c) = self.cells.iter().find(|&&c| !seen.insert(c)) {
+            return Err(format!("the route visits {c} twice"));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,173 @@
+//! What the gateway publishes, as MQTT topics and JSON payloads. Every sink
+//! (MQTT, `--print` on stdout) sends exactly these messages, so what a test sees
+//! on stdout is what a subscriber gets from the broker.
+//!
+//! Topics under the prefix (default `gangway/<gateway id>`):
+//! - `<prefix>/devices/<device>/location`: a [`Location`] per fix;
+//! - `<prefix>/devices/<device>/path`: a [`RouteReply`] per route request.
+
+use serde::Serialize;
+
+use crate::site::Cell;
+
+/// Payload schema versions, sent in every payload's `schema` field.
+pub const LOCATION_SCHEMA: &str = "gangway.location/1";
+pub const PATH_SCHEMA: &str = "gangway.path/1";
+
+/// One outgoing message.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Message {
+    pub topic: String,
+    pub payload: serde_json::Value,
+    #[serde(skip)]
+    pub retain: bool,
+}
+
+/// A device's position after a fix.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Location {
+    pub schema: &'static str,
+    pub device: String,
+    /// Time of the fix (end of its fingerprint window), seconds.
+    pub t: f64,
+    pub cell: Cell,
+    /// The cell's survey label (`O02`) when the site has a label scheme.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub label: Option<String>,
+    pub x_m: f64,
+    pub y_m: f64,
+    /// The nearest named place within two cells.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub place: Option<String>,
+    /// Posterior probability of `cell`.
+    pub confidence: f32,
+    /// How many anchors were heard in the window.
+    pub anchors_heard: usize,
+}
+
+/// The answer to a route request: a route or an error, never both.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RouteReply {
+    pub schema: &'static str,
+    pub device: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub request_id: Option<String>,
+    pub t: f64,
+    #[serde(flatten)]
+    pub outcome: RouteOutcome,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum RouteOutcome {
+    Route(RouteBody),
+    Error { error: ErrorBody },
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RouteBody {
+    pub from: Cell,
+    pub to: Cell,
+    pub planner: &'static str,
+    pub waypoints: Vec<crate::plan::Waypoint>,
+    pub length_m: f64,
+    /// Time from request to route, microseconds.
+    pub latency_us: u64,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ErrorBody {
+    /// Stable code: `unknown_place`, `off_map`, `blocked_cell`, `unreachable`,
+    /// `unknown_device`, `unknown_profile`.
+    pub code: &'static str,
+    pub message: String,
+}
+
+/// Topic names under one prefix.
+#[derive(Clone, Debug)]
+pub struct Topics {
+    prefix: String,
+}
+
+impl Topics {
+    pub fn new(prefix: impl Into<String>) -> Self {
+        Topics {
+            prefix: prefix.into(),
+        }
+    }
+
+    pub fn prefix(&self) -> &str {
+        &self.prefix
+    }
+
+    pub fn location(&self, device: &str) -> String {
+        format!("{}/devices/{device}/location", self.prefix)
+    }
+
+    pub fn path(&self, device: &str) -> String {
+        format!("{}/devices/{device}/path", self.prefix)
+    }
+
+    pub fn encode_location(&self, location: &Location) -> Message {
+        Message {
+            topic: self.location(&location.device),
+            payload: serde_json::to_value(location).expect("plain data serializes"),
+            retain: false,
+        }
+    }
+
+    pub fn encode_route(&self, reply: &RouteReply) -> Message {
+        Message {
+            topic: self.path(&reply.device),
+            payload: serde_json::to_value(reply).expect("plain data serializes"),
+            retain: false,
+        }
+    }
+}
+
+/// Whether a device id can stand as one MQTT topic level: non-empty, at most 128
+/// bytes, and free of `+`, `#`, `/` and control characters.
+pub fn valid_device_id(id: &str) -> bool {
+    !id.is_empty()
+        && id.len() <= 128
+        && !id
+            .chars()
+            .any(|c| matches!(c, '+' | '#' | '/') || c.is_control())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn device_ids_that_break_topics_are_refused() {
+        assert!(valid_device_id("phone-7"));
+        assert!(valid_device_id(
+            "5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84-1-3001"
+        ));
+        for bad in ["", "a/b", "a+", "#", "tab\there", &"x".repeat(129)] {
+            assert!(!valid_device_id(bad), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn an_error_reply_has_an_error_object_and_no_route() {
+        let reply = RouteReply {
+            schema: PATH_SCHEMA,
+            device: "d".into(),
+            request_id: Some("r1".into()),
+            t: 1.0,
+            outcome: RouteOutcome::Error {
+                error: ErrorBody {
+                    code: "unknown_place",
+                    message: "unknown place `x`".into(),
+                },
+            },
+        };
+        let msg = Topics::new("gangway/gw").encode_route(&reply);
+        assert_eq!(msg.topic, "gangway/gw/devices/d/path");
+        assert_eq!(msg.payload["error"]["code"], "unknown_place");
+        assert_eq!(msg.payload["request_id"], "r1");
+        assert!(msg.payload.get("waypoints").is_none());
+    }
+}

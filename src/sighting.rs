@@ -1,0 +1,43 @@
+//! What every source produces and every later stage consumes: one radio sighting.
+//!
+//! A sighting is "observer `o` heard advertiser `a` at `rssi` dBm at time `t`".
+//! It is deliberately orientation-free: when a phone or robot localizes itself the
+//! observer is the entity and the beacons are the anchors; when a fleet of gateways
+//! localizes tags, the advertiser is the entity and the gateways are the anchors.
+//! The fingerprint windows (`locate::window`) pick the orientation, not the sources.
+
+use std::fmt;
+use std::sync::Arc;
+
+use serde::{Deserialize, Serialize};
+use uuid::Uuid;
+
+/// An iBeacon's identity: proximity UUID plus major and minor.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct BeaconId {
+    pub uuid: Uuid,
+    pub major: u16,
+    pub minor: u16,
+}
+
+impl fmt::Display for BeaconId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}/{}/{}", self.uuid, self.major, self.minor)
+    }
+}
+
+/// One advert heard by one observer.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Sighting {
+    /// Seconds since the Unix epoch (or since the start of a simulated log).
+    pub t: f64,
+    /// Who heard it: a gateway id, or the id of the phone/robot that scanned.
+    /// Shared because one observer produces many sightings.
+    pub observer: Arc<str>,
+    /// Who was heard.
+    pub advertiser: BeaconId,
+    /// The beacon's calibrated RSSI at 1 m ("measured power"), when it sent one.
+    pub tx_power: Option<i8>,
+    /// Received signal strength in dBm.
+    pub rssi: i16,
+}
