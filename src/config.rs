@@ -67,6 +67,9 @@ impl Config {
         })?;
         let base = path.parent().unwrap_or(Path::new("."));
         config.site = base.join(&config.site);
+        if let Some(survey) = &mut config.localizer.knn.survey {
+            *survey = base.join(&*survey);
+        }
         config.validate().map_err(|message| ConfigError::Invalid {
             path: path.to_owned(),
             message,
@@ -87,6 +90,9 @@ impl Config {
         }
         if !(self.tracker.max_speed_mps > 0.0) {
             return Err("[tracker] `max_speed_mps` must be positive".into());
+        }
+        if !(0.0..=1.0).contains(&self.tracker.stay_probability) {
+            return Err("[tracker] `stay_probability` must be between 0 and 1".into());
         }
         Ok(())
     }

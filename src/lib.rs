@@ -17,6 +17,7 @@
 pub mod cli;
 pub mod config;
 pub mod daemon;
+pub mod eval;
 pub mod locate;
 pub mod mqtt;
 pub mod pipeline;

@@ -47,7 +47,7 @@ pub struct Pipeline {
 impl Pipeline {
     /// Builds the pipeline a config describes, on an already loaded site.
     pub fn new(config: &Config, site: Arc<Site>) -> anyhow::Result<Pipeline> {
-        let localizer = locate::build(&config.localizer, &site, config.window.orientation)?;
+        let localizer = locate::build(&config.localizer, &site, &config.window)?;
         Ok(Pipeline {
             windows: Windows::new(config.window.clone(), &site),
             localizer,

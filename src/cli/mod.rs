@@ -3,6 +3,7 @@
 //! is in the library modules.
 
 mod check;
+mod eval;
 mod plan;
 mod record;
 mod replay;
@@ -39,8 +40,8 @@ enum Command {
     Plan(plan::Args),
     /// Train path and localization models (not built yet).
     Train(NotBuilt),
-    /// Evaluate localization or planning (not built yet).
-    Eval(NotBuilt),
+    /// Evaluate localization on a labelled survey.
+    Eval(eval::Args),
 }
 
 /// Arguments of a subcommand that does not exist yet.
@@ -65,9 +66,7 @@ impl Cli {
             Command::Check(args) => check::run(args),
             Command::Plan(args) => plan::run(args),
             Command::Train(_) => not_built("train", "the path-model training issue"),
-            Command::Eval(_) => {
-                not_built("eval", "the localization and planning evaluation issues")
-            }
+            Command::Eval(args) => eval::run(args),
         }
     }
 }

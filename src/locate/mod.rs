@@ -6,6 +6,7 @@
 //!   with motion);
 //! - [`tracker`] keeps a belief per entity that respects walls and walking speed.
 
+pub mod knn;
 pub mod pathloss;
 pub mod survey;
 pub mod tracker;
@@ -25,7 +26,7 @@ pub trait Localizer: Send + Sync {
     /// Writes into `out` (one slot per cell of `Site::open_cells`) the
     /// log-likelihood, up to an additive constant, of hearing `rssi` (with the
     /// anchors flagged in `heard`) at each cell.
-    fn log_likelihood(&self, rssi: &[f32], heard: &[bool], out: &mut [f32]);
+    fn log_likelihood(&mut self, rssi: &[f32], heard: &[bool], out: &mut [f32]);
 }
 
 /// `[localizer]` in the gateway config.
@@ -37,14 +38,28 @@ pub struct LocalizerConfig {
     /// `[localizer.pathloss]`: the radio model.
     #[serde(default)]
     pub pathloss: pathloss::PathLossConfig,
+    /// `[localizer.knn]`: the survey and the vote.
+    #[serde(default)]
+    pub knn: knn::KnnConfig,
 }
 
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Method {
     /// Log-distance path loss from the anchors' positions; needs no survey.
     #[default]
     Pathloss,
+    /// Weighted k-nearest neighbours over a survey.
+    Knn,
+}
+
+impl Method {
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Pathloss => "pathloss",
+            Method::Knn => "knn",
+        }
+    }
 }
 
 /// Why a localizer could not be built.
@@ -55,19 +70,35 @@ pub enum LocalizerError {
          `cell`; add `cell = [x, y]` to the site's beacons or gateways"
     )]
     NoAnchorPositions,
+    #[error("the knn localizer needs a survey: set `survey` in [localizer.knn]")]
+    NoSurvey,
+    #[error("the survey has no rows to learn from")]
+    EmptySurvey,
+    #[error(
+        "the survey has readings at {0}, which the site map blocks; open that cell or fix the survey"
+    )]
+    SurveyOnBlockedCell(crate::site::Cell),
+    #[error(transparent)]
+    Survey(#[from] survey::SurveyError),
 }
 
-/// Builds the configured localizer for a site and window orientation.
+/// Builds the configured localizer for a site and the windows that feed it.
 pub fn build(
     config: &LocalizerConfig,
     site: &Arc<Site>,
-    orientation: window::Orientation,
+    windows: &window::WindowConfig,
 ) -> Result<Box<dyn Localizer>, LocalizerError> {
-    match config.method {
-        Method::Pathloss => Ok(Box::new(pathloss::PathLoss::new(
+    Ok(match config.method {
+        Method::Pathloss => Box::new(pathloss::PathLoss::new(
             &config.pathloss,
             site,
-            orientation,
-        )?)),
-    }
+            windows.orientation,
+        )?),
+        Method::Knn => Box::new(knn::Knn::load(
+            &config.knn,
+            site,
+            &window::anchor_ids(site, windows.orientation),
+            windows.missing_dbm,
+        )?),
+    })
 }

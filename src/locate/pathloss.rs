@@ -130,7 +130,7 @@ impl Localizer for PathLoss {
         "pathloss"
     }
 
-    fn log_likelihood(&self, rssi: &[f32], heard: &[bool], out: &mut [f32]) {
+    fn log_likelihood(&mut self, rssi: &[f32], heard: &[bool], out: &mut [f32]) {
         debug_assert_eq!(rssi.len(), self.n_anchors);
         debug_assert_eq!(out.len(), self.n_cells);
         let rows = self.expected.chunks_exact(self.n_anchors);
@@ -205,7 +205,7 @@ minor = 2
 cell = [9, 0]
 "#;
         let site = Arc::new(Site::parse(text, Path::new("t.toml")).unwrap());
-        let model =
+        let mut model =
             PathLoss::new(&PathLossConfig::default(), &site, Orientation::Observer).unwrap();
         let config = PathLossConfig::default();
         // Standing at x = 2: west at 2 m, east at 7 m.

@@ -23,6 +23,9 @@ pub struct TrackerConfig {
     pub kind: TrackerKind,
     /// Fastest plausible walking speed, metres per second.
     pub max_speed_mps: f64,
+    /// Probability of staying in the cell in each step of the motion model;
+    /// the rest is shared equally by the allowed moves. People pause often.
+    pub stay_probability: f32,
     /// Weight of the localizer's log-likelihood against the motion prior; below
     /// 1 when the localizer is over-confident (anchors are not independent).
     pub likelihood_weight: f32,
@@ -31,6 +34,19 @@ pub struct TrackerConfig {
     pub recovery: f32,
     /// Gaps longer than this (seconds) restart the track from the likelihood.
     pub reset_after_s: f64,
+    /// Which cell of the belief is reported.
+    pub estimate: Estimate,
+}
+
+/// How a belief becomes one reported cell.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Estimate {
+    /// The most probable cell.
+    Mode,
+    /// The cell with the least expected distance to the true one: fewer exact
+    /// hits than `mode` when the belief is split, but smaller errors.
+    Median,
 }
 
 impl Default for TrackerConfig {
@@ -38,14 +54,16 @@ impl Default for TrackerConfig {
         TrackerConfig {
             kind: TrackerKind::Hmm,
             max_speed_mps: 1.5,
+            stay_probability: 0.9,
             likelihood_weight: 1.0,
             recovery: 1e-3,
             reset_after_s: 30.0,
+            estimate: Estimate::Median,
         }
     }
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum TrackerKind {
     None,
@@ -70,7 +88,7 @@ struct Track {
 pub struct Tracker {
     config: TrackerConfig,
     site: Arc<Site>,
-    /// For each open cell: itself and the open cells one allowed step away.
+    /// For each open cell: itself first, then the open cells one allowed step away.
     neighbours: Vec<Vec<u32>>,
     tracks: HashMap<Arc<str>, Track>,
     scratch: Vec<f32>,
@@ -124,84 +142,118 @@ impl Tracker {
     /// Folds one window's log-likelihoods (one per open cell) into the entity's
     /// track and returns the new fix.
     pub fn update(&mut self, entity: &Arc<str>, t: f64, log_likelihood: &[f32]) -> Fix {
-        let n = log_likelihood.len();
         let weight = self.config.likelihood_weight;
         let max_ll = log_likelihood
             .iter()
             .copied()
             .fold(f32::NEG_INFINITY, f32::max);
-        let likelihood = log_likelihood
-            .iter()
-            .map(|&ll| ((ll - max_ll) * weight).exp());
+        let likelihood = |i: usize| ((log_likelihood[i] - max_ll) * weight).exp();
 
-        let track = self.tracks.get_mut(entity);
-        let restart = match &track {
-            None => true,
-            Some(track) => {
-                self.config.kind == TrackerKind::None
-                    || !(0.0..=self.config.reset_after_s).contains(&(t - track.t))
-            }
-        };
-        let belief = if restart {
-            let mut belief: Vec<f32> = likelihood.collect();
-            normalize(&mut belief);
-            let track = self.tracks.entry(entity.clone()).or_insert_with(|| Track {
-                t,
-                belief: Vec::new(),
-                fix: Fix {
-                    cell: Cell::new(0, 0),
-                    confidence: 0.0,
-                },
-            });
-            track.belief = belief;
-            track
-        } else {
-            let track = track.expect("not a restart");
+        let continues = self.config.kind == TrackerKind::Hmm
+            && self
+                .tracks
+                .get(entity)
+                .is_some_and(|track| (0.0..=self.config.reset_after_s).contains(&(t - track.t)));
+        let track = self.tracks.entry(entity.clone()).or_insert_with(|| Track {
+            t,
+            belief: Vec::new(),
+            fix: Fix {
+                cell: Cell::new(0, 0),
+                confidence: 0.0,
+            },
+        });
+        let mut fused = false;
+        if continues {
+            // Predict: spread the belief as far as one can walk in the gap.
             let reach = self.config.max_speed_mps * (t - track.t) / self.site.cell_m;
-            let steps = reach.ceil().max(1.0) as usize;
-            for _ in 0..steps {
-                spread(&self.neighbours, &track.belief, &mut self.scratch);
+            for _ in 0..(reach.ceil() as usize).max(1) {
+                spread(
+                    &self.neighbours,
+                    self.config.stay_probability,
+                    &track.belief,
+                    &mut self.scratch,
+                );
                 std::mem::swap(&mut track.belief, &mut self.scratch);
             }
-            let floor = self.config.recovery / n as f32;
-            for (b, l) in track.belief.iter_mut().zip(likelihood) {
-                *b = (*b * (1.0 - self.config.recovery) + floor) * l;
+            // Update with the evidence.
+            let floor = self.config.recovery / track.belief.len() as f32;
+            for (i, b) in track.belief.iter_mut().enumerate() {
+                *b = (*b * (1.0 - self.config.recovery) + floor) * likelihood(i);
             }
-            if !normalize(&mut track.belief) {
-                // The evidence contradicts the prior everywhere: trust the evidence.
-                track.belief.clear();
-                track.belief.extend(
-                    log_likelihood
-                        .iter()
-                        .map(|&ll| ((ll - max_ll) * weight).exp()),
-                );
-                normalize(&mut track.belief);
-            }
+            fused = normalize(&mut track.belief);
+        }
+        if !fused {
+            // A new track, a long gap, or evidence that contradicts the prior
+            // everywhere: start from the evidence alone.
+            track.belief.clear();
             track
+                .belief
+                .extend((0..log_likelihood.len()).map(likelihood));
+            normalize(&mut track.belief);
+        }
+        track.t = t;
+        let best = match self.config.estimate {
+            Estimate::Mode => argmax(&track.belief),
+            Estimate::Median => spatial_median(self.site.open_cells(), &track.belief),
         };
-        belief.t = t;
-        let (best, &p) = belief
-            .belief
-            .iter()
-            .enumerate()
-            .max_by(|a, b| a.1.total_cmp(b.1))
-            .expect("a site has at least one walkable cell");
-        belief.fix = Fix {
+        track.fix = Fix {
             cell: self.site.open_cells()[best],
-            confidence: p,
+            confidence: track.belief[best],
         };
-        belief.fix
+        track.fix
     }
 }
 
-/// One step of the lazy random walk: each cell keeps a share of its mass and
-/// passes equal shares to each allowed neighbour.
-fn spread(neighbours: &[Vec<u32>], from: &[f32], to: &mut Vec<f32>) {
+fn argmax(v: &[f32]) -> usize {
+    v.iter()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(b.1))
+        .map_or(0, |(i, _)| i)
+}
+
+/// The cell with the least expected distance to where the entity is under the
+/// belief. Cells holding under 0.1% of the peak are left out of the sum, and
+/// only the most probable cells are candidates: the answer lies among them in
+/// practice, and this keeps a diffuse belief from costing O(cells²).
+fn spatial_median(cells: &[Cell], belief: &[f32]) -> usize {
+    const CANDIDATES: usize = 24;
+    let peak = belief.iter().copied().fold(0.0, f32::max);
+    let support: Vec<usize> = (0..belief.len())
+        .filter(|&i| belief[i] >= peak * 1e-3)
+        .collect();
+    let mut candidates = support.clone();
+    if candidates.len() > CANDIDATES {
+        candidates.select_nth_unstable_by(CANDIDATES - 1, |&a, &b| belief[b].total_cmp(&belief[a]));
+        candidates.truncate(CANDIDATES);
+    }
+    candidates
+        .iter()
+        .map(|&c| {
+            let cost: f64 = support
+                .iter()
+                .map(|&j| f64::from(belief[j]) * cells[c].distance(cells[j]))
+                .sum();
+            (c, cost)
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
+        .map_or(0, |(c, _)| c)
+}
+
+/// One step of the lazy random walk: each cell keeps `stay` of its mass and
+/// passes equal shares of the rest to each allowed neighbour.
+fn spread(neighbours: &[Vec<u32>], stay: f32, from: &[f32], to: &mut Vec<f32>) {
     to.clear();
     to.resize(from.len(), 0.0);
     for (i, n) in neighbours.iter().enumerate() {
-        let share = from[i] / n.len() as f32;
-        for &j in n {
+        // n[0] is the cell itself.
+        let moves = &n[1..];
+        if moves.is_empty() {
+            to[i] += from[i];
+            continue;
+        }
+        to[i] += from[i] * stay;
+        let share = from[i] * (1.0 - stay) / moves.len() as f32;
+        for &j in moves {
             to[j as usize] += share;
         }
     }
@@ -255,6 +307,7 @@ mod tests {
         let site = site();
         let config = TrackerConfig {
             kind: TrackerKind::None,
+            estimate: Estimate::Mode,
             ..TrackerConfig::default()
         };
         let mut tracker = Tracker::new(config, site.clone());

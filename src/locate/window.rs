@@ -65,6 +65,15 @@ pub enum Orientation {
     Advertiser,
 }
 
+/// The ids of the site's anchors in `orientation`, in the order of every
+/// fingerprint vector: beacon ids, or gateway ids.
+pub fn anchor_ids(site: &Site, orientation: Orientation) -> Vec<String> {
+    match orientation {
+        Orientation::Observer => site.beacons.iter().map(|b| b.id.clone()).collect(),
+        Orientation::Advertiser => site.gateways.iter().map(|g| g.id.clone()).collect(),
+    }
+}
+
 /// One aggregated window for one entity.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Fingerprint {

@@ -73,7 +73,7 @@ pub struct LogReader<R> {
     input: R,
     path: PathBuf,
     line_no: u64,
-    buf: String,
+    buf: Vec<u8>,
     skip_bad: bool,
     skipped: u64,
     /// Observers repeat on every line; sharing one `Arc<str>` per observer keeps
@@ -104,7 +104,7 @@ impl<R: BufRead> LogReader<R> {
             input,
             path: path.to_owned(),
             line_no: 0,
-            buf: String::new(),
+            buf: Vec::new(),
             skip_bad,
             skipped: 0,
             observers: HashMap::new(),
@@ -125,7 +125,9 @@ impl<R: BufRead> LogReader<R> {
     }
 
     fn parse_line(&mut self) -> Result<Option<Event>, String> {
-        let text = self.buf.trim();
+        let text = std::str::from_utf8(&self.buf)
+            .map_err(|e| format!("the line is not UTF-8 text ({e})"))?
+            .trim();
         if text.is_empty() {
             return Ok(None);
         }
@@ -187,7 +189,7 @@ impl<R: BufRead> Iterator for LogReader<R> {
         loop {
             self.buf.clear();
             self.line_no += 1;
-            match self.input.read_line(&mut self.buf) {
+            match self.input.read_until(b'\n', &mut self.buf) {
                 Ok(0) => return None,
                 Ok(_) => {}
                 Err(e) => return Some(Err(self.error(format!("cannot read: {e}")))),
@@ -251,5 +253,64 @@ impl<W: Write> LogWriter<W> {
 
     pub fn flush(&mut self) -> io::Result<()> {
         self.out.flush()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn read(text: &[u8], skip_bad: bool) -> (Vec<Result<Event, LogError>>, u64) {
+        let mut reader = LogReader::new(text, Path::new("t.jsonl"), skip_bad);
+        let events = reader.by_ref().collect();
+        (events, reader.skipped())
+    }
+
+    const ADVERT: &str = r#"{"t":1.5,"type":"advert","observer":"gw","uuid":"5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84","major":1,"minor":2,"rssi":-70,"tx_power":-59}"#;
+
+    #[test]
+    fn round_trips_every_event_type() {
+        let text = format!(
+            "{ADVERT}\n\n{}\n{}\n",
+            r#"{"t":2,"type":"request","device":"p","to":[3,4],"request_id":"r"}"#,
+            r#"{"t":3,"type":"truth","device":"p","cell":[1,2]}"#
+        );
+        let (events, _) = read(text.as_bytes(), false);
+        let events: Vec<Event> = events.into_iter().map(Result::unwrap).collect();
+        assert_eq!(events.len(), 3, "blank lines are ignored");
+        let mut out = Vec::new();
+        let mut writer = LogWriter::new(&mut out);
+        for e in &events {
+            writer.write(e).unwrap();
+        }
+        let (again, _) = read(&out, false);
+        assert_eq!(
+            again.into_iter().map(Result::unwrap).collect::<Vec<_>>(),
+            events
+        );
+    }
+
+    #[test]
+    fn bad_lines_are_named_or_skipped_and_counted() {
+        let mut bytes = format!("{ADVERT}\nnot json\n").into_bytes();
+        bytes.extend_from_slice(b"\xff\xfe\n"); // not UTF-8
+        bytes.extend_from_slice(format!("{ADVERT}\n{{\"t\":1,\"type\":\"dance\"}}\n").as_bytes());
+        let (events, _) = read(&bytes, false);
+        assert!(events[0].is_ok());
+        let err = events[1].as_ref().unwrap_err().to_string();
+        assert!(err.starts_with("t.jsonl:2: expected ident"), "{err}");
+
+        let (events, skipped) = read(&bytes, true);
+        assert_eq!(events.iter().filter(|e| e.is_ok()).count(), 2);
+        assert_eq!(skipped, 3);
+    }
+
+    #[test]
+    fn a_line_cut_short_is_an_error_with_its_number() {
+        let text = format!("{ADVERT}\n{}", &ADVERT[..40]);
+        let (events, _) = read(text.as_bytes(), false);
+        let err = events[1].as_ref().unwrap_err();
+        assert_eq!(err.line, 2);
+        assert!(err.reason.contains("EOF"), "{}", err.reason);
     }
 }

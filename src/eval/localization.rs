@@ -1,0 +1,204 @@
+//! Localization on a labelled survey: split the rows, build the localizer from
+//! the training part, locate every held-out row (through the tracker, in time
+//! order, when one is used) and compare with the label.
+//!
+//! Two splits, 70/30, averaged over seeds:
+//! - `random`: by row. Neighbouring rows of the same walk are nearly identical,
+//!   so this leaks: a held-out row usually has a twin in training.
+//! - `session`: by whole walking sessions (a gap over 20 s starts a new one), the
+//!   honest protocol: it is what a new visitor meets.
+//!
+//! In both, the held-out rows of one session form one sequence for the tracker,
+//! in time order. Errors are Euclidean distances between cell centres, in cells.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use rand::SeedableRng;
+use rand::rngs::Xoshiro256PlusPlus;
+use rand::seq::SliceRandom;
+use serde::Serialize;
+
+use crate::locate::knn::Knn;
+use crate::locate::pathloss::PathLoss;
+use crate::locate::survey::{Sample, Survey};
+use crate::locate::tracker::TrackerConfig;
+use crate::locate::tracker::{Tracker, TrackerKind};
+use crate::locate::window::WindowConfig;
+use crate::locate::{Localizer, LocalizerConfig, LocalizerError, Method};
+use crate::site::Site;
+
+/// A gap longer than this (seconds) between survey rows starts a new session.
+pub const SESSION_GAP_S: f64 = 20.0;
+
+/// Share of rows (random) or sessions (session) held out for testing.
+const TEST_SHARE: f64 = 0.3;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Split {
+    Random,
+    Session,
+}
+
+/// What to evaluate.
+#[derive(Clone, Debug)]
+pub struct Setup {
+    pub split: Split,
+    pub seeds: u64,
+    pub method: Method,
+    pub localizer: LocalizerConfig,
+    pub window: WindowConfig,
+    pub tracker: TrackerConfig,
+}
+
+/// The figures, averaged over seeds. Serialized with exactly these keys.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Metrics {
+    pub exact: f64,
+    pub within_1: f64,
+    pub within_2: f64,
+    pub mean_error_cells: f64,
+    pub mean_error_m: f64,
+    pub p90_error_cells: f64,
+    pub us_per_fix: f64,
+}
+
+/// Metrics plus every error (all seeds), for plotting.
+pub struct Outcome {
+    pub metrics: Metrics,
+    pub errors: Vec<f64>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error("the survey has no time column; sessions and tracking need `date` or `t`")]
+    NoTime,
+    #[error("too few rows or sessions to split 70/30")]
+    TooSmall,
+    #[error(transparent)]
+    Localizer(#[from] LocalizerError),
+}
+
+pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outcome, EvalError> {
+    let needs_time = setup.split == Split::Session || setup.tracker.kind == TrackerKind::Hmm;
+    let times: Vec<f64> = if needs_time {
+        survey
+            .samples
+            .iter()
+            .map(|s| s.t.ok_or(EvalError::NoTime))
+            .collect::<Result<_, _>>()?
+    } else {
+        (0..survey.samples.len()).map(|i| i as f64).collect()
+    };
+    // Rows in time order (the UCI file is newest first), with their sessions.
+    let mut order: Vec<usize> = (0..survey.samples.len()).collect();
+    order.sort_by(|&a, &b| times[a].total_cmp(&times[b]));
+    let mut session = vec![0usize; survey.samples.len()];
+    for w in order.windows(2) {
+        session[w[1]] = session[w[0]] + usize::from(times[w[1]] - times[w[0]] > SESSION_GAP_S);
+    }
+    let sessions = order.last().map_or(0, |&i| session[i] + 1);
+
+    let mut per_seed = Vec::new();
+    let mut errors = Vec::new();
+    for seed in 0..setup.seeds {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+        let test: Vec<bool> = match setup.split {
+            Split::Random => {
+                let mut rows: Vec<usize> = (0..survey.samples.len()).collect();
+                rows.shuffle(&mut rng);
+                let n_test = (rows.len() as f64 * TEST_SHARE).round() as usize;
+                let mut test = vec![false; rows.len()];
+                rows[..n_test].iter().for_each(|&r| test[r] = true);
+                test
+            }
+            Split::Session => {
+                let mut ids: Vec<usize> = (0..sessions).collect();
+                ids.shuffle(&mut rng);
+                let n_test = (sessions as f64 * TEST_SHARE).round() as usize;
+                let held: Vec<bool> = (0..sessions).map(|s| ids[..n_test].contains(&s)).collect();
+                session.iter().map(|&s| held[s]).collect()
+            }
+        };
+        let train: Vec<&Sample> = (0..survey.samples.len())
+            .filter(|&i| !test[i])
+            .map(|i| &survey.samples[i])
+            .collect();
+        if train.is_empty() || test.iter().all(|t| !t) {
+            return Err(EvalError::TooSmall);
+        }
+        let mut localizer: Box<dyn Localizer> = match setup.method {
+            Method::Knn => Box::new(Knn::new(
+                &setup.localizer.knn,
+                site,
+                &train,
+                setup.window.missing_dbm,
+            )?),
+            Method::Pathloss => Box::new(PathLoss::new(
+                &setup.localizer.pathloss,
+                site,
+                setup.window.orientation,
+            )?),
+        };
+        let mut tracker = Tracker::new(setup.tracker.clone(), site.clone());
+        let entities: Vec<Arc<str>> = (0..sessions)
+            .map(|s| Arc::from(format!("session-{s}")))
+            .collect();
+        let mut ll = vec![0.0f32; site.open_cells().len()];
+        let mut rssi = vec![0.0f32; survey.anchors.len()];
+        let mut heard = vec![false; survey.anchors.len()];
+        let mut seed_errors = Vec::new();
+        let started = Instant::now();
+        for &row in order.iter().filter(|&&r| test[r]) {
+            let sample = &survey.samples[row];
+            for (a, r) in sample.rssi.iter().enumerate() {
+                heard[a] = r.is_some();
+                rssi[a] = r.map_or(setup.window.missing_dbm, f32::from);
+            }
+            localizer.log_likelihood(&rssi, &heard, &mut ll);
+            let fix = tracker.update(&entities[session[row]], times[row], &ll);
+            seed_errors.push(fix.cell.distance(sample.cell));
+        }
+        let us_per_fix = started.elapsed().as_secs_f64() * 1e6 / seed_errors.len() as f64;
+        per_seed.push(metrics(&seed_errors, site.cell_m, us_per_fix));
+        errors.extend(seed_errors);
+    }
+    Ok(Outcome {
+        metrics: average(&per_seed),
+        errors,
+    })
+}
+
+fn metrics(errors: &[f64], cell_m: f64, us_per_fix: f64) -> Metrics {
+    let n = errors.len() as f64;
+    let share = |max: f64| errors.iter().filter(|&&e| e <= max + 1e-9).count() as f64 / n;
+    let mean = errors.iter().sum::<f64>() / n;
+    let mut sorted = errors.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let p90 = sorted[((n * 0.9).ceil() as usize)
+        .saturating_sub(1)
+        .min(sorted.len() - 1)];
+    Metrics {
+        exact: share(0.0),
+        within_1: share(1.0),
+        within_2: share(2.0),
+        mean_error_cells: mean,
+        mean_error_m: mean * cell_m,
+        p90_error_cells: p90,
+        us_per_fix,
+    }
+}
+
+fn average(all: &[Metrics]) -> Metrics {
+    let n = all.len() as f64;
+    let mean = |f: fn(&Metrics) -> f64| all.iter().map(f).sum::<f64>() / n;
+    Metrics {
+        exact: mean(|m| m.exact),
+        within_1: mean(|m| m.within_1),
+        within_2: mean(|m| m.within_2),
+        mean_error_cells: mean(|m| m.mean_error_cells),
+        mean_error_m: mean(|m| m.mean_error_m),
+        p90_error_cells: mean(|m| m.p90_error_cells),
+        us_per_fix: mean(|m| m.us_per_fix),
+    }
+}

@@ -1,0 +1,7 @@
+//! Offline evaluation: how well the stages do on labelled data, measured the
+//! same way every time so that figures in notes and CI can be rerun.
+
+pub mod localization;
+mod plot;
+
+pub use plot::error_cdf_svg;

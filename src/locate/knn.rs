@@ -1,0 +1,158 @@
+//! Weighted k-nearest-neighbour fingerprinting over a site survey.
+//!
+//! Each survey row is a fingerprint with a known cell. For a new fingerprint the
+//! `k` rows nearest in signal space (L1 distance in dB, anchors not heard filled
+//! with `[window] missing_dbm`) vote for their cells with a kernel weight
+//! `exp(−d / bandwidth_db)`. A cell's vote is divided by how many rows the
+//! survey has there, which turns votes into a class-conditional likelihood
+//! (otherwise densely surveyed cells would win twice, once here and once in the
+//! tracker's prior). Walkable cells the survey never visited get a small floor,
+//! so the tracker can still pass through them.
+//!
+//! L1 rather than L2: with one to three anchors heard per scan, most of the
+//! distance is "heard here, not there" steps of ~40 dB, and L1 ranks those
+//! mismatches more evenly than L2 (measured on the UCI survey: within-2 0.70 vs
+//! 0.69, mean error 1.47 vs 1.51 cells, random split, before tracking).
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use serde::Deserialize;
+
+use super::survey::Survey;
+use super::{Localizer, LocalizerError};
+use crate::site::Site;
+
+/// `[localizer.knn]` in the gateway config.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct KnnConfig {
+    /// The survey CSV (see `locate::survey` for the layouts read).
+    pub survey: Option<PathBuf>,
+    /// Neighbours that vote.
+    pub k: usize,
+    /// Kernel width in dB of L1 distance.
+    pub bandwidth_db: f32,
+    /// The survey's "not heard" value.
+    pub not_heard: i16,
+}
+
+impl Default for KnnConfig {
+    fn default() -> Self {
+        KnnConfig {
+            survey: None,
+            k: 30,
+            bandwidth_db: 1.5,
+            not_heard: -200,
+        }
+    }
+}
+
+/// Relative likelihood given to walkable cells with no vote.
+const FLOOR: f32 = 1e-3;
+
+pub struct Knn {
+    n_anchors: usize,
+    /// Survey fingerprints, row-major `[row][anchor]`.
+    rows: Vec<f32>,
+    /// Open-cell index of each row.
+    row_cell: Vec<u32>,
+    /// 1 / (rows surveyed in the cell), per open cell; 0 where none.
+    inv_count: Vec<f32>,
+    k: usize,
+    inv_bandwidth: f32,
+    /// (distance, row) of every row, reused between calls.
+    distances: Vec<(f32, u32)>,
+    votes: Vec<f32>,
+}
+
+impl Knn {
+    /// Builds from survey rows (any subset, e.g. a training split).
+    pub fn new(
+        config: &KnnConfig,
+        site: &Arc<Site>,
+        samples: &[&super::survey::Sample],
+        missing_dbm: f32,
+    ) -> Result<Self, LocalizerError> {
+        if samples.is_empty() {
+            return Err(LocalizerError::EmptySurvey);
+        }
+        let n_anchors = samples[0].rssi.len();
+        let n_cells = site.open_cells().len();
+        let mut rows = Vec::with_capacity(samples.len() * n_anchors);
+        let mut row_cell = Vec::with_capacity(samples.len());
+        let mut count = vec![0u32; n_cells];
+        for s in samples {
+            let Some(cell) = site.open_index(s.cell) else {
+                return Err(LocalizerError::SurveyOnBlockedCell(s.cell));
+            };
+            rows.extend(s.rssi.iter().map(|r| r.map_or(missing_dbm, f32::from)));
+            row_cell.push(cell as u32);
+            count[cell] += 1;
+        }
+        Ok(Knn {
+            n_anchors,
+            rows,
+            row_cell,
+            inv_count: count
+                .iter()
+                .map(|&c| if c == 0 { 0.0 } else { 1.0 / c as f32 })
+                .collect(),
+            k: config.k.max(1),
+            inv_bandwidth: 1.0 / config.bandwidth_db.max(1e-3),
+            distances: Vec::with_capacity(samples.len()),
+            votes: vec![0.0; n_cells],
+        })
+    }
+
+    /// Loads the configured survey and builds from all of it.
+    pub fn load(
+        config: &KnnConfig,
+        site: &Arc<Site>,
+        anchors: &[String],
+        missing_dbm: f32,
+    ) -> Result<Self, LocalizerError> {
+        let path = config.survey.as_ref().ok_or(LocalizerError::NoSurvey)?;
+        let survey = Survey::load(path, site, anchors, config.not_heard)?;
+        let samples: Vec<_> = survey.samples.iter().collect();
+        Knn::new(config, site, &samples, missing_dbm)
+    }
+}
+
+impl Localizer for Knn {
+    fn method(&self) -> &'static str {
+        "knn"
+    }
+
+    fn log_likelihood(&mut self, rssi: &[f32], _heard: &[bool], out: &mut [f32]) {
+        debug_assert_eq!(rssi.len(), self.n_anchors);
+        self.distances.clear();
+        for (i, row) in self.rows.chunks_exact(self.n_anchors).enumerate() {
+            let d: f32 = row.iter().zip(rssi).map(|(a, b)| (a - b).abs()).sum();
+            self.distances.push((d, i as u32));
+        }
+        let k = self.k.min(self.distances.len());
+        if k < self.distances.len() {
+            self.distances
+                .select_nth_unstable_by(k - 1, |a, b| a.0.total_cmp(&b.0));
+        }
+        self.votes.iter_mut().for_each(|v| *v = 0.0);
+        let nearest = self.distances[..k]
+            .iter()
+            .map(|d| d.0)
+            .fold(f32::INFINITY, f32::min);
+        for &(d, row) in &self.distances[..k] {
+            // Relative to the nearest row, so the kernel never underflows to 0.
+            let cell = self.row_cell[row as usize] as usize;
+            self.votes[cell] += (-(d - nearest) * self.inv_bandwidth).exp();
+        }
+        let mut best = 0.0f32;
+        for (v, inv) in self.votes.iter_mut().zip(&self.inv_count) {
+            *v *= inv;
+            best = best.max(*v);
+        }
+        for (o, v) in out.iter_mut().zip(&self.votes) {
+            *o = (v / best).max(FLOOR).ln();
+        }
+    }
+}

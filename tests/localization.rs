@@ -1,0 +1,191 @@
+//! Localization quality: the gate CI holds on the real survey, and a made-up
+//! site showing that nothing assumes the sample site's grid or anchors.
+
+mod common;
+
+use std::fmt::Write;
+
+use common::{gangway_ok, write};
+use serde_json::Value;
+
+fn eval(args: &[&str]) -> Value {
+    let out = gangway_ok(&[&["eval", "localization", "--json"], args].concat());
+    serde_json::from_str(out.trim()).expect("one JSON object")
+}
+
+fn figure(v: &Value, key: &str) -> f64 {
+    v[key].as_f64().unwrap_or_else(|| panic!("no {key} in {v}"))
+}
+
+/// The targets this project has reached on ../shared/data/uci-ble-rssi; the
+/// evaluation is deterministic (fixed seeds), so a drop is a real regression.
+#[test]
+fn the_real_survey_stays_at_or_above_the_reached_targets() {
+    let Some(survey) = common::uci_survey() else {
+        return;
+    };
+    let survey = survey.to_str().unwrap();
+    let site = "config/sites/waldo.toml";
+
+    let session = eval(&["--site", site, "--survey", survey, "--split", "session"]);
+    assert_eq!(
+        session.as_object().unwrap().keys().collect::<Vec<_>>(),
+        [
+            "exact",
+            "mean_error_cells",
+            "mean_error_m",
+            "p90_error_cells",
+            "us_per_fix",
+            "within_1",
+            "within_2"
+        ]
+    );
+    assert!(
+        figure(&session, "mean_error_cells") <= 1.45,
+        "session split: {session}"
+    );
+    assert!(
+        figure(&session, "within_2") >= 0.76,
+        "session split: {session}"
+    );
+
+    let random = eval(&["--site", site, "--survey", survey, "--split", "random"]);
+    assert!(
+        figure(&random, "mean_error_cells") <= 1.50,
+        "random split: {random}"
+    );
+    assert!(
+        figure(&random, "within_2") >= 0.75,
+        "random split: {random}"
+    );
+    assert!(figure(&random, "exact") >= 0.35, "random split: {random}");
+}
+
+const SMALL_SITE: &str = r#"name = "workshop"
+cell_m = 2.0
+map = '''
+########
+##....##
+########
+##....##
+########
+'''
+[[beacon]]
+id = "north-west"
+uuid = "0b1c2d3e-4f50-6172-8394-a5b6c7d8e9f0"
+major = 7
+minor = 1
+cell = [0, 0]
+[[beacon]]
+id = "north-east"
+uuid = "0b1c2d3e-4f50-6172-8394-a5b6c7d8e9f0"
+major = 7
+minor = 2
+cell = [7, 0]
+[[beacon]]
+id = "south-west"
+uuid = "0b1c2d3e-4f50-6172-8394-a5b6c7d8e9f0"
+major = 7
+minor = 3
+cell = [0, 4]
+[[beacon]]
+id = "south-east"
+uuid = "0b1c2d3e-4f50-6172-8394-a5b6c7d8e9f0"
+major = 7
+minor = 4
+cell = [7, 4]
+
+[places]
+bench = [0, 2]
+door = [7, 2]
+"#;
+
+/// A generic-layout survey of the small site: three readings per walkable
+/// cell from a path-loss formula with a fixed ±1 dB pattern.
+fn small_survey() -> String {
+    let beacons = [(0.0, 0.0), (7.0, 0.0), (0.0, 4.0), (7.0, 4.0)];
+    let map = ["########", "##....##", "########", "##....##", "########"];
+    let mut csv = String::from("x,y,t,north-west,north-east,south-west,south-east\n");
+    let mut t = 0;
+    for (y, row) in map.iter().enumerate() {
+        for (x, c) in row.chars().enumerate() {
+            if c != '#' {
+                continue;
+            }
+            for rep in 0..3 {
+                t += 2;
+                write!(csv, "{x},{y},{t}").unwrap();
+                for (i, (bx, by)) in beacons.iter().enumerate() {
+                    let d = 2.0 * ((x as f64 - bx).powi(2) + (y as f64 - by).powi(2)).sqrt();
+                    let noise = [(-1.0), 0.0, 1.0][(rep + i + x) % 3];
+                    let rssi = -59.0 - 22.0 * d.max(0.5).log10() + noise;
+                    write!(csv, ",{}", rssi.round() as i32).unwrap();
+                }
+                csv.push('\n');
+            }
+        }
+    }
+    csv
+}
+
+#[test]
+fn another_site_with_other_anchors_and_size_works_from_its_own_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let site = write(dir.path(), "workshop.toml", SMALL_SITE);
+    let survey = write(dir.path(), "survey.csv", &small_survey());
+    let (site, survey) = (site.to_str().unwrap(), survey.to_str().unwrap());
+
+    for method in ["knn", "pathloss"] {
+        let m = eval(&[
+            "--site",
+            site,
+            "--survey",
+            survey,
+            "--split",
+            "random",
+            "--method",
+            method,
+            "--tracker",
+            "none",
+        ]);
+        assert!(figure(&m, "mean_error_cells") < 1.0, "{method}: {m}");
+        assert_eq!(
+            figure(&m, "mean_error_m"),
+            2.0 * figure(&m, "mean_error_cells"),
+            "cell_m = 2"
+        );
+    }
+
+    // The whole pipeline on that site: simulate, then replay with the survey.
+    let log = dir.path().join("walk.jsonl");
+    gangway_ok(&[
+        "simulate",
+        "--site",
+        site,
+        "--out",
+        log.to_str().unwrap(),
+        "--walkers",
+        "2",
+        "--duration",
+        "40",
+    ]);
+    let config = write(
+        dir.path(),
+        "gangway.toml",
+        "gateway_id = \"gw-w\"\nsite = \"workshop.toml\"\n[localizer]\nmethod = \"knn\"\n[localizer.knn]\nsurvey = \"survey.csv\"\n",
+    );
+    let out = gangway_ok(&[
+        "replay",
+        log.to_str().unwrap(),
+        "--config",
+        config.to_str().unwrap(),
+        "--print",
+    ]);
+    let located: std::collections::BTreeSet<String> = out
+        .lines()
+        .map(|l| serde_json::from_str::<Value>(l).unwrap())
+        .filter(|m| m["topic"].as_str().unwrap().ends_with("/location"))
+        .map(|m| m["payload"]["device"].as_str().unwrap().to_owned())
+        .collect();
+    assert_eq!(located, ["walker-01", "walker-02"].map(String::from).into());
+}
