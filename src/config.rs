@@ -67,6 +67,7 @@ impl Config {
         })?;
         let base = path.parent().unwrap_or(Path::new("."));
         config.site = base.join(&config.site);
+        config.mqtt.resolve_paths(base);
         config.validate().map_err(|message| ConfigError::Invalid {
             path: path.to_owned(),
             message,
@@ -88,6 +89,7 @@ impl Config {
         if !(self.tracker.max_speed_mps > 0.0) {
             return Err("[tracker] `max_speed_mps` must be positive".into());
         }
+        self.mqtt.validate().map_err(|e| e.to_string())?;
         Ok(())
     }
 
@@ -97,5 +99,22 @@ impl Config {
             .prefix
             .clone()
             .unwrap_or_else(|| format!("gangway/{}", self.gateway_id))
+    }
+
+    /// The prefix shared by the gateways of one site: `[mqtt] site_prefix`, or
+    /// `gangway/sites/<site name>`.
+    pub fn site_prefix(&self, site_name: &str) -> String {
+        self.mqtt
+            .site_prefix
+            .clone()
+            .unwrap_or_else(|| format!("gangway/sites/{site_name}"))
+    }
+
+    /// The MQTT client id: `[mqtt] client_id`, or `gangway-<gateway_id>`.
+    pub fn client_id(&self) -> String {
+        self.mqtt
+            .client_id
+            .clone()
+            .unwrap_or_else(|| format!("gangway-{}", self.gateway_id))
     }
 }
