@@ -55,11 +55,15 @@ impl Broker {
         let dir = tempfile::tempdir().unwrap();
         let port = free_port();
         let conf = dir.path().join("mosquitto.conf");
+        // Started as root, mosquitto would switch to the `mosquitto` user and
+        // could not write its database into our directory: stay who we are.
+        let user = Command::new("id").arg("-un").output().unwrap().stdout;
         std::fs::write(
             &conf,
             format!(
-                "listener {port} 127.0.0.1\nallow_anonymous true\npersistence true\n\
+                "listener {port} 127.0.0.1\nallow_anonymous true\nuser {}\npersistence true\n\
                  persistence_location {}/\nlog_dest stderr\nlog_type error\nlog_type warning\n",
+                String::from_utf8_lossy(&user).trim(),
                 dir.path().display()
             ),
         )
@@ -273,6 +277,13 @@ impl Client {
             .publish(topic, QoS::AtLeastOnce, false, payload)
             .await
             .unwrap();
+    }
+
+    /// Moves everything received so far into `seen`, without waiting.
+    pub fn drain(&mut self) {
+        while let Ok(m) = self.rx.try_recv() {
+            self.seen.push(m);
+        }
     }
 
     /// Waits for the first message (already seen or new) that `pred` accepts.
