@@ -81,6 +81,11 @@ async fn two_gateways_share_sightings_and_both_localize_a_tag() {
         .await
         .json();
     assert_eq!(stats["rejected_messages"], 0, "{stats}");
+    assert!(
+        client.seen.iter().any(|m| m.topic.contains("/sightings/")),
+        "the shared sightings are on the broker"
+    );
+    assert_all_valid(&client.seen);
     drop(running);
     drop(configs);
 }

@@ -179,6 +179,10 @@ async fn requests_during_a_replay_get_valid_routes_and_bad_ones_get_errors() {
         })
         .await;
 
+    // Everything received on the wire matches the published schemas.
+    let checked = assert_all_valid(&client.seen);
+    assert!(checked > 20, "only {checked} messages checked");
+
     // SIGTERM: a clean exit that says `offline` (retained) itself.
     assert!(gateway.terminate().success());
     let late = Client::connect(&broker, "test-routes-late", &[&format!("{PREFIX}/status")]).await;

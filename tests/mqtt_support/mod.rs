@@ -328,3 +328,50 @@ impl Client {
         .json()
     }
 }
+
+/// Validates `value` against `docs/schemas/<name>.schema.json`.
+pub fn check_schema(name: &str, value: &Value) -> Result<(), String> {
+    let path = repo().join(format!("docs/schemas/{name}.schema.json"));
+    let schema: Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    let validator = jsonschema::options()
+        .should_validate_formats(true)
+        .build(&schema)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let errors: Vec<String> = validator
+        .iter_errors(value)
+        .map(|e| format!("{} at {}", e, e.instance_path()))
+        .collect();
+    if errors.is_empty() {
+        Ok(())
+    } else {
+        Err(format!("{name}: {}: {value}", errors.join("; ")))
+    }
+}
+
+/// The schema of what the gateway publishes on `topic`, if it has one of ours
+/// (status is plain text; Home Assistant configs follow Home Assistant's).
+pub fn schema_of(topic: &str) -> Option<&'static str> {
+    if topic.ends_with("/config") {
+        return None;
+    }
+    let last = topic.rsplit('/').next()?;
+    Some(match last {
+        "location" => "location",
+        "path" => "path",
+        "stats" => "stats",
+        _ if topic.contains("/sightings/") => "sightings",
+        _ => return None,
+    })
+}
+
+/// Every gateway message seen so far matches its schema.
+pub fn assert_all_valid(seen: &[Received]) -> usize {
+    let mut checked = 0;
+    for m in seen {
+        if let Some(name) = schema_of(&m.topic) {
+            check_schema(name, &m.json()).unwrap_or_else(|e| panic!("{}: {e}", m.topic));
+            checked += 1;
+        }
+    }
+    checked
+}
