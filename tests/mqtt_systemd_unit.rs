@@ -18,7 +18,9 @@ fn analyze(args: &[&str], unit: &Path) -> std::process::Output {
         .args(args)
         .arg(unit)
         .output()
-        .expect("systemd-analyze is missing: apt-get install systemd (the tests need only the tool)")
+        .expect(
+            "systemd-analyze is missing: apt-get install systemd (the tests need only the tool)",
+        )
 }
 
 #[test]
@@ -71,7 +73,9 @@ fn the_daemon_notifies_readiness_and_pings_the_watchdog() {
     let config = mqtt_support::gateway_config("gw-notify", &site, &broker, "");
     let socket_path = config.dir.path().join("notify.sock");
     let socket = UnixDatagram::bind(&socket_path).unwrap();
-    socket.set_read_timeout(Some(Duration::from_secs(1))).unwrap();
+    socket
+        .set_read_timeout(Some(Duration::from_secs(1)))
+        .unwrap();
     let mut child = Command::new(env!("CARGO_BIN_EXE_gangway"))
         .args(["run", "--config"])
         .arg(&config.path)
@@ -99,6 +103,9 @@ fn the_daemon_notifies_readiness_and_pings_the_watchdog() {
     let status = child.wait().unwrap();
     assert!(status.success());
     assert!(seen.iter().any(|m| m.contains("READY=1")), "{seen:?}");
-    assert!(seen.iter().filter(|m| m.contains("WATCHDOG=1")).count() >= 2, "{seen:?}");
+    assert!(
+        seen.iter().filter(|m| m.contains("WATCHDOG=1")).count() >= 2,
+        "{seen:?}"
+    );
     assert!(seen.iter().any(|m| m.contains("STOPPING=1")), "{seen:?}");
 }
