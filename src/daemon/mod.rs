@@ -360,6 +360,7 @@ impl Daemon {
             shared_out: c.shared_out,
             rejected_messages: c.rejected,
             oversized_messages: c.oversized,
+            inbound_dropped: link.inbound_dropped.load(Ordering::Relaxed),
             queue_depth: link.queue_depth.load(Ordering::Relaxed),
             queue_bytes: link.queue_bytes.load(Ordering::Relaxed),
             queue_dropped: link.queue_dropped.load(Ordering::Relaxed),

@@ -8,7 +8,7 @@ pub const STATS_SCHEMA: &str = "gangway.stats/1";
 
 /// The counters in [`Stats`] that only grow, with a human name each (Home
 /// Assistant discovery makes one sensor per entry).
-pub const COUNTERS: [(&str, &str); 16] = [
+pub const COUNTERS: [(&str, &str); 17] = [
     ("sightings", "Sightings"),
     ("sightings_ignored", "Sightings ignored"),
     ("fixes", "Fixes"),
@@ -21,6 +21,7 @@ pub const COUNTERS: [(&str, &str); 16] = [
     ("shared_out", "Shared sightings sent"),
     ("rejected_messages", "Rejected messages"),
     ("oversized_messages", "Oversized messages"),
+    ("inbound_dropped", "Incoming messages dropped"),
     ("queue_dropped", "Offline queue drops"),
     ("reconnects", "Reconnects"),
     ("reloads", "Reloads"),
@@ -56,6 +57,8 @@ pub struct Stats {
     pub rejected_messages: u64,
     /// Incoming messages over `[mqtt] max_payload_bytes`.
     pub oversized_messages: u64,
+    /// Incoming messages dropped because the pipeline was behind.
+    pub inbound_dropped: u64,
     pub queue_depth: u64,
     pub queue_bytes: u64,
     pub queue_dropped: u64,

@@ -77,6 +77,20 @@ impl Broker {
         broker
     }
 
+    /// A broker that something else (the gateway's embedded one) runs.
+    pub fn at_port(port: u16) -> Broker {
+        let deadline = Instant::now() + Duration::from_secs(20);
+        while TcpStream::connect(("127.0.0.1", port)).is_err() {
+            assert!(Instant::now() < deadline, "nothing listens on port {port}");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        Broker {
+            port,
+            dir: tempfile::tempdir().unwrap(),
+            child: None,
+        }
+    }
+
     pub fn url(&self) -> String {
         format!("mqtt://127.0.0.1:{}", self.port)
     }
