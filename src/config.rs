@@ -15,6 +15,7 @@ use crate::locate::window::WindowConfig;
 use crate::mqtt::MqttConfig;
 use crate::plan::PlannerConfig;
 use crate::source::ble::BleConfig;
+use crate::store::StoreConfig;
 
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -36,6 +37,9 @@ pub struct Config {
     pub planner: PlannerConfig,
     #[serde(default)]
     pub mqtt: MqttConfig,
+    /// `[store]`: the crowd-sourced learning store.
+    #[serde(default)]
+    pub store: StoreConfig,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -68,6 +72,9 @@ impl Config {
         let base = path.parent().unwrap_or(Path::new("."));
         config.site = base.join(&config.site);
         config.mqtt.resolve_paths(base);
+        if let Some(path) = &mut config.store.path {
+            *path = base.join(&*path);
+        }
         config.validate().map_err(|message| ConfigError::Invalid {
             path: path.to_owned(),
             message,
@@ -90,6 +97,7 @@ impl Config {
             return Err("[tracker] `max_speed_mps` must be positive".into());
         }
         self.mqtt.validate().map_err(|e| e.to_string())?;
+        self.store.validate()?;
         Ok(())
     }
 

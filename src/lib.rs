@@ -25,3 +25,4 @@ pub mod publish;
 pub mod sighting;
 pub mod site;
 pub mod source;
+pub mod store;

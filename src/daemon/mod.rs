@@ -7,6 +7,7 @@
 //! retained stats. The radio being missing never stops it: MQTT keeps serving
 //! while [`source::radio`] retries.
 
+pub mod recorder;
 pub mod source;
 pub mod state;
 
@@ -29,12 +30,16 @@ use crate::pipeline;
 use crate::publish::{LOCATION_SCHEMA, Message, Topics};
 use crate::sighting::Sighting;
 use crate::source::Event;
+use crate::store::Record;
+use recorder::Recorder;
 use state::Loaded;
 
 /// How often this gateway's own sightings go out to the other gateways.
 const SHARE_INTERVAL: Duration = Duration::from_millis(250);
 /// Largest batch of shared sightings in one message.
 const SHARE_BATCH: usize = 256;
+/// How often the learning store is written.
+const RECORD_INTERVAL: Duration = Duration::from_secs(1);
 
 /// What `gangway run` asks for.
 pub struct Options {
@@ -73,6 +78,8 @@ struct Daemon {
     /// Own sightings waiting to be shared (advertiser orientation only).
     share: Option<Vec<Sighting>>,
     counters: Counters,
+    /// The learning store, when `[store] enabled`.
+    recorder: Option<Recorder>,
     ble: watch::Receiver<BleStatus>,
     started: Instant,
     out: Vec<Message>,
@@ -95,6 +102,10 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
             state.site.name
         )
     })?;
+    let recorder = match config.store.enabled {
+        true => Some(Recorder::open(&config.store)?),
+        false => None,
+    };
     let url = mqtt::broker_url(&config.mqtt, options.mqtt_url)?;
     let inbox = Inbox::new(
         topics.clone(),
@@ -165,6 +176,7 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
         site_prefix,
         share: sharing.then(Vec::new),
         counters: Counters::default(),
+        recorder,
         ble: ble_rx,
         started: Instant::now(),
         out: Vec::new(),
@@ -175,6 +187,7 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
     let mut interrupt = signal(SignalKind::interrupt())?;
     let mut hangup = signal(SignalKind::hangup())?;
     let mut stats_tick = tokio::time::interval(stats_every);
+    let mut record_tick = tokio::time::interval(RECORD_INTERVAL);
     let mut share_tick = tokio::time::interval(SHARE_INTERVAL);
     share_tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
     // systemd's watchdog wants a ping at least every WATCHDOG_USEC; pinging from
@@ -197,6 +210,7 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
             },
             Some(message) = inbound.recv() => daemon.inbound(&message.topic, &message.payload),
             _ = share_tick.tick(), if daemon.share.is_some() => daemon.flush_shared(),
+            _ = record_tick.tick(), if daemon.recorder.is_some() => daemon.flush_records(),
             _ = stats_tick.tick() => daemon.publish_stats(),
             Ok(()) = daemon.ble.changed() => daemon.publish_stats(),
             _ = watchdog_tick.tick(), if watchdog.is_some() => {
@@ -211,6 +225,7 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
     let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
     source_task.abort();
     daemon.flush_shared();
+    daemon.flush_records();
     daemon.publish_stats();
     daemon.link.shutdown().await;
     Ok(())
@@ -259,6 +274,14 @@ impl Daemon {
                     score = feedback.score,
                     "route feedback"
                 );
+                if let Some(recorder) = &mut self.recorder {
+                    recorder.push(Record::Feedback {
+                        device: feedback.device,
+                        request_id: feedback.request_id,
+                        t: feedback.t,
+                        score: feedback.score,
+                    });
+                }
             }
             Ok(Inbound::Scan(scan)) => {
                 if pipeline.orientation() != Orientation::Observer {
@@ -307,6 +330,9 @@ impl Daemon {
                 self.link.publish(&discovery.device_tracker(device));
                 announced = true;
             }
+            if let Some(recorder) = &mut self.recorder {
+                recorder.published(&message);
+            }
             self.link.publish(&message);
         }
         if announced {
@@ -325,6 +351,12 @@ impl Daemon {
         devices.sort();
         birth.extend(devices.into_iter().map(|d| discovery.device_tracker(d)));
         self.link.set_birth(&birth, false);
+    }
+
+    fn flush_records(&mut self) {
+        if let Some(recorder) = &mut self.recorder {
+            recorder.flush(now());
+        }
     }
 
     fn flush_shared(&mut self) {
@@ -367,6 +399,8 @@ impl Daemon {
             reconnects: link.reconnects.load(Ordering::Relaxed),
             reloads: c.reloads,
             reload_failures: c.reload_failures,
+            recorded: self.recorder.as_ref().map_or(0, |r| r.written),
+            store_errors: self.recorder.as_ref().map_or(0, |r| r.errors),
             tracked: self.state.pipeline.tracked() as u64,
             site: self.state.site.name.clone(),
             site_hash: self.state.site.map_hash().to_owned(),

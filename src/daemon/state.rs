@@ -39,6 +39,8 @@ pub fn restart_needed(old: &Loaded, new: &Loaded) -> Option<&'static str> {
         Some("`gateway_id` changed")
     } else if old.config.mqtt != new.config.mqtt {
         Some("[mqtt] changed")
+    } else if old.config.store != new.config.store {
+        Some("[store] changed")
     } else if old.config.window.orientation != new.config.window.orientation {
         Some("[window] orientation changed")
     } else if old.config.site_prefix(&old.site.name) != new.config.site_prefix(&new.site.name) {

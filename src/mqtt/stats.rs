@@ -8,7 +8,7 @@ pub const STATS_SCHEMA: &str = "gangway.stats/1";
 
 /// The counters in [`Stats`] that only grow, with a human name each (Home
 /// Assistant discovery makes one sensor per entry).
-pub const COUNTERS: [(&str, &str); 17] = [
+pub const COUNTERS: [(&str, &str); 19] = [
     ("sightings", "Sightings"),
     ("sightings_ignored", "Sightings ignored"),
     ("fixes", "Fixes"),
@@ -26,6 +26,8 @@ pub const COUNTERS: [(&str, &str); 17] = [
     ("reconnects", "Reconnects"),
     ("reloads", "Reloads"),
     ("reload_failures", "Refused reloads"),
+    ("recorded", "Learning records"),
+    ("store_errors", "Learning store errors"),
 ];
 
 /// Gauges (current values), with a human name each.
@@ -66,6 +68,9 @@ pub struct Stats {
     /// SIGHUP reloads applied, and refused (the old config kept serving).
     pub reloads: u64,
     pub reload_failures: u64,
+    /// Rows written to the learning store, and failed writes.
+    pub recorded: u64,
+    pub store_errors: u64,
     pub tracked: u64,
     /// The site's name and map hash, so a reload is visible.
     pub site: String,
