@@ -212,3 +212,55 @@ async fn sighup_applies_a_good_config_and_refuses_a_bad_one() {
         .json();
     assert_eq!(stats["reload_failures"], 1);
 }
+
+/// A queue bound smaller than what piles up during an outage: the oldest
+/// messages go, the count says how many, and the newest still arrive.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn past_the_queue_bound_the_oldest_messages_are_dropped_and_counted() {
+    let mut broker = Broker::start();
+    let site = repo().join("config/sites/waldo.toml");
+    let config = gateway_config("gw-test", &site, &broker, "");
+    let text = std::fs::read_to_string(&config.path).unwrap();
+    std::fs::write(&config.path, format!("{text}queue_max_messages = 5\n")).unwrap();
+    let mut client = Client::connect(&broker, "test-bound", &[&format!("{PREFIX}/#")]).await;
+    let fixture = repo().join("fixtures/walk-waldo.jsonl");
+    let _gateway = Gateway::start(
+        &config.path,
+        &["--replay", fixture.to_str().unwrap(), "--speed", "4"],
+    );
+    client
+        .wait_for("a location", |m| m.topic.ends_with("/location"))
+        .await;
+    broker.stop();
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    broker.restart();
+    let stats = client
+        .wait_for("stats counting drops", |m| {
+            m.topic == format!("{PREFIX}/stats") && m.json()["queue_dropped"].as_u64() > Some(0)
+        })
+        .await
+        .json();
+    assert!(stats["queue_depth"].as_u64() <= Some(5), "{stats}");
+}
+
+/// SIGTERM while the broker is unreachable: the gateway gives up after the
+/// grace period instead of hanging.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shutdown_without_a_broker_ends_after_the_grace_period() {
+    let mut broker = Broker::start();
+    let site = repo().join("config/sites/waldo.toml");
+    let config = gateway_config("gw-test", &site, &broker, "");
+    let text = std::fs::read_to_string(&config.path).unwrap();
+    std::fs::write(&config.path, format!("{text}shutdown_grace_s = 1.0\n")).unwrap();
+    let status = format!("{PREFIX}/status");
+    let mut client = Client::connect(&broker, "test-grace", &[&status]).await;
+    let mut gateway = Gateway::start(&config.path, &["--replay", "/dev/null"]);
+    client
+        .wait_for("online", |m| m.topic == status && m.text() == "online")
+        .await;
+    broker.stop();
+    let started = std::time::Instant::now();
+    assert!(gateway.terminate().success());
+    // Bounded by the grace period plus process start-up noise, not by backoff.
+    assert!(started.elapsed() < Duration::from_secs(10));
+}

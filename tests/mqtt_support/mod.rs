@@ -52,6 +52,12 @@ pub struct Broker {
 
 impl Broker {
     pub fn start() -> Broker {
+        Broker::start_with(|_| "allow_anonymous true\n".into())
+    }
+
+    /// A broker whose listener and security options `settings` writes, given
+    /// the broker's directory (for certificate and password files).
+    pub fn start_with(settings: impl FnOnce(&Path) -> String) -> Broker {
         let dir = tempfile::tempdir().unwrap();
         let port = free_port();
         let conf = dir.path().join("mosquitto.conf");
@@ -61,8 +67,9 @@ impl Broker {
         std::fs::write(
             &conf,
             format!(
-                "listener {port} 127.0.0.1\nallow_anonymous true\nuser {}\npersistence true\n\
+                "listener {port} 127.0.0.1\n{}user {}\npersistence true\n\
                  persistence_location {}/\nlog_dest stderr\nlog_type error\nlog_type warning\n",
+                settings(dir.path()),
                 String::from_utf8_lossy(&user).trim(),
                 dir.path().display()
             ),
@@ -100,6 +107,7 @@ impl Broker {
             .arg("-c")
             .arg(self.dir.path().join("mosquitto.conf"))
             .stdout(Stdio::null())
+            .stderr(Stdio::null())
             .spawn()
             .expect("start mosquitto");
         self.child = Some(child);
@@ -176,6 +184,15 @@ pub fn write_config(path: &Path, gateway_id: &str, site: &Path, broker: &Broker,
     .unwrap();
 }
 
+/// Gateway logs go to the test's stderr with GANGWAY_TEST_LOGS=1.
+fn test_logs() -> Stdio {
+    if std::env::var_os("GANGWAY_TEST_LOGS").is_some() {
+        Stdio::inherit()
+    } else {
+        Stdio::null()
+    }
+}
+
 /// A gateway process; killed when dropped.
 pub struct Gateway {
     pub child: Child,
@@ -190,6 +207,7 @@ impl Gateway {
             .args(args)
             .env("RUST_LOG", "info,rumqttd=warn")
             .stdout(Stdio::null())
+            .stderr(test_logs())
             .spawn()
             .expect("start the gateway");
         Gateway { child }
@@ -252,6 +270,10 @@ impl Client {
         options.set_keep_alive(Duration::from_secs(5));
         options.set_clean_session(false);
         options.set_max_packet_size(1 << 20, 1 << 20);
+        Client::connect_with(options, filters).await
+    }
+
+    pub async fn connect_with(options: MqttOptions, filters: &[&str]) -> Client {
         let (client, mut eventloop) = AsyncClient::new(options, 100);
         let (tx, rx) = mpsc::unbounded_channel();
         let filters: Vec<String> = filters.iter().map(|f| f.to_string()).collect();
