@@ -16,7 +16,6 @@ use std::path::PathBuf;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
-use anyhow::Context;
 use tokio::signal::unix::{SignalKind, signal};
 use tokio::sync::{mpsc, watch};
 use tokio::time::{Instant, MissedTickBehavior};
@@ -92,16 +91,11 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
     let topics = state.pipeline.topics().clone();
     let site_prefix = config.site_prefix(&state.site.name);
     let sharing = state.pipeline.orientation() == Orientation::Advertiser;
-    let probe = mqtt::MqttConfig {
-        site_prefix: Some(site_prefix.clone()),
-        ..config.mqtt.clone()
-    };
-    probe.validate().with_context(|| {
-        format!(
-            "the site name {:?} cannot be part of a topic; set [mqtt] site_prefix",
-            state.site.name
-        )
-    })?;
+    anyhow::ensure!(
+        mqtt::config::valid_prefix(&site_prefix),
+        "the site name {:?} cannot be part of a topic ({site_prefix:?}); set [mqtt] site_prefix",
+        state.site.name
+    );
     let recorder = match config.store.enabled {
         true => Some(Recorder::open(&config.store)?),
         false => None,
@@ -393,6 +387,7 @@ impl Daemon {
             rejected_messages: c.rejected,
             oversized_messages: c.oversized,
             inbound_dropped: link.inbound_dropped.load(Ordering::Relaxed),
+            bad_device_ids: p.bad_device_ids + r.bad_device_ids,
             queue_depth: link.queue_depth.load(Ordering::Relaxed),
             queue_bytes: link.queue_bytes.load(Ordering::Relaxed),
             queue_dropped: link.queue_dropped.load(Ordering::Relaxed),

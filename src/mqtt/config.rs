@@ -298,7 +298,9 @@ pub fn qos(level: u8) -> Result<QoS, MqttError> {
     }
 }
 
-fn valid_prefix(prefix: &str) -> bool {
+/// Whether `prefix` can start topics: non-empty, no wildcards or control
+/// characters, no leading or trailing `/`.
+pub fn valid_prefix(prefix: &str) -> bool {
     !prefix.is_empty()
         && !prefix.starts_with('/')
         && !prefix.ends_with('/')

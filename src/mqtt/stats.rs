@@ -8,7 +8,7 @@ pub const STATS_SCHEMA: &str = "gangway.stats/1";
 
 /// The counters in [`Stats`] that only grow, with a human name each (Home
 /// Assistant discovery makes one sensor per entry).
-pub const COUNTERS: [(&str, &str); 19] = [
+pub const COUNTERS: [(&str, &str); 20] = [
     ("sightings", "Sightings"),
     ("sightings_ignored", "Sightings ignored"),
     ("fixes", "Fixes"),
@@ -22,6 +22,7 @@ pub const COUNTERS: [(&str, &str); 19] = [
     ("rejected_messages", "Rejected messages"),
     ("oversized_messages", "Oversized messages"),
     ("inbound_dropped", "Incoming messages dropped"),
+    ("bad_device_ids", "Unpublishable device ids"),
     ("queue_dropped", "Offline queue drops"),
     ("reconnects", "Reconnects"),
     ("reloads", "Reloads"),
@@ -61,6 +62,8 @@ pub struct Stats {
     pub oversized_messages: u64,
     /// Incoming messages dropped because the pipeline was behind.
     pub inbound_dropped: u64,
+    /// Fixes not published because the device id cannot be a topic level.
+    pub bad_device_ids: u64,
     pub queue_depth: u64,
     pub queue_bytes: u64,
     pub queue_dropped: u64,
