@@ -1,7 +1,7 @@
 //! The quickstart path: with no broker configured, `run` starts the embedded
 //! broker on 127.0.0.1 and serves on it (retained status, last will, routes),
-//! and `replay` publishes a whole log to a broker and exits once all of it is
-//! acknowledged.
+//! and `replay` publishes a whole log to a broker, waiting for room in a small
+//! queue rather than dropping, and exits once all of it is acknowledged.
 
 mod mqtt_support;
 
@@ -58,8 +58,13 @@ async fn run_without_a_url_serves_on_an_embedded_broker() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn replay_publishes_every_message_before_it_exits() {
     let broker = Broker::start();
-    let mut client = Client::connect(&broker, "test-replay", &["gangway/#"]).await;
-    let config = repo().join("config/gangway.toml");
+    // A queue far smaller than the log: replay must wait for the broker
+    // rather than drop.
+    let site = repo().join("config/sites/waldo.toml");
+    let dir = gateway_config("gw-replay", &site, &broker, "");
+    let config = dir.path.clone();
+    let text = std::fs::read_to_string(&config).unwrap();
+    std::fs::write(&config, format!("{text}queue_max_messages = 4\n")).unwrap();
     let fixture = repo().join("fixtures/walk-waldo.jsonl");
     let printed = Command::new(env!("CARGO_BIN_EXE_gangway"))
         .args(["replay", "--print", "--config"])
@@ -69,13 +74,17 @@ async fn replay_publishes_every_message_before_it_exits() {
         .output()
         .unwrap();
     assert!(printed.status.success());
+    // Subscribed only now: the --print run above published too (the config
+    // has a url), and those must not count.
+    let mut client = Client::connect(&broker, "test-replay", &["gangway/#"]).await;
+    client.ready("gangway/probe").await;
     let expected = printed
         .stdout
         .split(|&b| b == b'\n')
         .filter(|l| !l.is_empty())
         .count();
     let status = Command::new(env!("CARGO_BIN_EXE_gangway"))
-        .args(["replay", "--mqtt-url", &broker.url(), "--config"])
+        .args(["replay", "--config"])
         .arg(&config)
         .arg(&fixture)
         .stderr(Stdio::null())
@@ -85,7 +94,7 @@ async fn replay_publishes_every_message_before_it_exits() {
     let mut count = 0;
     client
         .wait_for(&format!("all {expected} messages"), |m| {
-            count += usize::from(m.topic.starts_with("gangway/gw-lobby/devices/"));
+            count += usize::from(m.topic.starts_with("gangway/gw-replay/devices/"));
             count == expected
         })
         .await;

@@ -90,6 +90,11 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         if let Some(p) = print.as_mut() {
             p.flush()?;
         }
+        let mqtt_dropped = publisher.as_ref().map_or(0, |p| {
+            p.stats()
+                .queue_dropped
+                .load(std::sync::atomic::Ordering::Relaxed)
+        });
         if let Some(publisher) = publisher {
             publisher.shutdown().await;
         }
@@ -103,6 +108,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             routes = stats.routes,
             request_errors = stats.request_errors,
             skipped_lines = reader.skipped(),
+            mqtt_dropped,
             seconds = started.elapsed().as_secs_f64(),
             "replay done"
         );
@@ -122,6 +128,7 @@ async fn send(
             p.write_all(b"\n").context("writing to stdout")?;
         }
         if let Some(publisher) = publisher {
+            publisher.wait_for_room().await;
             publisher.publish(&message);
         }
     }

@@ -62,6 +62,10 @@ pub struct LinkStats {
     pub published: AtomicU64,
     /// Received messages dropped because the consumer was behind.
     pub inbound_dropped: AtomicU64,
+    /// Publish commands taken in, and messages queued or in flight: with the
+    /// handle's count of commands sent, what [`Link::wait_for_room`] needs.
+    commands_taken: AtomicU64,
+    outstanding: AtomicU64,
 }
 
 enum Command {
@@ -78,6 +82,9 @@ pub struct Link {
     stats: Arc<LinkStats>,
     task: tokio::task::JoinHandle<()>,
     qos: QoS,
+    /// Publish commands sent.
+    submitted: AtomicU64,
+    queue_max_messages: usize,
 }
 
 impl Link {
@@ -88,6 +95,7 @@ impl Link {
         let (inbound_tx, inbound_rx) = mpsc::channel(settings.inbound_capacity.max(1));
         let stats = Arc::new(LinkStats::default());
         let qos = settings.qos;
+        let queue_max_messages = settings.queue_max_messages;
         let controller = Controller::new(settings, stats.clone(), inbound_tx);
         let task = tokio::spawn(controller.run(commands_rx));
         (
@@ -96,6 +104,8 @@ impl Link {
                 stats,
                 task,
                 qos,
+                submitted: AtomicU64::new(0),
+                queue_max_messages,
             },
             inbound_rx,
         )
@@ -115,12 +125,32 @@ impl Link {
     }
 
     pub fn publish_raw(&self, topic: String, payload: Vec<u8>, retain: bool) {
+        self.submitted.fetch_add(1, Ordering::Relaxed);
         let _ = self.commands.send(Command::Publish(Outgoing {
             topic,
             payload,
             qos: self.qos,
             retain,
         }));
+    }
+
+    /// Waits until at most half the queue bound is waiting or in flight. A
+    /// producer that must not lose messages (`replay` at full speed) calls it
+    /// between publications; the daemon does not, so that it keeps locating
+    /// while the broker is away.
+    pub async fn wait_for_room(&self) {
+        let limit = (self.queue_max_messages / 2).max(1) as u64;
+        loop {
+            let backlog = self.submitted.load(Ordering::Relaxed)
+                - self.stats.commands_taken.load(Ordering::Relaxed)
+                + self.stats.outstanding.load(Ordering::Relaxed);
+            if backlog < limit || self.task.is_finished() {
+                return;
+            }
+            // Polling a counter is simpler than a wake-up protocol with the
+            // link task, and a replay waiting on the broker can spare 2 ms.
+            tokio::time::sleep(Duration::from_millis(2)).await;
+        }
     }
 
     /// Sets the messages sent (before the queue) after every connect; with
@@ -219,6 +249,7 @@ impl Controller {
             tokio::select! {
                 command = commands.recv(), if self.shutdown.is_none() => match command {
                     Some(Command::Publish(m)) => {
+                        self.stats.commands_taken.fetch_add(1, Ordering::Relaxed);
                         self.queue.push(m);
                         self.flush();
                     }
@@ -460,6 +491,10 @@ impl Controller {
 
     fn publish_stats(&self) {
         let s = &self.stats;
+        s.outstanding.store(
+            (self.queue.len() + self.handed.len() + self.awaiting.len()) as u64,
+            Ordering::Relaxed,
+        );
         s.queue_depth
             .store(self.queue.len() as u64, Ordering::Relaxed);
         s.queue_bytes

@@ -315,6 +315,24 @@ impl Client {
             .unwrap();
     }
 
+    /// Returns once the subscriptions are in place: a message published on
+    /// `topic` (which the filters must match) has come back.
+    pub async fn ready(&mut self, topic: &str) {
+        let deadline = Instant::now() + WAIT;
+        loop {
+            self.publish(topic, "probe").await;
+            tokio::time::sleep(Duration::from_millis(100)).await;
+            self.drain();
+            if self.seen.iter().any(|m| m.topic == topic) {
+                return;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "the subscriptions never took effect"
+            );
+        }
+    }
+
     /// Moves everything received so far into `seen`, without waiting.
     pub fn drain(&mut self) {
         while let Ok(m) = self.rx.try_recv() {
