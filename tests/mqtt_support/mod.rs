@@ -144,13 +144,18 @@ impl Drop for Broker {
     }
 }
 
+/// Sends a signal (`"TERM"`, `"KILL"`, `"HUP"`, `"INT"`) to a child.
 pub fn signal(child: &Child, name: &str) {
-    let status = Command::new("kill")
-        .arg(format!("-{name}"))
-        .arg(child.id().to_string())
-        .status()
-        .unwrap();
-    assert!(status.success(), "kill -{name}");
+    use rustix::process::{Pid, Signal, kill_process};
+    let sig = match name {
+        "TERM" => Signal::TERM,
+        "KILL" => Signal::KILL,
+        "HUP" => Signal::HUP,
+        "INT" => Signal::INT,
+        other => panic!("no signal {other} in the tests"),
+    };
+    let pid = Pid::from_raw(child.id() as i32).expect("a child has a pid");
+    kill_process(pid, sig).unwrap_or_else(|e| panic!("kill -{name}: {e}"));
 }
 
 /// A gateway config in a temporary directory. `extra` is appended (TOML).
