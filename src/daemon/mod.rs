@@ -96,9 +96,10 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
         "the site name {:?} cannot be part of a topic ({site_prefix:?}); set [mqtt] site_prefix",
         state.site.name
     );
-    let recorder = match config.store.enabled {
-        true => Some(Recorder::open(&config.store)?),
-        false => None,
+    let recorder = if config.store.enabled {
+        Some(Recorder::open(&config.store)?)
+    } else {
+        None
     };
     let url = mqtt::broker_url(&config.mqtt, options.mqtt_url)?;
     let inbox = Inbox::new(
