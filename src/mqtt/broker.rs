@@ -4,7 +4,8 @@
 //! to any broker.
 
 use std::collections::HashMap;
-use std::net::{Ipv4Addr, SocketAddr, TcpListener};
+use std::net::{Ipv4Addr, SocketAddr, TcpListener, TcpStream};
+use std::time::{Duration, Instant};
 
 use rumqttd::{Broker, Config, ConnectionSettings, RouterConfig, ServerSettings};
 
@@ -55,5 +56,15 @@ pub fn start(port: u16, max_payload_bytes: usize) -> anyhow::Result<String> {
                 tracing::error!("embedded MQTT broker stopped: {e}");
             }
         })?;
+    // The broker binds on its own thread; wait for it so the first connect
+    // does not fail and back off.
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while TcpStream::connect_timeout(&listen, Duration::from_millis(100)).is_err() {
+        anyhow::ensure!(
+            Instant::now() < deadline,
+            "the embedded MQTT broker did not start listening on {listen}"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
     Ok(format!("mqtt://{listen}"))
 }

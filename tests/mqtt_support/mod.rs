@@ -210,7 +210,7 @@ impl Gateway {
             .arg("--config")
             .arg(config)
             .args(args)
-            .env("RUST_LOG", "info,rumqttd=warn")
+            .env("RUST_LOG", "info,rumqttd=warn,rumqttd::server::broker=off")
             .stdout(Stdio::null())
             .stderr(test_logs())
             .spawn()
