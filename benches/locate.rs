@@ -19,7 +19,9 @@ use gangway::site::Site;
 use gangway::source::ibeacon::{encode_manufacturer_data, parse_manufacturer_data};
 
 fn site() -> Arc<Site> {
-    Arc::new(Site::load(Path::new("config/sites/waldo.toml")).expect("run from the repository root"))
+    Arc::new(
+        Site::load(Path::new("config/sites/waldo.toml")).expect("run from the repository root"),
+    )
 }
 
 fn survey(site: &Site) -> Survey {
@@ -60,13 +62,17 @@ fn benches(c: &mut Criterion) {
     let samples: Vec<_> = survey.samples.iter().collect();
     let missing = WindowConfig::default().missing_dbm;
     let mut knn = Knn::new(&KnnConfig::default(), &site, &samples, missing).unwrap();
-    let mut pathloss = PathLoss::new(&PathLossConfig::default(), &site, Orientation::Observer).unwrap();
+    let mut pathloss =
+        PathLoss::new(&PathLossConfig::default(), &site, Orientation::Observer).unwrap();
     let fingerprints: Vec<(Vec<f32>, Vec<bool>, f64)> = survey
         .samples
         .iter()
         .map(|s| {
             (
-                s.rssi.iter().map(|r| r.map_or(missing, f32::from)).collect(),
+                s.rssi
+                    .iter()
+                    .map(|r| r.map_or(missing, f32::from))
+                    .collect(),
                 s.rssi.iter().map(Option::is_some).collect(),
                 s.t.unwrap_or(0.0),
             )

@@ -15,6 +15,7 @@ use crate::locate::window::WindowConfig;
 use crate::mqtt::MqttConfig;
 use crate::plan::PlannerConfig;
 use crate::source::ble::BleConfig;
+use crate::store::StoreConfig;
 
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -36,6 +37,9 @@ pub struct Config {
     pub planner: PlannerConfig,
     #[serde(default)]
     pub mqtt: MqttConfig,
+    /// `[store]`: the crowd-sourced learning store.
+    #[serde(default)]
+    pub store: StoreConfig,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -70,6 +74,10 @@ impl Config {
         if let Some(survey) = &mut config.localizer.knn.survey {
             *survey = base.join(&*survey);
         }
+        config.mqtt.resolve_paths(base);
+        if let Some(path) = &mut config.store.path {
+            *path = base.join(&*path);
+        }
         config.validate().map_err(|message| ConfigError::Invalid {
             path: path.to_owned(),
             message,
@@ -94,6 +102,8 @@ impl Config {
         if !(0.0..=1.0).contains(&self.tracker.stay_probability) {
             return Err("[tracker] `stay_probability` must be between 0 and 1".into());
         }
+        self.mqtt.validate().map_err(|e| e.to_string())?;
+        self.store.validate()?;
         Ok(())
     }
 
@@ -103,5 +113,22 @@ impl Config {
             .prefix
             .clone()
             .unwrap_or_else(|| format!("gangway/{}", self.gateway_id))
+    }
+
+    /// The prefix shared by the gateways of one site: `[mqtt] site_prefix`, or
+    /// `gangway/sites/<site name>`.
+    pub fn site_prefix(&self, site_name: &str) -> String {
+        self.mqtt
+            .site_prefix
+            .clone()
+            .unwrap_or_else(|| format!("gangway/sites/{site_name}"))
+    }
+
+    /// The MQTT client id: `[mqtt] client_id`, or `gangway-<gateway_id>`.
+    pub fn client_id(&self) -> String {
+        self.mqtt
+            .client_id
+            .clone()
+            .unwrap_or_else(|| format!("gangway-{}", self.gateway_id))
     }
 }

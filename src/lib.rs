@@ -12,7 +12,8 @@
 //!
 //! [`site`] and [`config`] describe the building and the gateway; [`pipeline`]
 //! wires the stages together without doing I/O; [`daemon`] and the [`cli`]
-//! drive it.
+//! drive it, [`mqtt`] connects it to the broker, and [`store`] keeps what the
+//! daemon saw for training.
 
 pub mod cli;
 pub mod config;
@@ -26,3 +27,4 @@ pub mod publish;
 pub mod sighting;
 pub mod site;
 pub mod source;
+pub mod store;

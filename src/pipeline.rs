@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use crate::config::Config;
 use crate::locate::tracker::Tracker;
-use crate::locate::window::{Fingerprint, Windows};
+use crate::locate::window::{Fingerprint, Orientation, Windows};
 use crate::locate::{self, Localizer};
 use crate::plan::{self, Planner};
 use crate::publish::{
@@ -152,6 +152,34 @@ impl Pipeline {
             t: request.t,
             outcome,
         }
+    }
+
+    /// The error reply to a request that could not even be read (bad JSON,
+    /// oversized payload), counted like any other failed request.
+    pub fn reject(
+        &mut self,
+        device: &str,
+        request_id: Option<String>,
+        t: f64,
+        code: &'static str,
+        message: String,
+    ) -> RouteReply {
+        self.stats.requests += 1;
+        self.stats.request_errors += 1;
+        RouteReply {
+            schema: PATH_SCHEMA,
+            device: device.to_owned(),
+            request_id,
+            t,
+            outcome: RouteOutcome::Error {
+                error: ErrorBody { code, message },
+            },
+        }
+    }
+
+    /// Which side of a sighting this pipeline locates.
+    pub fn orientation(&self) -> Orientation {
+        self.windows.config().orientation
     }
 
     fn plan_request(&self, request: &RouteRequest, started: Instant) -> RouteOutcome {

@@ -4,7 +4,9 @@
 //!
 //! Topics under the prefix (default `gangway/<gateway id>`):
 //! - `<prefix>/devices/<device>/location`: a [`Location`] per fix;
-//! - `<prefix>/devices/<device>/path`: a [`RouteReply`] per route request.
+//! - `<prefix>/devices/<device>/path`: a [`RouteReply`] per route request;
+//! - `<prefix>/status`, `<prefix>/stats` and the subscribed topics
+//!   (`route/set`, `feedback`, `scans`): see `mqtt` and docs/mqtt.md.
 
 use serde::Serialize;
 
@@ -78,7 +80,8 @@ pub struct RouteBody {
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct ErrorBody {
     /// Stable code: `unknown_place`, `off_map`, `blocked_cell`, `unreachable`,
-    /// `unknown_device`, `unknown_profile`.
+    /// `unknown_device`, `unknown_profile`; for requests over MQTT also
+    /// `invalid_json`, `invalid_request`, `payload_too_large`.
     pub code: &'static str,
     pub message: String,
 }
@@ -106,6 +109,31 @@ impl Topics {
 
     pub fn path(&self, device: &str) -> String {
         format!("{}/devices/{device}/path", self.prefix)
+    }
+
+    /// Retained `online` / `offline` (the last will).
+    pub fn status(&self) -> String {
+        format!("{}/status", self.prefix)
+    }
+
+    /// Retained counters.
+    pub fn stats(&self) -> String {
+        format!("{}/stats", self.prefix)
+    }
+
+    /// Route requests for a device.
+    pub fn route_set(&self, device: &str) -> String {
+        format!("{}/devices/{device}/route/set", self.prefix)
+    }
+
+    /// Feedback on a route.
+    pub fn feedback(&self, device: &str) -> String {
+        format!("{}/devices/{device}/feedback", self.prefix)
+    }
+
+    /// Scans a phone publishes of the beacons it hears.
+    pub fn scans(&self, device: &str) -> String {
+        format!("{}/scans/{device}", self.prefix)
     }
 
     pub fn encode_location(&self, location: &Location) -> Message {

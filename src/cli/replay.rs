@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 
-use crate::mqtt::Publisher;
+use crate::mqtt::{self, Link};
 use crate::pipeline::Pipeline;
 use crate::publish::Message;
 use crate::source::log::LogReader;
@@ -24,7 +24,9 @@ pub struct Args {
     /// Write every outgoing message to stdout as {"topic": ..., "payload": ...}.
     #[arg(long)]
     print: bool,
-    /// Publish to this broker (mqtt://host:port), overriding [mqtt] url.
+    /// Publish to this broker (mqtt://host:port or mqtts://host:port),
+    /// overriding [mqtt] url. With neither (and no --print), an embedded broker
+    /// starts on 127.0.0.1 for the replay's duration.
     #[arg(long)]
     mqtt_url: Option<String>,
     /// Skip and count bad log lines instead of stopping at the first.
@@ -40,16 +42,20 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let (config, site) = super::load(&args.config)?;
     let mut pipeline = Pipeline::new(&config, site)?;
     let mut reader = LogReader::open(&args.log, args.skip_bad)?;
-    let url = args.mqtt_url.clone().or_else(|| config.mqtt.url.clone());
-    let client_id = config
-        .mqtt
-        .client_id
-        .clone()
-        .unwrap_or_else(|| format!("gangway-{}-replay", config.gateway_id));
+    let client_id = format!("{}-replay", config.client_id());
 
     super::runtime()?.block_on(async {
+        // --print alone means stdout is the only sink.
+        let url = match (args.mqtt_url.clone(), &config.mqtt.url, args.print) {
+            (None, None, true) => None,
+            (url, _, _) => Some(mqtt::broker_url(&config.mqtt, url)?),
+        };
         let publisher = match &url {
-            Some(url) => Some(Publisher::connect(url, &client_id, &config.mqtt).await?),
+            Some(url) => {
+                let settings =
+                    mqtt::link_settings(&config.mqtt, url, &client_id, None, Vec::new())?;
+                Some(Link::start(settings).0)
+            }
             None => None,
         };
         let stdout = std::io::stdout();
@@ -84,8 +90,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         if let Some(p) = print.as_mut() {
             p.flush()?;
         }
+        let mqtt_dropped = publisher.as_ref().map_or(0, |p| {
+            p.stats()
+                .queue_dropped
+                .load(std::sync::atomic::Ordering::Relaxed)
+        });
         if let Some(publisher) = publisher {
-            publisher.close().await?;
+            publisher.shutdown().await;
         }
         let stats = pipeline.stats();
         tracing::info!(
@@ -97,6 +108,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             routes = stats.routes,
             request_errors = stats.request_errors,
             skipped_lines = reader.skipped(),
+            mqtt_dropped,
             seconds = started.elapsed().as_secs_f64(),
             "replay done"
         );
@@ -108,7 +120,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 async fn send(
     out: &mut Vec<Message>,
     mut print: Option<&mut impl Write>,
-    publisher: Option<&Publisher>,
+    publisher: Option<&Link>,
 ) -> anyhow::Result<()> {
     for message in out.drain(..) {
         if let Some(p) = print.as_deref_mut() {
@@ -116,7 +128,8 @@ async fn send(
             p.write_all(b"\n").context("writing to stdout")?;
         }
         if let Some(publisher) = publisher {
-            publisher.send(&message).await?;
+            publisher.wait_for_room().await;
+            publisher.publish(&message);
         }
     }
     Ok(())

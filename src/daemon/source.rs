@@ -1,0 +1,103 @@
+//! Where the daemon's own sightings come from: the Bluetooth adapter, kept
+//! alive by a supervisor that retries with capped backoff while the adapter is
+//! missing or lost, or a log played back at a given speed (`run --replay`).
+//! Both feed the same channel; the MQTT side keeps serving meanwhile.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::sync::{mpsc, watch};
+use tokio::time::Instant;
+
+use crate::mqtt::stats::BleStatus;
+use crate::source::Event;
+use crate::source::ble::{self, BleConfig};
+use crate::source::log::LogReader;
+
+/// Backoff between attempts to open the adapter.
+const BLE_RETRY_MIN: Duration = Duration::from_secs(1);
+const BLE_RETRY_MAX: Duration = Duration::from_secs(60);
+
+/// Scans for as long as `events` is open, reopening the adapter after every
+/// failure; publishes the radio's state on `status`.
+pub async fn radio(
+    config: BleConfig,
+    observer: Arc<str>,
+    events: mpsc::Sender<Event>,
+    status: watch::Sender<BleStatus>,
+) {
+    let mut backoff = BLE_RETRY_MIN;
+    let mut failures = 0u64;
+    loop {
+        let error = match ble::adapter(&config).await {
+            Ok(adapter) => {
+                tracing::info!("Bluetooth adapter open; scanning");
+                failures = 0;
+                backoff = BLE_RETRY_MIN;
+                status.send_replace(BleStatus {
+                    state: "scanning",
+                    ..BleStatus::default()
+                });
+                match ble::scan(&adapter, observer.clone(), events.clone()).await {
+                    Ok(()) if events.is_closed() => return,
+                    Ok(()) => "the adapter stopped reporting adverts".to_owned(),
+                    Err(e) => e.to_string(),
+                }
+            }
+            Err(e) => e.to_string(),
+        };
+        failures += 1;
+        tracing::warn!(
+            retry_in_s = backoff.as_secs_f64(),
+            failures,
+            "Bluetooth unavailable: {error}; MQTT keeps serving, retrying"
+        );
+        status.send_replace(BleStatus {
+            state: "retrying",
+            error: Some(error),
+            failures,
+            retry_in_s: Some(backoff.as_secs_f64()),
+        });
+        tokio::select! {
+            _ = tokio::time::sleep(backoff) => {}
+            _ = events.closed() => return,
+        }
+        backoff = (backoff * 2).min(BLE_RETRY_MAX);
+    }
+}
+
+/// A log to play instead of the radio.
+#[derive(Clone, Debug)]
+pub struct Replay {
+    pub log: PathBuf,
+    /// 1 is real time, 0 as fast as possible.
+    pub speed: f64,
+}
+
+/// Plays `replay` into `events`, keeping the log's pace scaled by its speed;
+/// a bad line is logged and skipped (the daemon never stops on input).
+pub async fn replay(replay: Replay, events: mpsc::Sender<Event>) -> anyhow::Result<()> {
+    let mut reader = LogReader::open(&replay.log, true)?;
+    let started = Instant::now();
+    let mut first_t = None;
+    // The reader does blocking file reads; lines are short and the file local,
+    // so reading them on the runtime is cheaper than a thread hop per line.
+    for event in reader.by_ref() {
+        let event = event?;
+        if replay.speed > 0.0 {
+            let t0 = *first_t.get_or_insert(event.t());
+            let due = Duration::from_secs_f64(((event.t() - t0) / replay.speed).max(0.0));
+            tokio::time::sleep_until(started + due).await;
+        }
+        if events.send(event).await.is_err() {
+            break;
+        }
+    }
+    tracing::info!(
+        log = %replay.log.display(),
+        skipped_lines = reader.skipped(),
+        "replay finished; still serving MQTT"
+    );
+    Ok(())
+}

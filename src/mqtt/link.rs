@@ -1,0 +1,531 @@
+//! The connection to the broker: one task that owns it, reconnects with capped
+//! exponential backoff, keeps outgoing messages in the [`OfflineQueue`] while
+//! the broker is away, and redelivers what the broker had not acknowledged
+//! when the connection dropped.
+//!
+//! Each connection attempt is a fresh rumqttc client and event loop (a
+//! "session"). When a session fails, everything still pending in it is taken
+//! back into the queue and the session is thrown away, so no request left in a
+//! dead client's channel can be replayed twice or lost. QoS 1 delivery is
+//! tracked here: a message handed to rumqttc stays ours until its PUBACK.
+//!
+//! On every connect the link subscribes again and sends its birth messages
+//! (retained `online`, discovery configs) before the queue; the last will makes
+//! the broker publish the retained `offline` if the process dies.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::Duration;
+
+use rumqttc::{
+    AsyncClient, ConnectionError, Event, EventLoop, LastWill, MqttOptions, Outgoing as Out, Packet,
+    Publish, QoS,
+};
+use tokio::sync::{mpsc, oneshot};
+use tokio::time::Instant;
+
+use super::queue::{OfflineQueue, Outgoing};
+
+/// Capacity of a session's rumqttc request channel; the link never hands over
+/// more than this many unacknowledged messages at once.
+const SESSION_WINDOW: usize = 256;
+
+/// What a link is set up with.
+#[derive(Clone, Debug)]
+pub struct LinkSettings {
+    pub options: MqttOptions,
+    pub qos: QoS,
+    /// `(topic, online payload, offline payload)`: retained birth and last will.
+    pub status: Option<(String, String, String)>,
+    pub subscriptions: Vec<String>,
+    pub queue_max_messages: usize,
+    pub queue_max_bytes: usize,
+    pub reconnect_min: Duration,
+    pub reconnect_max: Duration,
+    /// How long [`Link::shutdown`] waits for queued and in-flight messages.
+    pub shutdown_grace: Duration,
+    /// Capacity of the channel of received messages.
+    pub inbound_capacity: usize,
+}
+
+/// Counters the link shares with whoever reports stats.
+#[derive(Debug, Default)]
+pub struct LinkStats {
+    pub connected: AtomicBool,
+    /// Successful connections after the first.
+    pub reconnects: AtomicU64,
+    pub connect_failures: AtomicU64,
+    pub queue_depth: AtomicU64,
+    pub queue_bytes: AtomicU64,
+    pub queue_dropped: AtomicU64,
+    pub published: AtomicU64,
+    /// Received messages dropped because the consumer was behind.
+    pub inbound_dropped: AtomicU64,
+    /// Publish commands taken in, and messages queued or in flight: with the
+    /// handle's count of commands sent, what [`Link::wait_for_room`] needs.
+    commands_taken: AtomicU64,
+    outstanding: AtomicU64,
+}
+
+enum Command {
+    Publish(Outgoing),
+    /// Replaces the birth messages sent after each connect; sends them now too
+    /// when the flag is set.
+    Birth(Vec<Outgoing>, bool),
+    Shutdown(oneshot::Sender<()>),
+}
+
+/// A handle on the link task.
+pub struct Link {
+    commands: mpsc::UnboundedSender<Command>,
+    stats: Arc<LinkStats>,
+    task: tokio::task::JoinHandle<()>,
+    qos: QoS,
+    /// Publish commands sent.
+    submitted: AtomicU64,
+    queue_max_messages: usize,
+}
+
+impl Link {
+    /// Starts the link task; returns the handle and the channel of received
+    /// messages (on the subscribed topics).
+    pub fn start(settings: LinkSettings) -> (Link, mpsc::Receiver<Publish>) {
+        let (commands, commands_rx) = mpsc::unbounded_channel();
+        let (inbound_tx, inbound_rx) = mpsc::channel(settings.inbound_capacity.max(1));
+        let stats = Arc::new(LinkStats::default());
+        let qos = settings.qos;
+        let queue_max_messages = settings.queue_max_messages;
+        let controller = Controller::new(settings, stats.clone(), inbound_tx);
+        let task = tokio::spawn(controller.run(commands_rx));
+        (
+            Link {
+                commands,
+                stats,
+                task,
+                qos,
+                submitted: AtomicU64::new(0),
+                queue_max_messages,
+            },
+            inbound_rx,
+        )
+    }
+
+    pub fn stats(&self) -> &Arc<LinkStats> {
+        &self.stats
+    }
+
+    /// Queues a JSON message; never blocks.
+    pub fn publish(&self, message: &crate::publish::Message) {
+        self.publish_raw(
+            message.topic.clone(),
+            serde_json::to_vec(&message.payload).expect("JSON values serialize"),
+            message.retain,
+        );
+    }
+
+    pub fn publish_raw(&self, topic: String, payload: Vec<u8>, retain: bool) {
+        self.submitted.fetch_add(1, Ordering::Relaxed);
+        let _ = self.commands.send(Command::Publish(Outgoing {
+            topic,
+            payload,
+            qos: self.qos,
+            retain,
+        }));
+    }
+
+    /// Waits until at most half the queue bound is waiting or in flight. A
+    /// producer that must not lose messages (`replay` at full speed) calls it
+    /// between publications; the daemon does not, so that it keeps locating
+    /// while the broker is away.
+    pub async fn wait_for_room(&self) {
+        let limit = (self.queue_max_messages / 2).max(1) as u64;
+        loop {
+            let backlog = self.submitted.load(Ordering::Relaxed)
+                - self.stats.commands_taken.load(Ordering::Relaxed)
+                + self.stats.outstanding.load(Ordering::Relaxed);
+            if backlog < limit || self.task.is_finished() {
+                return;
+            }
+            // Polling a counter is simpler than a wake-up protocol with the
+            // link task, and a replay waiting on the broker can spare 2 ms.
+            tokio::time::sleep(Duration::from_millis(2)).await;
+        }
+    }
+
+    /// Sets the messages sent (before the queue) after every connect; with
+    /// `send_now` they are also sent on the current connection.
+    pub fn set_birth(&self, messages: &[crate::publish::Message], send_now: bool) {
+        let birth = messages
+            .iter()
+            .map(|m| Outgoing {
+                topic: m.topic.clone(),
+                payload: serde_json::to_vec(&m.payload).expect("JSON values serialize"),
+                qos: self.qos,
+                retain: m.retain,
+            })
+            .collect();
+        let _ = self.commands.send(Command::Birth(birth, send_now));
+    }
+
+    /// Publishes the offline status, waits (up to the grace period) until every
+    /// queued and in-flight message is acknowledged, and disconnects.
+    pub async fn shutdown(self) {
+        let (done, wait) = oneshot::channel();
+        if self.commands.send(Command::Shutdown(done)).is_ok() {
+            let _ = wait.await;
+        }
+        let _ = self.task.await;
+    }
+}
+
+enum Conn {
+    /// Waiting to try again at this instant.
+    Down { retry_at: Instant },
+    /// A session is connecting or connected.
+    Session {
+        id: u64,
+        client: AsyncClient,
+        connected: bool,
+    },
+}
+
+type SessionEvent = (u64, Result<Event, ConnectionError>);
+
+struct Controller {
+    settings: LinkSettings,
+    stats: Arc<LinkStats>,
+    inbound: mpsc::Sender<Publish>,
+    queue: OfflineQueue,
+    birth: Vec<Outgoing>,
+    /// Handed to the current session, in order, not yet seen on the wire.
+    handed: VecDeque<Outgoing>,
+    /// Written with this packet id, awaiting PUBACK; the sequence number
+    /// keeps their original order for redelivery.
+    awaiting: BTreeMap<u64, (u16, Outgoing)>,
+    next_seq: u64,
+    backoff: Duration,
+    ever_connected: bool,
+    conn: Conn,
+    next_session: u64,
+    events_tx: mpsc::UnboundedSender<SessionEvent>,
+    events_rx: mpsc::UnboundedReceiver<SessionEvent>,
+    shutdown: Option<(oneshot::Sender<()>, Instant)>,
+    disconnect_sent: bool,
+}
+
+impl Controller {
+    fn new(settings: LinkSettings, stats: Arc<LinkStats>, inbound: mpsc::Sender<Publish>) -> Self {
+        let (events_tx, events_rx) = mpsc::unbounded_channel();
+        Controller {
+            queue: OfflineQueue::new(settings.queue_max_messages, settings.queue_max_bytes),
+            backoff: settings.reconnect_min,
+            settings,
+            stats,
+            inbound,
+            birth: Vec::new(),
+            handed: VecDeque::new(),
+            awaiting: BTreeMap::new(),
+            next_seq: 0,
+            ever_connected: false,
+            conn: Conn::Down {
+                retry_at: Instant::now(),
+            },
+            next_session: 0,
+            events_tx,
+            events_rx,
+            shutdown: None,
+            disconnect_sent: false,
+        }
+    }
+
+    async fn run(mut self, mut commands: mpsc::UnboundedReceiver<Command>) {
+        loop {
+            let retry_at = match &self.conn {
+                Conn::Down { retry_at } => Some(*retry_at),
+                Conn::Session { .. } => None,
+            };
+            let deadline = self.shutdown.as_ref().map(|(_, d)| *d);
+            tokio::select! {
+                command = commands.recv(), if self.shutdown.is_none() => match command {
+                    Some(Command::Publish(m)) => {
+                        self.stats.commands_taken.fetch_add(1, Ordering::Relaxed);
+                        self.queue.push(m);
+                        self.flush();
+                    }
+                    Some(Command::Birth(birth, send_now)) => {
+                        self.birth = birth.clone();
+                        if send_now && self.is_connected() {
+                            for m in birth {
+                                self.queue.push(m);
+                            }
+                            self.flush();
+                        }
+                    }
+                    Some(Command::Shutdown(done)) => self.begin_shutdown(done),
+                    // Every handle is gone: nobody can ask for a clean
+                    // shutdown any more, so do one now.
+                    None => {
+                        let (done, _) = oneshot::channel();
+                        self.begin_shutdown(done);
+                    }
+                },
+                Some((session, event)) = self.events_rx.recv() => {
+                    if self.current_session() == Some(session) && self.on_event(event) {
+                        break;
+                    }
+                }
+                _ = sleep_until(retry_at), if retry_at.is_some() => self.connect(),
+                _ = sleep_until(deadline), if deadline.is_some() => {
+                    tracing::warn!(
+                        queued = self.queue.len(),
+                        in_flight = self.handed.len() + self.awaiting.len(),
+                        "MQTT shutdown grace period over; giving up on unsent messages"
+                    );
+                    break;
+                }
+            }
+            self.publish_stats();
+            if self.shutdown.is_some()
+                && !self.disconnect_sent
+                && self.drained()
+                && let Conn::Session {
+                    client,
+                    connected: true,
+                    ..
+                } = &self.conn
+            {
+                let _ = client.try_disconnect();
+                self.disconnect_sent = true;
+            }
+        }
+        self.stats.connected.store(false, Ordering::Relaxed);
+        if let Some((done, _)) = self.shutdown.take() {
+            let _ = done.send(());
+        }
+    }
+
+    fn begin_shutdown(&mut self, done: oneshot::Sender<()>) {
+        if let Some((topic, _, offline)) = &self.settings.status {
+            // A clean DISCONNECT suppresses the last will, so say it ourselves.
+            self.queue.push(Outgoing {
+                topic: topic.clone(),
+                payload: offline.clone().into_bytes(),
+                qos: self.settings.qos,
+                retain: true,
+            });
+        }
+        self.shutdown = Some((done, Instant::now() + self.settings.shutdown_grace));
+        self.flush();
+    }
+
+    fn drained(&self) -> bool {
+        self.queue.is_empty() && self.handed.is_empty() && self.awaiting.is_empty()
+    }
+
+    fn is_connected(&self) -> bool {
+        matches!(
+            self.conn,
+            Conn::Session {
+                connected: true,
+                ..
+            }
+        )
+    }
+
+    fn current_session(&self) -> Option<u64> {
+        match self.conn {
+            Conn::Session { id, .. } => Some(id),
+            Conn::Down { .. } => None,
+        }
+    }
+
+    /// Starts a new session: a fresh client and event loop, polled on a task
+    /// that forwards every event here and ends with the session.
+    fn connect(&mut self) {
+        let mut options = self.settings.options.clone();
+        if let Some((topic, _, offline)) = &self.settings.status {
+            options.set_last_will(LastWill::new(
+                topic,
+                offline.clone(),
+                self.settings.qos,
+                true,
+            ));
+        }
+        let (client, eventloop) = AsyncClient::new(options, SESSION_WINDOW);
+        let id = self.next_session;
+        self.next_session += 1;
+        tokio::spawn(poll_session(id, eventloop, self.events_tx.clone()));
+        self.conn = Conn::Session {
+            id,
+            client,
+            connected: false,
+        };
+    }
+
+    /// Handles one event of the current session; true when the link is done.
+    fn on_event(&mut self, event: Result<Event, ConnectionError>) -> bool {
+        match event {
+            Ok(Event::Incoming(Packet::ConnAck(_))) => self.on_connected(),
+            Ok(Event::Incoming(Packet::Publish(p))) => {
+                if self.inbound.try_send(p).is_err() {
+                    self.stats.inbound_dropped.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+            Ok(Event::Incoming(Packet::PubAck(ack))) => self.acked(ack.pkid),
+            Ok(Event::Incoming(Packet::PubComp(comp))) => self.acked(comp.pkid),
+            Ok(Event::Outgoing(Out::Publish(pkid))) => {
+                if let Some(m) = self.handed.pop_front() {
+                    self.stats.published.fetch_add(1, Ordering::Relaxed);
+                    if m.qos != QoS::AtMostOnce {
+                        self.awaiting.insert(self.next_seq, (pkid, m));
+                        self.next_seq += 1;
+                    }
+                }
+            }
+            Ok(Event::Outgoing(Out::Disconnect)) => return true,
+            Ok(_) => {}
+            Err(e) => self.on_lost(e),
+        }
+        self.flush();
+        false
+    }
+
+    fn acked(&mut self, pkid: u16) {
+        let seq = self
+            .awaiting
+            .iter()
+            .find(|(_, (p, _))| *p == pkid)
+            .map(|(&s, _)| s);
+        if let Some(seq) = seq {
+            self.awaiting.remove(&seq);
+        }
+    }
+
+    fn on_connected(&mut self) {
+        let Conn::Session {
+            client, connected, ..
+        } = &mut self.conn
+        else {
+            return;
+        };
+        *connected = true;
+        for topic in &self.settings.subscriptions {
+            if let Err(e) = client.try_subscribe(topic, self.settings.qos) {
+                tracing::error!(%topic, "cannot subscribe: {e}");
+            }
+        }
+        let url = broker_address(&self.settings.options);
+        if self.ever_connected {
+            self.stats.reconnects.fetch_add(1, Ordering::Relaxed);
+            tracing::info!(broker = %url, queued = self.queue.len(), "reconnected to the MQTT broker");
+        } else {
+            tracing::info!(broker = %url, "connected to the MQTT broker");
+        }
+        self.ever_connected = true;
+        self.backoff = self.settings.reconnect_min;
+        self.stats.connected.store(true, Ordering::Relaxed);
+        let mut birth = Vec::with_capacity(self.birth.len() + 1);
+        if let Some((topic, online, _)) = &self.settings.status
+            && self.shutdown.is_none()
+        {
+            birth.push(Outgoing {
+                topic: topic.clone(),
+                payload: online.clone().into_bytes(),
+                qos: self.settings.qos,
+                retain: true,
+            });
+        }
+        birth.extend(self.birth.iter().cloned());
+        self.queue.requeue_front(birth.into_iter());
+    }
+
+    /// The session failed: take back what it had not delivered and wait.
+    fn on_lost(&mut self, error: ConnectionError) {
+        let was_connected = self.is_connected();
+        let undelivered: Vec<Outgoing> = std::mem::take(&mut self.awaiting)
+            .into_values()
+            .map(|(_, m)| m)
+            .chain(self.handed.drain(..))
+            .collect();
+        self.queue.requeue_front(undelivered.into_iter());
+        self.stats.connected.store(false, Ordering::Relaxed);
+        self.stats.connect_failures.fetch_add(1, Ordering::Relaxed);
+        let wait = self.backoff;
+        self.backoff = (self.backoff * 2).min(self.settings.reconnect_max);
+        let broker = broker_address(&self.settings.options);
+        if was_connected {
+            tracing::warn!(%broker, retry_in_s = wait.as_secs_f64(), queued = self.queue.len(), "lost the MQTT broker: {error}");
+        } else {
+            tracing::warn!(%broker, retry_in_s = wait.as_secs_f64(), "cannot connect to the MQTT broker: {error}");
+        }
+        self.conn = Conn::Down {
+            retry_at: Instant::now() + wait,
+        };
+        self.disconnect_sent = false;
+    }
+
+    /// Moves queued messages into the connected session, up to its window.
+    fn flush(&mut self) {
+        let Conn::Session {
+            client,
+            connected: true,
+            ..
+        } = &self.conn
+        else {
+            return;
+        };
+        while self.handed.len() + self.awaiting.len() < SESSION_WINDOW {
+            let Some(m) = self.queue.pop() else { break };
+            match client.try_publish(&m.topic, m.qos, m.retain, m.payload.clone()) {
+                Ok(()) => self.handed.push_back(m),
+                Err(e) => {
+                    // Channel full or closed: keep the message for later.
+                    tracing::debug!("MQTT client busy: {e}");
+                    self.queue.requeue_front(std::iter::once(m));
+                    break;
+                }
+            }
+        }
+    }
+
+    fn publish_stats(&self) {
+        let s = &self.stats;
+        s.outstanding.store(
+            (self.queue.len() + self.handed.len() + self.awaiting.len()) as u64,
+            Ordering::Relaxed,
+        );
+        s.queue_depth
+            .store(self.queue.len() as u64, Ordering::Relaxed);
+        s.queue_bytes
+            .store(self.queue.bytes() as u64, Ordering::Relaxed);
+        s.queue_dropped
+            .store(self.queue.dropped(), Ordering::Relaxed);
+    }
+}
+
+async fn poll_session(
+    id: u64,
+    mut eventloop: EventLoop,
+    events: mpsc::UnboundedSender<SessionEvent>,
+) {
+    loop {
+        let event = eventloop.poll().await;
+        let last = matches!(event, Err(_) | Ok(Event::Outgoing(Out::Disconnect)));
+        if events.send((id, event)).is_err() || last {
+            return;
+        }
+    }
+}
+
+async fn sleep_until(at: Option<Instant>) {
+    match at {
+        Some(at) => tokio::time::sleep_until(at).await,
+        None => std::future::pending().await,
+    }
+}
+
+fn broker_address(options: &MqttOptions) -> String {
+    let (host, port) = options.broker_address();
+    format!("{host}:{port}")
+}

@@ -1,0 +1,96 @@
+//! The retained `<prefix>/stats` payload: the gateway's counters, published
+//! every `[mqtt] stats_interval_s` and whenever the BLE state changes. Schema:
+//! docs/schemas/stats.schema.json.
+
+use serde::Serialize;
+
+pub const STATS_SCHEMA: &str = "gangway.stats/1";
+
+/// The counters in [`Stats`] that only grow, with a human name each (Home
+/// Assistant discovery makes one sensor per entry).
+pub const COUNTERS: [(&str, &str); 20] = [
+    ("sightings", "Sightings"),
+    ("sightings_ignored", "Sightings ignored"),
+    ("fixes", "Fixes"),
+    ("requests", "Route requests"),
+    ("routes", "Routes"),
+    ("request_errors", "Route errors"),
+    ("feedback", "Feedback"),
+    ("scans", "Phone scans"),
+    ("shared_in", "Shared sightings received"),
+    ("shared_out", "Shared sightings sent"),
+    ("rejected_messages", "Rejected messages"),
+    ("oversized_messages", "Oversized messages"),
+    ("inbound_dropped", "Incoming messages dropped"),
+    ("bad_device_ids", "Unpublishable device ids"),
+    ("queue_dropped", "Offline queue drops"),
+    ("reconnects", "Reconnects"),
+    ("reloads", "Reloads"),
+    ("reload_failures", "Refused reloads"),
+    ("recorded", "Learning records"),
+    ("store_errors", "Learning store errors"),
+];
+
+/// Gauges (current values), with a human name each.
+pub const GAUGES: [(&str, &str); 2] = [
+    ("queue_depth", "Offline queue depth"),
+    ("tracked", "Tracked devices"),
+];
+
+/// One stats message.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Stats {
+    pub schema: &'static str,
+    pub gateway: String,
+    /// Seconds since the epoch.
+    pub t: f64,
+    pub uptime_s: f64,
+    pub sightings: u64,
+    /// Sightings of anchors the site does not know.
+    pub sightings_ignored: u64,
+    pub fixes: u64,
+    pub requests: u64,
+    pub routes: u64,
+    pub request_errors: u64,
+    pub feedback: u64,
+    pub scans: u64,
+    pub shared_in: u64,
+    pub shared_out: u64,
+    /// Incoming messages refused (bad topic, device id or payload).
+    pub rejected_messages: u64,
+    /// Incoming messages over `[mqtt] max_payload_bytes`.
+    pub oversized_messages: u64,
+    /// Incoming messages dropped because the pipeline was behind.
+    pub inbound_dropped: u64,
+    /// Fixes not published because the device id cannot be a topic level.
+    pub bad_device_ids: u64,
+    pub queue_depth: u64,
+    pub queue_bytes: u64,
+    pub queue_dropped: u64,
+    pub reconnects: u64,
+    /// SIGHUP reloads applied, and refused (the old config kept serving).
+    pub reloads: u64,
+    pub reload_failures: u64,
+    /// Rows written to the learning store, and failed writes.
+    pub recorded: u64,
+    pub store_errors: u64,
+    pub tracked: u64,
+    /// The site's name and map hash, so a reload is visible.
+    pub site: String,
+    pub site_hash: String,
+    pub ble: BleStatus,
+}
+
+/// The radio's state, visible to operators.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct BleStatus {
+    /// `scanning`, `retrying` (adapter lost or missing), `starting`, or
+    /// `replay` when events come from a log.
+    pub state: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// Failed attempts since the last successful start.
+    pub failures: u64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub retry_in_s: Option<f64>,
+}

@@ -1,0 +1,449 @@
+//! The crowd-sourced learning store: what the gateway saw people walk (each
+//! device's smoothed trajectory, i.e. the tracker's fixes), the routes it gave
+//! and the feedback on them, in an embedded SQLite file (rusqlite, bundled, so
+//! nothing is installed) in the state directory, with bounded retention.
+//!
+//! The daemon writes through [`Store::write`]; training reads through
+//! [`Store::trajectories`] and [`Store::routes`] (`gangway train --from-store`).
+
+use std::path::{Path, PathBuf};
+
+use rusqlite::{Connection, OpenFlags, params};
+use serde::Deserialize;
+
+use crate::site::Cell;
+
+/// Bumped when the tables change; a file of another version is refused.
+const SCHEMA_VERSION: i64 = 1;
+
+/// `[store]` in the gateway config.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StoreConfig {
+    /// Record trajectories, routes and feedback.
+    pub enabled: bool,
+    /// The SQLite file; by default `learning.sqlite` in systemd's
+    /// `$STATE_DIRECTORY`, else in the working directory.
+    pub path: Option<PathBuf>,
+    /// Rows older than this are deleted.
+    pub retention_days: f64,
+    /// At most this many fixes are kept (the oldest go first).
+    pub max_fixes: u64,
+}
+
+impl Default for StoreConfig {
+    fn default() -> Self {
+        StoreConfig {
+            enabled: false,
+            path: None,
+            retention_days: 30.0,
+            max_fixes: 2_000_000,
+        }
+    }
+}
+
+impl StoreConfig {
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.retention_days > 0.0 && self.retention_days.is_finite()) {
+            return Err("[store] `retention_days` must be a positive number of days".into());
+        }
+        if self.max_fixes == 0 {
+            return Err("[store] `max_fixes` must be positive".into());
+        }
+        Ok(())
+    }
+
+    /// Where the store lives.
+    pub fn resolved_path(&self) -> PathBuf {
+        self.path.clone().unwrap_or_else(|| {
+            std::env::var_os("STATE_DIRECTORY")
+                .map(PathBuf::from)
+                .unwrap_or_default()
+                .join("learning.sqlite")
+        })
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    #[error("{}: {source}", path.display())]
+    Sqlite {
+        path: PathBuf,
+        source: rusqlite::Error,
+    },
+    #[error(
+        "{}: store schema version {found}, this gangway reads version {SCHEMA_VERSION}; \
+         move the file away to start a new store",
+        path.display()
+    )]
+    Version { path: PathBuf, found: i64 },
+}
+
+/// One thing worth learning from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Record {
+    Fix {
+        device: String,
+        t: f64,
+        cell: Cell,
+        confidence: f32,
+    },
+    Route {
+        device: String,
+        request_id: Option<String>,
+        t: f64,
+        planner: String,
+        cells: Vec<Cell>,
+    },
+    Feedback {
+        device: String,
+        request_id: String,
+        t: f64,
+        score: u8,
+    },
+}
+
+/// A device's walk: fixes in time order, without a gap longer than asked for.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Trajectory {
+    pub device: String,
+    pub points: Vec<(f64, Cell)>,
+}
+
+/// A route the gateway gave, with the mean feedback score when there was any.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RecordedRoute {
+    pub device: String,
+    pub request_id: Option<String>,
+    pub t: f64,
+    pub planner: String,
+    pub cells: Vec<Cell>,
+    pub score: Option<f64>,
+}
+
+pub struct Store {
+    conn: Connection,
+    path: PathBuf,
+}
+
+impl Store {
+    /// Opens (creating if needed) a store for writing.
+    pub fn open(path: &Path) -> Result<Store, StoreError> {
+        let conn = Connection::open(path).map_err(|e| sql(path, e))?;
+        let store = Store {
+            conn,
+            path: path.to_owned(),
+        };
+        store.init()?;
+        Ok(store)
+    }
+
+    /// Opens an existing store read-only (training while the daemon writes).
+    pub fn open_read_only(path: &Path) -> Result<Store, StoreError> {
+        let conn = Connection::open_with_flags(path, OpenFlags::SQLITE_OPEN_READ_ONLY)
+            .map_err(|e| sql(path, e))?;
+        let store = Store {
+            conn,
+            path: path.to_owned(),
+        };
+        store.check_version()?;
+        Ok(store)
+    }
+
+    fn init(&self) -> Result<(), StoreError> {
+        // WAL lets a trainer read while the daemon writes; NORMAL sync is
+        // durable across process crashes, which is what a learning log needs.
+        self.conn
+            .execute_batch(
+                "PRAGMA journal_mode = WAL;
+                 PRAGMA synchronous = NORMAL;
+                 CREATE TABLE IF NOT EXISTS fixes (
+                     device TEXT NOT NULL, t REAL NOT NULL,
+                     x INTEGER NOT NULL, y INTEGER NOT NULL, confidence REAL NOT NULL);
+                 CREATE INDEX IF NOT EXISTS fixes_by_device ON fixes (device, t);
+                 CREATE INDEX IF NOT EXISTS fixes_by_time ON fixes (t);
+                 CREATE TABLE IF NOT EXISTS routes (
+                     device TEXT NOT NULL, request_id TEXT, t REAL NOT NULL,
+                     planner TEXT NOT NULL, cells TEXT NOT NULL);
+                 CREATE INDEX IF NOT EXISTS routes_by_request ON routes (device, request_id);
+                 CREATE TABLE IF NOT EXISTS feedback (
+                     device TEXT NOT NULL, request_id TEXT NOT NULL, t REAL NOT NULL,
+                     score INTEGER NOT NULL);",
+            )
+            .map_err(|e| sql(&self.path, e))?;
+        let version: i64 = self
+            .conn
+            .query_row("PRAGMA user_version", [], |r| r.get(0))
+            .map_err(|e| sql(&self.path, e))?;
+        if version == 0 {
+            self.conn
+                .execute_batch(&format!("PRAGMA user_version = {SCHEMA_VERSION}"))
+                .map_err(|e| sql(&self.path, e))?;
+        }
+        self.check_version()
+    }
+
+    fn check_version(&self) -> Result<(), StoreError> {
+        let found: i64 = self
+            .conn
+            .query_row("PRAGMA user_version", [], |r| r.get(0))
+            .map_err(|e| sql(&self.path, e))?;
+        if found != SCHEMA_VERSION {
+            return Err(StoreError::Version {
+                path: self.path.clone(),
+                found,
+            });
+        }
+        Ok(())
+    }
+
+    /// Writes records in one transaction.
+    pub fn write(&mut self, records: &[Record]) -> Result<(), StoreError> {
+        let path = self.path.clone();
+        let tx = self.conn.transaction().map_err(|e| sql(&path, e))?;
+        for record in records {
+            let done = match record {
+                Record::Fix {
+                    device,
+                    t,
+                    cell,
+                    confidence,
+                } => tx.execute(
+                    "INSERT INTO fixes (device, t, x, y, confidence) VALUES (?1, ?2, ?3, ?4, ?5)",
+                    params![device, t, cell.x, cell.y, confidence],
+                ),
+                Record::Route {
+                    device,
+                    request_id,
+                    t,
+                    planner,
+                    cells,
+                } => tx.execute(
+                    "INSERT INTO routes (device, request_id, t, planner, cells) VALUES (?1, ?2, ?3, ?4, ?5)",
+                    params![
+                        device,
+                        request_id,
+                        t,
+                        planner,
+                        serde_json::to_string(cells).expect("cells serialize")
+                    ],
+                ),
+                Record::Feedback {
+                    device,
+                    request_id,
+                    t,
+                    score,
+                } => tx.execute(
+                    "INSERT INTO feedback (device, request_id, t, score) VALUES (?1, ?2, ?3, ?4)",
+                    params![device, request_id, t, score],
+                ),
+            };
+            done.map_err(|e| sql(&path, e))?;
+        }
+        tx.commit().map_err(|e| sql(&path, e))
+    }
+
+    /// Deletes rows older than `now - retention_s`, and the oldest fixes past
+    /// `max_fixes`. Returns the number of rows deleted.
+    pub fn prune(
+        &mut self,
+        now: f64,
+        retention_s: f64,
+        max_fixes: u64,
+    ) -> Result<usize, StoreError> {
+        let cutoff = now - retention_s;
+        let mut deleted = 0;
+        for table in ["fixes", "routes", "feedback"] {
+            deleted += self
+                .conn
+                .execute(&format!("DELETE FROM {table} WHERE t < ?1"), [cutoff])
+                .map_err(|e| sql(&self.path, e))?;
+        }
+        deleted += self
+            .conn
+            .execute(
+                "DELETE FROM fixes WHERE rowid IN (SELECT rowid FROM fixes ORDER BY t DESC LIMIT -1 OFFSET ?1)",
+                [i64::try_from(max_fixes).unwrap_or(i64::MAX)],
+            )
+            .map_err(|e| sql(&self.path, e))?;
+        Ok(deleted)
+    }
+
+    /// Every device's walk, split wherever two fixes are more than `max_gap_s`
+    /// apart (a device that left and came back walks twice).
+    pub fn trajectories(&self, max_gap_s: f64) -> Result<Vec<Trajectory>, StoreError> {
+        let mut stmt = self
+            .conn
+            .prepare("SELECT device, t, x, y FROM fixes ORDER BY device, t")
+            .map_err(|e| sql(&self.path, e))?;
+        let rows = stmt
+            .query_map([], |r| {
+                Ok((
+                    r.get::<_, String>(0)?,
+                    r.get::<_, f64>(1)?,
+                    Cell::new(r.get(2)?, r.get(3)?),
+                ))
+            })
+            .map_err(|e| sql(&self.path, e))?;
+        let mut out: Vec<Trajectory> = Vec::new();
+        for row in rows {
+            let (device, t, cell) = row.map_err(|e| sql(&self.path, e))?;
+            match out.last_mut() {
+                Some(last)
+                    if last.device == device
+                        && last
+                            .points
+                            .last()
+                            .is_some_and(|&(lt, _)| t - lt <= max_gap_s) =>
+                {
+                    last.points.push((t, cell));
+                }
+                _ => out.push(Trajectory {
+                    device,
+                    points: vec![(t, cell)],
+                }),
+            }
+        }
+        Ok(out)
+    }
+
+    /// Every route given, oldest first, with its mean feedback score.
+    pub fn routes(&self) -> Result<Vec<RecordedRoute>, StoreError> {
+        let mut stmt = self
+            .conn
+            .prepare(
+                "SELECT r.device, r.request_id, r.t, r.planner, r.cells,
+                        (SELECT AVG(f.score) FROM feedback f
+                          WHERE f.device = r.device AND f.request_id = r.request_id)
+                   FROM routes r ORDER BY r.t",
+            )
+            .map_err(|e| sql(&self.path, e))?;
+        let rows = stmt
+            .query_map([], |r| {
+                Ok((
+                    r.get::<_, String>(0)?,
+                    r.get::<_, Option<String>>(1)?,
+                    r.get::<_, f64>(2)?,
+                    r.get::<_, String>(3)?,
+                    r.get::<_, String>(4)?,
+                    r.get::<_, Option<f64>>(5)?,
+                ))
+            })
+            .map_err(|e| sql(&self.path, e))?;
+        let mut out = Vec::new();
+        for row in rows {
+            let (device, request_id, t, planner, cells, score) =
+                row.map_err(|e| sql(&self.path, e))?;
+            // Written by `write` from `Vec<Cell>`; a row that does not parse
+            // was edited by hand and is skipped rather than failing training.
+            let Ok(cells) = serde_json::from_str::<Vec<Cell>>(&cells) else {
+                tracing::warn!(%device, "{}: a route row with unreadable cells, skipped", self.path.display());
+                continue;
+            };
+            out.push(RecordedRoute {
+                device,
+                request_id,
+                t,
+                planner,
+                cells,
+                score,
+            });
+        }
+        Ok(out)
+    }
+}
+
+fn sql(path: &Path, source: rusqlite::Error) -> StoreError {
+    StoreError::Sqlite {
+        path: path.to_owned(),
+        source,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fix(device: &str, t: f64, x: u16) -> Record {
+        Record::Fix {
+            device: device.into(),
+            t,
+            cell: Cell::new(x, 1),
+            confidence: 0.5,
+        }
+    }
+
+    #[test]
+    fn trajectories_routes_and_feedback_read_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.sqlite");
+        let mut store = Store::open(&path).unwrap();
+        store
+            .write(&[
+                fix("a", 1.0, 1),
+                fix("a", 3.0, 2),
+                fix("b", 2.0, 5),
+                fix("a", 100.0, 9), // after a long gap: a second walk
+                Record::Route {
+                    device: "a".into(),
+                    request_id: Some("r1".into()),
+                    t: 3.5,
+                    planner: "astar".into(),
+                    cells: vec![Cell::new(2, 1), Cell::new(3, 1)],
+                },
+                Record::Feedback {
+                    device: "a".into(),
+                    request_id: "r1".into(),
+                    t: 9.0,
+                    score: 4,
+                },
+                Record::Feedback {
+                    device: "a".into(),
+                    request_id: "r1".into(),
+                    t: 9.5,
+                    score: 2,
+                },
+            ])
+            .unwrap();
+        let reader = Store::open_read_only(&path).unwrap();
+        let walks = reader.trajectories(30.0).unwrap();
+        let shape: Vec<(&str, usize)> = walks
+            .iter()
+            .map(|w| (w.device.as_str(), w.points.len()))
+            .collect();
+        assert_eq!(shape, [("a", 2), ("a", 1), ("b", 1)]);
+        let routes = reader.routes().unwrap();
+        assert_eq!(routes.len(), 1);
+        assert_eq!(routes[0].score, Some(3.0));
+        assert_eq!(routes[0].cells.len(), 2);
+    }
+
+    #[test]
+    fn retention_bounds_age_and_count() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut store = Store::open(&dir.path().join("s.sqlite")).unwrap();
+        let records: Vec<Record> = (0..10).map(|i| fix("a", f64::from(i), 1)).collect();
+        store.write(&records).unwrap();
+        // Older than 10 - 6 = 4 goes (t = 0..3), then only the newest 3 stay.
+        assert_eq!(store.prune(10.0, 6.0, 3).unwrap(), 4 + 3);
+        let times: Vec<f64> = store.trajectories(100.0).unwrap()[0]
+            .points
+            .iter()
+            .map(|p| p.0)
+            .collect();
+        assert_eq!(times, [7.0, 8.0, 9.0]);
+    }
+
+    #[test]
+    fn a_store_of_another_version_is_refused_with_its_path() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.sqlite");
+        Store::open(&path).unwrap();
+        Connection::open(&path)
+            .unwrap()
+            .execute_batch("PRAGMA user_version = 99")
+            .unwrap();
+        let err = Store::open_read_only(&path).err().unwrap().to_string();
+        assert!(err.contains("s.sqlite") && err.contains("99"), "{err}");
+    }
+}

@@ -1,0 +1,84 @@
+//! The learning store fills from a live run: each walker's trajectory, the
+//! route given over MQTT and the feedback on it, readable by training.
+
+mod mqtt_support;
+
+use gangway::store::Store;
+use mqtt_support::*;
+
+const PREFIX: &str = "gangway/gw-test";
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_run_records_trajectories_routes_and_feedback() {
+    let broker = Broker::start();
+    let site = repo().join("config/sites/waldo.toml");
+    let config = gateway_config(
+        "gw-test",
+        &site,
+        &broker,
+        "[store]\nenabled = true\npath = \"learning.sqlite\"\n",
+    );
+    let mut client = Client::connect(&broker, "test-store", &[&format!("{PREFIX}/#")]).await;
+    let fixture = repo().join("fixtures/walk-waldo.jsonl");
+    let mut gateway = Gateway::start(
+        &config.path,
+        &["--replay", fixture.to_str().unwrap(), "--speed", "0"],
+    );
+    client
+        .wait_for("a location", |m| {
+            m.topic == format!("{PREFIX}/devices/walker-03/location")
+        })
+        .await;
+    client
+        .publish(
+            &format!("{PREFIX}/devices/walker-03/route/set"),
+            r#"{"to":"help desk","request_id":"s1"}"#,
+        )
+        .await;
+    let reply = client.reply(PREFIX, "walker-03", "s1").await;
+    let given = reply["waypoints"].as_array().unwrap().len();
+    client
+        .publish(
+            &format!("{PREFIX}/devices/walker-03/feedback"),
+            r#"{"request_id":"s1","score":5}"#,
+        )
+        .await;
+    client
+        .wait_for("stats with the feedback recorded", |m| {
+            m.topic == format!("{PREFIX}/stats") && m.json()["feedback"] == 1
+        })
+        .await;
+    // Let the replay reach the end of the fixture (two minutes from
+    // 1767225600) before stopping, so every walk is recorded whole.
+    for walker in ["walker-01", "walker-02", "walker-03"] {
+        client
+            .wait_for("a location near the end of the fixture", |m| {
+                m.topic == format!("{PREFIX}/devices/{walker}/location")
+                    && m.json()["t"]
+                        .as_f64()
+                        .is_some_and(|t| t > 1_767_225_600.0 + 110.0)
+            })
+            .await;
+    }
+    assert!(gateway.terminate().success());
+
+    let store = Store::open_read_only(&config.dir.path().join("learning.sqlite")).unwrap();
+    let walks = store.trajectories(30.0).unwrap();
+    for walker in ["walker-01", "walker-02", "walker-03"] {
+        let points: usize = walks
+            .iter()
+            .filter(|w| w.device == walker)
+            .map(|w| w.points.len())
+            .sum();
+        assert!(points > 20, "{walker}: {points} fixes recorded");
+    }
+    let routes = store.routes().unwrap();
+    let s1 = routes
+        .iter()
+        .find(|r| r.request_id.as_deref() == Some("s1"))
+        .expect("the MQTT route is recorded");
+    assert_eq!(s1.cells.len(), given);
+    assert_eq!(s1.score, Some(5.0));
+    // The fixture's own scripted requests are recorded too, without feedback.
+    assert!(routes.iter().filter(|r| r.score.is_none()).count() >= 1);
+}
