@@ -12,7 +12,7 @@
 //!
 //! [`site`] and [`config`] describe the building and the gateway; [`pipeline`]
 //! wires the stages together without doing I/O; [`daemon`] and the [`cli`]
-//! drive it.
+//! drive it. [`score`] compares a replay's fixes with its log's ground truth.
 
 pub mod cli;
 pub mod config;
@@ -22,6 +22,7 @@ pub mod mqtt;
 pub mod pipeline;
 pub mod plan;
 pub mod publish;
+pub mod score;
 pub mod sighting;
 pub mod site;
 pub mod source;

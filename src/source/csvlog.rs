@@ -1,0 +1,187 @@
+//! CSV scan logs: one row per scan, one RSSI column per beacon, replayed as
+//! adverts (and, when rows are labelled, as ground truth).
+//!
+//! The layout is the survey layout ([`crate::locate::survey`], whose row reader
+//! this uses): a time column (`date` as `MM-DD-YYYY HH:MM[:SS]`, or `t` in
+//! seconds), one column per beacon named by its `id` in the site file, and
+//! optionally the cell the scan was taken in (`location` label, or `x` and `y`).
+//! The UCI BLE RSSI survey is such a log as published.
+//!
+//! Every row becomes one advert per beacon heard (any value but the "not heard"
+//! sentinel) at the row's time, observed by one device id, plus a `truth` event
+//! for that device when the row names its cell.
+//!
+//! Rows are replayed in time order whatever their order in the file (the UCI
+//! survey lists its newest rows first). That needs the whole file before the
+//! first event, so the reader holds the events in memory: scan logs are
+//! hand-made surveys of a few thousand rows, and a long capture belongs in the
+//! streaming JSON Lines or btsnoop formats. Rows with equal times keep their file
+//! order, or the reverse of it when the file runs backwards overall, so a
+//! newest-first file whose times lack seconds still plays forwards.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use super::{Event, Truth};
+use crate::locate::survey::{Row, SurveyError, SurveyRows};
+use crate::sighting::Sighting;
+use crate::site::Site;
+
+/// How to read a scan log.
+#[derive(Clone, Debug)]
+pub struct CsvOptions {
+    /// The observer of every advert and the device of every truth event.
+    pub device: Arc<str>,
+    /// The RSSI value that means "not heard".
+    pub not_heard: i16,
+    /// Skip and count bad rows and unknown columns instead of refusing the file.
+    pub skip_bad: bool,
+}
+
+/// A scan log's events in time order.
+pub struct CsvLog {
+    events: std::vec::IntoIter<Event>,
+    rows: u64,
+    skipped_rows: u64,
+    ignored_columns: Vec<String>,
+    reordered: bool,
+}
+
+impl CsvLog {
+    /// Reads a scan log whose beacon columns are named after `site`'s beacons.
+    pub fn open(path: &Path, site: &Site, options: &CsvOptions) -> Result<CsvLog, SurveyError> {
+        let beacon_ids: Vec<String> = site.beacons.iter().map(|b| b.id.clone()).collect();
+        let header_error = |reason: String| SurveyError::Header {
+            path: path.to_owned(),
+            reason,
+        };
+        let mut reader = SurveyRows::open(path, site, &beacon_ids, options.not_heard)?;
+        if !reader.has_clock() {
+            return Err(header_error(
+                "no time column; a scan log needs `date` (MM-DD-YYYY HH:MM:SS) or `t` (seconds)"
+                    .into(),
+            ));
+        }
+        let ignored_columns = reader.ignored_columns().to_vec();
+        if let Some(column) = ignored_columns.first() {
+            let reason = format!(
+                "names no beacon of the site (beacons: {}); rename it after a beacon's `id`, \
+                 or pass --skip-bad to ignore such columns",
+                beacon_ids.join(", ")
+            );
+            if !options.skip_bad {
+                return Err(SurveyError::Field {
+                    path: path.to_owned(),
+                    line: 1,
+                    column: column.clone(),
+                    reason,
+                });
+            }
+            tracing::warn!(
+                path = %path.display(),
+                columns = ?ignored_columns,
+                "ignoring columns that name no beacon of the site"
+            );
+        }
+
+        let mut rows: Vec<Row> = Vec::new();
+        let mut skipped_rows = 0;
+        for row in reader.by_ref() {
+            match row {
+                Ok(row) => rows.push(row),
+                Err(e) if options.skip_bad => {
+                    skipped_rows += 1;
+                    tracing::warn!("{e}");
+                }
+                Err(e) => return Err(e),
+            }
+        }
+        let reordered = sort_by_time(&mut rows);
+        if reordered {
+            tracing::info!(
+                path = %path.display(),
+                rows = rows.len(),
+                "rows were not in time order; replaying them sorted by time"
+            );
+        }
+
+        let mut events = Vec::new();
+        for row in &rows {
+            let t = row.t.expect("checked: the log has a time column");
+            if let Some(cell) = row.cell {
+                events.push(Event::Truth(Truth {
+                    t,
+                    device: options.device.to_string(),
+                    cell,
+                }));
+            }
+            for (beacon, rssi) in site.beacons.iter().zip(&row.rssi) {
+                if let Some(rssi) = *rssi {
+                    events.push(Event::Advert(Sighting {
+                        t,
+                        observer: options.device.clone(),
+                        advertiser: beacon.beacon,
+                        tx_power: beacon.tx_power,
+                        rssi,
+                    }));
+                }
+            }
+        }
+        Ok(CsvLog {
+            events: events.into_iter(),
+            rows: rows.len() as u64,
+            skipped_rows,
+            ignored_columns,
+            reordered,
+        })
+    }
+
+    /// Rows read (not counting skipped ones).
+    pub fn rows(&self) -> u64 {
+        self.rows
+    }
+
+    /// Bad rows skipped (only with `skip_bad`).
+    pub fn skipped_rows(&self) -> u64 {
+        self.skipped_rows
+    }
+
+    /// Columns ignored because they name no beacon (only with `skip_bad`).
+    pub fn ignored_columns(&self) -> &[String] {
+        &self.ignored_columns
+    }
+
+    /// Whether the rows had to be sorted into time order.
+    pub fn reordered(&self) -> bool {
+        self.reordered
+    }
+}
+
+impl Iterator for CsvLog {
+    type Item = Event;
+
+    fn next(&mut self) -> Option<Event> {
+        self.events.next()
+    }
+}
+
+/// Sorts rows by time; returns whether they were out of order.
+fn sort_by_time(rows: &mut [Row]) -> bool {
+    let t = |r: &Row| r.t.unwrap_or(f64::NAN);
+    let (mut forward, mut backward) = (0usize, 0usize);
+    for pair in rows.windows(2) {
+        match t(&pair[0]).total_cmp(&t(&pair[1])) {
+            std::cmp::Ordering::Less => forward += 1,
+            std::cmp::Ordering::Greater => backward += 1,
+            std::cmp::Ordering::Equal => {}
+        }
+    }
+    if backward == 0 {
+        return false;
+    }
+    if backward > forward {
+        rows.reverse();
+    }
+    rows.sort_by(|a, b| t(a).total_cmp(&t(b)));
+    true
+}
