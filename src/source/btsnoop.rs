@@ -479,10 +479,10 @@ fn find_ibeacon(mut ad: &[u8]) -> Option<IBeacon> {
             return None;
         }
         let (structure, next) = rest.split_at(len);
-        if structure[0] == AD_MANUFACTURER_SPECIFIC {
-            if let Some(beacon) = ibeacon::parse_manufacturer_data(&structure[1..]) {
-                return Some(beacon);
-            }
+        if structure[0] == AD_MANUFACTURER_SPECIFIC
+            && let Some(beacon) = ibeacon::parse_manufacturer_data(&structure[1..])
+        {
+            return Some(beacon);
         }
         ad = next;
     }
@@ -718,10 +718,9 @@ mod tests {
         le_meta(subevent, &params)
     }
 
-    fn read(
-        bytes: &[u8],
-        skip_bad: bool,
-    ) -> (Vec<Result<Sighting, BtsnoopError>>, Vec<(SkipReason, u64)>) {
+    type Read = (Vec<Result<Sighting, BtsnoopError>>, Vec<(SkipReason, u64)>);
+
+    fn read(bytes: &[u8], skip_bad: bool) -> Read {
         let mut reader =
             BtsnoopReader::new(bytes, Path::new("cap.btsnoop"), "phone".into(), skip_bad).unwrap();
         let items: Vec<_> = reader.by_ref().collect();

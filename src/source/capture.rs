@@ -235,3 +235,117 @@ impl CaptureWriter {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sighting::{BeaconId, Sighting};
+    use crate::site::Cell;
+    use crate::source::Truth;
+
+    fn site() -> Site {
+        let text = "name = \"t\"\ncell_m = 1.0\nmap = '''\n##\n'''\n";
+        Site::parse(text, Path::new("t.toml")).unwrap()
+    }
+
+    fn options(format: Option<Format>, device: Option<&str>) -> ReadOptions {
+        ReadOptions {
+            format,
+            skip_bad: false,
+            device: device.map(str::to_owned),
+            not_heard: -200,
+        }
+    }
+
+    fn advert(t: f64, observer: &str) -> Event {
+        Event::Advert(Sighting {
+            t,
+            observer: observer.into(),
+            advertiser: BeaconId {
+                uuid: uuid::Uuid::from_u128(0x5e1a6f3c_2b1d_4c8e_9a70_3d2f1c0b9e84),
+                major: 1,
+                minor: 3001,
+            },
+            tx_power: Some(-59),
+            rssi: -71,
+        })
+    }
+
+    #[test]
+    fn formats_come_from_magic_bytes_then_the_name() {
+        let dir = tempfile::tempdir().unwrap();
+        let android = dir.path().join("btsnoop_hci.log");
+        BtsnoopWriter::create(&android, Datalink::H4)
+            .unwrap()
+            .flush()
+            .unwrap();
+        assert_eq!(Format::detect(&android).unwrap(), Format::Btsnoop);
+        let csv = dir.path().join("scan.CSV");
+        std::fs::write(&csv, "t,b1\n").unwrap();
+        assert_eq!(Format::detect(&csv).unwrap(), Format::Csv);
+        let jsonl = dir.path().join("walk.log");
+        std::fs::write(&jsonl, "").unwrap();
+        assert_eq!(Format::detect(&jsonl).unwrap(), Format::Jsonl);
+        assert!(Format::detect(&dir.path().join("absent")).is_err());
+
+        assert_eq!(Format::for_output(Path::new("a.btsnoop")), Format::Btsnoop);
+        assert_eq!(Format::for_output(Path::new("a.jsonl")), Format::Jsonl);
+        assert_eq!(Format::for_output(Path::new("a")), Format::Jsonl);
+    }
+
+    #[test]
+    fn a_recorded_btsnoop_capture_replays_to_the_same_adverts() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("rec.btsnoop");
+        let events = vec![advert(10.0, "gw-1"), advert(10.5, "gw-1")];
+        let mut writer = CaptureWriter::create(&path, None).unwrap();
+        for e in &events {
+            writer.write(e).unwrap();
+        }
+        writer.flush().unwrap();
+        drop(writer);
+        let reader = CaptureReader::open(&path, &site(), &options(None, Some("gw-1"))).unwrap();
+        assert_eq!(reader.format(), Format::Btsnoop);
+        let back: Vec<Event> = reader.map(Result::unwrap).collect();
+        assert_eq!(back, events);
+
+        let reader = CaptureReader::open(&path, &site(), &options(None, None)).unwrap();
+        let observers: Vec<_> = reader
+            .map(|e| match e.unwrap() {
+                Event::Advert(s) => s.observer.to_string(),
+                _ => unreachable!("btsnoop holds adverts only"),
+            })
+            .collect();
+        assert_eq!(observers, [DEFAULT_BTSNOOP_DEVICE; 2]);
+    }
+
+    #[test]
+    fn writers_refuse_what_their_format_cannot_hold() {
+        let dir = tempfile::tempdir().unwrap();
+        let err = CaptureWriter::create(&dir.path().join("x.csv"), None)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(err.contains("cannot record CSV"), "{err}");
+        let mut w =
+            CaptureWriter::create(&dir.path().join("x.bin"), Some(Format::Btsnoop)).unwrap();
+        let truth = Event::Truth(Truth {
+            t: 1.0,
+            device: "d".into(),
+            cell: Cell::new(0, 0),
+        });
+        assert!(w.write(&truth).is_err());
+    }
+
+    #[test]
+    fn an_explicit_format_wins_over_detection() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("scan.txt");
+        std::fs::write(&path, "t,b1\n1,-70\n").unwrap();
+        let err = CaptureReader::open(&path, &site(), &options(Some(Format::Btsnoop), None))
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(err.contains("not a btsnoop capture"), "{err}");
+    }
+}

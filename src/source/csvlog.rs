@@ -185,3 +185,177 @@ fn sort_by_time(rows: &mut [Row]) -> bool {
     rows.sort_by(|a, b| t(a).total_cmp(&t(b)));
     true
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::site::Cell;
+    use std::io::Write;
+
+    const SITE: &str = r#"
+name = "t"
+cell_m = 1.0
+map = '''
+###
+###
+'''
+[labels]
+first_row = 1
+[[beacon]]
+id = "b1"
+uuid = "b9407f30-f5f8-466e-aff9-25556b57fe6d"
+major = 1
+minor = 1
+[[beacon]]
+id = "b2"
+uuid = "b9407f30-f5f8-466e-aff9-25556b57fe6d"
+major = 1
+minor = 2
+tx_power = -61
+"#;
+
+    fn site() -> Site {
+        Site::parse(SITE, Path::new("t.toml")).unwrap()
+    }
+
+    fn options(skip_bad: bool) -> CsvOptions {
+        CsvOptions {
+            device: "survey".into(),
+            not_heard: -200,
+            skip_bad,
+        }
+    }
+
+    fn open_with(csv: &str, options: &CsvOptions) -> Result<(CsvLog, Vec<Event>), SurveyError> {
+        let mut f = tempfile::NamedTempFile::new().unwrap();
+        f.write_all(csv.as_bytes()).unwrap();
+        let mut log = CsvLog::open(f.path(), &site(), options)?;
+        let events = log.by_ref().collect();
+        Ok((log, events))
+    }
+
+    fn open(csv: &str) -> Result<Vec<Event>, SurveyError> {
+        open_with(csv, &options(false)).map(|(_, events)| events)
+    }
+
+    fn error(csv: &str) -> String {
+        open(csv).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn a_newest_first_uci_log_replays_forwards_with_truth() {
+        let (log, events) = open_with(
+            "location,date,b1,b2\n\
+             B02,10-18-2016 11:15:24,-200,-70\n\
+             A01,10-18-2016 11:15:21,-75,-200\n",
+            &options(false),
+        )
+        .unwrap();
+        assert!(log.reordered());
+        assert_eq!(log.rows(), 2);
+        let site = site();
+        let t0 = 1_476_789_321.0;
+        assert_eq!(
+            events,
+            vec![
+                Event::Truth(Truth {
+                    t: t0,
+                    device: "survey".into(),
+                    cell: Cell::new(0, 0)
+                }),
+                Event::Advert(Sighting {
+                    t: t0,
+                    observer: "survey".into(),
+                    advertiser: site.beacons[0].beacon,
+                    tx_power: None,
+                    rssi: -75,
+                }),
+                Event::Truth(Truth {
+                    t: t0 + 3.0,
+                    device: "survey".into(),
+                    cell: Cell::new(1, 1)
+                }),
+                Event::Advert(Sighting {
+                    t: t0 + 3.0,
+                    observer: "survey".into(),
+                    advertiser: site.beacons[1].beacon,
+                    tx_power: Some(-61),
+                    rssi: -70,
+                }),
+            ]
+        );
+    }
+
+    #[test]
+    fn rows_with_equal_times_in_a_backwards_file_are_reversed_too() {
+        // Newest first, and the two oldest rows lack seconds (same time).
+        let events = open(
+            "location,date,b1\n\
+             C02,10-18-2016 11:16:05,-70\n\
+             B01,10-18-2016 11:15,-71\n\
+             A01,10-18-2016 11:15,-72\n",
+        )
+        .unwrap();
+        let rssi: Vec<i16> = events
+            .iter()
+            .filter_map(|e| match e {
+                Event::Advert(s) => Some(s.rssi),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(rssi, vec![-72, -71, -70]);
+    }
+
+    #[test]
+    fn a_forward_log_without_labels_keeps_its_order_and_has_no_truth() {
+        let (log, events) = open_with("t,b1,b2\n1.5,-60,-100\n2.5,-100,-100\n", &{
+            let mut o = options(false);
+            o.not_heard = -100;
+            o
+        })
+        .unwrap();
+        assert!(!log.reordered());
+        assert_eq!(events.len(), 1);
+        assert!(matches!(&events[0], Event::Advert(s) if s.t == 1.5 && s.rssi == -60));
+    }
+
+    #[test]
+    fn bad_rows_name_their_row_and_column_or_are_skipped_and_counted() {
+        let csv = "location,t,b1,b2\nA01,1,-70,-6x\nA02,2,-70\nA01,3,-71,-200\n";
+        let err = error(csv);
+        assert!(
+            err.contains(":2: column `b2`: \"-6x\" is not an RSSI"),
+            "{err}"
+        );
+        let (log, events) = open_with(csv, &options(true)).unwrap();
+        assert_eq!(log.skipped_rows(), 2);
+        assert_eq!(log.rows(), 1);
+        assert_eq!(events.len(), 2); // truth + one advert of row 4
+        let err = error("location,t,b1,b2\nA01,1,-70\n");
+        assert!(err.contains(":2: column `b2`: missing"), "{err}");
+        let err = error("location,t,b1\nA01,soon,-70\n");
+        assert!(
+            err.contains(":2: column `t`: \"soon\" is not a number"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn unknown_anchor_columns_are_refused_or_ignored_with_the_flag() {
+        let csv = "t,b1,b7\n1,-70,-60\n";
+        let err = error(csv);
+        assert!(
+            err.contains(":1: column `b7`: names no beacon of the site"),
+            "{err}"
+        );
+        let (log, events) = open_with(csv, &options(true)).unwrap();
+        assert_eq!(log.ignored_columns(), ["b7"]);
+        assert_eq!(events.len(), 1);
+    }
+
+    #[test]
+    fn a_log_needs_a_clock_and_a_beacon_column() {
+        assert!(error("location,b1\nA01,-70\n").contains("no time column"));
+        assert!(error("t,c1\n1,-70\n").contains("no column names an anchor"));
+    }
+}
