@@ -494,6 +494,8 @@ fn find_ibeacon(mut ad: &[u8]) -> Option<IBeacon> {
 pub struct BtsnoopWriter<W: Write> {
     out: W,
     datalink: Datalink,
+    /// Whether the monitor "new index" record that names the adapter is written.
+    announced: bool,
 }
 
 impl BtsnoopWriter<BufWriter<File>> {
@@ -503,20 +505,16 @@ impl BtsnoopWriter<BufWriter<File>> {
 }
 
 impl<W: Write> BtsnoopWriter<W> {
-    /// Writes the file header (and for the monitor datalink, the "new index"
-    /// record btmon starts with, so tools name the adapter).
+    /// Writes the file header.
     pub fn new(mut out: W, datalink: Datalink) -> io::Result<Self> {
         out.write_all(&MAGIC)?;
         out.write_all(&VERSION.to_be_bytes())?;
         out.write_all(&datalink.code().to_be_bytes())?;
-        let mut writer = BtsnoopWriter { out, datalink };
-        if datalink == Datalink::Monitor {
-            // type 0 (primary controller), bus 0 (virtual), address, name[8]
-            let mut new_index = [0u8; 16];
-            new_index[8..15].copy_from_slice(b"gangway");
-            writer.record(u32::from(MONITOR_NEW_INDEX), UNIX_EPOCH_US, &new_index)?;
-        }
-        Ok(writer)
+        Ok(BtsnoopWriter {
+            out,
+            datalink,
+            announced: datalink != Datalink::Monitor,
+        })
     }
 
     /// Writes one sighting. Its observer is not stored (a capture is what one
@@ -573,6 +571,15 @@ impl<W: Write> BtsnoopWriter<W> {
             Datalink::Monitor => u32::from(MONITOR_EVENT_PKT),
         };
         let timestamp = UNIX_EPOCH_US.saturating_add((sighting.t * 1e6).round() as i64);
+        if !self.announced {
+            // The "new index" record btmon starts with, so tools name the
+            // adapter; stamped with the first sighting's time, not 1970.
+            // type 0 (primary controller), bus 0 (virtual), address, name[8]
+            let mut new_index = [0u8; 16];
+            new_index[8..15].copy_from_slice(b"gangway");
+            self.record(u32::from(MONITOR_NEW_INDEX), timestamp, &new_index)?;
+            self.announced = true;
+        }
         self.record(flags, timestamp, &packet)
     }
 
