@@ -9,7 +9,8 @@
 //!
 //! Every row becomes one advert per beacon heard (any value but the "not heard"
 //! sentinel) at the row's time, observed by one device id, plus a `truth` event
-//! for that device when the row names its cell.
+//! for that device when the row names its cell. The beacon's identity comes from
+//! the site file; a scan log has no measured power, so adverts carry none.
 //!
 //! Rows are replayed in time order whatever their order in the file (the UCI
 //! survey lists its newest rows first). That needs the whole file before the
@@ -121,7 +122,9 @@ impl CsvLog {
                         t,
                         observer: options.device.clone(),
                         advertiser: beacon.beacon,
-                        tx_power: beacon.tx_power,
+                        // A scan log carries no frame, so no measured power;
+                        // the site's `tx_power`, if any, applies downstream.
+                        tx_power: None,
                         rssi,
                     }));
                 }
@@ -279,7 +282,7 @@ tx_power = -61
                     t: t0 + 3.0,
                     observer: "survey".into(),
                     advertiser: site.beacons[1].beacon,
-                    tx_power: Some(-61),
+                    tx_power: None,
                     rssi: -70,
                 }),
             ]
