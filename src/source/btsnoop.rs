@@ -34,6 +34,7 @@
 //! LE Advertising Report events, so a capture opens in Wireshark and btmon and
 //! reads back to the same sightings (timestamps to the microsecond).
 
+use std::collections::VecDeque;
 use std::fmt;
 use std::fs::File;
 use std::io::{self, BufReader, BufWriter, Read, Write};
@@ -132,6 +133,8 @@ pub enum SkipReason {
 }
 
 impl SkipReason {
+    /// Every reason, in declaration order: a reason's discriminant is its index
+    /// here and in the reader's counters.
     pub const ALL: [SkipReason; 7] = [
         SkipReason::NotAnEvent,
         SkipReason::OtherEvent,
@@ -204,8 +207,8 @@ pub struct BtsnoopReader<R> {
     offset: u64,
     packet: Vec<u8>,
     /// Sightings of the current record not yet returned (a report event can
-    /// carry several reports), newest last.
-    pending: Vec<Sighting>,
+    /// carry several reports).
+    pending: VecDeque<Sighting>,
     skipped: [u64; SkipReason::ALL.len()],
     done: bool,
 }
@@ -273,7 +276,7 @@ impl<R: Read> BtsnoopReader<R> {
             record: 0,
             offset: FILE_HEADER_LEN as u64,
             packet: Vec::new(),
-            pending: Vec::new(),
+            pending: VecDeque::new(),
             skipped: [0; SkipReason::ALL.len()],
             done: false,
         })
@@ -295,10 +298,6 @@ impl<R: Read> BtsnoopReader<R> {
             .zip(self.skipped)
             .filter(|(_, n)| *n > 0)
             .map(|(r, n)| (*r, n))
-    }
-
-    fn skip(&mut self, reason: SkipReason) {
-        self.skipped[reason as usize] += 1;
     }
 
     /// Reads the next record into `self.packet`; `Ok(None)` at a clean end.
@@ -356,38 +355,29 @@ impl<R: Read> BtsnoopReader<R> {
     /// it skips.
     fn decode(&mut self, flags: u32, timestamp: i64) {
         let Some(event) = self.datalink.event(flags, &self.packet) else {
-            self.skip(SkipReason::NotAnEvent);
+            self.skipped[SkipReason::NotAnEvent as usize] += 1;
             return;
         };
         let t = timestamp.saturating_sub(UNIX_EPOCH_US) as f64 / 1e6;
-        let mut found = Vec::new();
-        let mut report_skips = Vec::new();
+        let (skipped, pending, observer) = (&mut self.skipped, &mut self.pending, &self.observer);
         let outcome = le_reports(event, |rssi, data| {
             if rssi == RSSI_UNAVAILABLE {
-                report_skips.push(SkipReason::NoRssi);
+                skipped[SkipReason::NoRssi as usize] += 1;
                 return;
             }
             match find_ibeacon(data) {
-                Some(beacon) => found.push((beacon, rssi)),
-                None => report_skips.push(SkipReason::NotIBeacon),
+                Some(beacon) => pending.push_back(Sighting {
+                    t,
+                    observer: observer.clone(),
+                    advertiser: beacon.id,
+                    tx_power: Some(beacon.measured_power),
+                    rssi: i16::from(rssi),
+                }),
+                None => skipped[SkipReason::NotIBeacon as usize] += 1,
             }
         });
-        match outcome {
-            Ok(()) => {
-                for reason in report_skips {
-                    self.skip(reason);
-                }
-                // Reports are returned in the order the event lists them.
-                self.pending
-                    .extend(found.into_iter().rev().map(|(beacon, rssi)| Sighting {
-                        t,
-                        observer: self.observer.clone(),
-                        advertiser: beacon.id,
-                        tx_power: Some(beacon.measured_power),
-                        rssi: i16::from(rssi),
-                    }));
-            }
-            Err(reason) => self.skip(reason),
+        if let Err(reason) = outcome {
+            skipped[reason as usize] += 1;
         }
     }
 }
@@ -397,7 +387,7 @@ impl<R: Read> Iterator for BtsnoopReader<R> {
 
     fn next(&mut self) -> Option<Self::Item> {
         loop {
-            if let Some(sighting) = self.pending.pop() {
+            if let Some(sighting) = self.pending.pop_front() {
                 return Some(Ok(sighting));
             }
             if self.done {
@@ -410,7 +400,7 @@ impl<R: Read> Iterator for BtsnoopReader<R> {
                     // The framing cannot be trusted past a broken record.
                     self.done = true;
                     if self.skip_bad && matches!(e, BtsnoopError::Truncated { .. }) {
-                        self.skip(SkipReason::TruncatedRecord);
+                        self.skipped[SkipReason::TruncatedRecord as usize] += 1;
                         tracing::warn!("{e}");
                     } else {
                         return Some(Err(e));
@@ -960,6 +950,13 @@ mod tests {
                 })
                 .is_err()
         );
+    }
+
+    #[test]
+    fn skip_reasons_index_their_counters() {
+        for (i, reason) in SkipReason::ALL.iter().enumerate() {
+            assert_eq!(*reason as usize, i, "{reason}");
+        }
     }
 
     proptest! {
