@@ -13,7 +13,8 @@
 //! [`site`] and [`config`] describe the building and the gateway; [`pipeline`]
 //! wires the stages together without doing I/O; [`daemon`] and the [`cli`]
 //! drive it, [`mqtt`] connects it to the broker, and [`store`] keeps what the
-//! daemon saw for training.
+//! daemon saw for training. [`score`] compares a replay's fixes with its log's
+//! ground truth.
 
 pub mod cli;
 pub mod config;
@@ -24,6 +25,7 @@ pub mod mqtt;
 pub mod pipeline;
 pub mod plan;
 pub mod publish;
+pub mod score;
 pub mod sighting;
 pub mod site;
 pub mod source;

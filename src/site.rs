@@ -466,7 +466,10 @@ impl Site {
         let (letters, digits) = label.split_at(split);
         let mut x: u32 = 0;
         for c in letters.chars() {
-            x = x * 26 + (c.to_ascii_uppercase() as u32 - 'A' as u32 + 1);
+            // Checked: a long run of letters in a CSV must not overflow.
+            x = x
+                .checked_mul(26)?
+                .checked_add(c.to_ascii_uppercase() as u32 - 'A' as u32 + 1)?;
         }
         let x = x.checked_sub(1)?;
         let row: u16 = digits.parse().ok()?;

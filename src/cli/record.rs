@@ -1,4 +1,5 @@
-//! `gangway record`: what this host hears, written as an advert log.
+//! `gangway record`: what this host hears, written as an advert log or a
+//! btsnoop capture.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -9,13 +10,18 @@ use anyhow::Context;
 use tokio::sync::mpsc;
 
 use crate::source::ble::{self, BleConfig};
-use crate::source::log::LogWriter;
+use crate::source::capture::{CaptureWriter, Format};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// The log to write (JSON Lines).
+    /// The file to write: JSON Lines, or btsnoop when named *.btsnoop.
     #[arg(long)]
     out: PathBuf,
+    /// Write this format whatever the file's name: jsonl, or btsnoop (Linux
+    /// monitor datalink, opens in Wireshark and btmon; the observer id is not
+    /// stored, pass it to `replay --device`).
+    #[arg(long, value_enum)]
+    format: Option<Format>,
     /// Stop after this many seconds; without it, record until Ctrl-C.
     #[arg(long)]
     duration: Option<f64>,
@@ -29,8 +35,7 @@ pub struct Args {
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let observer: Arc<str> = args.observer.clone().unwrap_or_else(hostname).into();
-    let mut writer = LogWriter::create(&args.out)
-        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    let mut writer = CaptureWriter::create(&args.out, args.format)?;
     super::runtime()?.block_on(async {
         let adapter = ble::adapter(&BleConfig {
             adapter: args.adapter.clone(),
@@ -46,7 +51,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             tokio::select! {
                 event = rx.recv() => match event {
                     Some(event) => {
-                        writer.write(&event)?;
+                        writer.write(&event).with_context(|| format!("writing {}", args.out.display()))?;
                         adverts += 1;
                     }
                     None => break,

@@ -1,4 +1,5 @@
-//! `gangway replay`: the daemon's pipeline, fed from a log instead of a radio.
+//! `gangway replay`: the daemon's pipeline, fed from a log instead of a radio,
+//! optionally scored against the log's ground truth.
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -10,12 +11,25 @@ use anyhow::Context;
 use crate::mqtt::{self, Link};
 use crate::pipeline::Pipeline;
 use crate::publish::Message;
-use crate::source::log::LogReader;
+use crate::score::Scorer;
+use crate::source::Event;
+use crate::source::capture::{CaptureReader, Format, ReadOptions};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// The advert log (JSON Lines).
+    /// The capture: a JSON Lines advert log, a CSV scan log or a btsnoop file.
     log: PathBuf,
+    /// The capture's format; by default btsnoop files are recognised by their
+    /// first bytes, `*.csv` is a scan log and anything else JSON Lines.
+    #[arg(long, value_enum)]
+    format: Option<Format>,
+    /// Device id of CSV and btsnoop captures, which do not name their observer
+    /// (default: `survey` for CSV, `capture` for btsnoop).
+    #[arg(long)]
+    device: Option<String>,
+    /// RSSI value that means "not heard" in CSV scan logs.
+    #[arg(long, default_value_t = -200, allow_negative_numbers = true)]
+    not_heard: i16,
     #[arg(long, default_value_os_t = super::default_config())]
     config: PathBuf,
     /// Playback speed: 1 is real time, 10 ten times faster, 0 as fast as possible.
@@ -29,9 +43,35 @@ pub struct Args {
     /// starts on 127.0.0.1 for the replay's duration.
     #[arg(long)]
     mqtt_url: Option<String>,
-    /// Skip and count bad log lines instead of stopping at the first.
+    /// Skip and count bad log lines, CSV rows and columns, and a truncated last
+    /// btsnoop record instead of stopping at the first.
     #[arg(long)]
     skip_bad: bool,
+    /// Score the fixes against the log's `truth` events and print the score
+    /// (instead of the messages).
+    #[arg(long, conflicts_with = "print")]
+    score: bool,
+    /// With --score: print the score as one JSON object.
+    #[arg(long, requires = "score")]
+    json: bool,
+    /// With --score: how far in time (seconds) a truth may be from the fix it
+    /// scores; default the fingerprint window length.
+    #[arg(long, requires = "score")]
+    tolerance_s: Option<f64>,
+}
+
+/// Opens a capture of any format for `args`.
+fn open(args: &Args, site: &crate::site::Site) -> anyhow::Result<CaptureReader> {
+    Ok(CaptureReader::open(
+        &args.log,
+        site,
+        &ReadOptions {
+            format: args.format,
+            skip_bad: args.skip_bad,
+            device: args.device.clone(),
+            not_heard: args.not_heard,
+        },
+    )?)
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
@@ -40,13 +80,23 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         "--speed must be 0 (as fast as possible) or a positive factor"
     );
     let (config, site) = super::load(&args.config)?;
-    let mut pipeline = Pipeline::new(&config, site)?;
-    let mut reader = LogReader::open(&args.log, args.skip_bad)?;
+    let mut reader = open(&args, &site)?;
+    let tolerance_s = args.tolerance_s.unwrap_or(config.window.length_s);
+    anyhow::ensure!(
+        tolerance_s >= 0.0 && tolerance_s.is_finite(),
+        "--tolerance-s must be a number of seconds, 0 or more"
+    );
+    let mut scorer = args.score.then(|| Scorer::new(tolerance_s));
+    let mut pipeline = Pipeline::new(&config, site.clone())?;
     let client_id = format!("{}-replay", config.client_id());
 
     super::runtime()?.block_on(async {
-        // --print alone means stdout is the only sink.
-        let url = match (args.mqtt_url.clone(), &config.mqtt.url, args.print) {
+        // --print or --score without a broker configured: stdout is the only sink.
+        let url = match (
+            args.mqtt_url.clone(),
+            &config.mqtt.url,
+            args.print || args.score,
+        ) {
             (None, None, true) => None,
             (url, _, _) => Some(mqtt::broker_url(&config.mqtt, url)?),
         };
@@ -69,6 +119,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 Some(event) => event?,
                 None => {
                     pipeline.finish(&mut out);
+                    if let Some(scorer) = scorer.as_mut() {
+                        out.iter().for_each(|m| scorer.message(m));
+                    }
                     send(&mut out, print.as_mut(), publisher.as_ref()).await?;
                     break;
                 }
@@ -85,6 +138,12 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 }
             }
             pipeline.handle(&event, &mut out);
+            if let Some(scorer) = scorer.as_mut() {
+                if let Event::Truth(truth) = &event {
+                    scorer.truth(truth);
+                }
+                out.iter().for_each(|m| scorer.message(m));
+            }
             send(&mut out, print.as_mut(), publisher.as_ref()).await?;
         }
         if let Some(p) = print.as_mut() {
@@ -107,13 +166,22 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             requests = stats.requests,
             routes = stats.routes,
             request_errors = stats.request_errors,
-            skipped_lines = reader.skipped(),
+            format = ?reader.format(),
+            skipped = %reader.skipped(),
             mqtt_dropped,
             seconds = started.elapsed().as_secs_f64(),
             "replay done"
         );
         anyhow::Ok(())
     })?;
+    if let Some(scorer) = scorer {
+        let score = scorer.score(&site);
+        if args.json {
+            println!("{}", serde_json::to_string(&score)?);
+        } else {
+            println!("{score}");
+        }
+    }
     Ok(ExitCode::SUCCESS)
 }
 

@@ -26,6 +26,7 @@ use crate::locate::tracker::TrackerConfig;
 use crate::locate::tracker::{Tracker, TrackerKind};
 use crate::locate::window::WindowConfig;
 use crate::locate::{Localizer, LocalizerConfig, LocalizerError, Method};
+use crate::score::ErrorSummary;
 use crate::site::Site;
 
 /// A gap longer than this (seconds) between survey rows starts a new session.
@@ -170,21 +171,14 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
 }
 
 fn metrics(errors: &[f64], cell_m: f64, us_per_fix: f64) -> Metrics {
-    let n = errors.len() as f64;
-    let share = |max: f64| errors.iter().filter(|&&e| e <= max + 1e-9).count() as f64 / n;
-    let mean = errors.iter().sum::<f64>() / n;
-    let mut sorted = errors.to_vec();
-    sorted.sort_by(f64::total_cmp);
-    let p90 = sorted[((n * 0.9).ceil() as usize)
-        .saturating_sub(1)
-        .min(sorted.len() - 1)];
+    let s = ErrorSummary::of(errors, cell_m).expect("a split holds out at least one row");
     Metrics {
-        exact: share(0.0),
-        within_1: share(1.0),
-        within_2: share(2.0),
-        mean_error_cells: mean,
-        mean_error_m: mean * cell_m,
-        p90_error_cells: p90,
+        exact: s.exact,
+        within_1: s.within_1,
+        within_2: s.within_2,
+        mean_error_cells: s.mean_error_cells,
+        mean_error_m: s.mean_error_m,
+        p90_error_cells: s.p90_error_cells,
         us_per_fix,
     }
 }

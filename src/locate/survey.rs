@@ -1,4 +1,5 @@
-//! Site surveys: RSSI readings labelled with the cell they were taken in.
+//! Site surveys: RSSI readings labelled with the cell they were taken in, and
+//! the CSV row reader that surveys and CSV scan logs (`source::csvlog`) share.
 //!
 //! Two CSV layouts are read, both with one column per anchor named by the
 //! anchor's id in the site file:
@@ -11,7 +12,13 @@
 //! was not heard. Columns that name no anchor of the site are ignored (and
 //! listed by [`Survey::ignored_columns`]); a cell, time or RSSI that does not
 //! parse refuses the file with its row and column.
+//!
+//! [`SurveyRows`] reads such a file one row at a time; a survey needs a position
+//! in every row, a scan log needs a time in every row and a position only when
+//! it carries ground truth, so each caller checks [`SurveyRows::has_position`]
+//! and [`SurveyRows::has_clock`] for what it needs.
 
+use std::fs::File;
 use std::path::{Path, PathBuf};
 
 use crate::site::{Cell, Site};
@@ -39,7 +46,7 @@ pub struct Survey {
 
 #[derive(Debug, thiserror::Error)]
 pub enum SurveyError {
-    #[error("{path}: cannot read the survey: {reason}")]
+    #[error("{path}: cannot read the CSV file: {reason}")]
     Read { path: PathBuf, reason: String },
     #[error("{path}: {reason}")]
     Header { path: PathBuf, reason: String },
@@ -48,6 +55,12 @@ pub enum SurveyError {
         path: PathBuf,
         line: u64,
         column: String,
+        reason: String,
+    },
+    #[error("{path}:{line}: {reason}")]
+    Row {
+        path: PathBuf,
+        line: u64,
         reason: String,
     },
 }
@@ -63,17 +76,53 @@ enum Clock {
     Seconds(usize),
 }
 
-impl Survey {
-    /// Reads a survey for `site`; `anchors` are the ids of the site's anchors in
-    /// the orientation in use, `not_heard` the sentinel for "not heard".
-    pub fn load(
+/// Columns with a meaning of their own; every other column should name an anchor.
+const KNOWN_COLUMNS: [&str; 5] = ["location", "x", "y", "date", "t"];
+
+/// One row of a survey or scan log, its anchors in the caller's anchor order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Row {
+    /// Line of the row in the file (the header is line 1).
+    pub line: u64,
+    /// Where the row was taken, when the file has position columns.
+    pub cell: Option<Cell>,
+    /// Seconds (Unix time for `date`), when the file has a time column.
+    pub t: Option<f64>,
+    /// One entry per anchor; `None` where the anchor was not heard or has no column.
+    pub rssi: Vec<Option<i16>>,
+}
+
+/// A survey-layout CSV file opened for reading row by row, its columns matched
+/// to a list of anchors.
+pub struct SurveyRows<'a> {
+    reader: csv::Reader<File>,
+    record: csv::StringRecord,
+    path: PathBuf,
+    site: &'a Site,
+    headers: csv::StringRecord,
+    position: Option<Position>,
+    clock: Clock,
+    column_of: Vec<Option<usize>>,
+    ignored_columns: Vec<String>,
+    not_heard: i16,
+}
+
+impl<'a> SurveyRows<'a> {
+    /// Opens `path` and matches its header to `anchors` (ids as in the site
+    /// file); `not_heard` is the RSSI sentinel for "not heard". Refuses a file
+    /// whose header names no anchor, or that names cells by label on a site
+    /// without a label scheme.
+    pub fn open(
         path: &Path,
-        site: &Site,
+        site: &'a Site,
         anchors: &[String],
         not_heard: i16,
-    ) -> Result<Survey, SurveyError> {
+    ) -> Result<SurveyRows<'a>, SurveyError> {
         let mut reader = csv::ReaderBuilder::new()
             .trim(csv::Trim::All)
+            // Short rows are reported per missing column, with the column's name,
+            // rather than as the csv crate's bare field-count mismatch.
+            .flexible(true)
             .from_path(path)
             .map_err(|e| SurveyError::Read {
                 path: path.to_owned(),
@@ -92,21 +141,15 @@ impl Survey {
             (Some(i), _, _) => {
                 if !site.has_labels() {
                     return Err(header_error(
-                        "the survey names cells by `location` label, but the site has no \
+                        "the file names cells by `location` label, but the site has no \
                          `[labels]` scheme; add one to the site file or use `x`,`y` columns"
                             .into(),
                     ));
                 }
-                Position::Label(i)
+                Some(Position::Label(i))
             }
-            (None, Some(x), Some(y)) => Position::Xy(x, y),
-            _ => {
-                return Err(header_error(
-                    "no position columns; a survey needs `location` (a label such as O02) \
-                     or `x` and `y`"
-                        .into(),
-                ));
-            }
+            (None, Some(x), Some(y)) => Some(Position::Xy(x, y)),
+            _ => None,
         };
         let clock = match (find("date"), find("t")) {
             (Some(i), _) => Clock::Date(i),
@@ -129,79 +172,182 @@ impl Survey {
             .iter()
             .enumerate()
             .filter(|(i, h)| {
-                !used.contains(i)
-                    && !["location", "x", "y", "date", "t"]
-                        .iter()
-                        .any(|k| h.eq_ignore_ascii_case(k))
+                !used.contains(i) && !KNOWN_COLUMNS.iter().any(|k| h.eq_ignore_ascii_case(k))
             })
             .map(|(_, h)| h.to_owned())
             .collect();
+        Ok(SurveyRows {
+            reader,
+            record: csv::StringRecord::new(),
+            path: path.to_owned(),
+            site,
+            headers,
+            position,
+            clock,
+            column_of,
+            ignored_columns,
+            not_heard,
+        })
+    }
 
-        let mut samples = Vec::new();
-        for record in reader.records() {
-            let record = record.map_err(|e| SurveyError::Read {
-                path: path.to_owned(),
-                reason: e.to_string(),
-            })?;
-            let line = record.position().map_or(0, |p| p.line());
-            let field = |column: usize, reason: String| SurveyError::Field {
-                path: path.to_owned(),
-                line,
-                column: headers.get(column).unwrap_or("?").to_owned(),
-                reason,
-            };
-            let get = |i: usize| record.get(i).unwrap_or("");
-            let cell = match position {
-                Position::Label(i) => site.parse_label(get(i)).ok_or_else(|| {
+    /// Whether rows say where they were taken (`location`, or `x` and `y`).
+    pub fn has_position(&self) -> bool {
+        self.position.is_some()
+    }
+
+    /// Whether rows say when they were taken (`date` or `t`).
+    pub fn has_clock(&self) -> bool {
+        !matches!(self.clock, Clock::None)
+    }
+
+    /// Which anchors the file has a column for.
+    pub fn present(&self) -> Vec<bool> {
+        self.column_of.iter().map(Option::is_some).collect()
+    }
+
+    /// Columns that name no anchor and have no meaning of their own.
+    pub fn ignored_columns(&self) -> &[String] {
+        &self.ignored_columns
+    }
+
+    /// Parses the row in `self.record`.
+    fn parse(&self) -> Result<Row, SurveyError> {
+        let record = &self.record;
+        let line = record.position().map_or(0, |p| p.line());
+        let field = |column: usize, reason: String| SurveyError::Field {
+            path: self.path.clone(),
+            line,
+            column: self.headers.get(column).unwrap_or("?").to_owned(),
+            reason,
+        };
+        let get = |i: usize| {
+            record.get(i).ok_or_else(|| {
+                field(
+                    i,
+                    format!(
+                        "missing: the row has {} fields and the header {}",
+                        record.len(),
+                        self.headers.len()
+                    ),
+                )
+            })
+        };
+        let cell = match self.position {
+            None => None,
+            Some(Position::Label(i)) => {
+                let label = get(i)?;
+                Some(self.site.parse_label(label).ok_or_else(|| {
                     field(
                         i,
-                        format!("{:?} is not a cell label on this site's grid", get(i)),
+                        format!("{label:?} is not a cell label on this site's grid"),
                     )
-                })?,
-                Position::Xy(xi, yi) => {
-                    let coord = |i: usize| {
-                        get(i)
-                            .parse::<u16>()
-                            .map_err(|_| field(i, format!("{:?} is not a cell coordinate", get(i))))
-                    };
-                    let cell = Cell::new(coord(xi)?, coord(yi)?);
-                    if !site.contains(cell) {
-                        return Err(field(xi, format!("cell {cell} is off the site's grid")));
-                    }
-                    cell
-                }
-            };
-            let t =
-                match clock {
-                    Clock::None => None,
-                    Clock::Date(i) => Some(parse_date(get(i)).ok_or_else(|| {
-                        field(
-                            i,
-                            format!("{:?} is not a date like 10-18-2016 11:15:21", get(i)),
-                        )
-                    })?),
-                    Clock::Seconds(i) => Some(get(i).parse::<f64>().map_err(|_| {
-                        field(i, format!("{:?} is not a number of seconds", get(i)))
-                    })?),
-                };
-            let mut rssi = Vec::with_capacity(anchors.len());
-            for column in &column_of {
-                rssi.push(match column {
-                    None => None,
-                    Some(i) => {
-                        let v: i16 = get(*i).parse().map_err(|_| {
-                            field(*i, format!("{:?} is not an RSSI in whole dBm", get(*i)))
-                        })?;
-                        (v != not_heard).then_some(v)
-                    }
-                });
+                })?)
             }
-            samples.push(Sample { cell, t, rssi });
+            Some(Position::Xy(xi, yi)) => {
+                let coord = |i: usize| {
+                    let text = get(i)?;
+                    text.parse::<u16>()
+                        .map_err(|_| field(i, format!("{text:?} is not a cell coordinate")))
+                };
+                let cell = Cell::new(coord(xi)?, coord(yi)?);
+                if !self.site.contains(cell) {
+                    return Err(field(xi, format!("cell {cell} is off the site's grid")));
+                }
+                Some(cell)
+            }
+        };
+        let t = match self.clock {
+            Clock::None => None,
+            Clock::Date(i) => {
+                let text = get(i)?;
+                Some(parse_date(text).ok_or_else(|| {
+                    field(
+                        i,
+                        format!("{text:?} is not a date like 10-18-2016 11:15:21"),
+                    )
+                })?)
+            }
+            Clock::Seconds(i) => {
+                let text = get(i)?;
+                Some(
+                    text.parse::<f64>()
+                        .ok()
+                        .filter(|t| t.is_finite())
+                        .ok_or_else(|| field(i, format!("{text:?} is not a number of seconds")))?,
+                )
+            }
+        };
+        let mut rssi = Vec::with_capacity(self.column_of.len());
+        for column in &self.column_of {
+            rssi.push(match column {
+                None => None,
+                Some(i) => {
+                    let text = get(*i)?;
+                    let v: i16 = text
+                        .parse()
+                        .map_err(|_| field(*i, format!("{text:?} is not an RSSI in whole dBm")))?;
+                    (v != self.not_heard).then_some(v)
+                }
+            });
         }
+        Ok(Row {
+            line,
+            cell,
+            t,
+            rssi,
+        })
+    }
+}
+
+impl Iterator for SurveyRows<'_> {
+    type Item = Result<Row, SurveyError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        match self.reader.read_record(&mut self.record) {
+            Ok(false) => None,
+            Ok(true) => Some(self.parse()),
+            Err(e) => Some(Err(SurveyError::Row {
+                path: self.path.clone(),
+                line: e.position().map_or(0, |p| p.line()),
+                reason: format!("not a CSV row: {e}"),
+            })),
+        }
+    }
+}
+
+impl Survey {
+    /// Reads a survey for `site`; `anchors` are the ids of the site's anchors in
+    /// the orientation in use, `not_heard` the sentinel for "not heard".
+    pub fn load(
+        path: &Path,
+        site: &Site,
+        anchors: &[String],
+        not_heard: i16,
+    ) -> Result<Survey, SurveyError> {
+        let rows = SurveyRows::open(path, site, anchors, not_heard)?;
+        if !rows.has_position() {
+            return Err(SurveyError::Header {
+                path: path.to_owned(),
+                reason: "no position columns; a survey needs `location` (a label such as O02) \
+                         or `x` and `y`"
+                    .into(),
+            });
+        }
+        let present = rows.present();
+        let ignored_columns = rows.ignored_columns().to_vec();
+        let samples = rows
+            .map(|row| {
+                row.map(|row| Sample {
+                    cell: row.cell.expect("checked: the survey has position columns"),
+                    t: row.t,
+                    rssi: row.rssi,
+                })
+            })
+            .collect::<Result<_, _>>()?;
         Ok(Survey {
             samples,
             anchors: anchors.to_vec(),
-            present: column_of.iter().map(Option::is_some).collect(),
+            present,
             ignored_columns,
         })
     }
@@ -287,5 +433,23 @@ minor = 2
         assert!(err.contains("no position columns"), "{err}");
         let err = load("location,c1\nA01,-70\n").unwrap_err().to_string();
         assert!(err.contains("no column names an anchor"), "{err}");
+    }
+
+    #[test]
+    fn a_short_row_names_the_missing_column() {
+        let err = load("location,b1,b2\nA01,-70\n").unwrap_err().to_string();
+        assert!(
+            err.contains(":2: column `b2`: missing: the row has 2 fields and the header 3"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn reads_dates_without_leading_zeros_and_rejects_absurd_labels() {
+        let s = load("location,date,b1\nA01,4-19-2016 9:37:36,-70\n").unwrap();
+        assert_eq!(s.samples[0].t, Some(1_461_058_656.0));
+        let long = format!("location,b1\n{}01,-70\n", "Z".repeat(40));
+        let err = load(&long).unwrap_err().to_string();
+        assert!(err.contains("is not a cell label"), "{err}");
     }
 }

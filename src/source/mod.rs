@@ -4,9 +4,15 @@
 //! BLE scan from a replayed log or a simulation:
 //! - [`ble`]: a live scan through btleplug on BlueZ;
 //! - [`log`]: the JSON Lines advert log (`gangway record` writes it, `replay` reads it);
+//! - [`csvlog`]: CSV scan logs such as the UCI survey (replay only);
+//! - [`btsnoop`]: HCI captures from `btmon -w` or Android's HCI snoop log;
+//! - [`capture`]: picks one of those formats for a file and opens it;
 //! - [`simulate`]: walkers on a site, heard through a path-loss model or a survey.
 
 pub mod ble;
+pub mod btsnoop;
+pub mod capture;
+pub mod csvlog;
 pub mod ibeacon;
 pub mod log;
 pub mod simulate;

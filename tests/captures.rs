@@ -1,0 +1,193 @@
+//! `gangway replay` on the capture formats people already have, and `--score`.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use gangway::source::Event;
+use gangway::source::btsnoop::{BtsnoopWriter, Datalink};
+use gangway::source::log::{LogReader, LogWriter};
+use serde_json::Value;
+
+const FIXTURE: &str = "fixtures/walk-waldo.jsonl";
+const SCORE_KEYS: [&str; 9] = [
+    "exact",
+    "within_1",
+    "within_2",
+    "mean_error_cells",
+    "mean_error_m",
+    "fixes",
+    "matched",
+    "truths",
+    "tolerance_s",
+];
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Runs gangway in the repository root; returns stdout, failing on a non-zero exit.
+fn gangway_ok(args: &[&str]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_gangway"))
+        .args(args)
+        .current_dir(root())
+        .env("RUST_LOG", "warn")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "gangway {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+/// The one JSON object `--score --json` prints.
+fn score(args: &[&str]) -> Value {
+    let stdout = gangway_ok(args);
+    let mut lines = stdout.lines();
+    let score: Value = serde_json::from_str(lines.next().expect("a score line")).unwrap();
+    assert_eq!(lines.next(), None, "exactly one JSON object: {stdout}");
+    let mut keys: Vec<&str> = score
+        .as_object()
+        .unwrap()
+        .keys()
+        .map(|k| k.as_str())
+        .collect();
+    let mut expected = SCORE_KEYS.to_vec();
+    keys.sort_unstable();
+    expected.sort_unstable();
+    assert_eq!(keys, expected);
+    score
+}
+
+fn fixture_events() -> Vec<Event> {
+    LogReader::open(&root().join(FIXTURE), false)
+        .unwrap()
+        .map(Result::unwrap)
+        .collect()
+}
+
+#[test]
+fn score_counts_the_fixes_printed_and_the_truths_in_the_log() {
+    let printed = gangway_ok(&["replay", FIXTURE, "--print"]);
+    let locations = printed
+        .lines()
+        .filter(|l| l.contains("/location\""))
+        .count() as u64;
+    let truths = fixture_events()
+        .iter()
+        .filter(|e| matches!(e, Event::Truth(_)))
+        .count() as u64;
+
+    let s = score(&["replay", FIXTURE, "--score", "--json"]);
+    assert_eq!(s["fixes"], locations);
+    assert_eq!(s["truths"], truths);
+    // The simulator writes a truth per walker every few seconds, so every fix
+    // has one within the default tolerance (the 4 s window).
+    assert_eq!(s["matched"], locations);
+    assert_eq!(s["tolerance_s"], 4.0);
+    let shares: Vec<f64> = ["exact", "within_1", "within_2"]
+        .iter()
+        .map(|k| s[*k].as_f64().unwrap())
+        .collect();
+    assert!(shares[0] <= shares[1] && shares[1] <= shares[2], "{s}");
+    assert!(shares[2] > 0.0, "{s}");
+
+    // A tolerance of zero matches only fixes at the exact time of a truth.
+    let strict = score(&["replay", FIXTURE, "--score", "--json", "--tolerance-s", "0"]);
+    assert!(strict["matched"].as_u64().unwrap() < locations, "{strict}");
+}
+
+#[test]
+fn a_btsnoop_capture_replays_like_the_log_it_was_written_from() {
+    // One walker's adverts, as one phone's HCI snoop log would hold them.
+    let adverts: Vec<Event> = fixture_events()
+        .into_iter()
+        .filter(|e| matches!(e, Event::Advert(s) if &*s.observer == "walker-02"))
+        .collect();
+    assert!(adverts.len() > 100);
+    let dir = tempfile::tempdir().unwrap();
+    let jsonl = dir.path().join("walker.jsonl");
+    let mut log = LogWriter::create(&jsonl).unwrap();
+    for datalink in [Datalink::H4, Datalink::Monitor] {
+        // Android names its capture btsnoop_hci.log: found by its magic bytes.
+        let capture = dir.path().join(format!("{datalink:?}-btsnoop_hci.log"));
+        let mut writer = BtsnoopWriter::create(&capture, datalink).unwrap();
+        for e in &adverts {
+            if let Event::Advert(s) = e {
+                writer.write(s).unwrap();
+            }
+        }
+        writer.flush().unwrap();
+        drop(writer);
+        if datalink == Datalink::H4 {
+            for e in &adverts {
+                log.write(e).unwrap();
+            }
+            log.flush().unwrap();
+        }
+        let from_log = gangway_ok(&["replay", path(&jsonl), "--print"]);
+        let from_capture =
+            gangway_ok(&["replay", path(&capture), "--device", "walker-02", "--print"]);
+        assert!(from_log.lines().count() > 10);
+        assert_eq!(from_capture, from_log, "{datalink:?}");
+    }
+}
+
+#[test]
+fn a_csv_scan_log_replays_and_scores_against_its_labels() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("scan.csv");
+    // Newest first like the UCI survey; the site's beacons b3001 (F08) and b3002 (J05).
+    let mut text = String::from("location,date,b3001,b3002,b3099\n");
+    for i in (0..30).rev() {
+        let (label, rssi) = if i < 15 {
+            ("F08", "-60,-200")
+        } else {
+            ("J05", "-200,-60")
+        };
+        text.push_str(&format!(
+            "{label},10-18-2016 11:{:02}:{:02},{rssi},-70\n",
+            10 + i / 30,
+            (i * 2) % 60
+        ));
+    }
+    std::fs::write(&csv, text).unwrap();
+
+    // b3099 is no beacon of the site: refused, or ignored with --skip-bad.
+    let out = Command::new(env!("CARGO_BIN_EXE_gangway"))
+        .args(["replay", path(&csv), "--score"])
+        .current_dir(root())
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains(":1: column `b3099`: names no beacon"), "{err}");
+
+    let s = score(&["replay", path(&csv), "--skip-bad", "--score", "--json"]);
+    assert_eq!(s["truths"], 30);
+    assert!(s["fixes"].as_u64().unwrap() > 0, "{s}");
+    assert_eq!(s["matched"], s["fixes"], "{s}");
+}
+
+/// The UCI survey as published, newest row first, replayed through the default
+/// pipeline. Skipped when ../shared is not there (a clone without the data).
+#[test]
+fn the_uci_survey_replays_as_published() {
+    let survey = root().join("../shared/data/uci-ble-rssi/iBeacon_RSSI_Labeled.csv");
+    if !survey.exists() {
+        eprintln!("skipped: {} is not present", survey.display());
+        return;
+    }
+    let s = score(&["replay", path(&survey), "--score", "--json"]);
+    assert_eq!(s["truths"], 1420);
+    // Sorted into time order, the survey's ~2 s readings give about a fix per
+    // 2 s window stride (in file order, newest first, the windows see time run
+    // backwards and a single fix comes out).
+    assert!(s["fixes"].as_u64().unwrap() > 1000, "{s}");
+    assert_eq!(s["matched"], s["fixes"], "{s}");
+}
+
+fn path(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
