@@ -1,0 +1,292 @@
+//! Load test: many devices and a steady stream of route requests through a
+//! real mosquitto, on loopback only, for a bounded time.
+//!
+//! ```sh
+//! cargo build --release && cargo run --release --example loadtest -- --devices 1000 --seconds 60 --rate 100
+//! ```
+//!
+//! It starts mosquitto (Debian package `mosquitto`) on a free loopback port,
+//! simulates `--devices` walkers on the sample site whose phones scan once a
+//! second (`gangway simulate`), runs the gateway on that log in real time
+//! (`gangway run --replay … --speed 1`), and publishes `--rate` route requests a
+//! second to random devices for `--seconds`. It prints one JSON object:
+//! requests sent and answered, request → reply latency p50/p99/max in ms (the
+//! client's clock: broker in, gateway, broker out), the gateway's CPU seconds
+//! and share of one core, and its peak RSS. Everything it starts, it stops.
+
+use std::collections::HashMap;
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
+
+struct Args {
+    devices: usize,
+    seconds: u64,
+    rate: u64,
+}
+
+fn args() -> Args {
+    let mut a = Args {
+        devices: 1000,
+        seconds: 60,
+        rate: 100,
+    };
+    let argv: Vec<String> = std::env::args().skip(1).collect();
+    for pair in argv.chunks(2) {
+        let value = pair.get(1).and_then(|v| v.parse().ok());
+        match (pair[0].as_str(), value) {
+            ("--devices", Some(v)) => a.devices = v as usize,
+            ("--seconds", Some(v)) => a.seconds = v,
+            ("--rate", Some(v)) => a.rate = v,
+            _ => panic!("usage: loadtest [--devices N] [--seconds S] [--rate R]"),
+        }
+    }
+    a
+}
+
+/// Kills the child when dropped, so nothing outlives the test.
+struct Guard(Child);
+
+impl Drop for Guard {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+fn gangway() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    // target/release/examples/loadtest → target/release/gangway
+    let bin = exe.parent().unwrap().parent().unwrap().join("gangway");
+    assert!(
+        bin.exists(),
+        "build the gateway first: cargo build --release"
+    );
+    bin
+}
+
+/// (CPU seconds, peak RSS in KiB) of a process, from /proc.
+fn usage(pid: u32) -> (f64, u64) {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+    let fields: Vec<&str> = stat
+        .rsplit(')')
+        .next()
+        .unwrap_or("")
+        .split_whitespace()
+        .collect();
+    let ticks: f64 = fields.get(11..13).map_or(0.0, |f| {
+        f.iter().filter_map(|v| v.parse::<f64>().ok()).sum()
+    });
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
+    let hwm = status
+        .lines()
+        .find(|l| l.starts_with("VmHWM:"))
+        .and_then(|l| l.split_whitespace().nth(1))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0);
+    (ticks / 100.0, hwm) // USER_HZ is 100 on Linux
+}
+
+fn percentile(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    sorted[((sorted.len() as f64 * p).ceil() as usize).clamp(1, sorted.len()) - 1]
+}
+
+#[tokio::main(flavor = "multi_thread", worker_threads = 2)]
+async fn main() {
+    let args = args();
+    let dir = tempfile::tempdir().unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+
+    // The broker.
+    let port = free_port();
+    let user = Command::new("id").arg("-un").output().unwrap().stdout;
+    let conf = dir.path().join("mosquitto.conf");
+    std::fs::write(
+        &conf,
+        format!(
+            "listener {port} 127.0.0.1\nallow_anonymous true\nuser {}\nmax_queued_messages 100000\nlog_dest none\n",
+            String::from_utf8_lossy(&user).trim()
+        ),
+    )
+    .unwrap();
+    let _broker = Guard(
+        Command::new("mosquitto")
+            .arg("-c")
+            .arg(&conf)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("mosquitto (apt-get install mosquitto)"),
+    );
+    std::thread::sleep(Duration::from_millis(300));
+    let url = format!("mqtt://127.0.0.1:{port}");
+
+    // The walk: enough for warm-up, the measured span and a tail.
+    let log = dir.path().join("load.jsonl");
+    let total = args.seconds + 20;
+    let status = Command::new(gangway())
+        .current_dir(root)
+        .args([
+            "simulate",
+            "--site",
+            "config/sites/waldo.toml",
+            "--requests",
+            "0",
+            "--dropout",
+            "0",
+        ])
+        .args([
+            "--walkers",
+            &args.devices.to_string(),
+            "--duration",
+            &total.to_string(),
+        ])
+        .arg("--out")
+        .arg(&log)
+        .env("RUST_LOG", "warn")
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let adverts = std::fs::read_to_string(&log)
+        .unwrap()
+        .matches("\"advert\"")
+        .count();
+
+    // The gateway, playing the walk in real time.
+    let gateway = Guard(
+        Command::new(gangway())
+            .current_dir(root)
+            .args([
+                "run",
+                "--config",
+                "config/gangway.toml",
+                "--mqtt-url",
+                &url,
+                "--speed",
+                "1",
+                "--replay",
+            ])
+            .arg(&log)
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let pid = gateway.0.id();
+
+    // The client.
+    let mut options = MqttOptions::new("loadtest", "127.0.0.1", port);
+    options.set_keep_alive(Duration::from_secs(30));
+    options.set_max_packet_size(1 << 20, 1 << 20);
+    let (client, mut eventloop) = AsyncClient::new(options, 10_000);
+    client
+        .subscribe("gangway/gw-lobby/devices/+/path", QoS::AtLeastOnce)
+        .await
+        .unwrap();
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<(String, Instant)>();
+    tokio::spawn(async move {
+        loop {
+            match eventloop.poll().await {
+                Ok(Event::Incoming(Packet::Publish(p))) => {
+                    let v: serde_json::Value =
+                        serde_json::from_slice(&p.payload).unwrap_or_default();
+                    if let Some(id) = v["request_id"].as_str() {
+                        let _ = tx.send((id.to_owned(), Instant::now()));
+                    }
+                }
+                Ok(_) => {}
+                Err(_) => tokio::time::sleep(Duration::from_millis(50)).await,
+            }
+        }
+    });
+
+    // Warm up: every device gets a few fixes.
+    tokio::time::sleep(Duration::from_secs(8)).await;
+    let (cpu_before, _) = usage(pid);
+    let started = Instant::now();
+    let mut sent: HashMap<String, Instant> = HashMap::new();
+    let mut latencies = Vec::new();
+    let interval = Duration::from_secs_f64(1.0 / args.rate as f64);
+    let mut next = Instant::now();
+    let mut n = 0u64;
+    let places = [
+        "help desk",
+        "reading room",
+        "printers",
+        "east entrance",
+        "computer lab",
+    ];
+    while started.elapsed() < Duration::from_secs(args.seconds) {
+        if Instant::now() >= next {
+            let device = format!("walker-{:02}", (n * 7919) as usize % args.devices + 1);
+            let id = format!("load-{n}");
+            let body = format!(
+                r#"{{"to":"{}","request_id":"{id}"}}"#,
+                places[n as usize % places.len()]
+            );
+            sent.insert(id, Instant::now());
+            client
+                .publish(
+                    format!("gangway/gw-lobby/devices/{device}/route/set"),
+                    QoS::AtLeastOnce,
+                    false,
+                    body,
+                )
+                .await
+                .unwrap();
+            n += 1;
+            next += interval;
+        }
+        while let Ok((id, at)) = rx.try_recv() {
+            if let Some(t0) = sent.get(&id) {
+                latencies.push(at.duration_since(*t0).as_secs_f64() * 1e3);
+            }
+        }
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+    let measured = started.elapsed().as_secs_f64();
+    let (cpu_after, rss_kib) = usage(pid);
+    // Stragglers.
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while latencies.len() < sent.len() && Instant::now() < deadline {
+        if let Ok(Some((id, at))) =
+            tokio::time::timeout(Duration::from_millis(100), rx.recv()).await
+        {
+            if let Some(t0) = sent.get(&id) {
+                latencies.push(at.duration_since(*t0).as_secs_f64() * 1e3);
+            }
+        }
+    }
+    drop(gateway);
+    latencies.sort_by(f64::total_cmp);
+    let cpu = cpu_after - cpu_before;
+    let summary = serde_json::json!({
+        "devices": args.devices,
+        "adverts_in_log": adverts,
+        "adverts_per_s": adverts as f64 / total as f64,
+        "seconds": measured,
+        "requests_sent": sent.len(),
+        "requests_answered": latencies.len(),
+        "latency_ms_p50": percentile(&latencies, 0.50),
+        "latency_ms_p99": percentile(&latencies, 0.99),
+        "latency_ms_max": latencies.last().copied().unwrap_or(f64::NAN),
+        "gateway_cpu_s": cpu,
+        "gateway_cpu_share_of_one_core": cpu / measured,
+        "gateway_peak_rss_mib": rss_kib as f64 / 1024.0,
+    });
+    println!("{}", serde_json::to_string_pretty(&summary).unwrap());
+}
