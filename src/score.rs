@@ -125,7 +125,7 @@ impl Scorer {
 
 /// Accuracy figures of a set of position errors (in cells), shared by replay
 /// scoring and offline evaluation so both count the same way.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct ErrorSummary {
     /// Share of errors of exactly 0 (the true cell).
     pub exact: f64,

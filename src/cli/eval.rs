@@ -109,12 +109,12 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
         );
         println!(
             "exact {:.3}  within_1 {:.3}  within_2 {:.3}  mean_error_cells {:.3}  mean_error_m {:.3}  p90_error_cells {:.3}  us_per_fix {:.2}",
-            m.exact,
-            m.within_1,
-            m.within_2,
-            m.mean_error_cells,
-            m.mean_error_m,
-            m.p90_error_cells,
+            m.errors.exact,
+            m.errors.within_1,
+            m.errors.within_2,
+            m.errors.mean_error_cells,
+            m.errors.mean_error_m,
+            m.errors.p90_error_cells,
             m.us_per_fix
         );
     }
@@ -127,7 +127,7 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
                     "{} + {:?} (mean {:.2})",
                     method.name(),
                     kind,
-                    o.metrics.mean_error_cells
+                    o.metrics.errors.mean_error_cells
                 );
                 curves.push((label.to_lowercase(), o.errors));
             }
