@@ -44,6 +44,10 @@ struct LocalizationArgs {
     method: Method,
     #[arg(long, value_enum, default_value = "hmm")]
     tracker: TrackerKind,
+    /// Smooth each recorded walk over this many later windows (fixed-lag
+    /// smoothing; 0 is the online filter a live gateway runs).
+    #[arg(long, default_value_t = 0)]
+    smooth_lag: usize,
     /// Take [window], [localizer] and [tracker] settings from this gateway config
     /// instead of the defaults.
     #[arg(long)]
@@ -92,6 +96,7 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
             kind,
             ..tracker.clone()
         },
+        smooth_lag: args.smooth_lag,
     };
     let outcome = evaluate(&site, &survey, &setup(args.method, args.tracker))?;
     let m = &outcome.metrics;

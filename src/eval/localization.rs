@@ -50,6 +50,8 @@ pub struct Setup {
     pub localizer: LocalizerConfig,
     pub window: WindowConfig,
     pub tracker: TrackerConfig,
+    /// Fixed-lag smoothing over this many later windows (0: the online filter).
+    pub smooth_lag: usize,
 }
 
 /// The figures, averaged over seeds. Serialized with exactly the keys exact,
@@ -144,20 +146,37 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
         let entities: Vec<Arc<str>> = (0..sessions)
             .map(|s| Arc::from(format!("session-{s}")))
             .collect();
-        let mut ll = vec![0.0f32; site.open_cells().len()];
         let mut rssi = vec![0.0f32; survey.anchors.len()];
         let mut heard = vec![false; survey.anchors.len()];
         let mut seed_errors = Vec::new();
         let started = Instant::now();
+        // Held-out rows, one time-ordered sequence per session.
+        let mut sequences: Vec<Vec<usize>> = vec![Vec::new(); sessions];
         for &row in order.iter().filter(|&&r| test[r]) {
-            let sample = &survey.samples[row];
-            for (a, r) in sample.rssi.iter().enumerate() {
-                heard[a] = r.is_some();
-                rssi[a] = r.map_or(setup.window.missing_dbm, f32::from);
+            sequences[session[row]].push(row);
+        }
+        for (s, rows) in sequences.iter().enumerate().filter(|(_, r)| !r.is_empty()) {
+            let mut windows = Vec::with_capacity(rows.len());
+            for &row in rows {
+                for (a, r) in survey.samples[row].rssi.iter().enumerate() {
+                    heard[a] = r.is_some();
+                    rssi[a] = r.map_or(setup.window.missing_dbm, f32::from);
+                }
+                let mut ll = vec![0.0f32; site.open_cells().len()];
+                localizer.log_likelihood(&rssi, &heard, &mut ll);
+                windows.push((times[row], ll));
             }
-            localizer.log_likelihood(&rssi, &heard, &mut ll);
-            let fix = tracker.update(&entities[session[row]], times[row], &ll);
-            seed_errors.push(fix.cell.distance(sample.cell));
+            let fixes = if setup.smooth_lag == 0 {
+                windows
+                    .iter()
+                    .map(|(t, ll)| tracker.update(&entities[s], *t, ll))
+                    .collect()
+            } else {
+                tracker.smooth(&windows, setup.smooth_lag)
+            };
+            for (fix, &row) in fixes.iter().zip(rows) {
+                seed_errors.push(fix.cell.distance(survey.samples[row].cell));
+            }
         }
         let us_per_fix = started.elapsed().as_secs_f64() * 1e6 / seed_errors.len() as f64;
         per_seed.push(metrics(&seed_errors, site.cell_m, us_per_fix));

@@ -142,65 +142,191 @@ impl Tracker {
     /// Folds one window's log-likelihoods (one per open cell) into the entity's
     /// track and returns the new fix.
     pub fn update(&mut self, entity: &Arc<str>, t: f64, log_likelihood: &[f32]) -> Fix {
-        let weight = self.config.likelihood_weight;
-        let max_ll = log_likelihood
-            .iter()
-            .copied()
-            .fold(f32::NEG_INFINITY, f32::max);
-        let likelihood = |i: usize| ((log_likelihood[i] - max_ll) * weight).exp();
-
-        let continues = self.config.kind == TrackerKind::Hmm
-            && self
-                .tracks
-                .get(entity)
-                .is_some_and(|track| (0.0..=self.config.reset_after_s).contains(&(t - track.t)));
+        let model = MotionModel {
+            config: &self.config,
+            neighbours: &self.neighbours,
+            cell_m: self.site.cell_m,
+        };
         let track = self.tracks.entry(entity.clone()).or_insert_with(|| Track {
-            t,
+            t: f64::NEG_INFINITY,
             belief: Vec::new(),
             fix: Fix {
                 cell: Cell::new(0, 0),
                 confidence: 0.0,
             },
         });
-        let mut fused = false;
-        if continues {
-            // Predict: spread the belief as far as one can walk in the gap.
-            let reach = self.config.max_speed_mps * (t - track.t) / self.site.cell_m;
-            for _ in 0..(reach.ceil() as usize).max(1) {
-                spread(
-                    &self.neighbours,
-                    self.config.stay_probability,
-                    &track.belief,
-                    &mut self.scratch,
-                );
-                std::mem::swap(&mut track.belief, &mut self.scratch);
-            }
-            // Update with the evidence.
-            let floor = self.config.recovery / track.belief.len() as f32;
-            for (i, b) in track.belief.iter_mut().enumerate() {
-                *b = (*b * (1.0 - self.config.recovery) + floor) * likelihood(i);
-            }
-            fused = normalize(&mut track.belief);
-        }
-        if !fused {
-            // A new track, a long gap, or evidence that contradicts the prior
-            // everywhere: start from the evidence alone.
-            track.belief.clear();
-            track
-                .belief
-                .extend((0..log_likelihood.len()).map(likelihood));
-            normalize(&mut track.belief);
-        }
+        let likelihood = model.likelihood(log_likelihood);
+        let steps = model.steps(t - track.t);
+        model.filter(&mut track.belief, steps, &likelihood, &mut self.scratch);
         track.t = t;
-        let best = match self.config.estimate {
-            Estimate::Mode => argmax(&track.belief),
-            Estimate::Median => spatial_median(self.site.open_cells(), &track.belief),
-        };
-        track.fix = Fix {
-            cell: self.site.open_cells()[best],
-            confidence: track.belief[best],
-        };
+        track.fix = estimate(self.config.estimate, self.site.open_cells(), &track.belief);
         track.fix
+    }
+
+    /// Fixed-lag smoothing of one recorded trajectory, given as (time,
+    /// log-likelihoods) per window in time order: each fix also uses the
+    /// evidence of up to `lag` later windows (the forward filter of
+    /// [`Tracker::update`], then a backward pass over the lag). A live gateway
+    /// would publish each such fix `lag` windows late; recorded walks can
+    /// afford it. With `lag` 0 this is the online filter.
+    pub fn smooth(&self, windows: &[(f64, Vec<f32>)], lag: usize) -> Vec<Fix> {
+        let model = MotionModel {
+            config: &self.config,
+            neighbours: &self.neighbours,
+            cell_m: self.site.cell_m,
+        };
+        let mut scratch = Vec::new();
+        let mut filtered: Vec<Vec<f32>> = Vec::with_capacity(windows.len());
+        let mut likelihoods = Vec::with_capacity(windows.len());
+        let mut steps = Vec::with_capacity(windows.len());
+        let mut belief = Vec::new();
+        let mut last_t = f64::NEG_INFINITY;
+        for (t, log_likelihood) in windows {
+            let likelihood = model.likelihood(log_likelihood);
+            let s = model.steps(t - last_t);
+            model.filter(&mut belief, s, &likelihood, &mut scratch);
+            filtered.push(belief.clone());
+            likelihoods.push(likelihood);
+            steps.push(s);
+            last_t = *t;
+        }
+        let n = windows.len();
+        (0..n)
+            .map(|k| {
+                let mut backward = vec![1.0f32; filtered[k].len()];
+                for j in (k + 1..=(k + lag).min(n.saturating_sub(1))).rev() {
+                    let Some(s) = steps[j] else {
+                        // The track restarted at j: nothing after it informs k.
+                        backward.fill(1.0);
+                        continue;
+                    };
+                    for (b, l) in backward.iter_mut().zip(&likelihoods[j]) {
+                        *b *= l;
+                    }
+                    model.pull_back(&mut backward, s, &mut scratch);
+                }
+                let mut smoothed: Vec<f32> = filtered[k]
+                    .iter()
+                    .zip(&backward)
+                    .map(|(a, b)| a * b)
+                    .collect();
+                if !normalize(&mut smoothed) {
+                    smoothed.clone_from(&filtered[k]);
+                }
+                estimate(self.config.estimate, self.site.open_cells(), &smoothed)
+            })
+            .collect()
+    }
+}
+
+/// The tracker's hidden Markov model: how far belief spreads between windows,
+/// and how evidence is weighed.
+struct MotionModel<'a> {
+    config: &'a TrackerConfig,
+    neighbours: &'a [Vec<u32>],
+    cell_m: f64,
+}
+
+impl MotionModel<'_> {
+    /// Relative likelihood per cell (max 1), weighted.
+    fn likelihood(&self, log_likelihood: &[f32]) -> Vec<f32> {
+        let max_ll = log_likelihood
+            .iter()
+            .copied()
+            .fold(f32::NEG_INFINITY, f32::max);
+        let weight = self.config.likelihood_weight;
+        log_likelihood
+            .iter()
+            .map(|&ll| ((ll - max_ll) * weight).exp())
+            .collect()
+    }
+
+    /// Motion steps for a gap of `dt` seconds since the last window, or `None`
+    /// when the track restarts (no tracking, first window, a long gap, or time
+    /// running backwards).
+    fn steps(&self, dt: f64) -> Option<usize> {
+        let continues =
+            self.config.kind == TrackerKind::Hmm && (0.0..=self.config.reset_after_s).contains(&dt);
+        // As far as one can walk in the gap, at least one step.
+        continues.then(|| ((self.config.max_speed_mps * dt / self.cell_m).ceil() as usize).max(1))
+    }
+
+    /// One forward step: predict `steps` moves, then weigh by the evidence. A
+    /// restart, or evidence that contradicts the prior everywhere, starts from
+    /// the evidence alone.
+    fn filter(
+        &self,
+        belief: &mut Vec<f32>,
+        steps: Option<usize>,
+        likelihood: &[f32],
+        scratch: &mut Vec<f32>,
+    ) {
+        if let Some(steps) = steps {
+            for _ in 0..steps {
+                spread(
+                    self.neighbours,
+                    self.config.stay_probability,
+                    belief,
+                    scratch,
+                );
+                std::mem::swap(belief, scratch);
+            }
+            let recovery = self.config.recovery;
+            let floor = recovery / belief.len() as f32;
+            for (b, l) in belief.iter_mut().zip(likelihood) {
+                *b = (*b * (1.0 - recovery) + floor) * l;
+            }
+            if normalize(belief) {
+                return;
+            }
+        }
+        belief.clear();
+        belief.extend_from_slice(likelihood);
+        normalize(belief);
+    }
+
+    /// The backward step of [`MotionModel::filter`]'s prediction: for each cell,
+    /// the expected `message` one window later, over `steps` moves and the
+    /// recovery mass.
+    fn pull_back(&self, message: &mut Vec<f32>, steps: usize, scratch: &mut Vec<f32>) {
+        let stay = self.config.stay_probability;
+        for _ in 0..steps {
+            scratch.clear();
+            scratch.extend(self.neighbours.iter().enumerate().map(|(i, n)| {
+                let moves = &n[1..];
+                if moves.is_empty() {
+                    message[i]
+                } else {
+                    let away: f32 = moves.iter().map(|&j| message[j as usize]).sum();
+                    stay * message[i] + (1.0 - stay) * away / moves.len() as f32
+                }
+            }));
+            std::mem::swap(message, scratch);
+        }
+        let recovery = self.config.recovery;
+        let mean = message.iter().sum::<f32>() / message.len() as f32;
+        let peak = message
+            .iter()
+            .copied()
+            .fold(0.0, f32::max)
+            .max(f32::MIN_POSITIVE);
+        for m in message.iter_mut() {
+            // Rescaled by the peak: only ratios matter, and this keeps long
+            // lags from underflowing.
+            *m = ((1.0 - recovery) * *m + recovery * mean) / peak;
+        }
+    }
+}
+
+/// The reported fix of a belief over `cells`.
+fn estimate(how: Estimate, cells: &[Cell], belief: &[f32]) -> Fix {
+    let best = match how {
+        Estimate::Mode => argmax(belief),
+        Estimate::Median => spatial_median(cells, belief),
+    };
+    Fix {
+        cell: cells[best],
+        confidence: belief[best],
     }
 }
 
@@ -316,5 +442,26 @@ mod tests {
         let next = tracker.update(&me, 1.0, &peak_at(&site, Cell::new(4, 0), 2.0));
         assert_eq!(next.cell, Cell::new(4, 0));
         assert!(next.confidence > 0.5);
+    }
+
+    #[test]
+    fn smoothing_lets_later_evidence_revise_an_ambiguous_window() {
+        let text = "name = \"c\"\ncell_m = 1.0\nmap = '''\n##########\n'''\n";
+        let site = Arc::new(Site::parse(text, Path::new("c.toml")).unwrap());
+        let tracker = Tracker::new(TrackerConfig::default(), site.clone());
+        let flat = vec![0.0; site.open_cells().len()];
+        let windows = vec![
+            (0.0, peak_at(&site, Cell::new(2, 0), 10.0)),
+            (1.0, flat),
+            (2.0, peak_at(&site, Cell::new(4, 0), 10.0)),
+        ];
+        let online = tracker.smooth(&windows, 0);
+        let smoothed = tracker.smooth(&windows, 1);
+        // Online, the silent window stays where the walk was; knowing where it
+        // went next, the smoother puts it on the way.
+        assert_eq!(online[1].cell, Cell::new(2, 0));
+        assert_eq!(smoothed[1].cell, Cell::new(3, 0));
+        assert_eq!(smoothed[0].cell, Cell::new(2, 0));
+        assert_eq!(smoothed[2].cell, Cell::new(4, 0));
     }
 }
