@@ -8,6 +8,7 @@ mod record;
 mod replay;
 mod run;
 mod simulate;
+mod train;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -37,8 +38,8 @@ enum Command {
     Check(check::Args),
     /// Plan one route on a site and print it.
     Plan(plan::Args),
-    /// Train path and localization models (not built yet).
-    Train(NotBuilt),
+    /// Train path models from walks and the localization cell classifier from a survey.
+    Train(train::Args),
     /// Evaluate localization or planning (not built yet).
     Eval(NotBuilt),
 }
@@ -64,7 +65,7 @@ impl Cli {
             Command::Run(args) => run::run(args),
             Command::Check(args) => check::run(args),
             Command::Plan(args) => plan::run(args),
-            Command::Train(_) => not_built("train", "the path-model training issue"),
+            Command::Train(args) => train::run(args),
             Command::Eval(_) => {
                 not_built("eval", "the localization and planning evaluation issues")
             }
