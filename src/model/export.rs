@@ -4,7 +4,7 @@
 //! The graph is plain: optional `Concat` of the inputs, optional `Clip` (input
 //! normalization), then per layer a `Gemm` (`x·W + b`, weights `in × out`) and
 //! its activation (`LeakyRelu` α = 0.2 or `Tanh`), then the head (`Sigmoid`,
-//! `Softmax` or `LogSoftmax`). The batch dimension is symbolic (`N`). Weights
+//! `Softmax`, or a log-softmax spelled out in `ReduceMax`/`Exp`/`ReduceSum`/`Log`). The batch dimension is symbolic (`N`). Weights
 //! are stored little-endian in `raw_data`. The same network always gives the
 //! same bytes.
 
@@ -124,15 +124,16 @@ pub fn to_onnx(spec: &Spec, meta: &Metadata) -> pb::ModelProto {
             }
         };
     }
-    let head = match spec.head {
-        Head::None => None,
-        Head::Sigmoid => Some(("Sigmoid", vec![])),
-        Head::Softmax => Some(("Softmax", vec![int_attr("axis", -1)])),
-        Head::LogSoftmax => Some(("LogSoftmax", vec![int_attr("axis", -1)])),
-    };
-    match head {
-        Some((op, attrs)) => nodes.push(node(op, vec![x], spec.output, attrs)),
-        None => nodes.push(node("Identity", vec![x], spec.output, vec![])),
+    match spec.head {
+        Head::None => nodes.push(node("Identity", vec![x], spec.output, vec![])),
+        Head::Sigmoid => nodes.push(node("Sigmoid", vec![x], spec.output, vec![])),
+        Head::Softmax => nodes.push(node(
+            "Softmax",
+            vec![x],
+            spec.output,
+            vec![int_attr("axis", -1)],
+        )),
+        Head::LogSoftmax => log_softmax(&mut nodes, &mut initializers, x, spec.output),
     }
     let graph = pb::GraphProto {
         name: meta.kind.name().to_owned(),
@@ -173,6 +174,67 @@ pub fn to_onnx(spec: &Spec, meta: &Metadata) -> pb::ModelProto {
 /// Writes the model to `path`.
 pub fn write(path: &Path, spec: &Spec, meta: &Metadata) -> std::io::Result<()> {
     std::fs::write(path, to_onnx(spec, meta).encode_to_vec())
+}
+
+/// `z − max(z) − ln Σ exp(z − max(z))` over the last axis, spelled out: tract
+/// runs `LogSoftmax` as `ln(softmax)`, which gives −∞ for classes whose
+/// probability underflows, where this form stays finite (and agrees with
+/// onnxruntime's `LogSoftmax`).
+fn log_softmax(
+    nodes: &mut Vec<pb::NodeProto>,
+    initializers: &mut Vec<pb::TensorProto>,
+    z: String,
+    output: &str,
+) {
+    initializers.push(pb::TensorProto {
+        name: "log_softmax.axes".into(),
+        dims: vec![1],
+        data_type: DataType::Int64 as i32,
+        int64_data: vec![-1],
+        ..Default::default()
+    });
+    let axes = pb::AttributeProto {
+        name: "axes".into(),
+        r#type: AttributeType::Ints as i32,
+        ints: vec![-1],
+        ..Default::default()
+    };
+    nodes.push(node(
+        "ReduceMax",
+        vec![z.clone()],
+        "log_softmax.max",
+        vec![axes, int_attr("keepdims", 1)],
+    ));
+    nodes.push(node(
+        "Sub",
+        vec![z, "log_softmax.max".into()],
+        "log_softmax.shifted",
+        vec![],
+    ));
+    nodes.push(node(
+        "Exp",
+        vec!["log_softmax.shifted".into()],
+        "log_softmax.exp",
+        vec![],
+    ));
+    nodes.push(node(
+        "ReduceSum",
+        vec!["log_softmax.exp".into(), "log_softmax.axes".into()],
+        "log_softmax.sum",
+        vec![int_attr("keepdims", 1)],
+    ));
+    nodes.push(node(
+        "Log",
+        vec!["log_softmax.sum".into()],
+        "log_softmax.log_sum",
+        vec![],
+    ));
+    nodes.push(node(
+        "Sub",
+        vec!["log_softmax.shifted".into(), "log_softmax.log_sum".into()],
+        output,
+        vec![],
+    ));
 }
 
 fn node(

@@ -199,7 +199,7 @@ pub fn train_paths(
         });
         progress.done();
         let seconds = started.elapsed().as_secs_f64();
-        let hits = endpoint_hits(set, &mut trained.generator, options.seed);
+        let (hits, cells) = endpoint_hits(set, &mut trained.generator, options.seed);
         let cond_len = condition::len(set.width, set.height);
         for (kind, net, inputs, output, head) in [
             (
@@ -219,6 +219,7 @@ pub fn train_paths(
         ] {
             let mut meta = gan_metadata(kind, site, set, options);
             meta.metrics.insert("endpoint_hit_share".into(), hits);
+            meta.metrics.insert("mean_path_cells".into(), cells);
             meta.metrics.insert("train_seconds".into(), seconds);
             written.push(write(
                 out,
@@ -379,8 +380,8 @@ fn noise(rows: usize, seed: u64) -> Array2<f32> {
 }
 
 /// How walk-like the unconditional generator's frames are: the share of their
-/// path cells that are walkable, and the share the classifier recognises with
-/// at least [`CONFIDENT`] probability.
+/// path cells that are walkable, the share the classifier recognises with at
+/// least [`CONFIDENT`] probability, their mean size and how many differ.
 fn measure_generator(
     site: &Site,
     generator: &mut Mlp,
@@ -425,12 +426,25 @@ fn measure_generator(
             "mean_path_cells".to_owned(),
             on as f64 / EVAL_SAMPLES as f64,
         ),
+        ("distinct_share".to_owned(), distinct_share(&binary)),
     ])
 }
 
+/// Share of distinct frames among generated ones: near 0 means the generator
+/// collapsed to a few frames.
+fn distinct_share(binary: &Array2<f32>) -> f64 {
+    let distinct: std::collections::HashSet<Vec<bool>> = binary
+        .rows()
+        .into_iter()
+        .map(|r| r.iter().map(|&v| v > 0.0).collect())
+        .collect();
+    distinct.len() as f64 / binary.nrows().max(1) as f64
+}
+
 /// Share of frames generated for each class (both directions) that have both
-/// the source and the destination on the path.
-fn endpoint_hits(set: &PathSet, generator: &mut Mlp, seed: u64) -> f64 {
+/// the source and the destination on the path, and their mean size (a frame
+/// with every cell on would hit trivially).
+fn endpoint_hits(set: &PathSet, generator: &mut Mlp, seed: u64) -> (f64, f64) {
     let per_class = EVAL_SAMPLES / (2 * set.classes.len()).max(1) + 1;
     let rows = per_class * 2 * set.classes.len();
     let len = condition::len(set.width, set.height);
@@ -470,5 +484,6 @@ fn endpoint_hits(set: &PathSet, generator: &mut Mlp, seed: u64) -> f64 {
         .zip(&ends)
         .filter(|(row, (a, b))| row[index(*a)] > 0.0 && row[index(*b)] > 0.0)
         .count();
-    hits as f64 / rows as f64
+    let on = frames.iter().filter(|&&v| v > 0.0).count();
+    (hits as f64 / rows as f64, on as f64 / rows as f64)
 }
