@@ -1,0 +1,164 @@
+//! Runs every shipped model (`models/*.onnx`) through tract on fixed inputs,
+//! checks what it says, and writes the inputs and tract's outputs as JSON for
+//! `scripts/check_onnx.py`, which runs the same inputs through onnxruntime.
+//!
+//! The JSON goes to `$GANGWAY_ONNX_REFERENCE_DIR`, or to a directory under
+//! Cargo's target tmp dir.
+
+use std::path::{Path, PathBuf};
+
+use gangway::model::runtime::Model;
+use gangway::model::{Kind, condition};
+use gangway::site::Site;
+use gangway::train::trajectory;
+use ndarray::Array2;
+use rand::SeedableRng;
+use rand::rngs::Xoshiro256PlusPlus;
+use rand_distr::{Distribution, StandardNormal};
+
+const ROWS: usize = 8;
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Fixed inputs for one graph input, by name.
+fn input_for(
+    name: &str,
+    width: usize,
+    site: &Site,
+    walks: &[trajectory::Trajectory],
+) -> Array2<f32> {
+    match name {
+        "noise" => {
+            let mut rng = Xoshiro256PlusPlus::seed_from_u64(42);
+            Array2::from_shape_simple_fn((ROWS, width), || StandardNormal.sample(&mut rng))
+        }
+        "condition" => {
+            let mut out = Array2::zeros((ROWS, width));
+            for (r, walk) in walks.iter().take(ROWS).enumerate() {
+                let row = out.row_mut(r).into_slice().unwrap();
+                condition::encode(
+                    site.width(),
+                    site.height(),
+                    walk.source(),
+                    walk.destination(),
+                    row,
+                );
+            }
+            out
+        }
+        // Discriminators take ±1 frames, classifiers 0/1; both are written by
+        // the caller from the walks.
+        "frame" => {
+            let mut out = Array2::zeros((ROWS, width));
+            for (r, walk) in walks.iter().take(ROWS).enumerate() {
+                walk.frame(site)
+                    .write_values(1.0, 0.0, out.row_mut(r).into_slice().unwrap());
+            }
+            out
+        }
+        "rssi" => Array2::from_shape_fn((ROWS, width), |(i, j)| {
+            // Strong, weak, and "not heard" (-200) readings.
+            [-200.0, -62.0, -75.0, -88.0, -99.0, -200.0, -50.0][(i + 3 * j) % 7]
+        }),
+        other => panic!("no reference input for `{other}`"),
+    }
+}
+
+fn tensor_json(name: &str, a: &Array2<f32>) -> serde_json::Value {
+    serde_json::json!({
+        "name": name,
+        "shape": [a.nrows(), a.ncols()],
+        "data": a.iter().copied().collect::<Vec<f32>>(),
+    })
+}
+
+#[test]
+fn shipped_models_run_in_tract_and_write_reference_outputs() {
+    let site = Site::load(&root().join("config/sites/waldo.toml")).unwrap();
+    let walks = trajectory::read(&root().join("fixtures/trajectories/waldo.jsonl"), &site).unwrap();
+    let out_dir = std::env::var_os("GANGWAY_ONNX_REFERENCE_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_TARGET_TMPDIR")).join("onnx-reference"));
+    std::fs::create_dir_all(&out_dir).unwrap();
+    let mut models: Vec<PathBuf> = std::fs::read_dir(root().join("models"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "onnx"))
+        .collect();
+    models.sort();
+    assert!(
+        models.len() >= 4,
+        "models/ should ship the trained models: {models:?}"
+    );
+    let all = [
+        Kind::Generator,
+        Kind::ConditionalGenerator,
+        Kind::Discriminator,
+        Kind::ConditionalDiscriminator,
+        Kind::PathClassifier,
+        Kind::CellClassifier,
+    ];
+    for path in &models {
+        let model = Model::load(path, &site, &all).unwrap();
+        let kind = model.metadata().kind;
+        let mut inputs: Vec<(String, Array2<f32>)> = model
+            .inputs()
+            .iter()
+            .map(|(name, width)| (name.clone(), input_for(name, *width, &site, &walks)))
+            .collect();
+        if matches!(kind, Kind::Discriminator | Kind::ConditionalDiscriminator) {
+            inputs[0].1.mapv_inplace(|v| 2.0 * v - 1.0);
+        }
+        let views: Vec<_> = inputs.iter().map(|(_, a)| a.view()).collect();
+        let output = model.run(&views).unwrap();
+        let (out_name, out_width) = model.output();
+        assert_eq!(output.dim(), (ROWS, out_width), "{}", path.display());
+        assert!(output.iter().all(|v| v.is_finite()), "{}", path.display());
+        match kind {
+            Kind::Generator | Kind::ConditionalGenerator => {
+                assert!(output.iter().all(|v| (-1.0..=1.0).contains(v)));
+            }
+            Kind::Discriminator | Kind::ConditionalDiscriminator => {
+                assert!(output.iter().all(|v| (0.0..=1.0).contains(v)));
+            }
+            Kind::PathClassifier => {
+                for (row, walk) in output.rows().into_iter().zip(&walks) {
+                    assert!((row.sum() - 1.0).abs() < 1e-4);
+                    // The fixture's first walks belong to the first class.
+                    let best = row
+                        .iter()
+                        .enumerate()
+                        .max_by(|a, b| a.1.total_cmp(b.1))
+                        .unwrap()
+                        .0;
+                    let class = model.metadata().classes[best];
+                    assert_eq!(
+                        (class.source, class.destination),
+                        (walk.source(), walk.destination()),
+                        "a training walk is classified as its own pair"
+                    );
+                }
+            }
+            Kind::CellClassifier => {
+                assert_eq!(out_width, site.open_cells().len());
+                for row in output.rows() {
+                    let total: f32 = row.iter().map(|v| v.exp()).sum();
+                    assert!((total - 1.0).abs() < 1e-3, "{total}");
+                }
+            }
+        }
+        let reference = serde_json::json!({
+            "model": path,
+            "inputs": inputs.iter().map(|(n, a)| tensor_json(n, a)).collect::<Vec<_>>(),
+            "output": tensor_json(out_name, &output),
+        });
+        let stem = path.file_stem().unwrap().to_string_lossy();
+        std::fs::write(
+            out_dir.join(format!("{stem}.json")),
+            serde_json::to_string(&reference).unwrap(),
+        )
+        .unwrap();
+    }
+}
