@@ -74,6 +74,7 @@ impl Config {
         if let Some(survey) = &mut config.localizer.knn.survey {
             *survey = base.join(&*survey);
         }
+        config.localizer.onnx.model = base.join(&config.localizer.onnx.model);
         config.mqtt.resolve_paths(base);
         if let Some(path) = &mut config.store.path {
             *path = base.join(&*path);

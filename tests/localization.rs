@@ -61,6 +61,71 @@ fn the_real_survey_stays_at_or_above_the_reached_targets() {
     assert!(figure(&random, "exact") >= 0.35, "random split: {random}");
 }
 
+/// The `onnx` method trains a cell classifier per split, exports it and runs it
+/// through tract; it must locate far better than chance (about 0.12 within 2
+/// cells on this site).
+#[test]
+fn the_onnx_localizer_trains_exports_and_locates_per_split() {
+    let Some(survey) = common::uci_survey() else {
+        return;
+    };
+    let m = eval(&[
+        "--site",
+        "config/sites/waldo.toml",
+        "--survey",
+        survey.to_str().unwrap(),
+        "--method",
+        "onnx",
+        "--seeds",
+        "1",
+    ]);
+    assert!(figure(&m, "within_2") > 0.35, "{m}");
+}
+
+#[test]
+fn the_shipped_cell_classifier_serves_the_pipeline() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = common::root();
+    let config = write(
+        dir.path(),
+        "gangway.toml",
+        &format!(
+            "gateway_id = \"gw\"\nsite = \"{}\"\n[localizer]\nmethod = \"onnx\"\n[localizer.onnx]\nmodel = \"{}\"\n",
+            root.join("config/sites/waldo.toml").display(),
+            root.join("models/cell_classifier.onnx").display()
+        ),
+    );
+    let out = gangway_ok(&[
+        "replay",
+        "fixtures/walk-waldo.jsonl",
+        "--config",
+        config.to_str().unwrap(),
+        "--print",
+    ]);
+    assert!(out.lines().any(|l| l.contains("/location")));
+
+    // A truncated model is refused with a message naming the file.
+    let bytes = std::fs::read(root.join("models/cell_classifier.onnx")).unwrap();
+    let broken = dir.path().join("broken.onnx");
+    std::fs::write(&broken, &bytes[..bytes.len() / 2]).unwrap();
+    let config = write(
+        dir.path(),
+        "broken.toml",
+        &format!(
+            "gateway_id = \"gw\"\nsite = \"{}\"\n[localizer]\nmethod = \"onnx\"\n[localizer.onnx]\nmodel = \"{}\"\n",
+            root.join("config/sites/waldo.toml").display(),
+            broken.display()
+        ),
+    );
+    let run = common::gangway(&["check", "--config", config.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success());
+    assert!(
+        stderr.contains("broken.onnx") && !stderr.contains("panicked"),
+        "{stderr}"
+    );
+}
+
 const SMALL_SITE: &str = r#"name = "workshop"
 cell_m = 2.0
 map = '''

@@ -125,7 +125,7 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
     }
     if let Some(path) = &args.plot {
         let mut curves = Vec::new();
-        for method in [Method::Knn, Method::Pathloss] {
+        for method in [Method::Knn, Method::Onnx, Method::Pathloss] {
             for kind in [TrackerKind::None, TrackerKind::Hmm] {
                 let o = evaluate(&site, &survey, &setup(method, kind))?;
                 let label = format!(

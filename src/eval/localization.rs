@@ -20,6 +20,7 @@ use rand::seq::SliceRandom;
 use serde::Serialize;
 
 use crate::locate::knn::Knn;
+use crate::locate::onnx::Onnx;
 use crate::locate::pathloss::PathLoss;
 use crate::locate::survey::{Sample, Survey};
 use crate::locate::tracker::TrackerConfig;
@@ -28,6 +29,7 @@ use crate::locate::window::WindowConfig;
 use crate::locate::{Localizer, LocalizerConfig, LocalizerError, Method};
 use crate::score::ErrorSummary;
 use crate::site::Site;
+use crate::train::job::{Options, Progress, train_cells};
 
 /// A gap longer than this (seconds) between survey rows starts a new session.
 pub const SESSION_GAP_S: f64 = 20.0;
@@ -79,6 +81,34 @@ pub enum EvalError {
     TooSmall,
     #[error(transparent)]
     Localizer(#[from] LocalizerError),
+    #[error("training the cell classifier: {0:#}")]
+    Training(anyhow::Error),
+}
+
+/// Iterations of the cell classifier trained for each split (as `gangway train`).
+const CELL_CLASSIFIER_ITERATIONS: usize = 3_000;
+
+/// Trains the `onnx` localizer's cell classifier on a training split, writes it
+/// as ONNX and loads it back through tract, exactly as a deployed model runs.
+fn train_cell_classifier(site: &Site, train: &Survey, seed: u64) -> Result<Onnx, EvalError> {
+    struct Silent;
+    impl Progress for Silent {
+        fn stage(&mut self, _: &str, _: usize) {}
+        fn step(&mut self, _: usize, _: &[(&str, f32)]) {}
+        fn done(&mut self) {}
+    }
+    let dir = tempfile::tempdir().map_err(|e| EvalError::Training(e.into()))?;
+    let options = Options {
+        iterations: 0,
+        batch: 64,
+        seed,
+        conditional: false,
+        classifier_iterations: CELL_CLASSIFIER_ITERATIONS,
+        heldout_share: 0.0,
+    };
+    let trained =
+        train_cells(site, train, &options, dir.path(), &mut Silent).map_err(EvalError::Training)?;
+    Ok(Onnx::load(&trained.file, site)?)
 }
 
 pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outcome, EvalError> {
@@ -122,10 +152,8 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
                 session.iter().map(|&s| held[s]).collect()
             }
         };
-        let train: Vec<&Sample> = (0..survey.samples.len())
-            .filter(|&i| !test[i])
-            .map(|i| &survey.samples[i])
-            .collect();
+        let train_rows: Vec<usize> = (0..survey.samples.len()).filter(|&i| !test[i]).collect();
+        let train: Vec<&Sample> = train_rows.iter().map(|&i| &survey.samples[i]).collect();
         if train.is_empty() || test.iter().all(|t| !t) {
             return Err(EvalError::TooSmall);
         }
@@ -135,6 +163,11 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
                 site,
                 &train,
                 setup.window.missing_dbm,
+            )?),
+            Method::Onnx => Box::new(train_cell_classifier(
+                site,
+                &survey.subset(&train_rows),
+                seed,
             )?),
             Method::Pathloss => Box::new(PathLoss::new(
                 &setup.localizer.pathloss,

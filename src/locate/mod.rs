@@ -7,6 +7,7 @@
 //! - [`tracker`] keeps a belief per entity that respects walls and walking speed.
 
 pub mod knn;
+pub mod onnx;
 pub mod pathloss;
 pub mod survey;
 pub mod tracker;
@@ -41,6 +42,9 @@ pub struct LocalizerConfig {
     /// `[localizer.knn]`: the survey and the vote.
     #[serde(default)]
     pub knn: knn::KnnConfig,
+    /// `[localizer.onnx]`: the trained cell classifier.
+    #[serde(default)]
+    pub onnx: onnx::OnnxConfig,
 }
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, clap::ValueEnum)]
@@ -51,6 +55,8 @@ pub enum Method {
     Pathloss,
     /// Weighted k-nearest neighbours over a survey.
     Knn,
+    /// The MLP cell classifier trained by `gangway train --survey`.
+    Onnx,
 }
 
 impl Method {
@@ -58,6 +64,7 @@ impl Method {
         match self {
             Method::Pathloss => "pathloss",
             Method::Knn => "knn",
+            Method::Onnx => "onnx",
         }
     }
 }
@@ -80,6 +87,8 @@ pub enum LocalizerError {
     SurveyOnBlockedCell(crate::site::Cell),
     #[error(transparent)]
     Survey(#[from] survey::SurveyError),
+    #[error(transparent)]
+    Model(#[from] crate::model::ModelError),
 }
 
 /// Builds the configured localizer for a site and the windows that feed it.
@@ -100,5 +109,6 @@ pub fn build(
             &window::anchor_ids(site, windows.orientation),
             windows.missing_dbm,
         )?),
+        Method::Onnx => Box::new(onnx::Onnx::load(&config.onnx.model, site)?),
     })
 }

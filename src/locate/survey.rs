@@ -352,6 +352,16 @@ impl Survey {
         })
     }
 
+    /// The survey restricted to some of its rows (a training split).
+    pub fn subset(&self, rows: &[usize]) -> Survey {
+        Survey {
+            samples: rows.iter().map(|&r| self.samples[r].clone()).collect(),
+            anchors: self.anchors.clone(),
+            present: self.present.clone(),
+            ignored_columns: self.ignored_columns.clone(),
+        }
+    }
+
     /// Columns that named no anchor of the site.
     pub fn ignored_columns(&self) -> &[String] {
         &self.ignored_columns
