@@ -81,4 +81,21 @@ async fn a_run_records_trajectories_routes_and_feedback() {
     assert_eq!(s1.score, Some(5.0));
     // The fixture's own scripted requests are recorded too, without feedback.
     assert!(routes.iter().filter(|r| r.score.is_none()).count() >= 1);
+
+    // What was recorded trains the path models (`train --from-store`), with
+    // the rated route among the walks.
+    let db = config.dir.path().join("learning.sqlite");
+    let out = config.dir.path().join("models");
+    let trained = std::process::Command::new(env!("CARGO_BIN_EXE_gangway"))
+        .args(["train", "--site"])
+        .arg(&site)
+        .arg("--from-store")
+        .arg(&db)
+        .arg("--out")
+        .arg(&out)
+        .args(["--iterations", "20", "--classifier-iterations", "20", "--min-class-walks", "1", "--json"])
+        .output()
+        .unwrap();
+    assert!(trained.status.success(), "{}", String::from_utf8_lossy(&trained.stderr));
+    assert!(out.join("generator.onnx").exists());
 }

@@ -12,7 +12,7 @@ use crate::locate::survey::Survey;
 use crate::site::Site;
 use crate::train::job::{self, Options, Progress, Trained};
 use crate::train::paths::PathSet;
-use crate::train::trajectory;
+use crate::train::{recorded, trajectory};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -23,6 +23,10 @@ pub struct Args {
     /// of the paper's frame CSVs.
     #[arg(long)]
     trajectories: Option<PathBuf>,
+    /// Also learn from the daemon's learning store (SQLite, `[store]`): its
+    /// recorded walks and the routes it gave, weighted by their feedback.
+    #[arg(long)]
+    from_store: Option<PathBuf>,
     /// Directory for the ONNX files (created if missing).
     #[arg(long)]
     out: PathBuf,
@@ -58,8 +62,8 @@ pub struct Args {
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(
-        args.trajectories.is_some() || args.survey.is_some(),
-        "nothing to train: give --trajectories (path models) and/or --survey (cell classifier)"
+        args.trajectories.is_some() || args.from_store.is_some() || args.survey.is_some(),
+        "nothing to train: give --trajectories and/or --from-store (path models), and/or --survey (cell classifier)"
     );
     anyhow::ensure!(args.batch > 0, "--batch must be at least 1");
     anyhow::ensure!(
@@ -81,11 +85,26 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let mut bars = Bars::new(args.json);
     let mut written: Vec<Trained> = Vec::new();
     let mut walks = None;
-    if let Some(path) = &args.trajectories {
-        let set = if path.is_dir() {
-            PathSet::from_frame_dir(&site, path, args.min_class_walks)?
-        } else {
-            PathSet::from_trajectories(&site, &trajectory::read(path, &site)?, args.min_class_walks)
+    if args.trajectories.is_some() || args.from_store.is_some() {
+        let set = match (&args.trajectories, &args.from_store) {
+            (Some(dir), None) if dir.is_dir() => {
+                PathSet::from_frame_dir(&site, dir, args.min_class_walks)?
+            }
+            (Some(dir), Some(_)) if dir.is_dir() => anyhow::bail!(
+                "--from-store combines with walks in JSON Lines, not with a directory of frame CSVs"
+            ),
+            (shipped, store) => {
+                let mut all = match shipped {
+                    Some(path) => trajectory::read(path, &site)?,
+                    None => Vec::new(),
+                };
+                if let Some(db) = store {
+                    let recorded = recorded::walks_from_store(db, &site)?;
+                    tracing::info!(walks = recorded.len(), store = %db.display(), "walks from the learning store");
+                    all.extend(recorded);
+                }
+                PathSet::from_trajectories(&site, &recorded::weighted(all), args.min_class_walks)
+            }
         };
         walks = Some((set.walks.len(), set.classes.len()));
         written.extend(job::train_paths(

@@ -6,6 +6,7 @@
 //!   class; survey readings with their cell);
 //! - [`mlp`]: the dense-network trainer (why it is hand-written: see there);
 //! - [`gan`] and [`classifier`]: the paper's GAN and the softmax classifiers;
+//! - [`recorded`]: walks and rated routes from the daemon's learning store;
 //! - [`job`]: what `gangway train` trains, measures and writes.
 //!
 //! The models are written as ONNX by [`crate::model::export`] and run by
@@ -18,4 +19,5 @@ pub mod gan;
 pub mod job;
 pub mod mlp;
 pub mod paths;
+pub mod recorded;
 pub mod trajectory;
