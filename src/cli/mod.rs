@@ -9,6 +9,7 @@ mod record;
 mod replay;
 mod run;
 mod simulate;
+mod train;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -38,17 +39,10 @@ enum Command {
     Check(check::Args),
     /// Plan one route on a site and print it.
     Plan(plan::Args),
-    /// Train path and localization models (not built yet).
-    Train(NotBuilt),
+    /// Train path models from walks and the localization cell classifier from a survey.
+    Train(train::Args),
     /// Evaluate localization on a labelled survey.
     Eval(eval::Args),
-}
-
-/// Arguments of a subcommand that does not exist yet.
-#[derive(clap::Args)]
-struct NotBuilt {
-    #[arg(trailing_var_arg = true, allow_hyphen_values = true, hide = true)]
-    _args: Vec<String>,
 }
 
 /// Where `--config` points when it is not given.
@@ -65,16 +59,12 @@ impl Cli {
             Command::Run(args) => run::run(args),
             Command::Check(args) => check::run(args),
             Command::Plan(args) => plan::run(args),
-            Command::Train(_) => not_built("train", "the path-model training issue"),
+            Command::Train(args) => train::run(args),
             Command::Eval(args) => eval::run(args),
         }
     }
 }
 
-fn not_built(name: &str, by: &str) -> anyhow::Result<ExitCode> {
-    eprintln!("gangway {name}: not built yet (it comes with {by}); nothing was run.");
-    Ok(ExitCode::from(2))
-}
 
 /// Loads a config and its site.
 fn load(

@@ -1,4 +1,5 @@
-//! `gangway simulate`: walkers on a site, written as an advert log.
+//! `gangway simulate`: walkers on a site, written as an advert log; or, with
+//! `--trajectories`, walks between places written as trajectories.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -10,7 +11,8 @@ use crate::locate::pathloss::PathLossConfig;
 use crate::locate::survey::Survey;
 use crate::site::Site;
 use crate::source::log::LogWriter;
-use crate::source::simulate::{SimConfig, simulate};
+use crate::source::simulate::{SimConfig, WalkConfig, simulate, simulate_walks};
+use crate::train::trajectory;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -20,6 +22,16 @@ pub struct Args {
     /// The log to write (JSON Lines).
     #[arg(long)]
     out: PathBuf,
+    /// Write walks between places as trajectories (path-model training data)
+    /// instead of an advert log.
+    #[arg(long)]
+    trajectories: bool,
+    /// With --trajectories: walks between each pair of named places.
+    #[arg(long, default_value_t = WalkConfig::default().walks_per_pair)]
+    walks_per_pair: usize,
+    /// With --trajectories: walks between random cells, besides the place pairs.
+    #[arg(long, default_value_t = WalkConfig::default().random_walks)]
+    random_walks: usize,
     #[arg(long, default_value_t = SimConfig::default().walkers)]
     walkers: usize,
     /// Seconds of simulated time.
@@ -46,6 +58,9 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    if args.trajectories {
+        return run_walks(&args);
+    }
     anyhow::ensure!(args.scan_hz > 0.0, "--scan-hz must be positive");
     anyhow::ensure!(
         (0.0..1.0).contains(&args.dropout),
@@ -84,5 +99,22 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
     writer.flush()?;
     tracing::info!(events = events.len(), out = %args.out.display(), "simulation written");
+    Ok(ExitCode::SUCCESS)
+}
+
+fn run_walks(args: &Args) -> anyhow::Result<ExitCode> {
+    let site = Site::load(&args.site)?;
+    let config = WalkConfig {
+        walks_per_pair: args.walks_per_pair,
+        random_walks: args.random_walks,
+        seed: args.seed,
+        ..WalkConfig::default()
+    };
+    let walks = simulate_walks(&site, &config);
+    let file = std::fs::File::create(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    trajectory::write(std::io::BufWriter::new(file), &walks)
+        .with_context(|| format!("cannot write {}", args.out.display()))?;
+    tracing::info!(walks = walks.len(), out = %args.out.display(), "walks written");
     Ok(ExitCode::SUCCESS)
 }

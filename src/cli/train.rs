@@ -1,0 +1,212 @@
+//! `gangway train`: path models from walks, and the localization cell
+//! classifier from a survey, written as ONNX to a directory.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::locate::survey::Survey;
+use crate::site::Site;
+use crate::train::job::{self, Options, Progress, Trained};
+use crate::train::paths::PathSet;
+use crate::train::trajectory;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The site file.
+    #[arg(long)]
+    site: PathBuf,
+    /// Walks to learn paths from: a JSON Lines trajectory file, or a directory
+    /// of the paper's frame CSVs.
+    #[arg(long)]
+    trajectories: Option<PathBuf>,
+    /// Directory for the ONNX files (created if missing).
+    #[arg(long)]
+    out: PathBuf,
+    /// GAN iterations (one discriminator and one generator step each).
+    #[arg(long, default_value_t = 15_000)]
+    iterations: usize,
+    #[arg(long, default_value_t = 32)]
+    batch: usize,
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Also train a generator conditioned on source and destination cells.
+    #[arg(long)]
+    conditional: bool,
+    /// Iterations of the path classifier and of the cell classifier.
+    #[arg(long, default_value_t = 3_000)]
+    classifier_iterations: usize,
+    /// Source/destination pairs with fewer walks are not classes.
+    #[arg(long, default_value_t = 10)]
+    min_class_walks: usize,
+    /// Share of walks (and survey sessions) held out to measure the classifiers.
+    #[arg(long, default_value_t = 0.2)]
+    heldout: f64,
+    /// Also train the localization cell classifier from this survey (CSV).
+    #[arg(long)]
+    survey: Option<PathBuf>,
+    /// "Not heard" value in the survey.
+    #[arg(long, default_value_t = -200, allow_negative_numbers = true)]
+    not_heard: i16,
+    /// Print the summary as JSON instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(
+        args.trajectories.is_some() || args.survey.is_some(),
+        "nothing to train: give --trajectories (path models) and/or --survey (cell classifier)"
+    );
+    anyhow::ensure!(args.batch > 0, "--batch must be at least 1");
+    anyhow::ensure!(
+        args.heldout > 0.0 && args.heldout < 1.0,
+        "--heldout must be between 0 and 1"
+    );
+    let site = Site::load(&args.site)?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    let options = Options {
+        iterations: args.iterations,
+        batch: args.batch,
+        seed: args.seed,
+        conditional: args.conditional,
+        classifier_iterations: args.classifier_iterations,
+        heldout_share: args.heldout,
+    };
+    let started = Instant::now();
+    let mut bars = Bars::new(args.json);
+    let mut written: Vec<Trained> = Vec::new();
+    let mut walks = None;
+    if let Some(path) = &args.trajectories {
+        let set = if path.is_dir() {
+            PathSet::from_frame_dir(&site, path, args.min_class_walks)?
+        } else {
+            PathSet::from_trajectories(&site, &trajectory::read(path, &site)?, args.min_class_walks)
+        };
+        walks = Some((set.walks.len(), set.classes.len()));
+        written.extend(job::train_paths(
+            &site, &set, &options, &args.out, &mut bars,
+        )?);
+    }
+    if let Some(path) = &args.survey {
+        let anchors: Vec<String> = site.beacons.iter().map(|b| b.id.clone()).collect();
+        let survey = Survey::load(path, &site, &anchors, args.not_heard)?;
+        written.push(job::train_cells(
+            &site, &survey, &options, &args.out, &mut bars,
+        )?);
+    }
+    let wall = started.elapsed().as_secs_f64();
+    if args.json {
+        let models: Vec<_> = written
+            .iter()
+            .map(|t| {
+                serde_json::json!({
+                    "file": t.file,
+                    "kind": t.kind.name(),
+                    "parameters": t.parameters,
+                    "bytes": t.bytes,
+                    "seconds": t.seconds,
+                    "metrics": t.metrics,
+                })
+            })
+            .collect();
+        let summary = serde_json::json!({
+            "wall_seconds": wall,
+            "walks": walks.map(|w| w.0),
+            "classes": walks.map(|w| w.1),
+            "iterations": args.iterations,
+            "batch": args.batch,
+            "seed": args.seed,
+            "models": models,
+        });
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    } else {
+        if let Some((n, classes)) = walks {
+            println!("{n} walks, {classes} source/destination classes");
+        }
+        for t in &written {
+            let metrics: Vec<String> = t
+                .metrics
+                .iter()
+                .map(|(k, v)| format!("{k} {}", short(*v)))
+                .collect();
+            println!(
+                "{:<28} {:>9} params {:>8.1} KiB {:>7.1} s  {}",
+                t.file.display(),
+                t.parameters,
+                t.bytes as f64 / 1024.0,
+                t.seconds,
+                metrics.join(", ")
+            );
+        }
+        println!("wall time {wall:.1} s");
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn short(v: f64) -> String {
+    if v.fract() == 0.0 && v.abs() < 1e9 {
+        format!("{v:.0}")
+    } else {
+        format!("{v:.4}")
+    }
+}
+
+/// One progress bar per stage, with the latest losses; hidden with `--json`
+/// or when stderr is not a terminal.
+struct Bars {
+    hidden: bool,
+    bar: Option<ProgressBar>,
+    last_draw: Instant,
+}
+
+impl Bars {
+    fn new(hidden: bool) -> Bars {
+        Bars {
+            hidden,
+            bar: None,
+            last_draw: Instant::now(),
+        }
+    }
+}
+
+impl Progress for Bars {
+    fn stage(&mut self, name: &str, iterations: usize) {
+        let bar = if self.hidden {
+            ProgressBar::hidden()
+        } else {
+            ProgressBar::new(iterations as u64)
+        };
+        bar.set_style(
+            ProgressStyle::with_template(
+                "{prefix:>16} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta} {msg}",
+            )
+            .expect("valid template")
+            .progress_chars("=> "),
+        );
+        bar.set_prefix(name.to_owned());
+        self.bar = Some(bar);
+    }
+
+    fn step(&mut self, iteration: usize, losses: &[(&str, f32)]) {
+        let Some(bar) = &self.bar else { return };
+        // Formatting losses every iteration would cost more than a small step.
+        if self.last_draw.elapsed() < Duration::from_millis(100) {
+            return;
+        }
+        self.last_draw = Instant::now();
+        bar.set_position(iteration as u64);
+        let text: Vec<String> = losses.iter().map(|(k, v)| format!("{k} {v:.3}")).collect();
+        bar.set_message(text.join(" "));
+    }
+
+    fn done(&mut self) {
+        if let Some(bar) = self.bar.take() {
+            bar.finish_and_clear();
+        }
+    }
+}

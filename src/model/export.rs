@@ -1,0 +1,245 @@
+//! Writing a trained dense network as an ONNX model (opset 13), through
+//! tract-onnx's protobuf types and prost.
+//!
+//! The graph is plain: optional `Concat` of the inputs, optional `Clip` (input
+//! normalization), then per layer a `Gemm` (`x·W + b`, weights `in × out`) and
+//! its activation (`LeakyRelu` α = 0.2 or `Tanh`), then the head (`Sigmoid`,
+//! `Softmax` or `LogSoftmax`). The batch dimension is symbolic (`N`). Weights
+//! are stored little-endian in `raw_data`. The same network always gives the
+//! same bytes.
+
+use std::path::Path;
+
+use prost::Message;
+use tract_onnx::pb;
+use tract_onnx::pb::attribute_proto::AttributeType;
+use tract_onnx::pb::tensor_proto::DataType;
+
+use super::Metadata;
+use crate::train::mlp::{Act, LEAKY_SLOPE, Mlp};
+
+/// ONNX operator set the graphs use.
+pub const OPSET: i64 = 13;
+/// ONNX IR version matching [`OPSET`].
+const IR_VERSION: i64 = 8;
+
+/// What follows the last layer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Head {
+    /// The last layer's own activation only.
+    None,
+    Sigmoid,
+    Softmax,
+    LogSoftmax,
+}
+
+/// Input normalization baked into the graph: `x' = (clip(x, lo, hi) + offset) · scale`.
+/// The clip is a node; the affine part is folded into the first layer.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ClipScale {
+    pub lo: f32,
+    pub hi: f32,
+    pub offset: f32,
+    pub scale: f32,
+}
+
+/// A network and how it is presented.
+pub struct Spec<'a> {
+    pub net: &'a Mlp,
+    /// Named inputs with their widths, concatenated in this order.
+    pub inputs: &'a [(&'a str, usize)],
+    pub normalize: Option<ClipScale>,
+    pub head: Head,
+    pub output: &'a str,
+}
+
+/// The ONNX model for `spec` with `meta` as its `metadata_props`.
+pub fn to_onnx(spec: &Spec, meta: &Metadata) -> pb::ModelProto {
+    let widths: usize = spec.inputs.iter().map(|(_, w)| w).sum();
+    assert_eq!(
+        widths,
+        spec.net.inputs(),
+        "inputs must cover the first layer"
+    );
+    let mut nodes = Vec::new();
+    let mut initializers = Vec::new();
+    let mut x = if spec.inputs.len() == 1 {
+        spec.inputs[0].0.to_owned()
+    } else {
+        nodes.push(node(
+            "Concat",
+            spec.inputs.iter().map(|(n, _)| n.to_string()).collect(),
+            "inputs",
+            vec![int_attr("axis", 1)],
+        ));
+        "inputs".to_owned()
+    };
+    if let Some(norm) = spec.normalize {
+        initializers.push(tensor("clip.lo", &[], &[norm.lo]));
+        initializers.push(tensor("clip.hi", &[], &[norm.hi]));
+        nodes.push(node(
+            "Clip",
+            vec![x, "clip.lo".into(), "clip.hi".into()],
+            "clipped",
+            vec![],
+        ));
+        x = "clipped".into();
+    }
+    for (i, layer) in spec.net.layers.iter().enumerate() {
+        let (mut w, mut b) = (layer.w.clone(), layer.b.clone());
+        if let (0, Some(norm)) = (i, spec.normalize) {
+            // (x + o)·s·W + b = x·(s·W) + (b + o·s·colsum(W))
+            b = &b + &(layer.w.sum_axis(ndarray::Axis(0)) * (norm.offset * norm.scale));
+            w *= norm.scale;
+        }
+        let (wn, bn) = (format!("layer{i}.weight"), format!("layer{i}.bias"));
+        initializers.push(tensor(
+            &wn,
+            &[w.nrows() as i64, w.ncols() as i64],
+            w.as_standard_layout().as_slice().expect("standard layout"),
+        ));
+        initializers.push(tensor(
+            &bn,
+            &[b.len() as i64],
+            b.as_slice().expect("contiguous"),
+        ));
+        let z = format!("layer{i}.linear");
+        nodes.push(node("Gemm", vec![x, wn, bn], &z, vec![]));
+        x = match layer.act {
+            Act::Identity => z,
+            Act::LeakyRelu => {
+                let h = format!("layer{i}.leaky_relu");
+                nodes.push(node(
+                    "LeakyRelu",
+                    vec![z],
+                    &h,
+                    vec![float_attr("alpha", LEAKY_SLOPE)],
+                ));
+                h
+            }
+            Act::Tanh => {
+                let h = format!("layer{i}.tanh");
+                nodes.push(node("Tanh", vec![z], &h, vec![]));
+                h
+            }
+        };
+    }
+    let head = match spec.head {
+        Head::None => None,
+        Head::Sigmoid => Some(("Sigmoid", vec![])),
+        Head::Softmax => Some(("Softmax", vec![int_attr("axis", -1)])),
+        Head::LogSoftmax => Some(("LogSoftmax", vec![int_attr("axis", -1)])),
+    };
+    match head {
+        Some((op, attrs)) => nodes.push(node(op, vec![x], spec.output, attrs)),
+        None => nodes.push(node("Identity", vec![x], spec.output, vec![])),
+    }
+    let graph = pb::GraphProto {
+        name: meta.kind.name().to_owned(),
+        node: nodes,
+        initializer: initializers,
+        input: spec
+            .inputs
+            .iter()
+            .map(|&(name, width)| value_info(name, width))
+            .collect(),
+        output: vec![value_info(spec.output, spec.net.outputs())],
+        ..Default::default()
+    };
+    pb::ModelProto {
+        ir_version: IR_VERSION,
+        opset_import: vec![pb::OperatorSetIdProto {
+            domain: String::new(),
+            version: OPSET,
+        }],
+        producer_name: "gangway".into(),
+        producer_version: env!("CARGO_PKG_VERSION").into(),
+        model_version: i64::from(meta.version),
+        doc_string: format!(
+            "gangway {} model for site {:?}; see models/README.md",
+            meta.kind.name(),
+            meta.site
+        ),
+        graph: Some(graph),
+        metadata_props: meta
+            .to_props()
+            .into_iter()
+            .map(|(key, value)| pb::StringStringEntryProto { key, value })
+            .collect(),
+        ..Default::default()
+    }
+}
+
+/// Writes the model to `path`.
+pub fn write(path: &Path, spec: &Spec, meta: &Metadata) -> std::io::Result<()> {
+    std::fs::write(path, to_onnx(spec, meta).encode_to_vec())
+}
+
+fn node(
+    op: &str,
+    inputs: Vec<String>,
+    output: &str,
+    attribute: Vec<pb::AttributeProto>,
+) -> pb::NodeProto {
+    pb::NodeProto {
+        name: output.to_owned(),
+        op_type: op.to_owned(),
+        input: inputs,
+        output: vec![output.to_owned()],
+        attribute,
+        ..Default::default()
+    }
+}
+
+fn int_attr(name: &str, i: i64) -> pb::AttributeProto {
+    pb::AttributeProto {
+        name: name.to_owned(),
+        r#type: AttributeType::Int as i32,
+        i,
+        ..Default::default()
+    }
+}
+
+fn float_attr(name: &str, f: f32) -> pb::AttributeProto {
+    pb::AttributeProto {
+        name: name.to_owned(),
+        r#type: AttributeType::Float as i32,
+        f,
+        ..Default::default()
+    }
+}
+
+fn tensor(name: &str, dims: &[i64], data: &[f32]) -> pb::TensorProto {
+    pb::TensorProto {
+        name: name.to_owned(),
+        dims: dims.to_vec(),
+        data_type: DataType::Float as i32,
+        raw_data: data.iter().flat_map(|v| v.to_le_bytes()).collect(),
+        ..Default::default()
+    }
+}
+
+/// A float tensor `[N, width]` with a symbolic batch.
+fn value_info(name: &str, width: usize) -> pb::ValueInfoProto {
+    use pb::tensor_shape_proto::{Dimension, dimension::Value};
+    let dim = |value| Dimension {
+        value: Some(value),
+        ..Default::default()
+    };
+    pb::ValueInfoProto {
+        name: name.to_owned(),
+        r#type: Some(pb::TypeProto {
+            value: Some(pb::type_proto::Value::TensorType(pb::type_proto::Tensor {
+                elem_type: DataType::Float as i32,
+                shape: Some(pb::TensorShapeProto {
+                    dim: vec![
+                        dim(Value::DimParam("N".into())),
+                        dim(Value::DimValue(width as i64)),
+                    ],
+                }),
+            })),
+            ..Default::default()
+        }),
+        ..Default::default()
+    }
+}

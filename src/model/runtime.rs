@@ -1,0 +1,354 @@
+//! Running exported models with tract: loading checks the file, its metadata
+//! and its graph against the configured site, then keeps an optimized typed
+//! plan with a symbolic batch, so one call runs any number of rows.
+//!
+//! One type per model kind, each with the one call its users need:
+//! [`PathGenerator::generate`], [`Discriminator::score`],
+//! [`PathClassifier::classify`], [`CellClassifier::log_probs`]. All are
+//! `Send + Sync`; a call allocates its own run state.
+
+use std::collections::BTreeMap;
+use std::panic::AssertUnwindSafe;
+use std::path::Path;
+use std::sync::Arc;
+
+use ndarray::{Array2, ArrayView2};
+use tract_onnx::pb;
+use tract_onnx::prelude::*;
+
+use super::{Kind, Metadata, ModelError, PathClass};
+use crate::site::Site;
+
+/// A loaded model of any kind.
+#[derive(Clone)]
+pub struct Model {
+    path: String,
+    meta: Metadata,
+    plan: Arc<TypedRunnableModel>,
+    /// Graph inputs in order, with their widths.
+    inputs: Vec<(String, usize)>,
+    output: (String, usize),
+}
+
+impl std::fmt::Debug for Model {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Model")
+            .field("path", &self.path)
+            .field("kind", &self.meta.kind)
+            .finish()
+    }
+}
+
+impl Model {
+    /// Loads a model for `site` and checks it is one of `kinds`.
+    pub fn load(path: &Path, site: &Site, kinds: &[Kind]) -> Result<Model, ModelError> {
+        let name = path.display().to_string();
+        let bytes = std::fs::read(path).map_err(|e| ModelError::Read {
+            path: name.clone(),
+            reason: e.to_string(),
+        })?;
+        let proto = <pb::ModelProto as prost::Message>::decode(bytes.as_slice()).map_err(|e| {
+            ModelError::Corrupt {
+                path: name.clone(),
+                reason: e.to_string(),
+            }
+        })?;
+        let props: BTreeMap<String, String> = proto
+            .metadata_props
+            .iter()
+            .map(|e| (e.key.clone(), e.value.clone()))
+            .collect();
+        let meta = Metadata::from_props(&props, &name)?;
+        if !kinds.contains(&meta.kind) {
+            return Err(ModelError::Metadata {
+                path: name,
+                key: "gangway.kind",
+                reason: format!(
+                    "the model is a {}, but a {} is needed here",
+                    meta.kind.name(),
+                    kinds
+                        .iter()
+                        .map(|k| k.name())
+                        .collect::<Vec<_>>()
+                        .join(" or ")
+                ),
+            });
+        }
+        meta.check_site(site, &name)?;
+        let graph = proto.graph.as_ref().ok_or_else(|| ModelError::Corrupt {
+            path: name.clone(),
+            reason: "no graph".into(),
+        })?;
+        let corrupt = |reason: String| ModelError::Corrupt {
+            path: name.clone(),
+            reason,
+        };
+        let inputs = graph
+            .input
+            .iter()
+            .map(|v| {
+                Ok((
+                    v.name.clone(),
+                    batch_width(v).ok_or_else(|| {
+                        corrupt(format!("input `{}` is not [N, width] float", v.name))
+                    })?,
+                ))
+            })
+            .collect::<Result<Vec<_>, ModelError>>()?;
+        let output = match graph.output.as_slice() {
+            [v] => (
+                v.name.clone(),
+                batch_width(v).ok_or_else(|| {
+                    corrupt(format!("output `{}` is not [N, width] float", v.name))
+                })?,
+            ),
+            _ => return Err(corrupt("the graph must have exactly one output".into())),
+        };
+        // tract asserts on some malformed graphs; a bad file must be an error,
+        // not a crash of the daemon.
+        let plan = std::panic::catch_unwind(AssertUnwindSafe(|| -> TractResult<_> {
+            tract_onnx::onnx()
+                .model_for_proto_model(&proto)?
+                .into_optimized()?
+                .into_runnable()
+        }))
+        .map_err(|_| ModelError::Runtime {
+            path: name.clone(),
+            reason: "tract panicked while loading the graph".into(),
+        })?
+        .map_err(|e| ModelError::Runtime {
+            path: name.clone(),
+            reason: format!("{e:#}"),
+        })?;
+        Ok(Model {
+            path: name,
+            meta,
+            plan,
+            inputs,
+            output,
+        })
+    }
+
+    pub fn metadata(&self) -> &Metadata {
+        &self.meta
+    }
+
+    /// The graph's input names and widths, in order.
+    pub fn inputs(&self) -> &[(String, usize)] {
+        &self.inputs
+    }
+
+    /// The graph's output name and width.
+    pub fn output(&self) -> (&str, usize) {
+        (&self.output.0, self.output.1)
+    }
+
+    /// Runs one batch: one array per graph input, all with the same rows.
+    pub fn run(&self, inputs: &[ArrayView2<f32>]) -> Result<Array2<f32>, ModelError> {
+        if inputs.len() != self.inputs.len() {
+            return Err(ModelError::Input(format!(
+                "{} takes {} inputs ({}), got {}",
+                self.path,
+                self.inputs.len(),
+                self.input_names(),
+                inputs.len()
+            )));
+        }
+        let rows = inputs.first().map_or(0, |a| a.nrows());
+        let mut values = TVec::new();
+        for (array, (name, width)) in inputs.iter().zip(&self.inputs) {
+            if array.ncols() != *width || array.nrows() != rows {
+                return Err(ModelError::Input(format!(
+                    "`{name}` of {} must be [{rows}, {width}], got [{}, {}]",
+                    self.path,
+                    array.nrows(),
+                    array.ncols()
+                )));
+            }
+            let tensor: Tensor = array.as_standard_layout().into_owned().into();
+            values.push(tensor.into());
+        }
+        let out = self.plan.run(values).map_err(|e| ModelError::Runtime {
+            path: self.path.clone(),
+            reason: format!("{e:#}"),
+        })?;
+        out[0]
+            .to_plain_array_view::<f32>()
+            .and_then(|v| Ok(v.into_dimensionality::<ndarray::Ix2>()?.to_owned()))
+            .map_err(|e| ModelError::Runtime {
+                path: self.path.clone(),
+                reason: format!("{e:#}"),
+            })
+    }
+
+    fn input_names(&self) -> String {
+        self.inputs
+            .iter()
+            .map(|(n, _)| format!("`{n}`"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+}
+
+/// The width of a `[N, width]` float input or output.
+fn batch_width(v: &pb::ValueInfoProto) -> Option<usize> {
+    use pb::tensor_shape_proto::dimension::Value;
+    let pb::type_proto::Value::TensorType(t) = v.r#type.as_ref()?.value.as_ref()?;
+    if t.elem_type != pb::tensor_proto::DataType::Float as i32 {
+        return None;
+    }
+    match t.shape.as_ref()?.dim.as_slice() {
+        [_, d] => match d.value {
+            Some(Value::DimValue(w)) if w > 0 => usize::try_from(w).ok(),
+            _ => None,
+        },
+        _ => None,
+    }
+}
+
+/// Generates path frames from noise (and conditions).
+#[derive(Clone, Debug)]
+pub struct PathGenerator(Model);
+
+impl PathGenerator {
+    pub fn load(path: &Path, site: &Site) -> Result<PathGenerator, ModelError> {
+        Model::load(path, site, &[Kind::Generator, Kind::ConditionalGenerator]).map(PathGenerator)
+    }
+
+    pub fn model(&self) -> &Model {
+        &self.0
+    }
+
+    pub fn noise_dim(&self) -> usize {
+        self.0.meta.noise_dim
+    }
+
+    /// Whether [`PathGenerator::generate`] needs conditions
+    /// ([`crate::model::condition::encode`]).
+    pub fn is_conditional(&self) -> bool {
+        self.0.meta.kind == Kind::ConditionalGenerator
+    }
+
+    /// One frame (`W·H` values in (−1, 1), on the path when > 0) per noise row.
+    pub fn generate(
+        &self,
+        noise: ArrayView2<f32>,
+        conditions: Option<ArrayView2<f32>>,
+    ) -> Result<Array2<f32>, ModelError> {
+        match (self.is_conditional(), conditions) {
+            (false, None) => self.0.run(&[noise]),
+            (true, Some(c)) => self.0.run(&[noise, c]),
+            (true, None) => Err(ModelError::Input(
+                "a conditional generator needs a condition per row".into(),
+            )),
+            (false, Some(_)) => Err(ModelError::Input(
+                "this generator is not conditional; pass no conditions".into(),
+            )),
+        }
+    }
+}
+
+/// Scores frames as real walks.
+#[derive(Clone, Debug)]
+pub struct Discriminator(Model);
+
+impl Discriminator {
+    pub fn load(path: &Path, site: &Site) -> Result<Discriminator, ModelError> {
+        Model::load(
+            path,
+            site,
+            &[Kind::Discriminator, Kind::ConditionalDiscriminator],
+        )
+        .map(Discriminator)
+    }
+
+    pub fn model(&self) -> &Model {
+        &self.0
+    }
+
+    /// Probability that each ±1 frame is a real walk (`[N, 1]`). A conditional
+    /// discriminator also takes the condition of each row.
+    pub fn score(
+        &self,
+        frames: ArrayView2<f32>,
+        conditions: Option<ArrayView2<f32>>,
+    ) -> Result<Array2<f32>, ModelError> {
+        match conditions {
+            None => self.0.run(&[frames]),
+            Some(c) => self.0.run(&[frames, c]),
+        }
+    }
+}
+
+/// Says which source/destination pair a path frame belongs to.
+#[derive(Clone, Debug)]
+pub struct PathClassifier(Model);
+
+impl PathClassifier {
+    pub fn load(path: &Path, site: &Site) -> Result<PathClassifier, ModelError> {
+        Model::load(path, site, &[Kind::PathClassifier]).map(PathClassifier)
+    }
+
+    pub fn model(&self) -> &Model {
+        &self.0
+    }
+
+    /// The classes, in output column order.
+    pub fn classes(&self) -> &[PathClass] {
+        &self.0.meta.classes
+    }
+
+    /// Class probabilities (`[N, classes]`) of 0/1 frames (`[N, W·H]`).
+    pub fn classify(&self, frames: ArrayView2<f32>) -> Result<Array2<f32>, ModelError> {
+        self.0.run(&[frames])
+    }
+}
+
+/// Locates a device from what it hears: a distribution over the site's open cells.
+#[derive(Clone, Debug)]
+pub struct CellClassifier(Model);
+
+impl CellClassifier {
+    pub fn load(path: &Path, site: &Site) -> Result<CellClassifier, ModelError> {
+        let model = Model::load(path, site, &[Kind::CellClassifier])?;
+        let open = site.open_cells().len();
+        if model.output.1 != open {
+            return Err(ModelError::Metadata {
+                path: model.path.clone(),
+                key: "gangway.map_hash",
+                reason: format!(
+                    "the model scores {} cells but the site has {open} open cells",
+                    model.output.1
+                ),
+            });
+        }
+        Ok(CellClassifier(model))
+    }
+
+    pub fn model(&self) -> &Model {
+        &self.0
+    }
+
+    /// Writes the log-probability of each open cell (`Site::open_cells` order)
+    /// for one fingerprint: `rssi` in dBm, one per site anchor, anything at or
+    /// below [`super::CellClassifierInput::RSSI_FLOOR_DBM`] meaning not heard.
+    pub fn log_probs(&self, rssi: &[f32], out: &mut [f32]) -> Result<(), ModelError> {
+        let input = ArrayView2::from_shape((1, rssi.len()), rssi)
+            .map_err(|e| ModelError::Input(e.to_string()))?;
+        let result = self.log_probs_batch(input)?;
+        if out.len() != result.len() {
+            return Err(ModelError::Input(format!(
+                "the output buffer has {} slots for {} cells",
+                out.len(),
+                result.len()
+            )));
+        }
+        out.copy_from_slice(result.as_slice().expect("standard layout"));
+        Ok(())
+    }
+
+    /// [`CellClassifier::log_probs`] for a batch (`[N, anchors]` → `[N, cells]`).
+    pub fn log_probs_batch(&self, rssi: ArrayView2<f32>) -> Result<Array2<f32>, ModelError> {
+        self.0.run(&[rssi])
+    }
+}

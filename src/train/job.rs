@@ -1,0 +1,474 @@
+//! What `gangway train` does: which models it trains from which data, what it
+//! measures on them and which files it writes.
+//!
+//! From walks: `path_classifier.onnx` (trained on ~80 % of the walks of each
+//! class, error measured on the rest), `generator.onnx` and
+//! `discriminator.onnx` (the paper's GAN on the classed walks) and, with
+//! `conditional`, `conditional_generator.onnx` and
+//! `conditional_discriminator.onnx` (on every walk, each in both directions).
+//! From a survey: `cell_classifier.onnx`, with sessions held out.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use ndarray::{Array2, Axis, s};
+use rand::SeedableRng;
+use rand::rngs::Xoshiro256PlusPlus;
+use rand_distr::{Distribution, StandardNormal};
+
+use super::cells::CellSet;
+use super::classifier::{self, ClassifierConfig};
+use super::gan::{self, GanConfig, GanData, NOISE_DIM};
+use super::mlp::{Adam, Mlp};
+use super::paths::PathSet;
+use crate::locate::survey::Survey;
+use crate::model::export::{self, ClipScale, Head, Spec};
+use crate::model::{CellClassifierInput, Kind, Metadata, condition};
+use crate::site::{Cell, Site};
+
+#[derive(Clone, Debug)]
+pub struct Options {
+    pub iterations: usize,
+    pub batch: usize,
+    pub seed: u64,
+    pub conditional: bool,
+    /// Iterations of the path classifier and of the cell classifier.
+    pub classifier_iterations: usize,
+    pub heldout_share: f64,
+}
+
+/// A model written by a training run.
+#[derive(Clone, Debug)]
+pub struct Trained {
+    pub file: PathBuf,
+    pub kind: Kind,
+    pub parameters: usize,
+    pub bytes: u64,
+    pub seconds: f64,
+    pub metrics: BTreeMap<String, f64>,
+}
+
+/// Told about each training stage and iteration (the CLI draws progress bars).
+pub trait Progress {
+    fn stage(&mut self, name: &str, iterations: usize);
+    fn step(&mut self, iteration: usize, losses: &[(&str, f32)]);
+    fn done(&mut self);
+}
+
+/// Generated samples drawn to measure a generator.
+const EVAL_SAMPLES: usize = 1024;
+/// A generated frame counts as recognised when the classifier gives its class
+/// at least this probability.
+const CONFIDENT: f32 = 0.9;
+
+/// Trains the path models on `set` and writes them to `out`.
+pub fn train_paths(
+    site: &Site,
+    set: &PathSet,
+    options: &Options,
+    out: &Path,
+    progress: &mut dyn Progress,
+) -> anyhow::Result<Vec<Trained>> {
+    let classed = set.classed_rows();
+    anyhow::ensure!(
+        set.classes.len() >= 2,
+        "the walks have {} source/destination pairs with enough walks to be a class; \
+         a path classifier needs at least 2",
+        set.classes.len()
+    );
+    let mut written = Vec::new();
+
+    // Path classifier: 0/1 frames → class.
+    let started = Instant::now();
+    let labels: Vec<usize> = set.labels.iter().map(|l| l.unwrap_or(usize::MAX)).collect();
+    let strata: Vec<usize> = classed.iter().map(|&r| labels[r]).collect();
+    let (train_rows, held_rows) = {
+        let (t, h) =
+            classifier::split_by_group(&strata, &classed, options.heldout_share, options.seed);
+        (
+            t.iter().map(|&i| classed[i]).collect::<Vec<_>>(),
+            h.iter().map(|&i| classed[i]).collect::<Vec<_>>(),
+        )
+    };
+    let config = ClassifierConfig {
+        hidden: vec![256],
+        iterations: options.classifier_iterations,
+        batch: options.batch,
+        seed: options.seed,
+        adam: Adam::DEFAULT,
+    };
+    progress.stage("path classifier", config.iterations);
+    let mut path_classifier = classifier::train(
+        set.frames.view(),
+        &labels,
+        set.classes.len(),
+        &train_rows,
+        &config,
+        |i, loss| progress.step(i, &[("loss", loss)]),
+    );
+    progress.done();
+    let error =
+        classifier::error_rate(&mut path_classifier, set.frames.view(), &labels, &held_rows);
+    let mut meta = Metadata::for_site(Kind::PathClassifier, site);
+    meta.classes = set.classes.clone();
+    meta.iterations = config.iterations;
+    meta.seed = options.seed;
+    meta.metrics.insert("heldout_error".into(), error);
+    meta.metrics
+        .insert("heldout_walks".into(), held_rows.len() as f64);
+    meta.metrics
+        .insert("train_walks".into(), train_rows.len() as f64);
+    written.push(write(
+        out,
+        &Spec {
+            net: &path_classifier,
+            inputs: &[("frame", set.frames.ncols())],
+            normalize: None,
+            head: Head::Softmax,
+            output: "probs",
+        },
+        meta,
+        started,
+    )?);
+
+    // The paper's GAN on the classed walks.
+    let frames = to_signed(&set.frames, &classed);
+    let data = GanData {
+        frames,
+        conditions: None,
+    };
+    let gan_config = GanConfig {
+        iterations: options.iterations,
+        batch: options.batch,
+        seed: options.seed,
+    };
+    let started = Instant::now();
+    progress.stage("GAN", gan_config.iterations);
+    let mut trained = gan::train(&data, gan_config, |i, l| {
+        progress.step(i, &[("d", l.discriminator), ("g", l.generator)])
+    });
+    progress.done();
+    let gan_seconds = started.elapsed().as_secs_f64();
+    let metrics = measure_generator(
+        site,
+        &mut trained.generator,
+        &mut path_classifier,
+        options.seed,
+    );
+    for (kind, net, inputs, output, head) in [
+        (
+            Kind::Generator,
+            &trained.generator,
+            vec![("noise", NOISE_DIM)],
+            "frame",
+            Head::None,
+        ),
+        (
+            Kind::Discriminator,
+            &trained.discriminator,
+            vec![("frame", set.frames.ncols())],
+            "real",
+            Head::Sigmoid,
+        ),
+    ] {
+        let mut meta = gan_metadata(kind, site, set, options);
+        meta.metrics = metrics.clone();
+        meta.metrics.insert("train_seconds".into(), gan_seconds);
+        written.push(write(
+            out,
+            &Spec {
+                net,
+                inputs: &inputs,
+                normalize: None,
+                head,
+                output,
+            },
+            meta,
+            started,
+        )?);
+    }
+
+    if options.conditional {
+        let started = Instant::now();
+        let data = conditional_data(set);
+        progress.stage("conditional GAN", gan_config.iterations);
+        let mut trained = gan::train(&data, gan_config, |i, l| {
+            progress.step(i, &[("d", l.discriminator), ("g", l.generator)])
+        });
+        progress.done();
+        let seconds = started.elapsed().as_secs_f64();
+        let hits = endpoint_hits(set, &mut trained.generator, options.seed);
+        let cond_len = condition::len(set.width, set.height);
+        for (kind, net, inputs, output, head) in [
+            (
+                Kind::ConditionalGenerator,
+                &trained.generator,
+                vec![("noise", NOISE_DIM), ("condition", cond_len)],
+                "frame",
+                Head::None,
+            ),
+            (
+                Kind::ConditionalDiscriminator,
+                &trained.discriminator,
+                vec![("frame", set.frames.ncols()), ("condition", cond_len)],
+                "real",
+                Head::Sigmoid,
+            ),
+        ] {
+            let mut meta = gan_metadata(kind, site, set, options);
+            meta.metrics.insert("endpoint_hit_share".into(), hits);
+            meta.metrics.insert("train_seconds".into(), seconds);
+            written.push(write(
+                out,
+                &Spec {
+                    net,
+                    inputs: &inputs,
+                    normalize: None,
+                    head,
+                    output,
+                },
+                meta,
+                started,
+            )?);
+        }
+    }
+    Ok(written)
+}
+
+/// Trains the localization cell classifier on `survey` and writes it to `out`.
+pub fn train_cells(
+    site: &Site,
+    survey: &Survey,
+    options: &Options,
+    out: &Path,
+    progress: &mut dyn Progress,
+) -> anyhow::Result<Trained> {
+    let started = Instant::now();
+    let set = CellSet::from_survey(site, survey).map_err(anyhow::Error::msg)?;
+    anyhow::ensure!(!set.labels.is_empty(), "the survey has no rows");
+    let strata = vec![0; set.labels.len()];
+    let (train_rows, held_rows) =
+        classifier::split_by_group(&strata, &set.sessions, options.heldout_share, options.seed);
+    let config = ClassifierConfig {
+        hidden: vec![128, 128],
+        iterations: options.classifier_iterations,
+        batch: 64,
+        seed: options.seed,
+        adam: Adam::DEFAULT,
+    };
+    progress.stage("cell classifier", config.iterations);
+    let cells = site.open_cells();
+    let mut net = classifier::train(
+        set.features.view(),
+        &set.labels,
+        cells.len(),
+        &train_rows,
+        &config,
+        |i, loss| progress.step(i, &[("loss", loss)]),
+    );
+    progress.done();
+    let predicted = classifier::predict(&mut net, set.features.view(), &held_rows);
+    let mut meta = Metadata::for_site(Kind::CellClassifier, site);
+    meta.anchors = survey.anchors.clone();
+    meta.iterations = config.iterations;
+    meta.seed = options.seed;
+    if !held_rows.is_empty() {
+        let wrong = held_rows
+            .iter()
+            .zip(&predicted)
+            .filter(|&(&r, &p)| set.labels[r] != p)
+            .count();
+        let metres: f64 = held_rows
+            .iter()
+            .zip(&predicted)
+            .map(|(&r, &p)| cells[set.labels[r]].distance(cells[p]) * site.cell_m)
+            .sum();
+        meta.metrics.insert(
+            "heldout_error".into(),
+            wrong as f64 / held_rows.len() as f64,
+        );
+        meta.metrics.insert(
+            "heldout_mean_error_m".into(),
+            metres / held_rows.len() as f64,
+        );
+    }
+    meta.metrics
+        .insert("heldout_rows".into(), held_rows.len() as f64);
+    meta.metrics
+        .insert("train_rows".into(), train_rows.len() as f64);
+    let floor = CellClassifierInput::RSSI_FLOOR_DBM;
+    let ceil = CellClassifierInput::RSSI_CEIL_DBM;
+    write(
+        out,
+        &Spec {
+            net: &net,
+            inputs: &[("rssi", survey.anchors.len())],
+            normalize: Some(ClipScale {
+                lo: floor,
+                hi: ceil,
+                offset: -floor,
+                scale: 1.0 / (ceil - floor),
+            }),
+            head: Head::LogSoftmax,
+            output: "log_probs",
+        },
+        meta,
+        started,
+    )
+}
+
+fn gan_metadata(kind: Kind, site: &Site, set: &PathSet, options: &Options) -> Metadata {
+    let mut meta = Metadata::for_site(kind, site);
+    meta.classes = set.classes.clone();
+    meta.noise_dim = NOISE_DIM;
+    meta.iterations = options.iterations;
+    meta.seed = options.seed;
+    meta
+}
+
+fn write(out: &Path, spec: &Spec, meta: Metadata, started: Instant) -> anyhow::Result<Trained> {
+    let file = out.join(format!("{}.onnx", meta.kind.name()));
+    export::write(&file, spec, &meta)
+        .with_context(|| format!("cannot write {}", file.display()))?;
+    Ok(Trained {
+        bytes: std::fs::metadata(&file)?.len(),
+        file,
+        kind: meta.kind,
+        parameters: spec.net.parameters(),
+        seconds: started.elapsed().as_secs_f64(),
+        metrics: meta.metrics,
+    })
+}
+
+/// The chosen rows of 0/1 frames as ±1, the generator's range.
+fn to_signed(frames: &Array2<f32>, rows: &[usize]) -> Array2<f32> {
+    frames.select(Axis(0), rows).mapv(|v| 2.0 * v - 1.0)
+}
+
+/// Every walk, once per direction: frames carry no direction, so the
+/// condition (a, b) and (b, a) must both give the walk.
+fn conditional_data(set: &PathSet) -> GanData {
+    let n = set.walks.len();
+    let all: Vec<usize> = (0..n).collect();
+    let once = to_signed(&set.frames, &all);
+    let frames = ndarray::concatenate(Axis(0), &[once.view(), once.view()]).expect("same widths");
+    let len = condition::len(set.width, set.height);
+    let mut conditions = Array2::zeros((2 * n, len));
+    for (i, walk) in set.walks.iter().enumerate() {
+        let (a, b) = (walk.source, walk.destination);
+        for (row, (from, to)) in [(i, (a, b)), (n + i, (b, a))] {
+            let out = conditions
+                .row_mut(row)
+                .into_slice()
+                .expect("standard layout");
+            condition::encode(set.width, set.height, from, to, out);
+        }
+    }
+    GanData {
+        frames,
+        conditions: Some(conditions),
+    }
+}
+
+fn noise(rows: usize, seed: u64) -> Array2<f32> {
+    // A seed apart from training's, so measurement does not replay training noise.
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ 0x5eed_e7a1);
+    Array2::from_shape_simple_fn((rows, NOISE_DIM), || StandardNormal.sample(&mut rng))
+}
+
+/// How walk-like the unconditional generator's frames are: the share of their
+/// path cells that are walkable, and the share the classifier recognises with
+/// at least [`CONFIDENT`] probability.
+fn measure_generator(
+    site: &Site,
+    generator: &mut Mlp,
+    classifier: &mut Mlp,
+    seed: u64,
+) -> BTreeMap<String, f64> {
+    let frames = generator.predict(noise(EVAL_SAMPLES, seed).view());
+    let binary = frames.mapv(|v| f32::from(u8::from(v > 0.0)));
+    let (mut on, mut walkable) = (0usize, 0usize);
+    for row in binary.rows() {
+        for (i, &v) in row.iter().enumerate() {
+            if v > 0.0 {
+                on += 1;
+                let cell = Cell::new(
+                    (i % usize::from(site.width())) as u16,
+                    (i / usize::from(site.width())) as u16,
+                );
+                walkable += usize::from(site.walkable(cell));
+            }
+        }
+    }
+    let logits = classifier.predict(binary.view());
+    let confident = logits
+        .rows()
+        .into_iter()
+        .filter(|row| {
+            let max = row.fold(f32::NEG_INFINITY, |a, &b| a.max(b));
+            let sum: f32 = row.iter().map(|&z| (z - max).exp()).sum();
+            1.0 / sum >= CONFIDENT
+        })
+        .count();
+    BTreeMap::from([
+        (
+            "walkable_share".to_owned(),
+            walkable as f64 / on.max(1) as f64,
+        ),
+        (
+            "confident_share".to_owned(),
+            confident as f64 / EVAL_SAMPLES as f64,
+        ),
+        (
+            "mean_path_cells".to_owned(),
+            on as f64 / EVAL_SAMPLES as f64,
+        ),
+    ])
+}
+
+/// Share of frames generated for each class (both directions) that have both
+/// the source and the destination on the path.
+fn endpoint_hits(set: &PathSet, generator: &mut Mlp, seed: u64) -> f64 {
+    let per_class = EVAL_SAMPLES / (2 * set.classes.len()).max(1) + 1;
+    let rows = per_class * 2 * set.classes.len();
+    let len = condition::len(set.width, set.height);
+    let mut input = Array2::zeros((rows, NOISE_DIM + len));
+    input
+        .slice_mut(s![.., ..NOISE_DIM])
+        .assign(&noise(rows, seed));
+    let mut ends = Vec::with_capacity(rows);
+    for (k, class) in set.classes.iter().enumerate() {
+        for (d, (from, to)) in [
+            (class.source, class.destination),
+            (class.destination, class.source),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            for j in 0..per_class {
+                let row = (2 * k + d) * per_class + j;
+                let mut cond = input.slice_mut(s![row, NOISE_DIM..]);
+                condition::encode(
+                    set.width,
+                    set.height,
+                    from,
+                    to,
+                    cond.as_slice_mut().expect("contiguous row"),
+                );
+                ends.push((from, to));
+            }
+        }
+    }
+    let frames = generator.predict(input.view());
+    let w = usize::from(set.width);
+    let index = |c: Cell| usize::from(c.y) * w + usize::from(c.x);
+    let hits = frames
+        .rows()
+        .into_iter()
+        .zip(&ends)
+        .filter(|(row, (a, b))| row[index(*a)] > 0.0 && row[index(*b)] > 0.0)
+        .count();
+    hits as f64 / rows as f64
+}

@@ -1,0 +1,21 @@
+//! Training the path and localization models on the gateway's own hardware.
+//!
+//! - [`trajectory`]: the walk format (JSON Lines) and its validation;
+//! - [`frame`]: walks as `W × H` 0/1 frames, and the paper's frame CSVs;
+//! - [`paths`] and [`cells`]: the data sets (walks with their source/destination
+//!   class; survey readings with their cell);
+//! - [`mlp`]: the dense-network trainer (why it is hand-written: see there);
+//! - [`gan`] and [`classifier`]: the paper's GAN and the softmax classifiers;
+//! - [`job`]: what `gangway train` trains, measures and writes.
+//!
+//! The models are written as ONNX by [`crate::model::export`] and run by
+//! [`crate::model::runtime`].
+
+pub mod cells;
+pub mod classifier;
+pub mod frame;
+pub mod gan;
+pub mod job;
+pub mod mlp;
+pub mod paths;
+pub mod trajectory;
