@@ -75,6 +75,7 @@ impl Config {
             *survey = base.join(&*survey);
         }
         config.mqtt.resolve_paths(base);
+        config.planner.resolve_paths(base);
         if let Some(path) = &mut config.store.path {
             *path = base.join(&*path);
         }

@@ -65,7 +65,6 @@ impl Cli {
     }
 }
 
-
 /// Loads a config and its site.
 fn load(
     config: &std::path::Path,
