@@ -41,7 +41,10 @@ pub fn route_from_frame(
     route
         .validate_for(site, from, to, connectivity, profile)
         .map_err(|reason| PlanError::Invalid { reason })?;
-    let inner = &route.cells[1..route.cells.len().saturating_sub(1)];
+    let inner = route
+        .cells
+        .get(1..route.cells.len() - 1)
+        .unwrap_or_default();
     let origin = if inner.iter().all(|&c| lit(c)) {
         Origin::Frame
     } else {
