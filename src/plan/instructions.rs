@@ -1,8 +1,11 @@
 //! Turn-by-turn instructions for a route, in plain sentences a screen reader
 //! can speak: "Walk 12 m, then turn left at help desk."
 //!
-//! A route is cut where its heading changes by 45° or more. Changes of 45°
-//! are "bear left/right", 90° "turn", 135° "turn sharply". A turn within
+//! An 8-connected grid route zig-zags (east, south-east, east, ...) where a
+//! person simply walks on, so the route is first simplified to its corners
+//! (Douglas–Peucker, tolerance [`CORNER_TOLERANCE_CELLS`]); each corner whose
+//! bend is at least 30° becomes an instruction: under 60° "bear", under 135°
+//! "turn", beyond that "turn sharply". A corner within
 //! [`PLACE_RADIUS_CELLS`] of a named place is named after it.
 
 use serde::Serialize;
@@ -24,72 +27,99 @@ pub struct Instruction {
     pub at: Cell,
 }
 
+/// How far (in cells) a route may stray from the straight line between two
+/// kept corners before the cell between them becomes a corner too.
+pub const CORNER_TOLERANCE_CELLS: f64 = 1.0;
+
 /// The instructions for `route` on `site`; empty for a route of one cell.
 pub fn instructions(site: &Site, route: &Route) -> Vec<Instruction> {
     let cells = &route.cells;
+    if cells.len() < 2 {
+        return Vec::new();
+    }
+    let mut keep = vec![false; cells.len()];
+    keep[0] = true;
+    keep[cells.len() - 1] = true;
+    simplify(cells, 0, cells.len() - 1, &mut keep);
+    let corners: Vec<usize> = (0..cells.len()).filter(|&i| keep[i]).collect();
+    let named = |c: Cell| {
+        site.nearest_place(c, PLACE_RADIUS_CELLS)
+            .map(|p| format!(" at {p}"))
+            .unwrap_or_default()
+    };
     let mut out = Vec::new();
     let mut walked = 0.0;
-    for i in 1..cells.len() {
-        walked += cells[i - 1].distance(cells[i]) * site.cell_m;
-        let Some(&next) = cells.get(i + 1) else {
-            let place = site
-                .nearest_place(cells[i], PLACE_RADIUS_CELLS)
-                .map(|p| format!(" at {p}"))
-                .unwrap_or_default();
+    for k in 1..corners.len() {
+        let (a, b) = (corners[k - 1], corners[k]);
+        walked += cells[a..=b]
+            .windows(2)
+            .map(|w| w[0].distance(w[1]))
+            .sum::<f64>()
+            * site.cell_m;
+        let at = cells[b];
+        let Some(&c) = corners.get(k + 1) else {
             out.push(Instruction {
-                text: format!("Walk {}; you have arrived{place}.", metres(walked)),
+                text: format!("Walk {}; you have arrived{}.", metres(walked), named(at)),
                 distance_m: walked,
-                at: cells[i],
+                at,
             });
             break;
         };
-        let Some(turn) = turn(heading(cells[i - 1], cells[i]), heading(cells[i], next)) else {
+        let Some(turn) = turn(bearing(cells[a], at), bearing(at, cells[c])) else {
             continue;
         };
-        let place = site
-            .nearest_place(cells[i], PLACE_RADIUS_CELLS)
-            .map(|p| format!(" at {p}"))
-            .unwrap_or_default();
         out.push(Instruction {
-            text: format!("Walk {}, then {turn}{place}.", metres(walked)),
+            text: format!("Walk {}, then {turn}{}.", metres(walked), named(at)),
             distance_m: walked,
-            at: cells[i],
+            at,
         });
         walked = 0.0;
     }
     out
 }
 
-/// Heading of a step in eighths of a turn, 0 = east, clockwise on the map
-/// (rows grow downwards).
-fn heading(a: Cell, b: Cell) -> i32 {
-    let dx = i32::from(b.x) - i32::from(a.x);
-    let dy = i32::from(b.y) - i32::from(a.y);
-    match (dx.signum(), dy.signum()) {
-        (1, 0) => 0,
-        (1, 1) => 1,
-        (0, 1) => 2,
-        (-1, 1) => 3,
-        (-1, 0) => 4,
-        (-1, -1) => 5,
-        (0, -1) => 6,
-        _ => 7,
+/// Douglas–Peucker: marks in `keep` the cells between `a` and `b` that stray
+/// more than [`CORNER_TOLERANCE_CELLS`] from the line `a`–`b`.
+fn simplify(cells: &[Cell], a: usize, b: usize, keep: &mut [bool]) {
+    if b <= a + 1 {
+        return;
+    }
+    let (ax, ay) = (f64::from(cells[a].x), f64::from(cells[a].y));
+    let (bx, by) = (f64::from(cells[b].x), f64::from(cells[b].y));
+    let len = (bx - ax).hypot(by - ay).max(f64::EPSILON);
+    let (far, dist) = (a + 1..b)
+        .map(|i| {
+            let (x, y) = (f64::from(cells[i].x), f64::from(cells[i].y));
+            (i, ((bx - ax) * (ay - y) - (ax - x) * (by - ay)).abs() / len)
+        })
+        .max_by(|p, q| p.1.total_cmp(&q.1))
+        .expect("b > a + 1");
+    if dist > CORNER_TOLERANCE_CELLS {
+        keep[far] = true;
+        simplify(cells, a, far, keep);
+        simplify(cells, far, b, keep);
     }
 }
 
-/// The words for going from heading `a` to `b`, or `None` when straight on.
-fn turn(a: i32, b: i32) -> Option<&'static str> {
-    // Clockwise change in eighths, −3..=4; clockwise is to the right.
-    let d = (b - a).rem_euclid(8);
-    let d = if d > 4 { d - 8 } else { d };
-    Some(match d {
-        0 => return None,
-        1 => "bear right",
-        -1 => "bear left",
-        2 => "turn right",
-        -2 => "turn left",
-        3 => "turn sharply right",
-        -3 => "turn sharply left",
+/// Direction from `a` to `b` in degrees, clockwise on the map from east
+/// (rows grow downwards).
+fn bearing(a: Cell, b: Cell) -> f64 {
+    let dx = f64::from(b.x) - f64::from(a.x);
+    let dy = f64::from(b.y) - f64::from(a.y);
+    dy.atan2(dx).to_degrees()
+}
+
+/// The words for going from bearing `a` to `b`, or `None` when about
+/// straight on. Clockwise is to the right.
+fn turn(a: f64, b: f64) -> Option<&'static str> {
+    let d = (b - a + 540.0).rem_euclid(360.0) - 180.0;
+    let right = d > 0.0;
+    let words = |r: &'static str, l: &'static str| if right { r } else { l };
+    Some(match d.abs() {
+        x if x < 30.0 => return None,
+        x if x < 60.0 => words("bear right", "bear left"),
+        x if x < 135.0 => words("turn right", "turn left"),
+        x if x < 175.0 => words("turn sharply right", "turn sharply left"),
         _ => "turn around",
     })
 }
@@ -134,9 +164,24 @@ mod tests {
 
     #[test]
     fn left_is_left_on_the_map() {
-        assert_eq!(turn(0, 6), Some("turn left"), "east, then north");
-        assert_eq!(turn(2, 0), Some("turn left"), "south, then east");
-        assert_eq!(turn(0, 1), Some("bear right"));
-        assert_eq!(turn(3, 3), None);
+        assert_eq!(turn(0.0, -90.0), Some("turn left"), "east, then north");
+        assert_eq!(turn(90.0, 0.0), Some("turn left"), "south, then east");
+        assert_eq!(turn(0.0, 45.0), Some("bear right"));
+        assert_eq!(turn(170.0, -170.0), None, "west stays west");
+        assert_eq!(turn(0.0, 20.0), None);
+    }
+
+    #[test]
+    fn a_zig_zag_is_one_straight_walk() {
+        let text = "name = \"t\"\ncell_m = 1.0\nmap = '''\n######\n######\n'''\n";
+        let site = Site::parse(text, Path::new("t.toml")).unwrap();
+        let route = Route {
+            cells: [(0, 0), (1, 1), (2, 1), (3, 1), (4, 0), (5, 0)]
+                .map(|(x, y)| Cell::new(x, y))
+                .to_vec(),
+        };
+        let steps = instructions(&site, &route);
+        assert_eq!(steps.len(), 1, "{steps:?}");
+        assert_eq!(steps[0].text, "Walk 6 metres; you have arrived.");
     }
 }
