@@ -7,7 +7,9 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use criterion::{Criterion, black_box, criterion_group, criterion_main};
+use std::hint::black_box;
+
+use criterion::{Criterion, criterion_group, criterion_main};
 use gangway::locate::Localizer;
 use gangway::locate::knn::{Knn, KnnConfig};
 use gangway::locate::pathloss::{PathLoss, PathLossConfig};

@@ -76,6 +76,7 @@ impl Config {
         }
         config.localizer.onnx.model = base.join(&config.localizer.onnx.model);
         config.mqtt.resolve_paths(base);
+        config.planner.resolve_paths(base);
         if let Some(path) = &mut config.store.path {
             *path = base.join(&*path);
         }

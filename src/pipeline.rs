@@ -13,7 +13,7 @@ use crate::config::Config;
 use crate::locate::tracker::Tracker;
 use crate::locate::window::{Fingerprint, Orientation, Windows};
 use crate::locate::{self, Localizer};
-use crate::plan::{self, Planner};
+use crate::plan::{self, Planner, Profile};
 use crate::publish::{
     ErrorBody, LOCATION_SCHEMA, Location, Message, PATH_SCHEMA, RouteBody, RouteOutcome,
     RouteReply, Topics, valid_device_id,
@@ -52,7 +52,7 @@ impl Pipeline {
             windows: Windows::new(config.window.clone(), &site),
             localizer,
             tracker: Tracker::new(config.tracker.clone(), site.clone()),
-            planner: plan::build(&config.planner, site.clone()),
+            planner: plan::build(&config.planner, site.clone())?,
             topics: Topics::new(config.topic_prefix()),
             log_likelihood: vec![0.0; site.open_cells().len()],
             site,
@@ -186,14 +186,13 @@ impl Pipeline {
         let error = |code: &'static str, message: String| RouteOutcome::Error {
             error: ErrorBody { code, message },
         };
-        if let Some(profile) = &request.profile {
-            return error(
-                "unknown_profile",
-                format!(
-                    "profile `{profile}` is not supported; omit `profile` for the default route"
-                ),
-            );
-        }
+        let profile = match request.profile.as_deref() {
+            None => Profile::Default,
+            Some(name) => match Profile::parse(name) {
+                Some(p) => p,
+                None => return error("unknown_profile", plan::unknown_profile_message(name)),
+            },
+        };
         let Some(fix) = self.tracker.last_fix(&request.device) else {
             return error(
                 "unknown_device",
@@ -207,15 +206,16 @@ impl Pipeline {
             Ok(cell) => cell,
             Err(e) => return error(e.code(), e.to_string()),
         };
-        match self.planner.plan(fix.cell, to) {
-            Ok(route) => RouteOutcome::Route(RouteBody {
-                from: fix.cell,
+        match self.planner.plan(fix.cell, to, profile) {
+            Ok(planned) => RouteOutcome::Route(RouteBody::new(
+                &self.site,
+                &*self.planner,
+                profile,
+                fix.cell,
                 to,
-                planner: self.planner.mode(),
-                length_m: route.length_m(&self.site),
-                waypoints: route.waypoints(&self.site),
-                latency_us: started.elapsed().as_micros() as u64,
-            }),
+                &planned,
+                started.elapsed().as_micros() as u64,
+            )),
             Err(e) => error(e.code(), e.to_string()),
         }
     }

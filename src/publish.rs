@@ -71,16 +71,50 @@ pub struct RouteBody {
     pub from: Cell,
     pub to: Cell,
     pub planner: &'static str,
+    /// Which trained models answered (learned modes only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub model_version: Option<String>,
+    /// How the route came about (see `plan::Origin`).
+    pub origin: crate::plan::Origin,
+    pub profile: &'static str,
     pub waypoints: Vec<crate::plan::Waypoint>,
     pub length_m: f64,
+    /// Turn-by-turn, for people and screen readers.
+    pub instructions: Vec<crate::plan::instructions::Instruction>,
     /// Time from request to route, microseconds.
     pub latency_us: u64,
+}
+
+impl RouteBody {
+    /// The published form of a planned route.
+    pub fn new(
+        site: &crate::site::Site,
+        planner: &dyn crate::plan::Planner,
+        profile: crate::plan::Profile,
+        from: Cell,
+        to: Cell,
+        planned: &crate::plan::Planned,
+        latency_us: u64,
+    ) -> RouteBody {
+        RouteBody {
+            from,
+            to,
+            planner: planner.mode(),
+            model_version: planner.model_version().map(str::to_owned),
+            origin: planned.origin,
+            profile: profile.name(),
+            waypoints: planned.route.waypoints(site),
+            length_m: planned.route.length_m(site),
+            instructions: crate::plan::instructions::instructions(site, &planned.route),
+            latency_us,
+        }
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct ErrorBody {
     /// Stable code: `unknown_place`, `off_map`, `blocked_cell`, `unreachable`,
-    /// `unknown_device`, `unknown_profile`; for requests over MQTT also
+    /// `unknown_device`, `unknown_profile`, `model_failed`, `invalid_route`; for requests over MQTT also
     /// `invalid_json`, `invalid_request`, `payload_too_large`.
     pub code: &'static str,
     pub message: String,

@@ -102,7 +102,7 @@ async fn requests_during_a_replay_get_valid_routes_and_bad_ones_get_errors() {
         ),
         (
             "profile",
-            r#"{"to":"help desk","profile":"wheelchair","request_id":"profile"}"#.into(),
+            r#"{"to":"help desk","profile":"jetpack","request_id":"profile"}"#.into(),
             "unknown_profile",
         ),
         ("json", "{not json".into(), "invalid_json"),

@@ -93,9 +93,21 @@ async fn a_run_records_trajectories_routes_and_feedback() {
         .arg(&db)
         .arg("--out")
         .arg(&out)
-        .args(["--iterations", "20", "--classifier-iterations", "20", "--min-class-walks", "1", "--json"])
+        .args([
+            "--iterations",
+            "20",
+            "--classifier-iterations",
+            "20",
+            "--min-class-walks",
+            "1",
+            "--json",
+        ])
         .output()
         .unwrap();
-    assert!(trained.status.success(), "{}", String::from_utf8_lossy(&trained.stderr));
+    assert!(
+        trained.status.success(),
+        "{}",
+        String::from_utf8_lossy(&trained.stderr)
+    );
     assert!(out.join("generator.onnx").exists());
 }

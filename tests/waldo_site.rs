@@ -8,7 +8,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use gangway::locate::survey::Survey;
-use gangway::plan::{Connectivity, Planner, astar::AStar};
+use gangway::plan::{Connectivity, Planner, Profile, astar::AStar};
 use gangway::site::Site;
 
 fn waldo() -> Arc<Site> {
@@ -23,9 +23,10 @@ fn every_place_reaches_every_other_place() {
     for (a, &from) in site.places() {
         for (b, &to) in site.places() {
             let route = planner
-                .plan(from, to)
+                .plan(from, to, Profile::Default)
                 .unwrap_or_else(|e| panic!("{a} → {b}: {e}"));
             route
+                .route
                 .validate(&site, from, to, Connectivity::Eight)
                 .unwrap();
         }

@@ -24,6 +24,22 @@ pub struct Args {
 enum What {
     /// Localization accuracy and speed on a labelled survey.
     Localization(LocalizationArgs),
+    /// Every planner mode on place pairs and random open-cell pairs.
+    Planning(PlanningArgs),
+}
+
+#[derive(clap::Args)]
+struct PlanningArgs {
+    #[arg(long, default_value_os_t = super::default_config())]
+    config: PathBuf,
+    /// Random open-cell pairs besides every ordered pair of named places.
+    #[arg(long, default_value_t = 1000)]
+    random_pairs: usize,
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Print one JSON object.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(clap::Args)]
@@ -63,7 +79,20 @@ struct LocalizationArgs {
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     match args.what {
         What::Localization(args) => localization(args),
+        What::Planning(args) => planning(args),
     }
+}
+
+fn planning(args: PlanningArgs) -> anyhow::Result<ExitCode> {
+    let (config, site) = super::load(&args.config)?;
+    let pairs = crate::eval::planning::pairs(&site, args.random_pairs, args.seed);
+    let report = crate::eval::planning::evaluate(&config.planner, site, &pairs);
+    if args.json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    }
+    Ok(ExitCode::SUCCESS)
 }
 
 fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {

@@ -1,11 +1,13 @@
-//! `gangway plan`: one route, printed.
+//! `gangway plan`: one route, printed, and optionally drawn.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::time::Instant;
 
 use anyhow::Context;
 
-use crate::plan::{self, Destination};
+use crate::plan::{self, Destination, Profile};
+use crate::publish::RouteBody;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -17,9 +19,18 @@ pub struct Args {
     /// Destination: a place name or `x,y`.
     #[arg(long)]
     to: String,
-    /// Print the route as JSON.
+    /// Walker profile: default, wheelchair or low-vision.
+    #[arg(long, default_value = "default")]
+    profile: String,
+    /// Print the route as JSON (the route part of the MQTT path message).
     #[arg(long)]
     json: bool,
+    /// Draw the route on the site grid into this PNG file.
+    #[arg(long, conflicts_with = "svg")]
+    png: Option<PathBuf>,
+    /// Draw the route on the site grid into this SVG file.
+    #[arg(long)]
+    svg: Option<PathBuf>,
 }
 
 /// `x,y` as a cell, anything else as a place name.
@@ -33,30 +44,42 @@ fn destination(text: &str) -> Destination {
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let (config, site) = super::load(&args.config)?;
+    let profile = Profile::parse(&args.profile).ok_or_else(|| {
+        anyhow::anyhow!(
+            "--profile: {}",
+            plan::unknown_profile_message(&args.profile)
+        )
+    })?;
     let from = destination(&args.from).resolve(&site).context("--from")?;
     let to = destination(&args.to).resolve(&site).context("--to")?;
-    let planner = plan::build(&config.planner, site.clone());
-    let route = planner.plan(from, to)?;
-    let length_m = route.length_m(&site);
+    let planner = plan::build(&config.planner, site.clone())?;
+    let started = Instant::now();
+    let planned = planner.plan(from, to, profile)?;
+    let latency_us = started.elapsed().as_micros() as u64;
+    let body = RouteBody::new(&site, &*planner, profile, from, to, &planned, latency_us);
     if args.json {
-        let body = serde_json::json!({
-            "from": from,
-            "to": to,
-            "planner": planner.mode(),
-            "waypoints": route.waypoints(&site),
-            "length_m": length_m,
-        });
         println!("{}", serde_json::to_string_pretty(&body)?);
     } else {
         println!(
-            "{} → {}: {} cells, {length_m:.1} m ({})",
+            "{} → {}: {} cells, {:.1} m ({}, {}, profile {})",
             args.from,
             args.to,
-            route.cells.len(),
-            planner.mode()
+            planned.route.cells.len(),
+            body.length_m,
+            body.planner,
+            serde_json::to_value(body.origin)?
+                .as_str()
+                .unwrap_or_default(),
+            body.profile,
         );
-        let cells: Vec<String> = route.cells.iter().map(|c| c.to_string()).collect();
+        let cells: Vec<String> = planned.route.cells.iter().map(|c| c.to_string()).collect();
         println!("{}", cells.join(" "));
+        for step in &body.instructions {
+            println!("- {}", step.text);
+        }
+    }
+    if let Some(path) = args.png.as_ref().or(args.svg.as_ref()) {
+        plan::picture::draw(&site, &planned.route, path)?;
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -2,6 +2,7 @@
 //! same way every time so that figures in notes and CI can be rerun.
 
 pub mod localization;
+pub mod planning;
 mod plot;
 
 pub use plot::error_cdf_svg;

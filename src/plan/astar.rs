@@ -5,7 +5,7 @@ use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 use std::sync::Arc;
 
-use super::{Connectivity, PlanError, Planner, Route};
+use super::{Connectivity, PlanError, Planned, Planner, Profile, Route};
 use crate::site::{Cell, Site};
 
 /// Plain A*: the shortest route by length.
@@ -25,9 +25,38 @@ impl Planner for AStar {
         "astar"
     }
 
-    fn plan(&self, from: Cell, to: Cell) -> Result<Route, PlanError> {
-        search(&self.site, self.connectivity, from, to, |_| 1.0)
+    fn model_version(&self) -> Option<&str> {
+        None
     }
+
+    fn plan(&self, from: Cell, to: Cell, profile: Profile) -> Result<Planned, PlanError> {
+        let route = profile_search(&self.site, self.connectivity, from, to, profile, |_| 1.0)?;
+        Ok(Planned::searched(route))
+    }
+}
+
+/// The profile's cheapest route, each cell's cost also scaled by `extra`
+/// (≥ 1). Shared by every planner: the baseline, and the repair of learned
+/// frames.
+pub fn profile_search(
+    site: &Site,
+    connectivity: Connectivity,
+    from: Cell,
+    to: Cell,
+    profile: Profile,
+    extra: impl Fn(Cell) -> f64,
+) -> Result<Route, PlanError> {
+    search_with(
+        site,
+        connectivity,
+        from,
+        to,
+        &Costs {
+            passable: |c| profile.passable(site, c),
+            cell_cost: |c| profile.cell_cost(site, c) * extra(c),
+            turn_cost: profile.turn_cost(),
+        },
+    )
 }
 
 #[derive(PartialEq)]
@@ -55,8 +84,8 @@ impl PartialOrd for Entry {
 }
 
 /// A* from `from` to `to` over walkable cells. Entering a cell costs the step
-/// length (1 or √2) times `cell_cost(cell)`, which must be at least `min_cost`
-/// of 1.0 scaled: pass factors ≥ 1 so the octile heuristic stays admissible.
+/// length (1 or √2) times `cell_cost(cell)`; pass factors ≥ 1 so the octile
+/// heuristic stays admissible.
 pub fn search(
     site: &Site,
     connectivity: Connectivity,
@@ -64,15 +93,54 @@ pub fn search(
     to: Cell,
     cell_cost: impl Fn(Cell) -> f64,
 ) -> Result<Route, PlanError> {
+    search_with(
+        site,
+        connectivity,
+        from,
+        to,
+        &Costs {
+            passable: |c| site.walkable(c),
+            cell_cost,
+            turn_cost: 0.0,
+        },
+    )
+}
+
+/// What a search may use and what it pays.
+pub struct Costs<P, C> {
+    /// Cells the walker may stand on (a subset of the site's walkable cells).
+    pub passable: P,
+    /// Factor ≥ 1 on the cost of entering a cell.
+    pub cell_cost: C,
+    /// Added for every change of direction, in cell lengths (≥ 0).
+    pub turn_cost: f64,
+}
+
+/// A* as [`search`], over the cells `costs.passable` allows (corners too:
+/// a diagonal never cuts the corner of a cell the walker may not use), with a
+/// cost per turn. With a turn cost the search state is (cell, heading), so
+/// the cheapest route with fewest turns wins, not the first one found.
+pub fn search_with(
+    site: &Site,
+    connectivity: Connectivity,
+    from: Cell,
+    to: Cell,
+    costs: &Costs<impl Fn(Cell) -> bool, impl Fn(Cell) -> f64>,
+) -> Result<Route, PlanError> {
     for c in [from, to] {
-        if !site.walkable(c) {
+        if !site.walkable(c) || !(costs.passable)(c) {
             return Err(PlanError::Blocked(c));
         }
     }
     let cells = site.open_cells();
-    let n = cells.len();
-    let start = site.open_index(from).expect("walkable") as u32;
-    let goal = site.open_index(to).expect("walkable") as u32;
+    // Headings 0..8 index NEIGHBOURS; 8 is "not moved yet". Without a turn
+    // cost one heading per cell is enough.
+    let headings = if costs.turn_cost > 0.0 { 9 } else { 1 };
+    let n = cells.len() * headings;
+    let state = |open: usize, heading: usize| open * headings + heading.min(headings - 1);
+    let start_open = site.open_index(from).expect("walkable");
+    let goal_open = site.open_index(to).expect("walkable");
+    let start = state(start_open, 8) as u32;
     let mut g = vec![f64::INFINITY; n];
     let mut came_from = vec![u32::MAX; n];
     let mut closed = vec![false; n];
@@ -82,28 +150,29 @@ pub fn search(
         f: heuristic(from, to, connectivity),
         open: start,
     });
-    while let Some(Entry { open, .. }) = heap.pop() {
-        if open == goal {
+    while let Some(Entry { open: s, .. }) = heap.pop() {
+        let (open, heading) = (s as usize / headings, s as usize % headings);
+        if open == goal_open {
             let mut path = vec![to];
-            let mut at = goal;
+            let mut at = s;
             while at != start {
                 at = came_from[at as usize];
-                path.push(cells[at as usize]);
+                path.push(cells[at as usize / headings]);
             }
             path.reverse();
             return Ok(Route { cells: path });
         }
-        if std::mem::replace(&mut closed[open as usize], true) {
+        if std::mem::replace(&mut closed[s as usize], true) {
             continue;
         }
-        let here = cells[open as usize];
-        for (dx, dy) in NEIGHBOURS {
+        let here = cells[open];
+        for (k, (dx, dy)) in NEIGHBOURS.into_iter().enumerate() {
             let (Some(x), Some(y)) = (here.x.checked_add_signed(dx), here.y.checked_add_signed(dy))
             else {
                 continue;
             };
             let next = Cell::new(x, y);
-            if !connectivity.step_ok(site, here, next) {
+            if !connectivity.step_ok_by(here, next, |c| site.walkable(c) && (costs.passable)(c)) {
                 continue;
             }
             let j = site.open_index(next).expect("step_ok checks walkable");
@@ -112,13 +181,19 @@ pub fn search(
             } else {
                 1.0
             };
-            let cand = g[open as usize] + step * cell_cost(next);
-            if cand < g[j] {
-                g[j] = cand;
-                came_from[j] = open;
+            let turn = if headings > 1 && heading != 8 && heading != k {
+                costs.turn_cost
+            } else {
+                0.0
+            };
+            let t = state(j, k);
+            let cand = g[s as usize] + step * (costs.cell_cost)(next) + turn;
+            if cand < g[t] {
+                g[t] = cand;
+                came_from[t] = s;
                 heap.push(Entry {
                     f: cand + heuristic(next, to, connectivity),
-                    open: j as u32,
+                    open: t as u32,
                 });
             }
         }
@@ -161,7 +236,10 @@ mod tests {
     fn goes_around_walls_without_cutting_corners() {
         let s = site("###\n#.#\n###");
         let planner = AStar::new(s.clone(), Connectivity::Eight);
-        let route = planner.plan(Cell::new(0, 0), Cell::new(2, 2)).unwrap();
+        let route = planner
+            .plan(Cell::new(0, 0), Cell::new(2, 2), Profile::Default)
+            .map(|p| p.route)
+            .unwrap();
         route
             .validate(&s, Cell::new(0, 0), Cell::new(2, 2), Connectivity::Eight)
             .unwrap();
@@ -175,11 +253,13 @@ mod tests {
     fn uses_diagonals_in_the_open() {
         let s = site("###\n###\n###");
         let route = AStar::new(s.clone(), Connectivity::Eight)
-            .plan(Cell::new(0, 0), Cell::new(2, 2))
+            .plan(Cell::new(0, 0), Cell::new(2, 2), Profile::Default)
+            .map(|p| p.route)
             .unwrap();
         assert_eq!(route.cells.len(), 3);
         let four = AStar::new(s.clone(), Connectivity::Four)
-            .plan(Cell::new(0, 0), Cell::new(2, 2))
+            .plan(Cell::new(0, 0), Cell::new(2, 2), Profile::Default)
+            .map(|p| p.route)
             .unwrap();
         assert_eq!(four.cells.len(), 5);
         four.validate(&s, Cell::new(0, 0), Cell::new(2, 2), Connectivity::Four)
@@ -191,11 +271,17 @@ mod tests {
         let s = site("#.#");
         let p = AStar::new(s, Connectivity::Eight);
         assert_eq!(
-            p.plan(Cell::new(0, 0), Cell::new(2, 0)).unwrap_err().code(),
+            p.plan(Cell::new(0, 0), Cell::new(2, 0), Profile::Default)
+                .map(|p| p.route)
+                .unwrap_err()
+                .code(),
             "unreachable"
         );
         assert_eq!(
-            p.plan(Cell::new(0, 0), Cell::new(1, 0)).unwrap_err().code(),
+            p.plan(Cell::new(0, 0), Cell::new(1, 0), Profile::Default)
+                .map(|p| p.route)
+                .unwrap_err()
+                .code(),
             "blocked_cell"
         );
     }

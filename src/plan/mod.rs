@@ -5,11 +5,30 @@
 //! error replies) and the planners behind [`Planner`]. Every planner answers with
 //! a route that [`Route::validate`] accepts, or an error: never an invalid route.
 
+//!
+//! Modes (`[planner] mode`): `astar` (shortest walk, no models), `rejection`
+//! (the paper's Algorithm 1, bounded: [`rejection`]) and `conditional` (the
+//! conditional GAN: [`conditional`]). The learned modes turn frames into
+//! routes with [`frame::route_from_frame`], which repairs what a frame gets
+//! wrong. Profiles ([`Profile`]) change which cells a walker may use and what
+//! they cost, in every mode.
+
 pub mod astar;
+pub mod conditional;
+pub mod frame;
+pub mod instructions;
+pub mod picture;
+mod profile;
+pub mod rejection;
 mod route;
 
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
+pub use profile::{PROFILE_NAMES, Profile, unknown_profile_message};
 pub use route::{Route, Waypoint};
 
 use crate::site::{Cell, Site};
@@ -38,6 +57,12 @@ pub enum PlanError {
     Blocked(Cell),
     #[error("no walkable route from {from} to {to}")]
     Unreachable { from: Cell, to: Cell },
+    /// A model failed at run time (the planner could not produce frames).
+    #[error("the path model failed: {reason}")]
+    Model { reason: String },
+    /// A route failed validation: a bug, reported rather than sent.
+    #[error("the planner produced an invalid route ({reason}); this is a bug, please report it")]
+    Invalid { reason: String },
 }
 
 impl PlanError {
@@ -48,6 +73,8 @@ impl PlanError {
             PlanError::OffMap { .. } => "off_map",
             PlanError::Blocked(_) => "blocked_cell",
             PlanError::Unreachable { .. } => "unreachable",
+            PlanError::Model { .. } => "model_failed",
+            PlanError::Invalid { .. } => "invalid_route",
         }
     }
 }
@@ -106,15 +133,20 @@ pub enum Connectivity {
 impl Connectivity {
     /// Whether a single step from `a` to `b` is allowed on `site`.
     pub fn step_ok(self, site: &Site, a: Cell, b: Cell) -> bool {
+        self.step_ok_by(a, b, |c| site.walkable(c))
+    }
+
+    /// [`Connectivity::step_ok`] where `passable` says which cells may be used.
+    pub fn step_ok_by(self, a: Cell, b: Cell, passable: impl Fn(Cell) -> bool) -> bool {
         let (dx, dy) = (a.x.abs_diff(b.x), a.y.abs_diff(b.y));
-        if !site.walkable(b) || dx > 1 || dy > 1 || (dx == 0 && dy == 0) {
+        if !passable(b) || dx > 1 || dy > 1 || (dx == 0 && dy == 0) {
             return false;
         }
         match (dx, dy) {
             (1, 1) => {
                 self == Connectivity::Eight
-                    && site.walkable(Cell::new(a.x, b.y))
-                    && site.walkable(Cell::new(b.x, a.y))
+                    && passable(Cell::new(a.x, b.y))
+                    && passable(Cell::new(b.x, a.y))
             }
             _ => true,
         }
@@ -125,11 +157,51 @@ impl Connectivity {
 #[derive(Clone, Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PlannerConfig {
-    /// Which planner serves requests. Only `astar` exists so far.
+    /// Which planner serves requests.
     #[serde(default)]
     pub mode: PlannerMode,
     #[serde(default)]
     pub connectivity: Connectivity,
+    #[serde(default)]
+    pub models: ModelPaths,
+    #[serde(default)]
+    pub rejection: rejection::RejectionConfig,
+    #[serde(default)]
+    pub conditional: conditional::ConditionalConfig,
+}
+
+/// `[planner.models]`: ONNX files written by `gangway train`, relative to the
+/// config file. Only the ones the mode needs are loaded.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ModelPaths {
+    pub generator: PathBuf,
+    pub path_classifier: PathBuf,
+    pub conditional_generator: PathBuf,
+}
+
+impl Default for ModelPaths {
+    fn default() -> Self {
+        ModelPaths {
+            generator: "models/generator.onnx".into(),
+            path_classifier: "models/path_classifier.onnx".into(),
+            conditional_generator: "models/conditional_generator.onnx".into(),
+        }
+    }
+}
+
+impl PlannerConfig {
+    /// Makes the model paths relative to `base` (the config file's directory).
+    pub fn resolve_paths(&mut self, base: &Path) {
+        let m = &mut self.models;
+        for p in [
+            &mut m.generator,
+            &mut m.path_classifier,
+            &mut m.conditional_generator,
+        ] {
+            *p = base.join(&*p);
+        }
+    }
 }
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
@@ -138,18 +210,167 @@ pub enum PlannerMode {
     /// Shortest walkable path.
     #[default]
     Astar,
+    /// Algorithm 1: unconditional GAN + path classifier, bounded.
+    Rejection,
+    /// Conditional GAN, any pair of open cells.
+    Conditional,
+}
+
+impl PlannerMode {
+    pub const ALL: [PlannerMode; 3] = [
+        PlannerMode::Astar,
+        PlannerMode::Rejection,
+        PlannerMode::Conditional,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            PlannerMode::Astar => "astar",
+            PlannerMode::Rejection => "rejection",
+            PlannerMode::Conditional => "conditional",
+        }
+    }
+}
+
+/// How a route came about.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Origin {
+    /// A plain search (the `astar` mode).
+    Search,
+    /// Read off a generated frame unchanged.
+    Frame,
+    /// A generated frame with gaps or noise, repaired by the guided search.
+    Repaired,
+    /// Rejection mode ran out of samples or time; the frame the classifier
+    /// rated best for the pair was repaired.
+    BudgetExhausted,
+    /// Rejection mode: the pair is not one of the classifier's classes, so
+    /// the profile's plain search answered.
+    Untrained,
+}
+
+/// Time spent in the models for one request, microseconds.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Timings {
+    pub gen_us: u64,
+    pub classify_us: u64,
+}
+
+/// A planner's answer: the route, and how it was made.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Planned {
+    pub route: Route,
+    pub origin: Origin,
+    /// Frames generated for this request.
+    pub samples: usize,
+    /// The frame the route came from (learned modes).
+    pub frame: Option<Vec<f32>>,
+    pub timings: Timings,
+}
+
+impl Planned {
+    fn searched(route: Route) -> Planned {
+        Planned {
+            route,
+            origin: Origin::Search,
+            samples: 0,
+            frame: None,
+            timings: Timings::default(),
+        }
+    }
 }
 
 /// Something that answers route requests on a site.
 pub trait Planner: Send + Sync {
     /// The mode name reported with every route.
     fn mode(&self) -> &'static str;
-    fn plan(&self, from: Cell, to: Cell) -> Result<Route, PlanError>;
+    /// Which trained models answer, e.g. `generator@15000it/seed1`; `None`
+    /// without models.
+    fn model_version(&self) -> Option<&str>;
+    /// A route that [`Route::validate_for`] accepts for `profile`, or an error.
+    fn plan(&self, from: Cell, to: Cell, profile: Profile) -> Result<Planned, PlanError>;
 }
 
-/// Builds the configured planner for `site`.
-pub fn build(config: &PlannerConfig, site: std::sync::Arc<Site>) -> Box<dyn Planner> {
-    match config.mode {
+/// Builds the configured planner for `site`, loading its models. A missing,
+/// corrupt or mismatched model is an error naming the file and what to do.
+pub fn build(config: &PlannerConfig, site: Arc<Site>) -> anyhow::Result<Box<dyn Planner>> {
+    build_mode(config, config.mode, site)
+}
+
+/// Builds the planner of `mode` with the rest of `config`.
+pub fn build_mode(
+    config: &PlannerConfig,
+    mode: PlannerMode,
+    site: Arc<Site>,
+) -> anyhow::Result<Box<dyn Planner>> {
+    use crate::model::runtime::{PathClassifier, PathGenerator};
+    let context = |what: &str| format!("[planner] mode = \"{}\": loading the {what}", mode.name());
+    Ok(match mode {
         PlannerMode::Astar => Box::new(astar::AStar::new(site, config.connectivity)),
+        PlannerMode::Rejection => {
+            let generator = PathGenerator::load(&config.models.generator, &site)
+                .with_context(|| context("generator ([planner.models] generator)"))?;
+            let classifier = PathClassifier::load(&config.models.path_classifier, &site)
+                .with_context(|| context("path classifier ([planner.models] path_classifier)"))?;
+            Box::new(
+                rejection::Rejection::new(
+                    site,
+                    config.connectivity,
+                    generator,
+                    classifier,
+                    config.rejection.clone(),
+                )
+                .map_err(anyhow::Error::msg)?,
+            )
+        }
+        PlannerMode::Conditional => {
+            let generator = PathGenerator::load(&config.models.conditional_generator, &site)
+                .with_context(|| {
+                    context("conditional generator ([planner.models] conditional_generator)")
+                })?;
+            Box::new(
+                conditional::Conditional::new(
+                    site,
+                    config.connectivity,
+                    generator,
+                    config.conditional.clone(),
+                )
+                .map_err(anyhow::Error::msg)?,
+            )
+        }
+    })
+}
+
+/// The paper's deviation score of a frame: (|G| − |G ∩ B|) / |B| for the
+/// frame's bright cells G and the site's public-access cells B.
+pub fn deviation_score(site: &Site, frame: &[f32]) -> f64 {
+    let bright_blocked = (0..site.height())
+        .flat_map(|y| (0..site.width()).map(move |x| Cell::new(x, y)))
+        .filter(|&c| frame::bright(frame, site.grid_index(c)) && !site.walkable(c))
+        .count();
+    bright_blocked as f64 / site.open_cells().len() as f64
+}
+
+/// A short name for the models behind a planner.
+fn model_version(models: &[&crate::model::runtime::Model]) -> String {
+    models
+        .iter()
+        .map(|m| {
+            let meta = m.metadata();
+            format!(
+                "{}@{}it/seed{}",
+                meta.kind.name(),
+                meta.iterations,
+                meta.seed
+            )
+        })
+        .collect::<Vec<_>>()
+        .join("+")
+}
+
+fn model_error(e: crate::model::ModelError) -> PlanError {
+    PlanError::Model {
+        reason: e.to_string(),
     }
 }

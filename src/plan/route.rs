@@ -2,7 +2,7 @@
 
 use serde::Serialize;
 
-use super::Connectivity;
+use super::{Connectivity, Profile};
 use crate::site::{Cell, Site};
 
 /// An ordered walk from the first cell to the last.
@@ -48,6 +48,19 @@ impl Route {
         to: Cell,
         connectivity: Connectivity,
     ) -> Result<(), String> {
+        self.validate_for(site, from, to, connectivity, Profile::Default)
+    }
+
+    /// [`Route::validate`] for a walker with `profile`: also no cell the
+    /// profile may not use (stairs in a wheelchair), nor a diagonal past one.
+    pub fn validate_for(
+        &self,
+        site: &Site,
+        from: Cell,
+        to: Cell,
+        connectivity: Connectivity,
+        profile: Profile,
+    ) -> Result<(), String> {
         let (Some(&first), Some(&last)) = (self.cells.first(), self.cells.last()) else {
             return Err("the route is empty".into());
         };
@@ -59,10 +72,16 @@ impl Route {
         if let Some(c) = self.cells.iter().find(|&&c| !site.walkable(c)) {
             return Err(format!("the route crosses {c}, which is not walkable"));
         }
+        if let Some(c) = self.cells.iter().find(|&&c| !profile.passable(site, c)) {
+            return Err(format!(
+                "the route crosses {c}, which the {} profile may not use",
+                profile.name()
+            ));
+        }
         if let Some(w) = self
             .cells
             .windows(2)
-            .find(|w| !connectivity.step_ok(site, w[0], w[1]))
+            .find(|w| !connectivity.step_ok_by(w[0], w[1], |c| profile.passable(site, c)))
         {
             return Err(format!("the step {} → {} is not allowed", w[0], w[1]));
         }

@@ -1,0 +1,156 @@
+//! `gangway eval planning`: every planner mode on every ordered pair of named
+//! places plus random open-cell pairs, with the figures of issue 5.
+//!
+//! Measured here: pairs, valid_rate (every answer re-validated), the paper's
+//! deviation score (|G| − |G ∩ B|) / |B| of the frame each learned route came
+//! from, length_ratio_mean (to the shortest route), classifier_error (the
+//! path classifier's held-out error as measured by `gangway train` on walks it
+//! never saw, read from the model's metadata), rejection_acceptance_rate
+//! (share of rejection requests for trained pairs answered by an accepted
+//! frame), and the model and total times per request. `novelty`,
+//! `human_iou_gan` and `human_iou_astar` need held-out walks and are `null`
+//! until the evaluation reads them.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use rand::rngs::Xoshiro256PlusPlus;
+use rand::{RngExt, SeedableRng};
+use serde_json::{Value, json};
+
+use crate::model::runtime::PathClassifier;
+use crate::plan::{self, Origin, PlannerConfig, PlannerMode, Profile};
+use crate::site::{Cell, Site};
+
+/// The pairs every mode is evaluated on: all ordered pairs of distinct named
+/// places, then `random` random pairs of distinct open cells (seeded).
+pub fn pairs(site: &Site, random: usize, seed: u64) -> Vec<(Cell, Cell)> {
+    let places: Vec<Cell> = site.places().values().copied().collect();
+    let mut out: Vec<(Cell, Cell)> = places
+        .iter()
+        .flat_map(|&a| places.iter().map(move |&b| (a, b)))
+        .filter(|(a, b)| a != b)
+        .collect();
+    let open = site.open_cells();
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+    while out.len() < places.len() * places.len().saturating_sub(1) + random {
+        let (a, b) = (
+            open[rng.random_range(0..open.len())],
+            open[rng.random_range(0..open.len())],
+        );
+        if a != b {
+            out.push((a, b));
+        }
+    }
+    out
+}
+
+/// The report: top-level keys for `config.mode`, and every mode under `modes`.
+pub fn evaluate(config: &PlannerConfig, site: Arc<Site>, pairs: &[(Cell, Cell)]) -> Value {
+    let shortest = plan::astar::AStar::new(site.clone(), config.connectivity);
+    let mut modes = serde_json::Map::new();
+    for mode in PlannerMode::ALL {
+        let report = match plan::build_mode(config, mode, site.clone()) {
+            Ok(planner) => evaluate_mode(config, &site, &*planner, &shortest, pairs),
+            Err(e) => json!({ "unavailable": format!("{e:#}") }),
+        };
+        modes.insert(mode.name().to_owned(), report);
+    }
+    let mut top = modes[config.mode.name()]
+        .as_object()
+        .cloned()
+        .unwrap_or_default();
+    top.insert("mode".into(), json!(config.mode.name()));
+    top.insert("modes".into(), Value::Object(modes));
+    Value::Object(top)
+}
+
+fn evaluate_mode(
+    config: &PlannerConfig,
+    site: &Site,
+    planner: &dyn plan::Planner,
+    shortest: &plan::astar::AStar,
+    pairs: &[(Cell, Cell)],
+) -> Value {
+    use plan::Planner;
+    let (mut valid, mut ratios, mut deviations) = (0usize, Vec::new(), Vec::new());
+    let (mut plan_us, mut gen_us, mut classify_us) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut trained, mut accepted, mut repaired) = (0usize, 0usize, 0usize);
+    for &(from, to) in pairs {
+        let started = Instant::now();
+        let answer = planner.plan(from, to, Profile::Default);
+        plan_us.push(started.elapsed().as_secs_f64() * 1e6);
+        let Ok(planned) = answer else { continue };
+        if planned
+            .route
+            .validate(site, from, to, config.connectivity)
+            .is_ok()
+        {
+            valid += 1;
+        }
+        if let Ok(best) = shortest.plan(from, to, Profile::Default) {
+            let best_m = best.route.length_m(site);
+            if best_m > 0.0 {
+                ratios.push(planned.route.length_m(site) / best_m);
+            }
+        }
+        if let Some(frame) = &planned.frame {
+            deviations.push(plan::deviation_score(site, frame));
+            gen_us.push(planned.timings.gen_us as f64);
+            if planned.timings.classify_us > 0 {
+                classify_us.push(planned.timings.classify_us as f64);
+            }
+        }
+        match planned.origin {
+            Origin::Frame => accepted += 1,
+            Origin::Repaired => repaired += 1,
+            _ => {}
+        }
+        if !matches!(planned.origin, Origin::Untrained) && planned.frame.is_some() {
+            trained += 1;
+        }
+    }
+    let is_rejection = planner.mode() == "rejection";
+    let classifier_error = if is_rejection {
+        PathClassifier::load(&config.models.path_classifier, site)
+            .ok()
+            .and_then(|c| c.model().metadata().metrics.get("heldout_error").copied())
+    } else {
+        None
+    };
+    // Accepted frames may still need repair; both count as accepted by the
+    // classifier, budget-exhausted ones do not.
+    let acceptance =
+        (is_rejection && trained > 0).then(|| (accepted + repaired) as f64 / trained as f64);
+    json!({
+        "pairs": pairs.len(),
+        "valid_rate": valid as f64 / pairs.len().max(1) as f64,
+        "deviation_score_mean": mean(&deviations),
+        "deviation_score_max": deviations.iter().copied().reduce(f64::max),
+        "length_ratio_mean": mean(&ratios),
+        "classifier_error": classifier_error,
+        "novelty": Value::Null,
+        "human_iou_gan": Value::Null,
+        "human_iou_astar": Value::Null,
+        "rejection_acceptance_rate": acceptance,
+        "learned_pairs": trained,
+        "repaired_share": (trained > 0).then(|| repaired as f64 / trained as f64),
+        "model_version": planner.model_version(),
+        "gen_us_p50": percentile(&mut gen_us, 0.5),
+        "classify_us_p50": percentile(&mut classify_us, 0.5),
+        "plan_us_p50": percentile(&mut plan_us, 0.5),
+        "plan_us_p99": percentile(&mut plan_us, 0.99),
+    })
+}
+
+fn mean(v: &[f64]) -> Option<f64> {
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
+fn percentile(v: &mut [f64], q: f64) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    Some(v[((v.len() - 1) as f64 * q).round() as usize])
+}

@@ -1,0 +1,196 @@
+//! Planning behaviour: every answer is a valid route or an error, profiles
+//! change routes as they promise, and `gangway plan` prints and draws routes.
+
+mod common;
+
+use std::path::Path;
+use std::sync::Arc;
+
+use gangway::plan::frame::route_from_frame;
+use gangway::plan::instructions::instructions;
+use gangway::plan::{Connectivity, Planner, Profile, astar::AStar};
+use gangway::site::{Cell, Site};
+use rand::rngs::Xoshiro256PlusPlus;
+use rand::{RngExt, SeedableRng};
+
+fn waldo() -> Arc<Site> {
+    Arc::new(Site::load(&common::root().join("config/sites/waldo.toml")).unwrap())
+}
+
+/// A floor with a short way over stairs and through a narrow passage, and
+/// a long way round.
+fn attributes_site() -> Arc<Site> {
+    let text = "name = \"attributes\"\ncell_m = 1.0\nmap = '''\n\
+                #########\n\
+                #.......#\n\
+                #ssnnnnn#\n\
+                '''\n\
+                [places]\nwest = [0, 2]\neast = [8, 2]\n";
+    Arc::new(Site::parse(text, Path::new("attributes.toml")).unwrap())
+}
+
+#[test]
+fn repaired_frames_are_always_valid_routes() {
+    // Random frames stand for the worst a generator can produce: every
+    // learned route goes through `route_from_frame`, so whatever the frame,
+    // the answer must be a valid route (or `unreachable`, never on waldo).
+    let site = waldo();
+    let open = site.open_cells();
+    let cells = usize::from(site.width()) * usize::from(site.height());
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
+    for connectivity in [Connectivity::Eight, Connectivity::Four] {
+        for profile in [Profile::Default, Profile::Wheelchair, Profile::LowVision] {
+            for _ in 0..300 {
+                let from = open[rng.random_range(0..open.len())];
+                let to = open[rng.random_range(0..open.len())];
+                let density: f32 = rng.random_range(0.0..1.0);
+                let frame: Vec<f32> = (0..cells)
+                    .map(|_| {
+                        if rng.random_range(0.0..1.0) < density {
+                            0.9
+                        } else {
+                            -0.9
+                        }
+                    })
+                    .collect();
+                let (route, _) = route_from_frame(&site, connectivity, profile, &frame, from, to)
+                    .unwrap_or_else(|e| panic!("{from} → {to}: {e}"));
+                route
+                    .validate_for(&site, from, to, connectivity, profile)
+                    .unwrap();
+            }
+        }
+    }
+}
+
+#[test]
+fn astar_routes_are_valid_for_random_pairs() {
+    let site = waldo();
+    let open = site.open_cells();
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(9);
+    for connectivity in [Connectivity::Eight, Connectivity::Four] {
+        let planner = AStar::new(site.clone(), connectivity);
+        for _ in 0..500 {
+            let from = open[rng.random_range(0..open.len())];
+            let to = open[rng.random_range(0..open.len())];
+            let planned = planner.plan(from, to, Profile::Default).unwrap();
+            planned
+                .route
+                .validate(&site, from, to, connectivity)
+                .unwrap();
+        }
+    }
+}
+
+#[test]
+fn wheelchair_routes_avoid_stairs_and_low_vision_avoids_narrow_cells() {
+    let site = attributes_site();
+    let (from, to) = (site.place("west").unwrap(), site.place("east").unwrap());
+    let planner = AStar::new(site.clone(), Connectivity::Eight);
+    let short = planner.plan(from, to, Profile::Default).unwrap().route;
+    assert!(short.cells.iter().all(|c| c.y == 2), "{:?}", short.cells);
+    for profile in [Profile::Wheelchair, Profile::LowVision] {
+        let route = planner.plan(from, to, profile).unwrap().route;
+        route
+            .validate_for(&site, from, to, Connectivity::Eight, profile)
+            .unwrap();
+        assert!(
+            route.cells.iter().any(|c| c.y == 0),
+            "{profile:?} should go round by the top corridor: {:?}",
+            route.cells
+        );
+    }
+    // Stairs are not merely expensive for a wheelchair: with no way round,
+    // there is no route.
+    let text = "name = \"s\"\ncell_m = 1.0\nmap = '''\n#s#\n'''\n";
+    let stairs_only = Arc::new(Site::parse(text, Path::new("s.toml")).unwrap());
+    let err = AStar::new(stairs_only, Connectivity::Eight)
+        .plan(Cell::new(0, 0), Cell::new(2, 0), Profile::Wheelchair)
+        .unwrap_err();
+    assert_eq!(err.code(), "unreachable");
+}
+
+#[test]
+fn instructions_name_the_destination() {
+    let site = waldo();
+    let (a, b) = ("west entrance", "help desk");
+    let (Some(from), Some(to)) = (site.place(a), site.place(b)) else {
+        // The place names are the site's; skip if they change.
+        return;
+    };
+    let route = AStar::new(site.clone(), Connectivity::Eight)
+        .plan(from, to, Profile::Default)
+        .unwrap()
+        .route;
+    let steps = instructions(&site, &route);
+    let last = steps.last().unwrap();
+    assert_eq!(last.at, to);
+    assert!(
+        last.text.ends_with("you have arrived at help desk."),
+        "{}",
+        last.text
+    );
+    let total: f64 = steps.iter().map(|s| s.distance_m).sum();
+    assert!((total - route.length_m(&site)).abs() < 1e-9);
+}
+
+#[test]
+fn gangway_plan_prints_json_and_draws_pictures() {
+    let site = waldo();
+    let names: Vec<&String> = site.places().keys().collect();
+    let (a, b) = (names[0].as_str(), names[1].as_str());
+    let out = common::gangway_ok(&[
+        "plan",
+        "--config",
+        "config/gangway.toml",
+        "--from",
+        a,
+        "--to",
+        b,
+        "--json",
+    ]);
+    let body: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(body["planner"], "astar");
+    assert_eq!(body["profile"], "default");
+    assert!(!body["instructions"].as_array().unwrap().is_empty());
+
+    let dir = tempfile::tempdir().unwrap();
+    for ext in ["svg", "png"] {
+        let pic = dir.path().join(format!("route.{ext}"));
+        common::gangway_ok(&[
+            "plan",
+            "--config",
+            "config/gangway.toml",
+            "--from",
+            a,
+            "--to",
+            "10,0",
+            "--profile",
+            "wheelchair",
+            &format!("--{ext}"),
+            pic.to_str().unwrap(),
+        ]);
+        assert!(
+            std::fs::metadata(&pic).unwrap().len() > 100,
+            "{ext} written"
+        );
+    }
+
+    let out = common::gangway(&[
+        "plan",
+        "--config",
+        "config/gangway.toml",
+        "--from",
+        a,
+        "--to",
+        b,
+        "--profile",
+        "jetpack",
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("`wheelchair`") && err.contains("`low-vision`"),
+        "{err}"
+    );
+}
