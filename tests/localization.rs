@@ -86,15 +86,20 @@ fn the_onnx_localizer_trains_exports_and_locates_per_split() {
 fn the_shipped_cell_classifier_serves_the_pipeline() {
     let dir = tempfile::tempdir().unwrap();
     let root = common::root();
-    let config = write(
-        dir.path(),
-        "gangway.toml",
-        &format!(
-            "gateway_id = \"gw\"\nsite = \"{}\"\n[localizer]\nmethod = \"onnx\"\n[localizer.onnx]\nmodel = \"{}\"\n",
-            root.join("config/sites/waldo.toml").display(),
-            root.join("models/cell_classifier.onnx").display()
-        ),
-    );
+    // A config using the onnx localizer with `model`, written to `name`.
+    let config_with = |name: &str, model: &std::path::Path| {
+        write(
+            dir.path(),
+            name,
+            &format!(
+                "gateway_id = \"gw\"\nsite = \"{}\"\n[localizer]\nmethod = \"onnx\"\n[localizer.onnx]\nmodel = \"{}\"\n",
+                root.join("config/sites/waldo.toml").display(),
+                model.display()
+            ),
+        )
+    };
+    let shipped = root.join("models/cell_classifier.onnx");
+    let config = config_with("gangway.toml", &shipped);
     let out = gangway_ok(&[
         "replay",
         "fixtures/walk-waldo.jsonl",
@@ -105,18 +110,10 @@ fn the_shipped_cell_classifier_serves_the_pipeline() {
     assert!(out.lines().any(|l| l.contains("/location")));
 
     // A truncated model is refused with a message naming the file.
-    let bytes = std::fs::read(root.join("models/cell_classifier.onnx")).unwrap();
+    let bytes = std::fs::read(&shipped).unwrap();
     let broken = dir.path().join("broken.onnx");
     std::fs::write(&broken, &bytes[..bytes.len() / 2]).unwrap();
-    let config = write(
-        dir.path(),
-        "broken.toml",
-        &format!(
-            "gateway_id = \"gw\"\nsite = \"{}\"\n[localizer]\nmethod = \"onnx\"\n[localizer.onnx]\nmodel = \"{}\"\n",
-            root.join("config/sites/waldo.toml").display(),
-            broken.display()
-        ),
-    );
+    let config = config_with("broken.toml", &broken);
     let run = common::gangway(&["check", "--config", config.to_str().unwrap()]);
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert!(!run.status.success());
