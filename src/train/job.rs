@@ -151,44 +151,23 @@ pub fn train_paths(
     });
     progress.done();
     let gan_seconds = started.elapsed().as_secs_f64();
-    let metrics = measure_generator(
+    let mut metrics = measure_generator(
         site,
         &mut trained.generator,
         &mut path_classifier,
         options.seed,
     );
-    for (kind, net, inputs, output, head) in [
-        (
-            Kind::Generator,
-            &trained.generator,
-            vec![("noise", NOISE_DIM)],
-            "frame",
-            Head::None,
-        ),
-        (
-            Kind::Discriminator,
-            &trained.discriminator,
-            vec![("frame", set.frames.ncols())],
-            "real",
-            Head::Sigmoid,
-        ),
-    ] {
-        let mut meta = gan_metadata(kind, site, set, options);
-        meta.metrics = metrics.clone();
-        meta.metrics.insert("train_seconds".into(), gan_seconds);
-        written.push(write(
-            out,
-            &Spec {
-                net,
-                inputs: &inputs,
-                normalize: None,
-                head,
-                output,
-            },
-            meta,
-            started,
-        )?);
-    }
+    metrics.insert("train_seconds".into(), gan_seconds);
+    written.extend(write_gan(
+        out,
+        [Kind::Generator, Kind::Discriminator],
+        &trained,
+        set.frames.ncols(),
+        None,
+        gan_metadata(Kind::Generator, site, set, options),
+        &metrics,
+        started,
+    )?);
 
     if options.conditional {
         let started = Instant::now();
@@ -200,40 +179,21 @@ pub fn train_paths(
         progress.done();
         let seconds = started.elapsed().as_secs_f64();
         let (hits, cells) = endpoint_hits(set, &mut trained.generator, options.seed);
-        let cond_len = condition::len(set.width, set.height);
-        for (kind, net, inputs, output, head) in [
-            (
-                Kind::ConditionalGenerator,
-                &trained.generator,
-                vec![("noise", NOISE_DIM), ("condition", cond_len)],
-                "frame",
-                Head::None,
-            ),
-            (
-                Kind::ConditionalDiscriminator,
-                &trained.discriminator,
-                vec![("frame", set.frames.ncols()), ("condition", cond_len)],
-                "real",
-                Head::Sigmoid,
-            ),
-        ] {
-            let mut meta = gan_metadata(kind, site, set, options);
-            meta.metrics.insert("endpoint_hit_share".into(), hits);
-            meta.metrics.insert("mean_path_cells".into(), cells);
-            meta.metrics.insert("train_seconds".into(), seconds);
-            written.push(write(
-                out,
-                &Spec {
-                    net,
-                    inputs: &inputs,
-                    normalize: None,
-                    head,
-                    output,
-                },
-                meta,
-                started,
-            )?);
-        }
+        let metrics = BTreeMap::from([
+            ("endpoint_hit_share".to_owned(), hits),
+            ("mean_path_cells".to_owned(), cells),
+            ("train_seconds".to_owned(), seconds),
+        ]);
+        written.extend(write_gan(
+            out,
+            [Kind::ConditionalGenerator, Kind::ConditionalDiscriminator],
+            &trained,
+            set.frames.ncols(),
+            Some(condition::len(set.width, set.height)),
+            gan_metadata(Kind::ConditionalGenerator, site, set, options),
+            &metrics,
+            started,
+        )?);
     }
     Ok(written)
 }
@@ -327,6 +287,65 @@ fn gan_metadata(kind: Kind, site: &Site, set: &PathSet, options: &Options) -> Me
     meta.iterations = options.iterations;
     meta.seed = options.seed;
     meta
+}
+
+/// Writes a trained GAN's generator and discriminator (`kinds`, in that order)
+/// with the same metadata and metrics. Frames are `frame_len` wide; a
+/// conditional GAN takes its `condition` of the given width as a second input
+/// to both.
+fn write_gan(
+    out: &Path,
+    kinds: [Kind; 2],
+    trained: &gan::Gan,
+    frame_len: usize,
+    condition: Option<usize>,
+    meta: Metadata,
+    metrics: &BTreeMap<String, f64>,
+    started: Instant,
+) -> anyhow::Result<Vec<Trained>> {
+    let with_condition = |first: (&'static str, usize)| {
+        let mut inputs = vec![first];
+        inputs.extend(condition.map(|len| ("condition", len)));
+        inputs
+    };
+    let [generator, discriminator] = kinds;
+    [
+        (
+            generator,
+            &trained.generator,
+            with_condition(("noise", NOISE_DIM)),
+            "frame",
+            Head::None,
+        ),
+        (
+            discriminator,
+            &trained.discriminator,
+            with_condition(("frame", frame_len)),
+            "real",
+            Head::Sigmoid,
+        ),
+    ]
+    .into_iter()
+    .map(|(kind, net, inputs, output, head)| {
+        let meta = Metadata {
+            kind,
+            metrics: metrics.clone(),
+            ..meta.clone()
+        };
+        write(
+            out,
+            &Spec {
+                net,
+                inputs: &inputs,
+                normalize: None,
+                head,
+                output,
+            },
+            meta,
+            started,
+        )
+    })
+    .collect()
 }
 
 fn write(out: &Path, spec: &Spec, meta: Metadata, started: Instant) -> anyhow::Result<Trained> {
