@@ -8,7 +8,11 @@ use std::sync::Arc;
 
 use gangway::plan::frame::route_from_frame;
 use gangway::plan::instructions::instructions;
-use gangway::plan::{Connectivity, Planner, Profile, astar::AStar};
+use gangway::model::runtime::PathClassifier;
+use gangway::plan::{
+    Connectivity, ModelPaths, Origin, Planner, PlannerConfig, PlannerMode, Profile, astar::AStar,
+    deviation_score,
+};
 use gangway::site::{Cell, Site};
 use rand::rngs::Xoshiro256PlusPlus;
 use rand::{RngExt, SeedableRng};
@@ -150,7 +154,8 @@ fn gangway_plan_prints_json_and_draws_pictures() {
         "--json",
     ]);
     let body: serde_json::Value = serde_json::from_str(&out).unwrap();
-    assert_eq!(body["planner"], "astar");
+    assert_eq!(body["planner"], "conditional");
+    assert!(body["model_version"].as_str().unwrap().starts_with("conditional_generator@"));
     assert_eq!(body["profile"], "default");
     assert!(!body["instructions"].as_array().unwrap().is_empty());
 
@@ -193,4 +198,79 @@ fn gangway_plan_prints_json_and_draws_pictures() {
         err.contains("`wheelchair`") && err.contains("`low-vision`"),
         "{err}"
     );
+}
+
+fn shipped_models(mode: PlannerMode) -> PlannerConfig {
+    let models = common::root().join("models");
+    PlannerConfig {
+        mode,
+        models: ModelPaths {
+            generator: models.join("generator.onnx"),
+            path_classifier: models.join("path_classifier.onnx"),
+            conditional_generator: models.join("conditional_generator.onnx"),
+        },
+        ..PlannerConfig::default()
+    }
+}
+
+#[test]
+fn learned_modes_answer_every_place_pair_with_a_valid_route() {
+    let site = waldo();
+    let places: Vec<Cell> = site.places().values().copied().collect();
+    for mode in [PlannerMode::Rejection, PlannerMode::Conditional] {
+        let config = shipped_models(mode);
+        let planner = gangway::plan::build(&config, site.clone()).unwrap();
+        for &from in &places {
+            for &to in places.iter().filter(|&&to| to != from) {
+                let planned = planner
+                    .plan(from, to, Profile::Default)
+                    .unwrap_or_else(|e| panic!("{}: {from} → {to}: {e}", mode.name()));
+                planned
+                    .route
+                    .validate(&site, from, to, config.connectivity)
+                    .unwrap();
+                assert!(planned.frame.is_some() || planned.origin == Origin::Untrained);
+            }
+        }
+    }
+}
+
+#[test]
+fn rejection_keeps_accepted_frames_of_other_pairs_for_later_requests() {
+    let site = waldo();
+    let classifier = PathClassifier::load(
+        &common::root().join("models/path_classifier.onnx"),
+        &site,
+    )
+    .unwrap();
+    let classes = classifier.classes().to_vec();
+    let plan_all = |config: &PlannerConfig| {
+        let planner = gangway::plan::build(config, site.clone()).unwrap();
+        classes
+            .iter()
+            .map(|c| {
+                planner
+                    .plan(c.source, c.destination, Profile::Default)
+                    .unwrap()
+            })
+            .collect::<Vec<_>>()
+    };
+
+    // Without a bank every request generates its own frames.
+    let mut config = shipped_models(PlannerMode::Rejection);
+    config.rejection.bank_per_class = 0;
+    config.rejection.warm_samples = 0;
+    assert!(plan_all(&config).iter().all(|p| p.samples > 0));
+
+    // With the warmed bank, some requests are answered from frames generated
+    // before they came, and every accepted frame stays in the public area.
+    let config = shipped_models(PlannerMode::Rejection);
+    let answers = plan_all(&config);
+    assert!(answers.iter().any(|p| p.samples == 0));
+    for p in answers
+        .iter()
+        .filter(|p| matches!(p.origin, Origin::Frame | Origin::Repaired))
+    {
+        assert_eq!(deviation_score(&site, p.frame.as_ref().unwrap()), 0.0);
+    }
 }

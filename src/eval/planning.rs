@@ -96,6 +96,10 @@ fn evaluate_mode(
         }
         if let Some(frame) = &planned.frame {
             deviations.push(plan::deviation_score(site, frame));
+        }
+        // Model times of the requests that ran the models (rejection mode
+        // answers some from frames generated for earlier requests).
+        if planned.samples > 0 {
             gen_us.push(planned.timings.gen_us as f64);
             if planned.timings.classify_us > 0 {
                 classify_us.push(planned.timings.classify_us as f64);

@@ -1,8 +1,9 @@
 //! The conditional GAN planner: frames generated for the requested pair
 //! itself, so any pair of open cells is served, trained or not.
 //!
-//! `samples` frames are generated in one call; the one whose route needs the
-//! fewest cells outside the frame wins (ties: the shorter route). Each goes
+//! `samples` frames are generated in one call; the winner has the fewest
+//! bright cells outside the public-access area (the paper's deviation), then
+//! the fewest route cells outside the frame, then the shorter route. Each goes
 //! through [`route_from_frame`], so a noisy frame is repaired, never returned
 //! as is.
 
@@ -32,7 +33,7 @@ pub struct ConditionalConfig {
 
 impl Default for ConditionalConfig {
     fn default() -> Self {
-        ConditionalConfig { samples: 4 }
+        ConditionalConfig { samples: 2 }
     }
 }
 
@@ -103,7 +104,7 @@ impl Planner for Conditional {
             gen_us: started.elapsed().as_micros() as u64,
             classify_us: 0,
         };
-        let mut best: Option<(usize, f64, Planned)> = None;
+        let mut best: Option<((usize, usize), f64, Planned)> = None;
         for frame in frames.rows() {
             let frame = frame.to_vec();
             let (route, origin) =
@@ -113,13 +114,14 @@ impl Planner for Conditional {
                 .iter()
                 .filter(|&&c| !bright(&frame, site.grid_index(c)))
                 .count();
+            let rank = (super::cells_off_area(site, &frame), dark);
             let length = route.length_m(site);
             if best
                 .as_ref()
-                .is_none_or(|(d, l, _)| (dark, length) < (*d, *l))
+                .is_none_or(|(r, l, _)| (rank, length) < (*r, *l))
             {
                 best = Some((
-                    dark,
+                    rank,
                     length,
                     Planned {
                         route,

@@ -345,11 +345,15 @@ pub fn build_mode(
 /// The paper's deviation score of a frame: (|G| − |G ∩ B|) / |B| for the
 /// frame's bright cells G and the site's public-access cells B.
 pub fn deviation_score(site: &Site, frame: &[f32]) -> f64 {
-    let bright_blocked = (0..site.height())
+    cells_off_area(site, frame) as f64 / site.open_cells().len() as f64
+}
+
+/// The frame's bright cells outside the public-access area, |G| − |G ∩ B|.
+pub fn cells_off_area(site: &Site, frame: &[f32]) -> usize {
+    (0..site.height())
         .flat_map(|y| (0..site.width()).map(move |x| Cell::new(x, y)))
         .filter(|&c| frame::bright(frame, site.grid_index(c)) && !site.walkable(c))
-        .count();
-    bright_blocked as f64 / site.open_cells().len() as f64
+        .count()
 }
 
 /// A short name for the models behind a planner.

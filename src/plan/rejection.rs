@@ -2,9 +2,18 @@
 //! unconditional GAN, classify them, and take the first frame whose class is
 //! the requested (source, destination) pair.
 //!
-//! Differences from the paper, each to make every answer bounded and valid:
-//! - frames are generated and classified `batch` at a time, which costs about
-//!   the same per call as one frame;
+//! Differences from the paper, each to make every answer bounded, valid or fast:
+//! - frames are generated and classified `batch` at a time, which costs far
+//!   less per frame than one at a time;
+//! - a frame counts as accepted only when it also stays inside the
+//!   public-access area (deviation score 0): the paper's "minor noise" is
+//!   rejected at the source instead of being filtered afterwards;
+//! - accepted frames of *other* pairs are not thrown away but kept, up to
+//!   `bank_per_class` per pair, and a later request for that pair takes one
+//!   (each frame is used once). Every frame is an independent draw from the
+//!   generator, so a banked frame is exactly as likely as a fresh one; the
+//!   bank only stops Algorithm 1 from discarding the work it already did.
+//!   `warm_samples` frames are sorted into the bank when the planner is built;
 //! - the loop stops after `max_samples` frames or `time_budget_ms`; then the
 //!   frame the classifier rated highest for the pair is repaired into a route
 //!   ([`Origin::BudgetExhausted`]);
@@ -14,11 +23,11 @@
 //!   paper's "minor noise" and repairs gaps, so the route is always valid.
 
 use std::collections::BTreeMap;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, PoisonError};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use ndarray::{Array2, Axis};
+use ndarray::Array2;
 use rand::SeedableRng;
 use rand::rngs::Xoshiro256PlusPlus;
 use rand_distr::{Distribution, StandardNormal};
@@ -39,16 +48,24 @@ pub struct RejectionConfig {
     pub batch: usize,
     /// Frames tried before the best one is repaired.
     pub max_samples: usize,
-    /// Time tried before the best frame is repaired, milliseconds.
-    pub time_budget_ms: u64,
+    /// Time tried before the best frame is repaired, milliseconds. A batch
+    /// that would end past the budget (judged by the last one) is not started,
+    /// so this bounds the request, not just the loop.
+    pub time_budget_ms: f64,
+    /// Accepted frames kept for each pair for later requests (0: none).
+    pub bank_per_class: usize,
+    /// Frames generated and sorted into the bank when the planner is built.
+    pub warm_samples: usize,
 }
 
 impl Default for RejectionConfig {
     fn default() -> Self {
         RejectionConfig {
-            batch: 64,
+            batch: 32,
             max_samples: 1024,
-            time_budget_ms: 20,
+            time_budget_ms: 1.0,
+            bank_per_class: 4,
+            warm_samples: 4096,
         }
     }
 }
@@ -63,6 +80,14 @@ pub struct Rejection {
     version: String,
     /// Seeds the noise of each request: reproducible runs, no lock.
     requests: AtomicU64,
+    /// Accepted frames not yet used, by class.
+    bank: Mutex<Vec<Vec<Vec<f32>>>>,
+}
+
+/// One generated and classified batch.
+struct Batch {
+    frames: Array2<f32>,
+    probs: Array2<f32>,
 }
 
 impl Rejection {
@@ -83,6 +108,9 @@ impl Rejection {
         if config.batch == 0 || config.max_samples == 0 {
             return Err("[planner.rejection] batch and max_samples must be at least 1".into());
         }
+        if !(config.time_budget_ms.is_finite() && config.time_budget_ms >= 0.0) {
+            return Err("[planner.rejection] time_budget_ms must be a number ≥ 0".into());
+        }
         let class_of = classifier
             .classes()
             .iter()
@@ -90,7 +118,8 @@ impl Rejection {
             .map(|(i, &c)| (c, i))
             .collect();
         let version = super::model_version(&[generator.model(), classifier.model()]);
-        Ok(Rejection {
+        let classes = classifier.classes().len();
+        let rejection = Rejection {
             site,
             connectivity,
             generator,
@@ -99,7 +128,71 @@ impl Rejection {
             config,
             version,
             requests: AtomicU64::new(0),
-        })
+            bank: Mutex::new(vec![Vec::new(); classes]),
+        };
+        rejection
+            .warm_up()
+            .map_err(|e| format!("rejection planner warm-up: {e}"))?;
+        Ok(rejection)
+    }
+
+    /// Fills the bank with `warm_samples` frames; seeded apart from requests.
+    fn warm_up(&self) -> Result<(), PlanError> {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(u64::MAX);
+        let mut timings = Timings::default();
+        let mut done = 0;
+        while done < self.config.warm_samples {
+            let rows = self.config.batch.min(self.config.warm_samples - done);
+            let batch = self.sample(&mut rng, rows, &mut timings)?;
+            for (frame, class) in batch.accepted(&self.site) {
+                self.deposit(class, frame);
+            }
+            done += rows;
+        }
+        Ok(())
+    }
+
+    /// Generates and classifies `rows` frames.
+    fn sample(
+        &self,
+        rng: &mut Xoshiro256PlusPlus,
+        rows: usize,
+        timings: &mut Timings,
+    ) -> Result<Batch, PlanError> {
+        let noise = Array2::from_shape_fn((rows, self.generator.noise_dim()), |_| {
+            StandardNormal.sample(rng)
+        });
+        let t = Instant::now();
+        let frames = self
+            .generator
+            .generate(noise.view(), None)
+            .map_err(model_error)?;
+        timings.gen_us += t.elapsed().as_micros() as u64;
+        let binary = frames.mapv(|v| if v > 0.0 { 1.0 } else { 0.0 });
+        let t = Instant::now();
+        let probs = self
+            .classifier
+            .classify(binary.view())
+            .map_err(model_error)?;
+        timings.classify_us += t.elapsed().as_micros() as u64;
+        Ok(Batch { frames, probs })
+    }
+
+    /// Keeps an accepted frame of `class` unless its bank is full.
+    fn deposit(&self, class: usize, frame: Vec<f32>) {
+        let mut bank = self.bank.lock().unwrap_or_else(PoisonError::into_inner);
+        if bank[class].len() < self.config.bank_per_class {
+            bank[class].push(frame);
+        }
+    }
+
+    /// Takes a banked frame of `class`, if any.
+    fn withdraw(&self, class: usize) -> Option<Vec<f32>> {
+        self.bank
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .get_mut(class)?
+            .pop()
     }
 
     /// The (source, destination) pairs this planner serves from frames.
@@ -129,52 +222,55 @@ impl Planner for Rejection {
                 ..Planned::searched(route)
             });
         };
+        if let Some(frame) = self.withdraw(class) {
+            let (route, origin) =
+                route_from_frame(site, self.connectivity, profile, &frame, from, to)?;
+            return Ok(Planned {
+                route,
+                origin,
+                samples: 0,
+                frame: Some(frame),
+                timings: Timings::default(),
+            });
+        }
         let started = Instant::now();
-        let budget = Duration::from_millis(self.config.time_budget_ms);
+        let budget = Duration::from_secs_f64(self.config.time_budget_ms / 1e3);
         let mut rng =
             Xoshiro256PlusPlus::seed_from_u64(self.requests.fetch_add(1, Ordering::Relaxed));
         let mut timings = Timings::default();
         let mut samples = 0;
         let mut best: Option<(f32, Vec<f32>)> = None;
-        while samples < self.config.max_samples && (samples == 0 || started.elapsed() < budget) {
+        let mut last_batch = Duration::ZERO;
+        while samples < self.config.max_samples
+            && (samples == 0 || started.elapsed() + last_batch <= budget)
+        {
             let rows = self.config.batch.min(self.config.max_samples - samples);
-            let noise = Array2::from_shape_fn((rows, self.generator.noise_dim()), |_| {
-                StandardNormal.sample(&mut rng)
-            });
-            let t = Instant::now();
-            let frames = self
-                .generator
-                .generate(noise.view(), None)
-                .map_err(model_error)?;
-            timings.gen_us += t.elapsed().as_micros() as u64;
-            let binary = frames.mapv(|v| if v > 0.0 { 1.0 } else { 0.0 });
-            let t = Instant::now();
-            let probs = self
-                .classifier
-                .classify(binary.view())
-                .map_err(model_error)?;
-            timings.classify_us += t.elapsed().as_micros() as u64;
+            let batch_started = Instant::now();
+            let batch = self.sample(&mut rng, rows, &mut timings)?;
+            last_batch = batch_started.elapsed();
             samples += rows;
-            for (frame, p) in frames.axis_iter(Axis(0)).zip(probs.axis_iter(Axis(0))) {
-                let argmax = p
-                    .iter()
-                    .enumerate()
-                    .max_by(|a, b| a.1.total_cmp(b.1))
-                    .map(|(i, _)| i);
-                let frame = frame.to_vec();
-                if argmax == Some(class) {
-                    let (route, origin) =
-                        route_from_frame(site, self.connectivity, profile, &frame, from, to)?;
-                    return Ok(Planned {
-                        route,
-                        origin,
-                        samples,
-                        frame: Some(frame),
-                        timings,
-                    });
+            let mut answer = None;
+            for (frame, accepted) in batch.accepted(site) {
+                if accepted == class && answer.is_none() {
+                    answer = Some(frame);
+                } else {
+                    self.deposit(accepted, frame);
                 }
+            }
+            if let Some(frame) = answer {
+                let (route, origin) =
+                    route_from_frame(site, self.connectivity, profile, &frame, from, to)?;
+                return Ok(Planned {
+                    route,
+                    origin,
+                    samples,
+                    frame: Some(frame),
+                    timings,
+                });
+            }
+            for (frame, p) in batch.frames.rows().into_iter().zip(batch.probs.rows()) {
                 if best.as_ref().is_none_or(|(b, _)| p[class] > *b) {
-                    best = Some((p[class], frame));
+                    best = Some((p[class], frame.to_vec()));
                 }
             }
         }
@@ -187,5 +283,25 @@ impl Planner for Rejection {
             frame: Some(frame),
             timings,
         })
+    }
+}
+
+impl Batch {
+    /// The frames Algorithm 1 accepts, with their class: the classifier's
+    /// most likely class, and no bright cell outside the public-access area.
+    fn accepted(&self, site: &Site) -> impl Iterator<Item = (Vec<f32>, usize)> {
+        self.frames
+            .rows()
+            .into_iter()
+            .zip(self.probs.rows())
+            .filter_map(move |(frame, p)| {
+                let frame = frame.as_slice().expect("standard layout");
+                let class = p
+                    .iter()
+                    .enumerate()
+                    .max_by(|a, b| a.1.total_cmp(b.1))
+                    .map(|(i, _)| i)?;
+                (super::cells_off_area(site, frame) == 0).then(|| (frame.to_vec(), class))
+            })
     }
 }
