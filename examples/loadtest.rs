@@ -9,7 +9,8 @@
 //! simulates `--devices` walkers on the sample site whose phones scan once a
 //! second (`gangway simulate`), runs the gateway on that log in real time
 //! (`gangway run --replay … --speed 1`), and publishes `--rate` route requests a
-//! second to random devices for `--seconds`. It prints one JSON object:
+//! second to random devices for `--seconds`, to the site's named places in
+//! turn (site, planner and topics come from `--config`). It prints one JSON object:
 //! requests sent and answered, request → reply latency p50/p99/max in ms (the
 //! client's clock: broker in, gateway, broker out), the gateway's CPU seconds
 //! and share of one core, and its peak RSS. Everything it starts, it stops.
@@ -20,31 +21,26 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+use clap::Parser;
+use gangway::config::Config;
+use gangway::publish::Topics;
+use gangway::site::Site;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 
+#[derive(Parser)]
 struct Args {
+    /// Simulated devices (walkers whose phones scan every beacon at 1 Hz).
+    #[arg(long, default_value_t = 1000)]
     devices: usize,
+    /// Measured span, after an 8 s warm-up.
+    #[arg(long, default_value_t = 60)]
     seconds: u64,
+    /// Route requests per second, to the site's named places in turn.
+    #[arg(long, default_value_t = 100)]
     rate: u64,
-}
-
-fn args() -> Args {
-    let mut a = Args {
-        devices: 1000,
-        seconds: 60,
-        rate: 100,
-    };
-    let argv: Vec<String> = std::env::args().skip(1).collect();
-    for pair in argv.chunks(2) {
-        let value = pair.get(1).and_then(|v| v.parse().ok());
-        match (pair[0].as_str(), value) {
-            ("--devices", Some(v)) => a.devices = v as usize,
-            ("--seconds", Some(v)) => a.seconds = v,
-            ("--rate", Some(v)) => a.rate = v,
-            _ => panic!("usage: loadtest [--devices N] [--seconds S] [--rate R]"),
-        }
-    }
-    a
+    /// The gateway config (site, planner, topic prefix), relative to the repository.
+    #[arg(long, default_value = "config/gangway.toml")]
+    config: PathBuf,
 }
 
 /// Kills the child when dropped, so nothing outlives the test.
@@ -107,9 +103,15 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
 
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
 async fn main() {
-    let args = args();
+    let args = Args::parse();
     let dir = tempfile::tempdir().unwrap();
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let config_path = root.join(&args.config);
+    let config = Config::load(&config_path).unwrap_or_else(|e| panic!("{e}"));
+    let site = Site::load(&config.site).unwrap_or_else(|e| panic!("{e}"));
+    let places: Vec<String> = site.places().keys().cloned().collect();
+    assert!(!places.is_empty(), "{}: the site names no places to route to", config.site.display());
+    let topics = Topics::new(config.topic_prefix());
 
     // The broker.
     let port = free_port();
@@ -143,12 +145,12 @@ async fn main() {
         .args([
             "simulate",
             "--site",
-            "config/sites/waldo.toml",
             "--requests",
             "0",
             "--dropout",
             "0",
         ])
+        .arg(&config.site)
         .args([
             "--walkers",
             &args.devices.to_string(),
@@ -173,7 +175,9 @@ async fn main() {
             .args([
                 "run",
                 "--config",
-                "config/gangway.toml",
+            ])
+            .arg(&config_path)
+            .args([
                 "--mqtt-url",
                 &url,
                 "--speed",
@@ -194,7 +198,7 @@ async fn main() {
     options.set_max_packet_size(1 << 20, 1 << 20);
     let (client, mut eventloop) = AsyncClient::new(options, 10_000);
     client
-        .subscribe("gangway/gw-lobby/devices/+/path", QoS::AtLeastOnce)
+        .subscribe(topics.path("+"), QoS::AtLeastOnce)
         .await
         .unwrap();
     let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<(String, Instant)>();
@@ -223,25 +227,19 @@ async fn main() {
     let interval = Duration::from_secs_f64(1.0 / args.rate as f64);
     let mut next = Instant::now();
     let mut n = 0u64;
-    let places = [
-        "help desk",
-        "reading room",
-        "printers",
-        "east entrance",
-        "computer lab",
-    ];
     while started.elapsed() < Duration::from_secs(args.seconds) {
         if Instant::now() >= next {
             let device = format!("walker-{:02}", (n * 7919) as usize % args.devices + 1);
             let id = format!("load-{n}");
-            let body = format!(
-                r#"{{"to":"{}","request_id":"{id}"}}"#,
-                places[n as usize % places.len()]
-            );
+            let body = serde_json::json!({
+                "to": places[n as usize % places.len()],
+                "request_id": &id,
+            })
+            .to_string();
             sent.insert(id, Instant::now());
             client
                 .publish(
-                    format!("gangway/gw-lobby/devices/{device}/route/set"),
+                    topics.route_set(&device),
                     QoS::AtLeastOnce,
                     false,
                     body,
