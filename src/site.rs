@@ -40,11 +40,13 @@ impl Cell {
         self.x.abs_diff(other.x).max(self.y.abs_diff(other.y))
     }
 
-    /// Euclidean distance in cells.
+    /// Euclidean distance in cells. A plain square root, not `hypot`: grid
+    /// coordinates cannot overflow or underflow the sum of squares, and the
+    /// tracker's median takes hundreds of distances per fix.
     pub fn distance(self, other: Cell) -> f64 {
         let dx = f64::from(self.x) - f64::from(other.x);
         let dy = f64::from(self.y) - f64::from(other.y);
-        dx.hypot(dy)
+        (dx * dx + dy * dy).sqrt()
     }
 }
 

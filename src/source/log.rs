@@ -27,36 +27,111 @@ use crate::plan::Destination;
 use crate::sighting::{BeaconId, Sighting};
 use crate::site::Cell;
 
-/// One line of the log, as written.
+/// One line of the log, read and written.
+///
+/// One flat struct rather than an enum tagged by `type`: serde reads a tagged
+/// enum by first buffering every field of the line, which took a fifth of
+/// replay time; a flat struct is read in one pass, and [`Line::into_event`]
+/// checks which fields belong to the line's type. The fields are in the
+/// order they are written, so each type's lines keep their field order.
 #[derive(Serialize, Deserialize)]
-#[serde(tag = "type", rename_all = "lowercase", deny_unknown_fields)]
-enum Line<'a> {
-    Advert {
-        t: f64,
-        /// `Cow` because a JSON string with escapes cannot be borrowed.
-        #[serde(borrow)]
-        observer: Cow<'a, str>,
-        uuid: Uuid,
-        major: u16,
-        minor: u16,
-        rssi: i16,
-        #[serde(default, skip_serializing_if = "Option::is_none")]
-        tx_power: Option<i8>,
-    },
-    Request {
-        t: f64,
-        device: String,
-        to: Destination,
-        #[serde(default, skip_serializing_if = "Option::is_none")]
-        profile: Option<String>,
-        #[serde(default, skip_serializing_if = "Option::is_none")]
-        request_id: Option<String>,
-    },
-    Truth {
-        t: f64,
-        device: String,
-        cell: Cell,
-    },
+#[serde(deny_unknown_fields)]
+struct Line<'a> {
+    #[serde(rename = "type")]
+    kind: Kind,
+    t: f64,
+    #[serde(borrow, default, skip_serializing_if = "Option::is_none")]
+    observer: Option<Text<'a>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    uuid: Option<Uuid>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    major: Option<u16>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    minor: Option<u16>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    rssi: Option<i16>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    tx_power: Option<i8>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    device: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    to: Option<Destination>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    profile: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    request_id: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    cell: Option<Cell>,
+}
+
+#[derive(Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+enum Kind {
+    Advert,
+    Request,
+    Truth,
+}
+
+/// A string borrowed from the line when it has no escapes (observers repeat
+/// on every advert line, so replay does not allocate one per line).
+#[derive(Serialize, Deserialize)]
+struct Text<'a>(#[serde(borrow)] Cow<'a, str>);
+
+impl Line<'_> {
+    fn new(kind: Kind, t: f64) -> Self {
+        Line {
+            kind,
+            t,
+            observer: None,
+            uuid: None,
+            major: None,
+            minor: None,
+            rssi: None,
+            tx_power: None,
+            device: None,
+            to: None,
+            profile: None,
+            request_id: None,
+            cell: None,
+        }
+    }
+
+    /// The first field present that lines of this type do not have.
+    fn foreign_field(&self) -> Option<&'static str> {
+        use Kind::{Advert, Request, Truth};
+        let fields: [(&str, bool, &[Kind]); 11] = [
+            ("observer", self.observer.is_some(), &[Advert]),
+            ("uuid", self.uuid.is_some(), &[Advert]),
+            ("major", self.major.is_some(), &[Advert]),
+            ("minor", self.minor.is_some(), &[Advert]),
+            ("rssi", self.rssi.is_some(), &[Advert]),
+            ("tx_power", self.tx_power.is_some(), &[Advert]),
+            ("device", self.device.is_some(), &[Request, Truth]),
+            ("to", self.to.is_some(), &[Request]),
+            ("profile", self.profile.is_some(), &[Request]),
+            ("request_id", self.request_id.is_some(), &[Request]),
+            ("cell", self.cell.is_some(), &[Truth]),
+        ];
+        fields
+            .into_iter()
+            .find(|(_, present, kinds)| *present && !kinds.contains(&self.kind))
+            .map(|(name, _, _)| name)
+    }
+}
+
+impl Kind {
+    fn name(self) -> &'static str {
+        match self {
+            Kind::Advert => "advert",
+            Kind::Request => "request",
+            Kind::Truth => "truth",
+        }
+    }
+}
+
+/// A field a line of its type must have.
+fn required<T>(value: Option<T>, field: &str) -> Result<T, String> {
+    value.ok_or_else(|| format!("missing field `{field}`"))
 }
 
 /// A line that could not be used.
@@ -134,16 +209,16 @@ impl<R: BufRead> LogReader<R> {
         let line: Line = serde_json::from_str(text).map_err(|e| {
             format!("{e}; each line must be one JSON event (see the README, \"Advert log format\")")
         })?;
-        let event = match line {
-            Line::Advert {
-                t,
-                observer,
-                uuid,
-                major,
-                minor,
-                rssi,
-                tx_power,
-            } => {
+        if let Some(field) = line.foreign_field() {
+            return Err(format!(
+                "unknown field `{field}` in a `{}` line",
+                line.kind.name()
+            ));
+        }
+        let t = line.t;
+        let event = match line.kind {
+            Kind::Advert => {
+                let observer = required(line.observer, "observer")?.0;
                 let observer = match self.observers.get(observer.as_ref()) {
                     Some(o) => o.clone(),
                     None => {
@@ -155,25 +230,27 @@ impl<R: BufRead> LogReader<R> {
                 Event::Advert(Sighting {
                     t,
                     observer,
-                    advertiser: BeaconId { uuid, major, minor },
-                    tx_power,
-                    rssi,
+                    advertiser: BeaconId {
+                        uuid: required(line.uuid, "uuid")?,
+                        major: required(line.major, "major")?,
+                        minor: required(line.minor, "minor")?,
+                    },
+                    tx_power: line.tx_power,
+                    rssi: required(line.rssi, "rssi")?,
                 })
             }
-            Line::Request {
+            Kind::Request => Event::Request(RouteRequest {
                 t,
-                device,
-                to,
-                profile,
-                request_id,
-            } => Event::Request(RouteRequest {
-                t,
-                device,
-                to,
-                profile,
-                request_id,
+                device: required(line.device, "device")?,
+                to: required(line.to, "to")?,
+                profile: line.profile,
+                request_id: line.request_id,
             }),
-            Line::Truth { t, device, cell } => Event::Truth(Truth { t, device, cell }),
+            Kind::Truth => Event::Truth(Truth {
+                t,
+                device: required(line.device, "device")?,
+                cell: required(line.cell, "cell")?,
+            }),
         };
         if !event.t().is_finite() {
             return Err("`t` must be a finite number of seconds".into());
@@ -225,26 +302,26 @@ impl<W: Write> LogWriter<W> {
 
     pub fn write(&mut self, event: &Event) -> io::Result<()> {
         let line = match event {
-            Event::Advert(s) => Line::Advert {
-                t: s.t,
-                observer: Cow::Borrowed(&s.observer),
-                uuid: s.advertiser.uuid,
-                major: s.advertiser.major,
-                minor: s.advertiser.minor,
-                rssi: s.rssi,
+            Event::Advert(s) => Line {
+                observer: Some(Text(Cow::Borrowed(&s.observer))),
+                uuid: Some(s.advertiser.uuid),
+                major: Some(s.advertiser.major),
+                minor: Some(s.advertiser.minor),
+                rssi: Some(s.rssi),
                 tx_power: s.tx_power,
+                ..Line::new(Kind::Advert, s.t)
             },
-            Event::Request(r) => Line::Request {
-                t: r.t,
-                device: r.device.clone(),
-                to: r.to.clone(),
+            Event::Request(r) => Line {
+                device: Some(r.device.clone()),
+                to: Some(r.to.clone()),
                 profile: r.profile.clone(),
                 request_id: r.request_id.clone(),
+                ..Line::new(Kind::Request, r.t)
             },
-            Event::Truth(g) => Line::Truth {
-                t: g.t,
-                device: g.device.clone(),
-                cell: g.cell,
+            Event::Truth(g) => Line {
+                device: Some(g.device.clone()),
+                cell: Some(g.cell),
+                ..Line::new(Kind::Truth, g.t)
             },
         };
         serde_json::to_writer(&mut self.out, &line)?;
@@ -312,5 +389,19 @@ mod tests {
         let err = events[1].as_ref().unwrap_err();
         assert_eq!(err.line, 2);
         assert!(err.reason.contains("EOF"), "{}", err.reason);
+    }
+
+    #[test]
+    fn fields_must_belong_to_the_line_type() {
+        let (events, _) = read(
+            br#"{"t":1,"type":"truth","device":"p","cell":[1,2],"rssi":-70}
+{"t":1,"type":"request","device":"p"}
+"#,
+            false,
+        );
+        let err = events[0].as_ref().unwrap_err().to_string();
+        assert!(err.ends_with(":1: unknown field `rssi` in a `truth` line"), "{err}");
+        let err = events[1].as_ref().unwrap_err().to_string();
+        assert!(err.ends_with(":2: missing field `to`"), "{err}");
     }
 }
