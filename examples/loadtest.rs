@@ -72,8 +72,8 @@ fn gangway() -> PathBuf {
     bin
 }
 
-/// (CPU seconds, peak RSS in KiB) of a process, from /proc.
-fn usage(pid: u32) -> (f64, u64) {
+/// (CPU seconds, RSS now and at its peak in KiB) of a process, from /proc.
+fn usage(pid: u32) -> (f64, u64, u64) {
     let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
     let fields: Vec<&str> = stat
         .rsplit(')')
@@ -85,13 +85,15 @@ fn usage(pid: u32) -> (f64, u64) {
         f.iter().filter_map(|v| v.parse::<f64>().ok()).sum()
     });
     let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
-    let hwm = status
-        .lines()
-        .find(|l| l.starts_with("VmHWM:"))
-        .and_then(|l| l.split_whitespace().nth(1))
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(0);
-    (ticks / 100.0, hwm) // USER_HZ is 100 on Linux
+    let kib = |key: &str| {
+        status
+            .lines()
+            .find(|l| l.starts_with(key))
+            .and_then(|l| l.split_whitespace().nth(1))
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0)
+    };
+    (ticks / 100.0, kib("VmRSS:"), kib("VmHWM:")) // USER_HZ is 100 on Linux
 }
 
 fn percentile(sorted: &[f64], p: f64) -> f64 {
@@ -120,7 +122,7 @@ async fn main() {
     std::fs::write(
         &conf,
         format!(
-            "listener {port} 127.0.0.1\nallow_anonymous true\nuser {}\nmax_queued_messages 100000\nlog_dest none\n",
+            "listener {port} 127.0.0.1\nallow_anonymous true\nuser {}\nmax_queued_messages 100000\nset_tcp_nodelay true\nlog_dest none\n",
             String::from_utf8_lossy(&user).trim()
         ),
     )
@@ -142,14 +144,7 @@ async fn main() {
     let total = args.seconds + 20;
     let status = Command::new(gangway())
         .current_dir(root)
-        .args([
-            "simulate",
-            "--site",
-            "--requests",
-            "0",
-            "--dropout",
-            "0",
-        ])
+        .args(["simulate", "--requests", "0", "--dropout", "0", "--site"])
         .arg(&config.site)
         .args([
             "--walkers",
@@ -197,6 +192,10 @@ async fn main() {
     options.set_keep_alive(Duration::from_secs(30));
     options.set_max_packet_size(1 << 20, 1 << 20);
     let (client, mut eventloop) = AsyncClient::new(options, 10_000);
+    // Like the gateway: no Nagle delay on small request packets.
+    let mut network = eventloop.network_options();
+    network.set_tcp_nodelay(true);
+    eventloop.set_network_options(network);
     client
         .subscribe(topics.path("+"), QoS::AtLeastOnce)
         .await
@@ -220,7 +219,7 @@ async fn main() {
 
     // Warm up: every device gets a few fixes.
     tokio::time::sleep(Duration::from_secs(8)).await;
-    let (cpu_before, _) = usage(pid);
+    let (cpu_before, _, _) = usage(pid);
     let started = Instant::now();
     let mut sent: HashMap<String, Instant> = HashMap::new();
     let mut latencies = Vec::new();
@@ -257,7 +256,7 @@ async fn main() {
         tokio::time::sleep(Duration::from_millis(1)).await;
     }
     let measured = started.elapsed().as_secs_f64();
-    let (cpu_after, rss_kib) = usage(pid);
+    let (cpu_after, rss_kib, peak_rss_kib) = usage(pid);
     // Stragglers.
     let deadline = Instant::now() + Duration::from_secs(5);
     while latencies.len() < sent.len() && Instant::now() < deadline {
@@ -284,7 +283,8 @@ async fn main() {
         "latency_ms_max": latencies.last().copied().unwrap_or(f64::NAN),
         "gateway_cpu_s": cpu,
         "gateway_cpu_share_of_one_core": cpu / measured,
-        "gateway_peak_rss_mib": rss_kib as f64 / 1024.0,
+        "gateway_rss_mib": rss_kib as f64 / 1024.0,
+        "gateway_peak_rss_mib": peak_rss_kib as f64 / 1024.0,
     });
     println!("{}", serde_json::to_string_pretty(&summary).unwrap());
 }

@@ -53,6 +53,7 @@ impl Model {
                 reason: e.to_string(),
             }
         })?;
+        drop(bytes);
         let props: BTreeMap<String, String> = proto
             .metadata_props
             .iter()
@@ -106,11 +107,12 @@ impl Model {
         };
         // tract asserts on some malformed graphs; a bad file must be an error,
         // not a crash of the daemon.
-        let plan = std::panic::catch_unwind(AssertUnwindSafe(|| -> TractResult<_> {
-            tract_onnx::onnx()
-                .model_for_proto_model(&proto)?
-                .into_optimized()?
-                .into_runnable()
+        // The protobuf goes as soon as tract has its own graph: each form of
+        // the weights alive at once adds to the daemon's peak memory.
+        let plan = std::panic::catch_unwind(AssertUnwindSafe(move || -> TractResult<_> {
+            let graph = tract_onnx::onnx().model_for_proto_model(&proto)?;
+            drop(proto);
+            graph.into_optimized()?.into_runnable()
         }))
         .map_err(|_| ModelError::Runtime {
             path: name.clone(),

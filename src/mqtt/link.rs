@@ -352,7 +352,13 @@ impl Controller {
                 true,
             ));
         }
-        let (client, eventloop) = AsyncClient::new(options, SESSION_WINDOW);
+        let (client, mut eventloop) = AsyncClient::new(options, SESSION_WINDOW);
+        // Route replies are small and wanted now: without TCP_NODELAY, Nagle's
+        // algorithm holds a reply until the broker acknowledges the last
+        // packet, which with delayed ACKs cost tens of milliseconds per reply.
+        let mut network = eventloop.network_options();
+        network.set_tcp_nodelay(true);
+        eventloop.set_network_options(network);
         let id = self.next_session;
         self.next_session += 1;
         tokio::spawn(poll_session(id, eventloop, self.events_tx.clone()));
