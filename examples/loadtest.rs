@@ -13,7 +13,8 @@
 //! turn (site, planner and topics come from `--config`). It prints one JSON object:
 //! requests sent and answered, request → reply latency p50/p99/max in ms (the
 //! client's clock: broker in, gateway, broker out), the gateway's CPU seconds
-//! and share of one core, and its peak RSS. Everything it starts, it stops.
+//! and share of one core, and its RSS at the end and at its peak. Everything
+//! it starts, it stops.
 
 use std::collections::HashMap;
 use std::net::TcpListener;
