@@ -8,7 +8,7 @@
 //! a fix on the far side of a wall or across the building in two seconds gets no
 //! prior mass. The `none` tracker is the plain per-window argmax.
 
-use std::collections::HashMap;
+use foldhash::HashMap;
 use std::sync::Arc;
 
 use serde::Deserialize;
@@ -121,7 +121,7 @@ impl Tracker {
             config,
             site,
             neighbours,
-            tracks: HashMap::new(),
+            tracks: HashMap::default(),
             scratch: Vec::new(),
         }
     }

@@ -12,7 +12,11 @@
 //! as the adverts of one scan do, therefore always land in the same window.
 
 use std::collections::hash_map::Entry;
-use std::collections::{HashMap, VecDeque};
+
+// foldhash, not std's SipHash: these maps are looked up once per advert,
+// and a seeded fast hash keeps that a small share of replay time.
+use foldhash::HashMap;
+use std::collections::VecDeque;
 use std::sync::Arc;
 
 use serde::Deserialize;
@@ -139,8 +143,8 @@ impl Windows {
             n_anchors,
             beacon_anchors,
             gateway_anchors,
-            advertiser_ids: HashMap::new(),
-            entities: HashMap::new(),
+            advertiser_ids: HashMap::default(),
+            entities: HashMap::default(),
             unknown_anchor: 0,
             scratch: vec![Vec::new(); n_anchors],
         }

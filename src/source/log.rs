@@ -13,7 +13,7 @@
 //! plays.
 
 use std::borrow::Cow;
-use std::collections::HashMap;
+use foldhash::HashMap;
 use std::fs::File;
 use std::io::{self, BufRead, BufReader, BufWriter, Write};
 use std::path::{Path, PathBuf};
@@ -182,7 +182,7 @@ impl<R: BufRead> LogReader<R> {
             buf: Vec::new(),
             skip_bad,
             skipped: 0,
-            observers: HashMap::new(),
+            observers: HashMap::default(),
         }
     }
 
