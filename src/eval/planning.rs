@@ -7,9 +7,19 @@
 //! path classifier's held-out error as measured by `gangway train` on walks it
 //! never saw, read from the model's metadata), rejection_acceptance_rate
 //! (share of rejection requests for trained pairs answered by an accepted
-//! frame), and the model and total times per request. `novelty`,
-//! `human_iou_gan` and `human_iou_astar` need held-out walks and are `null`
-//! until the evaluation reads them.
+//! frame), and the model and total times per request.
+//!
+//! Against recorded walks ([`Walks`]; a key is `null` when its walks are not
+//! given): `human_iou_gan` is the mean cell-set IoU between the mode's route
+//! and each held-out walk for the walk's (first cell, last cell), in the
+//! learned modes; `human_iou_astar` the same for the shortest route (the
+//! baseline, the same value in every mode's entry); `novelty` the mean number
+//! of cells by which a generated frame (the one behind each learned route for
+//! the evaluated pairs) differs from its nearest training frame, and
+//! `heldout_novelty` the same for the held-out walks themselves (how far a new
+//! walk by people is from the training walks) and `heldout_seen_share` the
+//! share of held-out walks whose cells equal a training walk's (both `null`
+//! without both files).
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -18,9 +28,20 @@ use rand::rngs::Xoshiro256PlusPlus;
 use rand::{RngExt, SeedableRng};
 use serde_json::{Value, json};
 
+use super::similarity::{CellBits, TrainingFrames, cell_iou};
 use crate::model::runtime::PathClassifier;
 use crate::plan::{self, Origin, PlannerConfig, PlannerMode, Profile};
 use crate::site::{Cell, Site};
+use crate::train::trajectory::Trajectory;
+
+/// Recorded walks the routes and frames are compared with.
+#[derive(Default)]
+pub struct Walks {
+    /// Walks no model was trained on (`human_iou_*`).
+    pub heldout: Option<Vec<Trajectory>>,
+    /// The frames of the walks the generators were trained on (`novelty`).
+    pub training: Option<TrainingFrames>,
+}
 
 /// The pairs every mode is evaluated on: all ordered pairs of distinct named
 /// places, then `random` random pairs of distinct open cells (seeded).
@@ -46,12 +67,37 @@ pub fn pairs(site: &Site, random: usize, seed: u64) -> Vec<(Cell, Cell)> {
 }
 
 /// The report: top-level keys for `config.mode`, and every mode under `modes`.
-pub fn evaluate(config: &PlannerConfig, site: Arc<Site>, pairs: &[(Cell, Cell)]) -> Value {
+pub fn evaluate(
+    config: &PlannerConfig,
+    site: Arc<Site>,
+    pairs: &[(Cell, Cell)],
+    walks: &Walks,
+) -> Value {
     let shortest = plan::astar::AStar::new(site.clone(), config.connectivity);
+    let human_iou_astar = walks
+        .heldout
+        .as_deref()
+        .and_then(|w| mean(&human_iou(&site, &shortest, w)));
+    // How far each held-out walk is from the training walks: the scale for
+    // `novelty`, and how many held-out walks repeat a training walk exactly.
+    let heldout_distances: Option<Vec<f64>> = match (&walks.heldout, &walks.training) {
+        (Some(heldout), Some(training)) => Some(
+            heldout
+                .iter()
+                .filter_map(|w| training.nearest_distance(&CellBits::from_cells(&site, &w.cells)))
+                .map(f64::from)
+                .collect(),
+        ),
+        _ => None,
+    };
     let mut modes = serde_json::Map::new();
     for mode in PlannerMode::ALL {
         let report = match plan::build_mode(config, mode, site.clone()) {
-            Ok(planner) => evaluate_mode(config, &site, &*planner, &shortest, pairs),
+            Ok(planner) => {
+                let mut report = evaluate_mode(config, &site, &*planner, &shortest, pairs, walks);
+                report["human_iou_astar"] = json!(human_iou_astar);
+                report
+            }
             Err(e) => json!({ "unavailable": format!("{e:#}") }),
         };
         modes.insert(mode.name().to_owned(), report);
@@ -61,6 +107,24 @@ pub fn evaluate(config: &PlannerConfig, site: Arc<Site>, pairs: &[(Cell, Cell)])
         .cloned()
         .unwrap_or_default();
     top.insert("mode".into(), json!(config.mode.name()));
+    top.insert(
+        "heldout_walks".into(),
+        json!(walks.heldout.as_ref().map(Vec::len)),
+    );
+    top.insert(
+        "training_frames".into(),
+        json!(walks.training.as_ref().map(TrainingFrames::len)),
+    );
+    if let Some(d) = &heldout_distances {
+        top.insert("heldout_novelty".into(), json!(mean(d)));
+        top.insert(
+            "heldout_seen_share".into(),
+            json!(d.iter().filter(|&&d| d == 0.0).count() as f64 / d.len().max(1) as f64),
+        );
+    } else {
+        top.insert("heldout_novelty".into(), Value::Null);
+        top.insert("heldout_seen_share".into(), Value::Null);
+    }
     top.insert("modes".into(), Value::Object(modes));
     Value::Object(top)
 }
@@ -71,11 +135,13 @@ fn evaluate_mode(
     planner: &dyn plan::Planner,
     shortest: &plan::astar::AStar,
     pairs: &[(Cell, Cell)],
+    walks: &Walks,
 ) -> Value {
     use plan::Planner;
     let (mut valid, mut ratios, mut deviations) = (0usize, Vec::new(), Vec::new());
     let (mut plan_us, mut gen_us, mut classify_us) = (Vec::new(), Vec::new(), Vec::new());
     let (mut trained, mut accepted, mut repaired) = (0usize, 0usize, 0usize);
+    let mut novelty = Vec::new();
     for &(from, to) in pairs {
         let started = Instant::now();
         let answer = planner.plan(from, to, Profile::Default);
@@ -96,6 +162,11 @@ fn evaluate_mode(
         }
         if let Some(frame) = &planned.frame {
             deviations.push(plan::deviation_score(site, frame));
+            if let Some(training) = &walks.training
+                && let Some(d) = training.nearest_distance(&CellBits::from_frame(site, frame))
+            {
+                novelty.push(f64::from(d));
+            }
             gen_us.push(planned.timings.gen_us as f64);
             if planned.timings.classify_us > 0 {
                 classify_us.push(planned.timings.classify_us as f64);
@@ -110,6 +181,11 @@ fn evaluate_mode(
             trained += 1;
         }
     }
+    let learned = planner.model_version().is_some();
+    let human_iou_gan = match &walks.heldout {
+        Some(heldout) if learned => mean(&human_iou(site, planner, heldout)),
+        _ => None,
+    };
     let is_rejection = planner.mode() == "rejection";
     let classifier_error = if is_rejection {
         PathClassifier::load(&config.models.path_classifier, site)
@@ -129,8 +205,8 @@ fn evaluate_mode(
         "deviation_score_max": deviations.iter().copied().reduce(f64::max),
         "length_ratio_mean": mean(&ratios),
         "classifier_error": classifier_error,
-        "novelty": Value::Null,
-        "human_iou_gan": Value::Null,
+        "novelty": mean(&novelty),
+        "human_iou_gan": human_iou_gan,
         "human_iou_astar": Value::Null,
         "rejection_acceptance_rate": acceptance,
         "learned_pairs": trained,
@@ -141,6 +217,19 @@ fn evaluate_mode(
         "plan_us_p50": percentile(&mut plan_us, 0.5),
         "plan_us_p99": percentile(&mut plan_us, 0.99),
     })
+}
+
+/// Cell-set IoU of `planner`'s route with each walk, planned for the walk's
+/// first and last cell; a request that fails scores 0 (it shares no cell).
+pub fn human_iou(site: &Site, planner: &dyn plan::Planner, walks: &[Trajectory]) -> Vec<f64> {
+    walks
+        .iter()
+        .map(|w| {
+            planner
+                .plan(w.source(), w.destination(), Profile::Default)
+                .map_or(0.0, |p| cell_iou(site, &p.route.cells, &w.cells))
+        })
+        .collect()
 }
 
 fn mean(v: &[f64]) -> Option<f64> {
