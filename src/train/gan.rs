@@ -216,6 +216,56 @@ mod tests {
     }
 
     #[test]
+    fn checkpoints_come_every_k_iterations_without_changing_training() {
+        let data = toy();
+        let config = GanConfig {
+            iterations: 7,
+            batch: 4,
+            seed: 3,
+        };
+        let every = std::num::NonZeroUsize::new(3);
+        let mut seen = Vec::new();
+        let with = train_with_checkpoints(
+            &data,
+            config,
+            every,
+            |_, _| {},
+            |i, gan| {
+                seen.push((i, gan.generator.layers[3].w.clone()));
+                Ok::<(), ()>(())
+            },
+        )
+        .unwrap();
+        assert_eq!(seen.iter().map(|s| s.0).collect::<Vec<_>>(), [3, 6]);
+        let plain = train(&data, config, |_, _| {});
+        assert_eq!(with.generator.layers[3].w, plain.generator.layers[3].w);
+        // The checkpoint after 6 iterations is what a 6-iteration run gives.
+        let six = train(
+            &data,
+            GanConfig {
+                iterations: 6,
+                ..config
+            },
+            |_, _| {},
+        );
+        assert_eq!(seen[1].1, six.generator.layers[3].w);
+        // The first failing checkpoint stops training with its error.
+        let mut calls = 0;
+        let failed = train_with_checkpoints(
+            &data,
+            config,
+            std::num::NonZeroUsize::new(2),
+            |_, _| {},
+            |i, _| {
+                calls += 1;
+                if i == 4 { Err(i) } else { Ok(()) }
+            },
+        );
+        assert_eq!(failed.err(), Some(4));
+        assert_eq!(calls, 2);
+    }
+
+    #[test]
     fn conditional_networks_take_the_condition_as_input() {
         let mut data = toy();
         data.conditions = Some(Array2::from_elem((8, 5), 0.5));
