@@ -44,7 +44,12 @@ fn assert_svg(path: &Path) {
 #[test]
 fn walk_figures_are_null_without_walks_and_measured_with_them() {
     let without = eval(&[]);
-    for key in ["human_iou_astar", "heldout_walks", "heldout_novelty"] {
+    for key in [
+        "human_iou_astar",
+        "heldout_walks",
+        "heldout_novelty",
+        "heldout_unseen_walks",
+    ] {
         assert!(without[key].is_null(), "{key}: {}", without[key]);
     }
     for (mode, report) in without["modes"].as_object().unwrap() {
@@ -57,7 +62,9 @@ fn walk_figures_are_null_without_walks_and_measured_with_them() {
     assert_eq!(with["heldout_walks"], 360);
     let astar = unit_interval(&with["human_iou_astar"]);
     assert!(with["heldout_novelty"].as_f64().unwrap() >= 0.0);
-    unit_interval(&with["heldout_seen_share"]);
+    let seen = unit_interval(&with["heldout_seen_share"]);
+    let unseen = with["heldout_unseen_walks"].as_f64().unwrap();
+    assert!((seen * 360.0 + unseen - 360.0).abs() < 1e-9);
     let modes = with["modes"].as_object().unwrap();
     // The astar mode has no generator: no GAN figures.
     assert!(modes["astar"]["human_iou_gan"].is_null());
@@ -69,6 +76,8 @@ fn walk_figures_are_null_without_walks_and_measured_with_them() {
         }
         assert_eq!(unit_interval(&report["human_iou_astar"]), astar, "{mode}");
         unit_interval(&report["human_iou_gan"]);
+        unit_interval(&report["human_iou_gan_unseen"]);
+        unit_interval(&report["human_iou_astar_unseen"]);
         let novelty = report["novelty"].as_f64().unwrap();
         let cells = f64::from(
             Site::load(&root().join("config/sites/waldo.toml"))

@@ -12,6 +12,7 @@ use rand::rngs::Xoshiro256PlusPlus;
 use rand_distr::{Distribution, StandardNormal};
 use serde::Serialize;
 
+use super::planning::place_pairs;
 use super::plot::line_svg;
 use crate::model::runtime::{PathClassifier, PathGenerator};
 use crate::model::{Kind, PathClass, condition};
@@ -39,17 +40,14 @@ pub fn sample_routes(
     let classes: Vec<PathClass> = match PathClassifier::load(&config.models.path_classifier, &site)
     {
         Ok(classifier) => classifier.classes().to_vec(),
-        Err(_) => {
-            let places: Vec<Cell> = site.places().values().copied().collect();
-            places
-                .iter()
-                .flat_map(|&source| {
-                    places.iter().map(move |&destination| PathClass {
-                        source,
-                        destination,
-                    })
+        Err(e) => {
+            tracing::info!("no path classifier ({e}); drawing every ordered pair of named places");
+            place_pairs(&site)
+                .into_iter()
+                .map(|(source, destination)| PathClass {
+                    source,
+                    destination,
                 })
-                .filter(|c| c.source != c.destination)
                 .collect()
         }
     };
@@ -185,12 +183,7 @@ fn generate(
     if !generator.is_conditional() {
         return Ok(generator.generate(noise.view(), None)?);
     }
-    let places: Vec<Cell> = site.places().values().copied().collect();
-    let pairs: Vec<(Cell, Cell)> = places
-        .iter()
-        .flat_map(|&a| places.iter().map(move |&b| (a, b)))
-        .filter(|(a, b)| a != b)
-        .collect();
+    let pairs = place_pairs(site);
     anyhow::ensure!(
         !pairs.is_empty(),
         "a conditional checkpoint is measured on pairs of named places; the site has fewer than 2"

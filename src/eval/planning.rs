@@ -19,7 +19,9 @@
 //! `heldout_novelty` the same for the held-out walks themselves (how far a new
 //! walk by people is from the training walks) and `heldout_seen_share` the
 //! share of held-out walks whose cells equal a training walk's (both `null`
-//! without both files).
+//! without both files). `human_iou_gan_unseen` and `human_iou_astar_unseen`
+//! are the IoUs over only the other, unseen held-out walks, which a generator
+//! cannot match by reproducing a training walk.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -46,15 +48,11 @@ pub struct Walks {
 /// The pairs every mode is evaluated on: all ordered pairs of distinct named
 /// places, then `random` random pairs of distinct open cells (seeded).
 pub fn pairs(site: &Site, random: usize, seed: u64) -> Vec<(Cell, Cell)> {
-    let places: Vec<Cell> = site.places().values().copied().collect();
-    let mut out: Vec<(Cell, Cell)> = places
-        .iter()
-        .flat_map(|&a| places.iter().map(move |&b| (a, b)))
-        .filter(|(a, b)| a != b)
-        .collect();
+    let mut out = place_pairs(site);
     let open = site.open_cells();
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
-    while out.len() < places.len() * places.len().saturating_sub(1) + random {
+    let wanted = out.len() + random;
+    while out.len() < wanted {
         let (a, b) = (
             open[rng.random_range(0..open.len())],
             open[rng.random_range(0..open.len())],
@@ -66,6 +64,16 @@ pub fn pairs(site: &Site, random: usize, seed: u64) -> Vec<(Cell, Cell)> {
     out
 }
 
+/// Every ordered pair of distinct named places, in the places' name order.
+pub fn place_pairs(site: &Site) -> Vec<(Cell, Cell)> {
+    let places: Vec<Cell> = site.places().values().copied().collect();
+    places
+        .iter()
+        .flat_map(|&a| places.iter().map(move |&b| (a, b)))
+        .filter(|(a, b)| a != b)
+        .collect()
+}
+
 /// The report: top-level keys for `config.mode`, and every mode under `modes`.
 pub fn evaluate(
     config: &PlannerConfig,
@@ -74,28 +82,43 @@ pub fn evaluate(
     walks: &Walks,
 ) -> Value {
     let shortest = plan::astar::AStar::new(site.clone(), config.connectivity);
-    let human_iou_astar = walks
+    let astar_ious = walks
         .heldout
         .as_deref()
-        .and_then(|w| mean(&human_iou(&site, &shortest, w)));
+        .map(|w| human_iou(&site, &shortest, w));
     // How far each held-out walk is from the training walks: the scale for
-    // `novelty`, and how many held-out walks repeat a training walk exactly.
+    // `novelty`, and which held-out walks repeat a training walk exactly.
     let heldout_distances: Option<Vec<f64>> = match (&walks.heldout, &walks.training) {
-        (Some(heldout), Some(training)) => Some(
+        (Some(heldout), Some(training)) if !training.is_empty() => Some(
             heldout
                 .iter()
-                .filter_map(|w| training.nearest_distance(&CellBits::from_cells(&site, &w.cells)))
-                .map(f64::from)
+                .map(|w| {
+                    let bits = CellBits::from_cells(&site, &w.cells);
+                    f64::from(training.nearest_distance(&bits).expect("training frames"))
+                })
                 .collect(),
         ),
         _ => None,
     };
+    let unseen: Option<Vec<bool>> = heldout_distances
+        .as_ref()
+        .map(|d| d.iter().map(|&d| d > 0.0).collect());
     let mut modes = serde_json::Map::new();
     for mode in PlannerMode::ALL {
         let report = match plan::build_mode(config, mode, site.clone()) {
             Ok(planner) => {
-                let mut report = evaluate_mode(config, &site, &*planner, &shortest, pairs, walks);
-                report["human_iou_astar"] = json!(human_iou_astar);
+                let mut report = evaluate_mode(
+                    config,
+                    &site,
+                    &*planner,
+                    &shortest,
+                    pairs,
+                    walks,
+                    unseen.as_deref(),
+                );
+                let (all, unseen) = iou_means(astar_ious.as_deref(), unseen.as_deref());
+                report["human_iou_astar"] = json!(all);
+                report["human_iou_astar_unseen"] = json!(unseen);
                 report
             }
             Err(e) => json!({ "unavailable": format!("{e:#}") }),
@@ -121,9 +144,14 @@ pub fn evaluate(
             "heldout_seen_share".into(),
             json!(d.iter().filter(|&&d| d == 0.0).count() as f64 / d.len().max(1) as f64),
         );
+        top.insert(
+            "heldout_unseen_walks".into(),
+            json!(d.iter().filter(|&&d| d > 0.0).count()),
+        );
     } else {
         top.insert("heldout_novelty".into(), Value::Null);
         top.insert("heldout_seen_share".into(), Value::Null);
+        top.insert("heldout_unseen_walks".into(), Value::Null);
     }
     top.insert("modes".into(), Value::Object(modes));
     Value::Object(top)
@@ -136,6 +164,7 @@ fn evaluate_mode(
     shortest: &plan::astar::AStar,
     pairs: &[(Cell, Cell)],
     walks: &Walks,
+    unseen: Option<&[bool]>,
 ) -> Value {
     use plan::Planner;
     let (mut valid, mut ratios, mut deviations) = (0usize, Vec::new(), Vec::new());
@@ -182,9 +211,9 @@ fn evaluate_mode(
         }
     }
     let learned = planner.model_version().is_some();
-    let human_iou_gan = match &walks.heldout {
-        Some(heldout) if learned => mean(&human_iou(site, planner, heldout)),
-        _ => None,
+    let (human_iou_gan, human_iou_gan_unseen) = match &walks.heldout {
+        Some(heldout) if learned => iou_means(Some(&human_iou(site, planner, heldout)), unseen),
+        _ => (None, None),
     };
     let is_rejection = planner.mode() == "rejection";
     let classifier_error = if is_rejection {
@@ -207,7 +236,9 @@ fn evaluate_mode(
         "classifier_error": classifier_error,
         "novelty": mean(&novelty),
         "human_iou_gan": human_iou_gan,
+        "human_iou_gan_unseen": human_iou_gan_unseen,
         "human_iou_astar": Value::Null,
+        "human_iou_astar_unseen": Value::Null,
         "rejection_acceptance_rate": acceptance,
         "learned_pairs": trained,
         "repaired_share": (trained > 0).then(|| repaired as f64 / trained as f64),
@@ -219,14 +250,40 @@ fn evaluate_mode(
     })
 }
 
+/// Mean IoU over every held-out walk, and over those `unseen` marks (no
+/// training walk repeats them exactly; `None` without training walks): a
+/// planner that memorised training walks scores well on the others for free.
+fn iou_means(ious: Option<&[f64]>, unseen: Option<&[bool]>) -> (Option<f64>, Option<f64>) {
+    let Some(ious) = ious else {
+        return (None, None);
+    };
+    let over_unseen = unseen.and_then(|keep| {
+        let kept: Vec<f64> = ious
+            .iter()
+            .zip(keep)
+            .filter(|&(_, &k)| k)
+            .map(|(&v, _)| v)
+            .collect();
+        mean(&kept)
+    });
+    (mean(ious), over_unseen)
+}
+
 /// Cell-set IoU of `planner`'s route with each walk, planned for the walk's
-/// first and last cell; a request that fails scores 0 (it shares no cell).
-pub fn human_iou(site: &Site, planner: &dyn plan::Planner, walks: &[Trajectory]) -> Vec<f64> {
+/// first and last cell and its profile (default when it names none or one
+/// this gateway does not know); a request that fails scores 0 (it shares no
+/// cell).
+fn human_iou(site: &Site, planner: &dyn plan::Planner, walks: &[Trajectory]) -> Vec<f64> {
     walks
         .iter()
         .map(|w| {
+            let profile = w
+                .profile
+                .as_deref()
+                .and_then(Profile::parse)
+                .unwrap_or(Profile::Default);
             planner
-                .plan(w.source(), w.destination(), Profile::Default)
+                .plan(w.source(), w.destination(), profile)
                 .map_or(0.0, |p| cell_iou(site, &p.route.cells, &w.cells))
         })
         .collect()
