@@ -211,6 +211,20 @@ fn checkpoints_are_written_loaded_and_plotted_with_sample_routes() {
             ("generator".to_owned(), 4),
         ]
     );
+    // A directory without checkpoints is an error that says how to make them.
+    let empty = tempfile::tempdir().unwrap();
+    let failed = common::gangway(&[
+        "eval",
+        "planning",
+        "--config",
+        &d("gangway.toml"),
+        "--checkpoints",
+        empty.path().to_str().unwrap(),
+    ]);
+    assert!(!failed.status.success());
+    let stderr = String::from_utf8_lossy(&failed.stderr);
+    assert!(stderr.contains("--checkpoint-every"), "{stderr}");
+
     let pictures = dir.path().join("pictures");
     assert_svg(&pictures.join("deviation-vs-iterations.svg"));
     // One sheet per path class (the three place pairs), drawn by the

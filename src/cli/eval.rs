@@ -121,16 +121,25 @@ fn planning(args: PlanningArgs) -> anyhow::Result<ExitCode> {
         heldout: read(&args.heldout_walks)?,
         training: read(&args.training_walks)?.map(|w| TrainingFrames::new(&site, &w)),
     };
+    // Checkpoints first: a wrong directory fails before the long evaluation.
+    let checkpoints = match &args.checkpoints {
+        Some(dir) => Some(figures::checkpoint_deviation(
+            &site,
+            dir,
+            args.checkpoint_frames,
+            args.seed,
+        )?),
+        None => None,
+    };
     let pairs = planning::pairs(&site, args.random_pairs, args.seed);
     let mut report = planning::evaluate(&config.planner, site.clone(), &pairs, &walks);
-    if let Some(dir) = &args.checkpoints {
-        let points = figures::checkpoint_deviation(&site, dir, args.checkpoint_frames, args.seed)?;
-        report["checkpoints"] = serde_json::to_value(&points)?;
+    if let Some(points) = &checkpoints {
+        report["checkpoints"] = serde_json::to_value(points)?;
         if let Some(out) = &args.pictures {
             std::fs::create_dir_all(out)
                 .with_context(|| format!("cannot create {}", out.display()))?;
             let file = out.join("deviation-vs-iterations.svg");
-            figures::deviation_svg(&file, &points)?;
+            figures::deviation_svg(&file, points)?;
             eprintln!("wrote {}", file.display());
         }
     }
