@@ -4,15 +4,18 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
 
+use anyhow::Context;
 use clap::Subcommand;
 
 use crate::config::Config;
 use crate::eval::localization::{Setup, Split, evaluate};
+use crate::eval::similarity::TrainingFrames;
 use crate::locate::survey::Survey;
 use crate::locate::tracker::{TrackerConfig, TrackerKind};
 use crate::locate::window::{WindowConfig, anchor_ids};
 use crate::locate::{LocalizerConfig, Method};
 use crate::site::Site;
+use crate::train::trajectory;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -40,6 +43,28 @@ struct PlanningArgs {
     /// Print one JSON object.
     #[arg(long)]
     json: bool,
+    /// Walks by people that no model was trained on (trajectory JSON Lines):
+    /// gives `human_iou_gan` and `human_iou_astar`. Without it they are `null`.
+    #[arg(long)]
+    heldout_walks: Option<PathBuf>,
+    /// The walks the generators were trained on (trajectory JSON Lines):
+    /// gives `novelty`. Without it, it is `null`.
+    #[arg(long)]
+    training_walks: Option<PathBuf>,
+    /// Write the figures here: sample routes per class (Fig. 9) and, with
+    /// `--checkpoints`, deviation against training iterations (Fig. 10).
+    #[arg(long)]
+    pictures: Option<PathBuf>,
+    /// Routes drawn per class in `--pictures`.
+    #[arg(long, default_value_t = 3)]
+    samples_per_class: usize,
+    /// Generator checkpoints written by `gangway train --checkpoint-every`
+    /// (the `checkpoints` directory): adds `checkpoints` to the report.
+    #[arg(long)]
+    checkpoints: Option<PathBuf>,
+    /// Frames generated per checkpoint to measure its deviation score.
+    #[arg(long, default_value_t = 256)]
+    checkpoint_frames: usize,
 }
 
 #[derive(clap::Args)]
@@ -84,13 +109,66 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 }
 
 fn planning(args: PlanningArgs) -> anyhow::Result<ExitCode> {
+    use crate::eval::{figures, planning};
     let (config, site) = super::load(&args.config)?;
-    let pairs = crate::eval::planning::pairs(&site, args.random_pairs, args.seed);
-    let report = crate::eval::planning::evaluate(&config.planner, site, &pairs);
+    let read = |path: &Option<PathBuf>| -> anyhow::Result<_> {
+        Ok(match path {
+            Some(p) => Some(trajectory::read(p, &site)?),
+            None => None,
+        })
+    };
+    let walks = planning::Walks {
+        heldout: read(&args.heldout_walks)?,
+        training: read(&args.training_walks)?.map(|w| TrainingFrames::new(&site, &w)),
+    };
+    // Checkpoints first: a wrong directory fails before the long evaluation.
+    let checkpoints = match &args.checkpoints {
+        Some(dir) => Some(figures::checkpoint_deviation(
+            &site,
+            dir,
+            args.checkpoint_frames,
+            args.seed,
+        )?),
+        None => None,
+    };
+    let pairs = planning::pairs(&site, args.random_pairs, args.seed);
+    let mut report = planning::evaluate(&config.planner, site.clone(), &pairs, &walks);
+    if let Some(points) = &checkpoints {
+        report["checkpoints"] = serde_json::to_value(points)?;
+        if let Some(out) = &args.pictures {
+            std::fs::create_dir_all(out)
+                .with_context(|| format!("cannot create {}", out.display()))?;
+            let file = out.join("deviation-vs-iterations.svg");
+            figures::deviation_svg(&file, points)?;
+            eprintln!("wrote {}", file.display());
+        }
+    }
+    if let Some(out) = &args.pictures {
+        let written =
+            figures::sample_routes(&config.planner, site.clone(), args.samples_per_class, out)?;
+        eprintln!("wrote {} sample sheets to {}", written.len(), out.display());
+    }
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
-    } else {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(ExitCode::SUCCESS);
+    }
+    println!("{}", serde_json::to_string_pretty(&report)?);
+    if args.heldout_walks.is_none() {
+        println!(
+            "human_iou_gan and human_iou_astar are null: give --heldout-walks FILE, walks by \
+             people that no model was trained on"
+        );
+    }
+    if args.training_walks.is_none() {
+        println!(
+            "novelty is null: give --training-walks FILE, the walks the generators were trained on"
+        );
+    }
+    if config.planner.mode == crate::plan::PlannerMode::Astar {
+        println!(
+            "the configured mode is astar: novelty and human_iou_gan are under `modes` \
+             (rejection, conditional)"
+        );
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -55,6 +55,10 @@ pub struct Args {
     /// "Not heard" value in the survey.
     #[arg(long, default_value_t = -200, allow_negative_numbers = true)]
     not_heard: i16,
+    /// Also write the GANs every this many iterations to
+    /// `OUT/checkpoints/iter-<N>/` (for `gangway eval planning --checkpoints`).
+    #[arg(long)]
+    checkpoint_every: Option<std::num::NonZeroUsize>,
     /// Print the summary as JSON instead of text.
     #[arg(long)]
     json: bool,
@@ -80,6 +84,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         conditional: args.conditional,
         classifier_iterations: args.classifier_iterations,
         heldout_share: args.heldout,
+        checkpoint_every: args.checkpoint_every,
     };
     let started = Instant::now();
     let mut bars = Bars::new(args.json);

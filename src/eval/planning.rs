@@ -7,9 +7,21 @@
 //! path classifier's held-out error as measured by `gangway train` on walks it
 //! never saw, read from the model's metadata), rejection_acceptance_rate
 //! (share of rejection requests for trained pairs answered by an accepted
-//! frame), and the model and total times per request. `novelty`,
-//! `human_iou_gan` and `human_iou_astar` need held-out walks and are `null`
-//! until the evaluation reads them.
+//! frame), and the model and total times per request.
+//!
+//! Against recorded walks ([`Walks`]; a key is `null` when its walks are not
+//! given): `human_iou_gan` is the mean cell-set IoU between the mode's route
+//! and each held-out walk for the walk's (first cell, last cell), in the
+//! learned modes; `human_iou_astar` the same for the shortest route (the
+//! baseline, the same value in every mode's entry); `novelty` the mean number
+//! of cells by which a generated frame (the one behind each learned route for
+//! the evaluated pairs) differs from its nearest training frame, and
+//! `heldout_novelty` the same for the held-out walks themselves (how far a new
+//! walk by people is from the training walks) and `heldout_seen_share` the
+//! share of held-out walks whose cells equal a training walk's (both `null`
+//! without both files). `human_iou_gan_unseen` and `human_iou_astar_unseen`
+//! are the IoUs over only the other, unseen held-out walks, which a generator
+//! cannot match by reproducing a training walk.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -18,22 +30,29 @@ use rand::rngs::Xoshiro256PlusPlus;
 use rand::{RngExt, SeedableRng};
 use serde_json::{Value, json};
 
+use super::similarity::{CellBits, TrainingFrames, cell_iou};
 use crate::model::runtime::PathClassifier;
 use crate::plan::{self, Origin, PlannerConfig, PlannerMode, Profile};
 use crate::site::{Cell, Site};
+use crate::train::trajectory::Trajectory;
+
+/// Recorded walks the routes and frames are compared with.
+#[derive(Default)]
+pub struct Walks {
+    /// Walks no model was trained on (`human_iou_*`).
+    pub heldout: Option<Vec<Trajectory>>,
+    /// The frames of the walks the generators were trained on (`novelty`).
+    pub training: Option<TrainingFrames>,
+}
 
 /// The pairs every mode is evaluated on: all ordered pairs of distinct named
 /// places, then `random` random pairs of distinct open cells (seeded).
 pub fn pairs(site: &Site, random: usize, seed: u64) -> Vec<(Cell, Cell)> {
-    let places: Vec<Cell> = site.places().values().copied().collect();
-    let mut out: Vec<(Cell, Cell)> = places
-        .iter()
-        .flat_map(|&a| places.iter().map(move |&b| (a, b)))
-        .filter(|(a, b)| a != b)
-        .collect();
+    let mut out = place_pairs(site);
     let open = site.open_cells();
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
-    while out.len() < places.len() * places.len().saturating_sub(1) + random {
+    let wanted = out.len() + random;
+    while out.len() < wanted {
         let (a, b) = (
             open[rng.random_range(0..open.len())],
             open[rng.random_range(0..open.len())],
@@ -45,13 +64,63 @@ pub fn pairs(site: &Site, random: usize, seed: u64) -> Vec<(Cell, Cell)> {
     out
 }
 
+/// Every ordered pair of distinct named places, in the places' name order.
+pub fn place_pairs(site: &Site) -> Vec<(Cell, Cell)> {
+    let places: Vec<Cell> = site.places().values().copied().collect();
+    places
+        .iter()
+        .flat_map(|&a| places.iter().map(move |&b| (a, b)))
+        .filter(|(a, b)| a != b)
+        .collect()
+}
+
 /// The report: top-level keys for `config.mode`, and every mode under `modes`.
-pub fn evaluate(config: &PlannerConfig, site: Arc<Site>, pairs: &[(Cell, Cell)]) -> Value {
+pub fn evaluate(
+    config: &PlannerConfig,
+    site: Arc<Site>,
+    pairs: &[(Cell, Cell)],
+    walks: &Walks,
+) -> Value {
     let shortest = plan::astar::AStar::new(site.clone(), config.connectivity);
+    let astar_ious = walks
+        .heldout
+        .as_deref()
+        .map(|w| human_iou(&site, &shortest, w));
+    // How far each held-out walk is from the training walks: the scale for
+    // `novelty`, and which held-out walks repeat a training walk exactly.
+    let heldout_distances: Option<Vec<f64>> = match (&walks.heldout, &walks.training) {
+        (Some(heldout), Some(training)) if !training.is_empty() => Some(
+            heldout
+                .iter()
+                .map(|w| {
+                    let bits = CellBits::from_cells(&site, &w.cells);
+                    f64::from(training.nearest_distance(&bits).expect("training frames"))
+                })
+                .collect(),
+        ),
+        _ => None,
+    };
+    let unseen: Option<Vec<bool>> = heldout_distances
+        .as_ref()
+        .map(|d| d.iter().map(|&d| d > 0.0).collect());
     let mut modes = serde_json::Map::new();
     for mode in PlannerMode::ALL {
         let report = match plan::build_mode(config, mode, site.clone()) {
-            Ok(planner) => evaluate_mode(config, &site, &*planner, &shortest, pairs),
+            Ok(planner) => {
+                let mut report = evaluate_mode(
+                    config,
+                    &site,
+                    &*planner,
+                    &shortest,
+                    pairs,
+                    walks,
+                    unseen.as_deref(),
+                );
+                let (all, unseen) = iou_means(astar_ious.as_deref(), unseen.as_deref());
+                report["human_iou_astar"] = json!(all);
+                report["human_iou_astar_unseen"] = json!(unseen);
+                report
+            }
             Err(e) => json!({ "unavailable": format!("{e:#}") }),
         };
         modes.insert(mode.name().to_owned(), report);
@@ -61,6 +130,29 @@ pub fn evaluate(config: &PlannerConfig, site: Arc<Site>, pairs: &[(Cell, Cell)])
         .cloned()
         .unwrap_or_default();
     top.insert("mode".into(), json!(config.mode.name()));
+    top.insert(
+        "heldout_walks".into(),
+        json!(walks.heldout.as_ref().map(Vec::len)),
+    );
+    top.insert(
+        "training_frames".into(),
+        json!(walks.training.as_ref().map(TrainingFrames::len)),
+    );
+    if let Some(d) = &heldout_distances {
+        top.insert("heldout_novelty".into(), json!(mean(d)));
+        top.insert(
+            "heldout_seen_share".into(),
+            json!(d.iter().filter(|&&d| d == 0.0).count() as f64 / d.len().max(1) as f64),
+        );
+        top.insert(
+            "heldout_unseen_walks".into(),
+            json!(d.iter().filter(|&&d| d > 0.0).count()),
+        );
+    } else {
+        top.insert("heldout_novelty".into(), Value::Null);
+        top.insert("heldout_seen_share".into(), Value::Null);
+        top.insert("heldout_unseen_walks".into(), Value::Null);
+    }
     top.insert("modes".into(), Value::Object(modes));
     Value::Object(top)
 }
@@ -71,11 +163,14 @@ fn evaluate_mode(
     planner: &dyn plan::Planner,
     shortest: &plan::astar::AStar,
     pairs: &[(Cell, Cell)],
+    walks: &Walks,
+    unseen: Option<&[bool]>,
 ) -> Value {
     use plan::Planner;
     let (mut valid, mut ratios, mut deviations) = (0usize, Vec::new(), Vec::new());
     let (mut plan_us, mut gen_us, mut classify_us) = (Vec::new(), Vec::new(), Vec::new());
     let (mut trained, mut accepted, mut repaired) = (0usize, 0usize, 0usize);
+    let mut novelty = Vec::new();
     for &(from, to) in pairs {
         let started = Instant::now();
         let answer = planner.plan(from, to, Profile::Default);
@@ -96,6 +191,11 @@ fn evaluate_mode(
         }
         if let Some(frame) = &planned.frame {
             deviations.push(plan::deviation_score(site, frame));
+            if let Some(training) = &walks.training
+                && let Some(d) = training.nearest_distance(&CellBits::from_frame(site, frame))
+            {
+                novelty.push(f64::from(d));
+            }
         }
         // Model times of the requests that ran the models (rejection mode
         // answers some from frames generated for earlier requests).
@@ -114,6 +214,11 @@ fn evaluate_mode(
             trained += 1;
         }
     }
+    let learned = planner.model_version().is_some();
+    let (human_iou_gan, human_iou_gan_unseen) = match &walks.heldout {
+        Some(heldout) if learned => iou_means(Some(&human_iou(site, planner, heldout)), unseen),
+        _ => (None, None),
+    };
     let is_rejection = planner.mode() == "rejection";
     let classifier_error = if is_rejection {
         PathClassifier::load(&config.models.path_classifier, site)
@@ -133,9 +238,11 @@ fn evaluate_mode(
         "deviation_score_max": deviations.iter().copied().reduce(f64::max),
         "length_ratio_mean": mean(&ratios),
         "classifier_error": classifier_error,
-        "novelty": Value::Null,
-        "human_iou_gan": Value::Null,
+        "novelty": mean(&novelty),
+        "human_iou_gan": human_iou_gan,
+        "human_iou_gan_unseen": human_iou_gan_unseen,
         "human_iou_astar": Value::Null,
+        "human_iou_astar_unseen": Value::Null,
         "rejection_acceptance_rate": acceptance,
         "learned_pairs": trained,
         "repaired_share": (trained > 0).then(|| repaired as f64 / trained as f64),
@@ -145,6 +252,45 @@ fn evaluate_mode(
         "plan_us_p50": percentile(&mut plan_us, 0.5),
         "plan_us_p99": percentile(&mut plan_us, 0.99),
     })
+}
+
+/// Mean IoU over every held-out walk, and over those `unseen` marks (no
+/// training walk repeats them exactly; `None` without training walks): a
+/// planner that memorised training walks scores well on the others for free.
+fn iou_means(ious: Option<&[f64]>, unseen: Option<&[bool]>) -> (Option<f64>, Option<f64>) {
+    let Some(ious) = ious else {
+        return (None, None);
+    };
+    let over_unseen = unseen.and_then(|keep| {
+        let kept: Vec<f64> = ious
+            .iter()
+            .zip(keep)
+            .filter(|&(_, &k)| k)
+            .map(|(&v, _)| v)
+            .collect();
+        mean(&kept)
+    });
+    (mean(ious), over_unseen)
+}
+
+/// Cell-set IoU of `planner`'s route with each walk, planned for the walk's
+/// first and last cell and its profile (default when it names none or one
+/// this gateway does not know); a request that fails scores 0 (it shares no
+/// cell).
+fn human_iou(site: &Site, planner: &dyn plan::Planner, walks: &[Trajectory]) -> Vec<f64> {
+    walks
+        .iter()
+        .map(|w| {
+            let profile = w
+                .profile
+                .as_deref()
+                .and_then(Profile::parse)
+                .unwrap_or(Profile::Default);
+            planner
+                .plan(w.source(), w.destination(), profile)
+                .map_or(0.0, |p| cell_iou(site, &p.route.cells, &w.cells))
+        })
+        .collect()
 }
 
 fn mean(v: &[f64]) -> Option<f64> {

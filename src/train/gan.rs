@@ -65,7 +65,25 @@ pub struct Gan {
 }
 
 /// Trains a GAN on `data`; `progress` is called after every iteration.
-pub fn train(data: &GanData, config: GanConfig, mut progress: impl FnMut(usize, GanLosses)) -> Gan {
+pub fn train(data: &GanData, config: GanConfig, progress: impl FnMut(usize, GanLosses)) -> Gan {
+    match train_with_checkpoints(data, config, None, progress, |_, _| {
+        Ok::<(), std::convert::Infallible>(())
+    }) {
+        Ok(gan) => gan,
+        Err(never) => match never {},
+    }
+}
+
+/// [`train`], also handing the networks to `checkpoint` after every
+/// `every`-th iteration (`None`: never); the first error it returns stops
+/// training.
+pub fn train_with_checkpoints<E>(
+    data: &GanData,
+    config: GanConfig,
+    every: Option<std::num::NonZeroUsize>,
+    mut progress: impl FnMut(usize, GanLosses),
+    mut checkpoint: impl FnMut(usize, &Gan) -> Result<(), E>,
+) -> Result<Gan, E> {
     let n = data.frames.nrows();
     assert!(n > 0 && config.batch > 0, "a GAN needs data and a batch");
     let cells = data.frames.ncols();
@@ -80,19 +98,23 @@ pub fn train(data: &GanData, config: GanConfig, mut progress: impl FnMut(usize, 
     ]
     .concat();
     let d_sizes = [&[cells + cond_dim][..], &DISCRIMINATOR_HIDDEN[..], &[1][..]].concat();
-    let mut generator = Mlp::new(
+    let generator = Mlp::new(
         &g_sizes,
         &[Act::LeakyRelu, Act::LeakyRelu, Act::LeakyRelu, Act::Tanh],
         batch,
         rng.random(),
     );
     // The discriminator sees real and fake together: 2·batch rows.
-    let mut discriminator = Mlp::new(
+    let discriminator = Mlp::new(
         &d_sizes,
         &[Act::LeakyRelu, Act::LeakyRelu, Act::Identity],
         2 * batch,
         rng.random(),
     );
+    let mut gan = Gan {
+        generator,
+        discriminator,
+    };
 
     let mut g_input = Array2::<f32>::zeros((batch, NOISE_DIM + cond_dim));
     let mut d_input = Array2::<f32>::zeros((2 * batch, cells + cond_dim));
@@ -119,23 +141,26 @@ pub fn train(data: &GanData, config: GanConfig, mut progress: impl FnMut(usize, 
         }
 
         // Discriminator step: real rows → REAL_LABEL, fake rows → 0.
-        let fake = generator.forward(g_input.view());
+        let fake = gan.generator.forward(g_input.view());
         d_input.slice_mut(s![batch.., ..cells]).assign(&fake);
-        let logits = discriminator.forward(d_input.view());
+        let logits = gan.discriminator.forward(d_input.view());
         let grad = d_grad.as_slice_mut().expect("contiguous");
         let (real_grad, fake_grad) = grad.split_at_mut(batch);
         let d_loss = bce_with_logits(logits.slice(s![..batch, ..]), REAL_LABEL, real_grad)
             + bce_with_logits(logits.slice(s![batch.., ..]), 0.0, fake_grad);
-        discriminator.backward(d_grad.view(), true, false);
-        discriminator.adam_step(Adam::GAN);
+        gan.discriminator.backward(d_grad.view(), true, false);
+        gan.discriminator.adam_step(Adam::GAN);
 
         // Generator step: make the updated discriminator call the fakes real.
-        let logits = discriminator.forward(d_input.slice(s![batch.., ..]));
+        let logits = gan.discriminator.forward(d_input.slice(s![batch.., ..]));
         let grad = &mut d_grad.as_slice_mut().expect("contiguous")[..batch];
         let g_loss = bce_with_logits(logits, 1.0, grad);
-        let d_fake = discriminator.backward(d_grad.slice(s![..batch, ..]), false, true);
-        generator.backward(d_fake.slice(s![.., ..cells]), true, false);
-        generator.adam_step(Adam::GAN);
+        let d_fake = gan
+            .discriminator
+            .backward(d_grad.slice(s![..batch, ..]), false, true);
+        gan.generator
+            .backward(d_fake.slice(s![.., ..cells]), true, false);
+        gan.generator.adam_step(Adam::GAN);
 
         progress(
             iteration,
@@ -144,11 +169,11 @@ pub fn train(data: &GanData, config: GanConfig, mut progress: impl FnMut(usize, 
                 generator: g_loss,
             },
         );
+        if every.is_some_and(|k| iteration % k == 0) {
+            checkpoint(iteration, &gan)?;
+        }
     }
-    Gan {
-        generator,
-        discriminator,
-    }
+    Ok(gan)
 }
 
 #[cfg(test)]
@@ -188,6 +213,56 @@ mod tests {
         assert_eq!(a.generator.layers[3].w, b.generator.layers[3].w);
         let c = train(&data, GanConfig { seed: 12, ..config }, |_, _| {});
         assert_ne!(a.generator.layers[3].w, c.generator.layers[3].w);
+    }
+
+    #[test]
+    fn checkpoints_come_every_k_iterations_without_changing_training() {
+        let data = toy();
+        let config = GanConfig {
+            iterations: 7,
+            batch: 4,
+            seed: 3,
+        };
+        let every = std::num::NonZeroUsize::new(3);
+        let mut seen = Vec::new();
+        let with = train_with_checkpoints(
+            &data,
+            config,
+            every,
+            |_, _| {},
+            |i, gan| {
+                seen.push((i, gan.generator.layers[3].w.clone()));
+                Ok::<(), ()>(())
+            },
+        )
+        .unwrap();
+        assert_eq!(seen.iter().map(|s| s.0).collect::<Vec<_>>(), [3, 6]);
+        let plain = train(&data, config, |_, _| {});
+        assert_eq!(with.generator.layers[3].w, plain.generator.layers[3].w);
+        // The checkpoint after 6 iterations is what a 6-iteration run gives.
+        let six = train(
+            &data,
+            GanConfig {
+                iterations: 6,
+                ..config
+            },
+            |_, _| {},
+        );
+        assert_eq!(seen[1].1, six.generator.layers[3].w);
+        // The first failing checkpoint stops training with its error.
+        let mut calls = 0;
+        let failed = train_with_checkpoints(
+            &data,
+            config,
+            std::num::NonZeroUsize::new(2),
+            |_, _| {},
+            |i, _| {
+                calls += 1;
+                if i == 4 { Err(i) } else { Ok(()) }
+            },
+        );
+        assert_eq!(failed.err(), Some(4));
+        assert_eq!(calls, 2);
     }
 
     #[test]

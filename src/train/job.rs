@@ -7,6 +7,12 @@
 //! `conditional`, `conditional_generator.onnx` and
 //! `conditional_discriminator.onnx` (on every walk, each in both directions).
 //! From a survey: `cell_classifier.onnx`, with sessions held out.
+//!
+//! With `checkpoint_every`, each GAN's generator and discriminator are also
+//! written every that many iterations to `checkpoints/iter-<N>/`, the same
+//! files with `iterations` = N in their metadata, so a checkpoint directory
+//! loads like any models directory (`gangway eval planning --checkpoints`
+//! plots the deviation score over them).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -37,6 +43,8 @@ pub struct Options {
     /// Iterations of the path classifier and of the cell classifier.
     pub classifier_iterations: usize,
     pub heldout_share: f64,
+    /// Also write the GANs every this many iterations (`checkpoints/`).
+    pub checkpoint_every: Option<std::num::NonZeroUsize>,
 }
 
 /// A model written by a training run.
@@ -146,9 +154,24 @@ pub fn train_paths(
     };
     let started = Instant::now();
     progress.stage("GAN", gan_config.iterations);
-    let mut trained = gan::train(&data, gan_config, |i, l| {
-        progress.step(i, &[("d", l.discriminator), ("g", l.generator)])
-    });
+    let meta = gan_metadata(Kind::Generator, site, set, options);
+    let mut trained = gan::train_with_checkpoints(
+        &data,
+        gan_config,
+        options.checkpoint_every,
+        |i, l| progress.step(i, &[("d", l.discriminator), ("g", l.generator)]),
+        |i, gan| {
+            write_checkpoint(
+                out,
+                i,
+                [Kind::Generator, Kind::Discriminator],
+                gan,
+                set.frames.ncols(),
+                None,
+                &meta,
+            )
+        },
+    )?;
     progress.done();
     let gan_seconds = started.elapsed().as_secs_f64();
     let mut metrics = measure_generator(
@@ -164,7 +187,7 @@ pub fn train_paths(
         &trained,
         set.frames.ncols(),
         None,
-        gan_metadata(Kind::Generator, site, set, options),
+        meta,
         &metrics,
         started,
     )?);
@@ -173,9 +196,25 @@ pub fn train_paths(
         let started = Instant::now();
         let data = conditional_data(set);
         progress.stage("conditional GAN", gan_config.iterations);
-        let mut trained = gan::train(&data, gan_config, |i, l| {
-            progress.step(i, &[("d", l.discriminator), ("g", l.generator)])
-        });
+        let meta = gan_metadata(Kind::ConditionalGenerator, site, set, options);
+        let condition_len = condition::len(set.width, set.height);
+        let mut trained = gan::train_with_checkpoints(
+            &data,
+            gan_config,
+            options.checkpoint_every,
+            |i, l| progress.step(i, &[("d", l.discriminator), ("g", l.generator)]),
+            |i, gan| {
+                write_checkpoint(
+                    out,
+                    i,
+                    [Kind::ConditionalGenerator, Kind::ConditionalDiscriminator],
+                    gan,
+                    set.frames.ncols(),
+                    Some(condition_len),
+                    &meta,
+                )
+            },
+        )?;
         progress.done();
         let seconds = started.elapsed().as_secs_f64();
         let (hits, cells) = endpoint_hits(set, &mut trained.generator, options.seed);
@@ -189,8 +228,8 @@ pub fn train_paths(
             [Kind::ConditionalGenerator, Kind::ConditionalDiscriminator],
             &trained,
             set.frames.ncols(),
-            Some(condition::len(set.width, set.height)),
-            gan_metadata(Kind::ConditionalGenerator, site, set, options),
+            Some(condition_len),
+            meta,
             &metrics,
             started,
         )?);
@@ -346,6 +385,37 @@ fn write_gan(
         )
     })
     .collect()
+}
+
+/// Writes the GAN as it is after `iteration` iterations to
+/// `out/checkpoints/iter-<iteration>/` with [`write_gan`]; its metadata says
+/// `iteration` iterations and carries no metrics (none are measured mid-run).
+fn write_checkpoint(
+    out: &Path,
+    iteration: usize,
+    kinds: [Kind; 2],
+    gan: &gan::Gan,
+    frame_len: usize,
+    condition: Option<usize>,
+    meta: &Metadata,
+) -> anyhow::Result<()> {
+    let dir = out.join("checkpoints").join(format!("iter-{iteration:07}"));
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let meta = Metadata {
+        iterations: iteration,
+        ..meta.clone()
+    };
+    write_gan(
+        &dir,
+        kinds,
+        gan,
+        frame_len,
+        condition,
+        meta,
+        &BTreeMap::new(),
+        Instant::now(),
+    )?;
+    Ok(())
 }
 
 fn write(out: &Path, spec: &Spec, meta: Metadata, started: Instant) -> anyhow::Result<Trained> {
