@@ -74,9 +74,20 @@ fn load(
     Ok((config, std::sync::Arc::new(site)))
 }
 
-/// A tokio runtime for subcommands that do network I/O.
+/// A tokio runtime for the long-running subcommands (`run`, `record`):
+/// worker threads, so one busy task never holds up the broker link.
 fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
     Ok(tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?)
+}
+
+/// A one-thread runtime for batch work (`replay`): the pipeline and the MQTT
+/// link take turns on one thread, so handing each message to the link costs
+/// no cross-thread wake-up (a third of replay's time with the multi-thread
+/// runtime).
+fn batch_runtime() -> anyhow::Result<tokio::runtime::Runtime> {
+    Ok(tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?)
 }

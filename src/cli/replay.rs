@@ -90,7 +90,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let mut pipeline = Pipeline::new(&config, site.clone())?;
     let client_id = format!("{}-replay", config.client_id());
 
-    super::runtime()?.block_on(async {
+    super::batch_runtime()?.block_on(async {
         // --print or --score without a broker configured: stdout is the only sink.
         let url = match (
             args.mqtt_url.clone(),
