@@ -40,6 +40,13 @@ pub struct Args {
     /// Also train a generator conditioned on source and destination cells.
     #[arg(long)]
     conditional: bool,
+    /// Weight of the GANs' access penalty: pushes the generators' output toward
+    /// "off" on the site's non-walkable cells (no walk lights one). 0 trains the
+    /// paper's plain loss; on the sample site no weight tried removed the
+    /// conditional generator's off-area cells without hurting its routes
+    /// (docs/trajectories.md).
+    #[arg(long, default_value_t = 0.0)]
+    access_weight: f32,
     /// Iterations of the path classifier and of the cell classifier.
     #[arg(long, default_value_t = 3_000)]
     classifier_iterations: usize,
@@ -70,6 +77,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         "nothing to train: give --trajectories and/or --from-store (path models), and/or --survey (cell classifier)"
     );
     anyhow::ensure!(args.batch > 0, "--batch must be at least 1");
+    anyhow::ensure!(
+        args.access_weight.is_finite() && args.access_weight >= 0.0,
+        "--access-weight must be a number ≥ 0 (0 turns the access penalty off)"
+    );
     anyhow::ensure!(
         args.heldout > 0.0 && args.heldout < 1.0,
         "--heldout must be between 0 and 1"
@@ -113,7 +124,12 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         };
         walks = Some((set.walks.len(), set.classes.len()));
         written.extend(job::train_paths(
-            &site, &set, &options, &args.out, &mut bars,
+            &site,
+            &set,
+            &options,
+            args.access_weight,
+            &args.out,
+            &mut bars,
         )?);
     }
     if let Some(path) = &args.survey {
@@ -145,6 +161,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             "iterations": args.iterations,
             "batch": args.batch,
             "seed": args.seed,
+            "access_weight": args.access_weight,
             "models": models,
         });
         println!("{}", serde_json::to_string_pretty(&summary)?);

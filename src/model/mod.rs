@@ -114,6 +114,9 @@ pub struct Metadata {
     pub noise_dim: usize,
     pub iterations: usize,
     pub seed: u64,
+    /// Weight of the access penalty the GAN was trained with (0: the paper's
+    /// plain loss, and what a file without the key was trained with).
+    pub access_weight: f32,
     /// Measured quality, e.g. `heldout_error`; free-form numbers for the model card.
     pub metrics: BTreeMap<String, f64>,
 }
@@ -157,6 +160,7 @@ const KEY_ANCHORS: &str = "gangway.anchors";
 const KEY_NOISE_DIM: &str = "gangway.noise_dim";
 const KEY_ITERATIONS: &str = "gangway.iterations";
 const KEY_SEED: &str = "gangway.seed";
+const KEY_ACCESS_WEIGHT: &str = "gangway.access_weight";
 const KEY_METRICS: &str = "gangway.metrics";
 
 impl Metadata {
@@ -174,6 +178,7 @@ impl Metadata {
             noise_dim: 0,
             iterations: 0,
             seed: 0,
+            access_weight: 0.0,
             metrics: BTreeMap::new(),
         }
     }
@@ -191,6 +196,7 @@ impl Metadata {
             (KEY_NOISE_DIM, self.noise_dim.to_string()),
             (KEY_ITERATIONS, self.iterations.to_string()),
             (KEY_SEED, self.seed.to_string()),
+            (KEY_ACCESS_WEIGHT, self.access_weight.to_string()),
             (KEY_METRICS, json(&self.metrics)),
         ];
         props.sort();
@@ -258,6 +264,12 @@ impl Metadata {
             noise_dim: parse(get(KEY_NOISE_DIM)?, KEY_NOISE_DIM, &bad)?,
             iterations: parse(get(KEY_ITERATIONS)?, KEY_ITERATIONS, &bad)?,
             seed: parse(get(KEY_SEED)?, KEY_SEED, &bad)?,
+            // Optional: models written before the access penalty existed lack it.
+            access_weight: props
+                .get(KEY_ACCESS_WEIGHT)
+                .map(|v| parse(v, KEY_ACCESS_WEIGHT, &bad))
+                .transpose()?
+                .unwrap_or(0.0),
             metrics: json(get(KEY_METRICS)?, KEY_METRICS, &bad)?,
         })
     }
@@ -333,6 +345,7 @@ mod tests {
         }];
         meta.iterations = 10;
         meta.seed = 3;
+        meta.access_weight = 0.25;
         meta.metrics.insert("heldout_error".into(), 0.01);
         let props: BTreeMap<String, String> = meta.to_props().into_iter().collect();
         assert_eq!(
@@ -342,6 +355,19 @@ mod tests {
         let back = Metadata::from_props(&props, "m.onnx").unwrap();
         assert_eq!(back, meta);
         back.check_site(&s, "m.onnx").unwrap();
+        let mut older = props.clone();
+        older.remove("gangway.access_weight");
+        let back = Metadata::from_props(&older, "m.onnx").unwrap();
+        assert_eq!(
+            back.access_weight, 0.0,
+            "a model without the key had no penalty"
+        );
+        let mut bad = props.clone();
+        bad.insert("gangway.access_weight".into(), "heavy".into());
+        let err = Metadata::from_props(&bad, "m.onnx")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("metadata `gangway.access_weight`"), "{err}");
 
         let other_map = site("###\n###");
         let err = back

@@ -13,12 +13,18 @@
 //! its noise, the discriminator to the frame. Each iteration, the fake batch is
 //! generated for the same conditions as the real batch.
 //!
+//! Access penalty (not in the paper; off with a weight of 0): the generator's
+//! loss also has a term that drives its output toward −1 on the cells outside
+//! the site's public-access area, which no walk ever lights ([`access_penalty`]).
+//! The adversarial loss learns that only from what the discriminator notices;
+//! the conditional generator kept lighting a few blocked cells for some pairs.
+//!
 //! One iteration = one discriminator step on `batch` real and `batch` fake frames
 //! (one matrix product of `2·batch` rows) then one generator step on the same
 //! fakes. Everything is drawn from one seeded RNG: a seed gives the same weights,
 //! bit for bit, on the same machine and build.
 
-use ndarray::{Array2, s};
+use ndarray::{Array2, ArrayView2, s};
 use rand::rngs::Xoshiro256PlusPlus;
 use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
@@ -52,11 +58,26 @@ pub struct GanConfig {
     pub seed: u64,
 }
 
+/// The access penalty's settings: which cells no path may light, and how
+/// much lighting them costs.
+#[derive(Clone, Debug)]
+pub struct Access {
+    /// Frame indices of the cells outside the public-access area (the site's
+    /// non-walkable cells).
+    pub blocked: Vec<usize>,
+    /// Weight λ of [`access_penalty`] in the generator's loss; 0 trains the
+    /// paper's plain loss (the same weights, bit for bit, as no penalty).
+    pub weight: f32,
+}
+
 /// Losses at one iteration, for progress output.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct GanLosses {
     pub discriminator: f32,
+    /// The adversarial part of the generator's loss.
     pub generator: f32,
+    /// The access penalty, weighted (0 when off).
+    pub access: f32,
 }
 
 pub struct Gan {
@@ -64,9 +85,10 @@ pub struct Gan {
     pub discriminator: Mlp,
 }
 
-/// Trains a GAN on `data`; `progress` is called after every iteration.
+/// Trains a GAN on `data` with the paper's loss; `progress` is called after
+/// every iteration.
 pub fn train(data: &GanData, config: GanConfig, progress: impl FnMut(usize, GanLosses)) -> Gan {
-    match train_with_checkpoints(data, config, None, progress, |_, _| {
+    match train_with_checkpoints(data, config, None, None, progress, |_, _| {
         Ok::<(), std::convert::Infallible>(())
     }) {
         Ok(gan) => gan,
@@ -74,12 +96,13 @@ pub fn train(data: &GanData, config: GanConfig, progress: impl FnMut(usize, GanL
     }
 }
 
-/// [`train`], also handing the networks to `checkpoint` after every
-/// `every`-th iteration (`None`: never); the first error it returns stops
-/// training.
+/// [`train`], with the `access` penalty in the generator's loss (`None`:
+/// none), and handing the networks to `checkpoint` after every `every`-th
+/// iteration (`None`: never); the first error it returns stops training.
 pub fn train_with_checkpoints<E>(
     data: &GanData,
     config: GanConfig,
+    access: Option<&Access>,
     every: Option<std::num::NonZeroUsize>,
     mut progress: impl FnMut(usize, GanLosses),
     mut checkpoint: impl FnMut(usize, &Gan) -> Result<(), E>,
@@ -119,6 +142,9 @@ pub fn train_with_checkpoints<E>(
     let mut g_input = Array2::<f32>::zeros((batch, NOISE_DIM + cond_dim));
     let mut d_input = Array2::<f32>::zeros((2 * batch, cells + cond_dim));
     let mut d_grad = Array2::<f32>::zeros((2 * batch, 1));
+    let access = access.filter(|a| a.weight != 0.0 && !a.blocked.is_empty());
+    // Zero outside the blocked columns, which are rewritten every iteration.
+    let mut access_grad = Array2::<f32>::zeros((batch, cells));
     let mut picks = vec![0usize; batch];
     for iteration in 1..=config.iterations {
         for p in &mut picks {
@@ -155,11 +181,24 @@ pub fn train_with_checkpoints<E>(
         let logits = gan.discriminator.forward(d_input.slice(s![batch.., ..]));
         let grad = &mut d_grad.as_slice_mut().expect("contiguous")[..batch];
         let g_loss = bce_with_logits(logits, 1.0, grad);
+        // The fakes the discriminator just judged are the generator's output.
+        let access_loss = access.map_or(0.0, |a| {
+            access_penalty(
+                d_input.slice(s![batch.., ..cells]),
+                &a.blocked,
+                a.weight,
+                &mut access_grad,
+            )
+        });
         let d_fake = gan
             .discriminator
             .backward(d_grad.slice(s![..batch, ..]), false, true);
-        gan.generator
-            .backward(d_fake.slice(s![.., ..cells]), true, false);
+        gan.generator.backward_with_logit_grad(
+            d_fake.slice(s![.., ..cells]),
+            access.map(|_| access_grad.view()),
+            true,
+            false,
+        );
         gan.generator.adam_step(Adam::GAN);
 
         progress(
@@ -167,6 +206,7 @@ pub fn train_with_checkpoints<E>(
             GanLosses {
                 discriminator: d_loss,
                 generator: g_loss,
+                access: access_loss,
             },
         );
         if every.is_some_and(|k| iteration % k == 0) {
@@ -174,6 +214,37 @@ pub fn train_with_checkpoints<E>(
         }
     }
     Ok(gan)
+}
+
+/// The access penalty of a batch of generated frames `out` (tanh outputs):
+/// for each frame, the binary cross-entropy of `(out + 1) / 2` against 0 on
+/// each `blocked` cell (no walk lights one), summed over those cells; averaged
+/// over frames and times `weight`. Writes the penalty's gradient with respect
+/// to the output layer's pre-activation `a` into the `blocked` columns of
+/// `grad` and returns the penalty.
+///
+/// As `(tanh a + 1) / 2 = σ(2a)`, a cell's term is `softplus(2a)` and its
+/// gradient `2σ(2a) = 1 + out`: exact, and it never vanishes, however
+/// saturated a wrongly lit cell is (through the output it would, as
+/// `1 − out²`). The returned loss caps a term at `−ln ε` (~16) where `out`
+/// rounds to 1 in f32; the gradient needs no cap.
+pub fn access_penalty(
+    out: ArrayView2<f32>,
+    blocked: &[usize],
+    weight: f32,
+    grad: &mut Array2<f32>,
+) -> f32 {
+    let scale = weight / out.nrows() as f32;
+    let mut loss = 0.0;
+    for (row, mut g) in out.rows().into_iter().zip(grad.rows_mut()) {
+        for &cell in blocked {
+            let y = row[cell];
+            let lit = ((1.0 + y) / 2.0).min(1.0 - f32::EPSILON);
+            loss -= (-lit).ln_1p();
+            g[cell] = scale * (1.0 + y);
+        }
+    }
+    scale * loss
 }
 
 #[cfg(test)]
@@ -196,6 +267,26 @@ mod tests {
             frames,
             conditions: None,
         }
+    }
+
+    /// The toy's corners are outside its "site": no path lights them.
+    fn corners(weight: f32) -> Access {
+        Access {
+            blocked: vec![0, 2, 6, 8],
+            weight,
+        }
+    }
+
+    fn train_penalized(
+        data: &GanData,
+        config: GanConfig,
+        access: &Access,
+        progress: impl FnMut(usize, GanLosses),
+    ) -> Gan {
+        train_with_checkpoints(data, config, Some(access), None, progress, |_, _| {
+            Ok::<(), ()>(())
+        })
+        .unwrap()
     }
 
     #[test]
@@ -228,6 +319,7 @@ mod tests {
         let with = train_with_checkpoints(
             &data,
             config,
+            None,
             every,
             |_, _| {},
             |i, gan| {
@@ -254,6 +346,7 @@ mod tests {
         let failed = train_with_checkpoints(
             &data,
             config,
+            None,
             std::num::NonZeroUsize::new(2),
             |_, _| {},
             |i, _| {
@@ -263,6 +356,120 @@ mod tests {
         );
         assert_eq!(failed.err(), Some(4));
         assert_eq!(calls, 2);
+    }
+
+    /// The penalty's gradient, fed in at the pre-activation, is the gradient of
+    /// the penalty it returns: checked through the whole network against
+    /// finite differences of the input.
+    #[test]
+    fn access_penalty_gradient_matches_finite_differences() {
+        let mut net = Mlp::new(&[3, 5, 4], &[Act::LeakyRelu, Act::Tanh], 2, 5);
+        let x = ndarray::array![[0.4f32, -0.7, 1.2], [-1.1, 0.3, 0.6]];
+        let blocked = [0, 2, 3];
+        let mut grad = Array2::zeros((2, 4));
+        let penalty_at = |net: &mut Mlp, x: &Array2<f32>, grad: &mut Array2<f32>| {
+            let out = net.forward(x.view()).to_owned();
+            access_penalty(out.view(), &blocked, 1.5, grad)
+        };
+        penalty_at(&mut net, &x, &mut grad);
+        assert_eq!(
+            grad.column(1).sum(),
+            0.0,
+            "only blocked columns get a gradient"
+        );
+        let zero = Array2::zeros((2, 4));
+        let dx = net
+            .backward_with_logit_grad(zero.view(), Some(grad.view()), false, true)
+            .to_owned();
+        let eps = 1e-2;
+        for (r, c) in [(0, 0), (1, 2)] {
+            let (mut up, mut down) = (x.clone(), x.clone());
+            up[(r, c)] += eps;
+            down[(r, c)] -= eps;
+            let numeric = (penalty_at(&mut net, &up, &mut grad.clone())
+                - penalty_at(&mut net, &down, &mut grad.clone()))
+                / (2.0 * eps);
+            assert!(
+                (dx[(r, c)] - numeric).abs() < 2e-3,
+                "x[{r},{c}]: {} vs {numeric}",
+                dx[(r, c)]
+            );
+        }
+    }
+
+    /// A saturated wrongly lit cell still gets the full gradient, 1 + out = 2.
+    #[test]
+    fn access_penalty_does_not_vanish_when_saturated() {
+        let out = ndarray::array![[1.0f32, -1.0, 0.0]];
+        let mut grad = Array2::zeros((1, 3));
+        let loss = access_penalty(out.view(), &[0, 1, 2], 1.0, &mut grad);
+        assert_eq!(grad.row(0).to_vec(), [2.0, 0.0, 1.0]);
+        assert!(loss.is_finite() && loss > 2f32.ln());
+    }
+
+    /// Mean and largest output on the blocked cells over 256 generated frames.
+    fn blocked_outputs(gan: &mut Gan, blocked: &[usize]) -> (f32, f32) {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(99);
+        let noise =
+            Array2::from_shape_simple_fn((256, NOISE_DIM), || StandardNormal.sample(&mut rng));
+        let out = gan.generator.predict(noise.view());
+        let values: Vec<f32> = out
+            .rows()
+            .into_iter()
+            .flat_map(|row| blocked.iter().map(move |&c| row[c]))
+            .collect();
+        let mean = values.iter().sum::<f32>() / values.len() as f32;
+        (mean, values.iter().copied().fold(f32::MIN, f32::max))
+    }
+
+    #[test]
+    fn the_access_penalty_drives_blocked_cells_off() {
+        let data = toy();
+        let config = GanConfig {
+            iterations: 150,
+            batch: 4,
+            seed: 5,
+        };
+        let access = corners(1.0);
+        let mut plain = train(&data, config, |_, _| {});
+        let (mut first, mut last) = (None, 0.0);
+        let mut penalized = train_penalized(&data, config, &access, |_, l| {
+            first.get_or_insert(l.access);
+            last = l.access;
+        });
+        let (plain_mean, _) = blocked_outputs(&mut plain, &access.blocked);
+        let (mean, max) = blocked_outputs(&mut penalized, &access.blocked);
+        assert!(max < 0.0, "a blocked cell is lit: {max}");
+        assert!(mean < plain_mean - 0.05, "{mean} vs {plain_mean} without");
+        let first = first.expect("progress was called");
+        assert!(last < first / 2.0, "penalty {first} → {last}");
+    }
+
+    #[test]
+    fn a_zero_access_weight_is_the_plain_loss_bit_for_bit() {
+        let data = toy();
+        let config = GanConfig {
+            iterations: 6,
+            batch: 4,
+            seed: 2,
+        };
+        let mut losses = Vec::new();
+        let plain = train(&data, config, |_, _| {});
+        let zero = train_penalized(&data, config, &corners(0.0), |_, l| losses.push(l.access));
+        assert!(losses.iter().all(|&l| l == 0.0));
+        for (a, b) in plain.generator.layers.iter().zip(&zero.generator.layers) {
+            assert_eq!((&a.w, &a.b), (&b.w, &b.b));
+        }
+        for (a, b) in plain
+            .discriminator
+            .layers
+            .iter()
+            .zip(&zero.discriminator.layers)
+        {
+            assert_eq!((&a.w, &a.b), (&b.w, &b.b));
+        }
+        let weighted = train_penalized(&data, config, &corners(0.5), |_, _| {});
+        assert_ne!(plain.generator.layers[3].w, weighted.generator.layers[3].w);
     }
 
     #[test]

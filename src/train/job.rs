@@ -71,11 +71,14 @@ const EVAL_SAMPLES: usize = 1024;
 /// at least this probability.
 const CONFIDENT: f32 = 0.9;
 
-/// Trains the path models on `set` and writes them to `out`.
+/// Trains the path models on `set` and writes them to `out`; the GANs'
+/// generators with the access penalty of `access_weight`
+/// ([`gan::access_penalty`], 0: the paper's plain loss).
 pub fn train_paths(
     site: &Site,
     set: &PathSet,
     options: &Options,
+    access_weight: f32,
     out: &Path,
     progress: &mut dyn Progress,
 ) -> anyhow::Result<Vec<Trained>> {
@@ -147,6 +150,10 @@ pub fn train_paths(
         frames,
         conditions: None,
     };
+    let access = gan::Access {
+        blocked: blocked_cells(site),
+        weight: access_weight,
+    };
     let gan_config = GanConfig {
         iterations: options.iterations,
         batch: options.batch,
@@ -154,12 +161,13 @@ pub fn train_paths(
     };
     let started = Instant::now();
     progress.stage("GAN", gan_config.iterations);
-    let meta = gan_metadata(Kind::Generator, site, set, options);
+    let meta = gan_metadata(Kind::Generator, site, set, options, access.weight);
     let mut trained = gan::train_with_checkpoints(
         &data,
         gan_config,
+        Some(&access),
         options.checkpoint_every,
-        |i, l| progress.step(i, &[("d", l.discriminator), ("g", l.generator)]),
+        |i, l| progress.step(i, &gan_losses(l)),
         |i, gan| {
             write_checkpoint(
                 out,
@@ -196,13 +204,20 @@ pub fn train_paths(
         let started = Instant::now();
         let data = conditional_data(set);
         progress.stage("conditional GAN", gan_config.iterations);
-        let meta = gan_metadata(Kind::ConditionalGenerator, site, set, options);
+        let meta = gan_metadata(
+            Kind::ConditionalGenerator,
+            site,
+            set,
+            options,
+            access.weight,
+        );
         let condition_len = condition::len(set.width, set.height);
         let mut trained = gan::train_with_checkpoints(
             &data,
             gan_config,
+            Some(&access),
             options.checkpoint_every,
-            |i, l| progress.step(i, &[("d", l.discriminator), ("g", l.generator)]),
+            |i, l| progress.step(i, &gan_losses(l)),
             |i, gan| {
                 write_checkpoint(
                     out,
@@ -217,12 +232,8 @@ pub fn train_paths(
         )?;
         progress.done();
         let seconds = started.elapsed().as_secs_f64();
-        let (hits, cells) = endpoint_hits(set, &mut trained.generator, options.seed);
-        let metrics = BTreeMap::from([
-            ("endpoint_hit_share".to_owned(), hits),
-            ("mean_path_cells".to_owned(), cells),
-            ("train_seconds".to_owned(), seconds),
-        ]);
+        let mut metrics = measure_conditional(site, set, &mut trained.generator, options.seed);
+        metrics.insert("train_seconds".into(), seconds);
         written.extend(write_gan(
             out,
             [Kind::ConditionalGenerator, Kind::ConditionalDiscriminator],
@@ -319,13 +330,38 @@ pub fn train_cells(
     )
 }
 
-fn gan_metadata(kind: Kind, site: &Site, set: &PathSet, options: &Options) -> Metadata {
+fn gan_metadata(
+    kind: Kind,
+    site: &Site,
+    set: &PathSet,
+    options: &Options,
+    access_weight: f32,
+) -> Metadata {
     let mut meta = Metadata::for_site(kind, site);
     meta.classes = set.classes.clone();
     meta.noise_dim = NOISE_DIM;
     meta.iterations = options.iterations;
     meta.seed = options.seed;
+    meta.access_weight = access_weight;
     meta
+}
+
+/// What the progress bar shows of a GAN iteration.
+fn gan_losses(l: gan::GanLosses) -> [(&'static str, f32); 3] {
+    [
+        ("d", l.discriminator),
+        ("g", l.generator),
+        ("access", l.access),
+    ]
+}
+
+/// Frame indices of the site's cells outside its public-access area.
+fn blocked_cells(site: &Site) -> Vec<usize> {
+    (0..site.height())
+        .flat_map(|y| (0..site.width()).map(move |x| Cell::new(x, y)))
+        .filter(|&c| !site.walkable(c))
+        .map(|c| site.grid_index(c))
+        .collect()
 }
 
 /// Writes a trained GAN's generator and discriminator (`kinds`, in that order)
@@ -479,19 +515,7 @@ fn measure_generator(
 ) -> BTreeMap<String, f64> {
     let frames = generator.predict(noise(EVAL_SAMPLES, seed).view());
     let binary = frames.mapv(|v| f32::from(u8::from(v > 0.0)));
-    let (mut on, mut walkable) = (0usize, 0usize);
-    for row in binary.rows() {
-        for (i, &v) in row.iter().enumerate() {
-            if v > 0.0 {
-                on += 1;
-                let cell = Cell::new(
-                    (i % usize::from(site.width())) as u16,
-                    (i / usize::from(site.width())) as u16,
-                );
-                walkable += usize::from(site.walkable(cell));
-            }
-        }
-    }
+    let (on, walkable) = lit_cells(site, &frames);
     let logits = classifier.predict(binary.view());
     let confident = logits
         .rows()
@@ -519,6 +543,25 @@ fn measure_generator(
     ])
 }
 
+/// Cells on the path (> 0) in generated `frames`, and how many of them are
+/// walkable.
+fn lit_cells(site: &Site, frames: &Array2<f32>) -> (usize, usize) {
+    let (mut on, mut walkable) = (0usize, 0usize);
+    for row in frames.rows() {
+        for (i, &v) in row.iter().enumerate() {
+            if v > 0.0 {
+                on += 1;
+                let cell = Cell::new(
+                    (i % usize::from(site.width())) as u16,
+                    (i / usize::from(site.width())) as u16,
+                );
+                walkable += usize::from(site.walkable(cell));
+            }
+        }
+    }
+    (on, walkable)
+}
+
 /// Share of distinct frames among generated ones: near 0 means the generator
 /// collapsed to a few frames.
 fn distinct_share(binary: &Array2<f32>) -> f64 {
@@ -530,10 +573,16 @@ fn distinct_share(binary: &Array2<f32>) -> f64 {
     distinct.len() as f64 / binary.nrows().max(1) as f64
 }
 
-/// Share of frames generated for each class (both directions) that have both
-/// the source and the destination on the path, and their mean size (a frame
-/// with every cell on would hit trivially).
-fn endpoint_hits(set: &PathSet, generator: &mut Mlp, seed: u64) -> (f64, f64) {
+/// How well the conditional generator answers each class pair (both
+/// directions): the share of its frames that have both the source and the
+/// destination on the path, their mean size (a frame with every cell on would
+/// hit trivially) and the share of their path cells that are walkable.
+fn measure_conditional(
+    site: &Site,
+    set: &PathSet,
+    generator: &mut Mlp,
+    seed: u64,
+) -> BTreeMap<String, f64> {
     let per_class = EVAL_SAMPLES / (2 * set.classes.len()).max(1) + 1;
     let rows = per_class * 2 * set.classes.len();
     let len = condition::len(set.width, set.height);
@@ -573,6 +622,13 @@ fn endpoint_hits(set: &PathSet, generator: &mut Mlp, seed: u64) -> (f64, f64) {
         .zip(&ends)
         .filter(|(row, (a, b))| row[index(*a)] > 0.0 && row[index(*b)] > 0.0)
         .count();
-    let on = frames.iter().filter(|&&v| v > 0.0).count();
-    (hits as f64 / rows as f64, on as f64 / rows as f64)
+    let (on, walkable) = lit_cells(site, &frames);
+    BTreeMap::from([
+        ("endpoint_hit_share".to_owned(), hits as f64 / rows as f64),
+        ("mean_path_cells".to_owned(), on as f64 / rows as f64),
+        (
+            "walkable_share".to_owned(),
+            walkable as f64 / on.max(1) as f64,
+        ),
+    ])
 }

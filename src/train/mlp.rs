@@ -210,6 +210,22 @@ impl Mlp {
         param_grads: bool,
         input_grad: bool,
     ) -> ArrayView2<'_, f32> {
+        self.backward_with_logit_grad(grad_out, None, param_grads, input_grad)
+    }
+
+    /// [`Mlp::backward`], with `logit_grad` (the shape of `grad_out`), the
+    /// gradient of a further loss with respect to the last layer's
+    /// pre-activation, added to what `grad_out` gives there. A loss defined on
+    /// the pre-activation must enter here, not through the output: in f32, tanh
+    /// rounds to exactly ±1 beyond |a| ≈ 9, where the chain through the output
+    /// would be ∞ · 0.
+    pub fn backward_with_logit_grad(
+        &mut self,
+        grad_out: ArrayView2<f32>,
+        logit_grad: Option<ArrayView2<f32>>,
+        param_grads: bool,
+        input_grad: bool,
+    ) -> ArrayView2<'_, f32> {
         let n = grad_out.nrows();
         let last = self.layers.len() - 1;
         for i in (0..=last).rev() {
@@ -236,6 +252,9 @@ impl Mlp {
                         .and(&out)
                         .for_each(|d, &y| *d *= 1.0 - y * y),
                     Act::Identity => {}
+                }
+                if let (true, Some(extra)) = (i == last, logit_grad) {
+                    delta += &extra;
                 }
             }
             if param_grads {
