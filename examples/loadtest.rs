@@ -113,7 +113,11 @@ async fn main() {
     let config = Config::load(&config_path).unwrap_or_else(|e| panic!("{e}"));
     let site = Site::load(&config.site).unwrap_or_else(|e| panic!("{e}"));
     let places: Vec<String> = site.places().keys().cloned().collect();
-    assert!(!places.is_empty(), "{}: the site names no places to route to", config.site.display());
+    assert!(
+        !places.is_empty(),
+        "{}: the site names no places to route to",
+        config.site.display()
+    );
     let topics = Topics::new(config.topic_prefix());
 
     // The broker.
@@ -168,18 +172,9 @@ async fn main() {
     let gateway = Guard(
         Command::new(gangway())
             .current_dir(root)
-            .args([
-                "run",
-                "--config",
-            ])
+            .args(["run", "--config"])
             .arg(&config_path)
-            .args([
-                "--mqtt-url",
-                &url,
-                "--speed",
-                "1",
-                "--replay",
-            ])
+            .args(["--mqtt-url", &url, "--speed", "1", "--replay"])
             .arg(&log)
             .env("RUST_LOG", "warn")
             .stdout(Stdio::null())
@@ -238,12 +233,7 @@ async fn main() {
             .to_string();
             sent.insert(id, Instant::now());
             client
-                .publish(
-                    topics.route_set(&device),
-                    QoS::AtLeastOnce,
-                    false,
-                    body,
-                )
+                .publish(topics.route_set(&device), QoS::AtLeastOnce, false, body)
                 .await
                 .unwrap();
             n += 1;

@@ -6,9 +6,9 @@ mod common;
 use std::path::Path;
 use std::sync::Arc;
 
+use gangway::model::runtime::PathClassifier;
 use gangway::plan::frame::route_from_frame;
 use gangway::plan::instructions::instructions;
-use gangway::model::runtime::PathClassifier;
 use gangway::plan::{
     Connectivity, ModelPaths, Origin, Planner, PlannerConfig, PlannerMode, Profile, astar::AStar,
     deviation_score,
@@ -155,7 +155,12 @@ fn gangway_plan_prints_json_and_draws_pictures() {
     ]);
     let body: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert_eq!(body["planner"], "conditional");
-    assert!(body["model_version"].as_str().unwrap().starts_with("conditional_generator@"));
+    assert!(
+        body["model_version"]
+            .as_str()
+            .unwrap()
+            .starts_with("conditional_generator@")
+    );
     assert_eq!(body["profile"], "default");
     assert!(!body["instructions"].as_array().unwrap().is_empty());
 
@@ -238,11 +243,8 @@ fn learned_modes_answer_every_place_pair_with_a_valid_route() {
 #[test]
 fn rejection_keeps_accepted_frames_of_other_pairs_for_later_requests() {
     let site = waldo();
-    let classifier = PathClassifier::load(
-        &common::root().join("models/path_classifier.onnx"),
-        &site,
-    )
-    .unwrap();
+    let classifier =
+        PathClassifier::load(&common::root().join("models/path_classifier.onnx"), &site).unwrap();
     let classes = classifier.classes().to_vec();
     let plan_all = |config: &PlannerConfig| {
         let planner = gangway::plan::build(config, site.clone()).unwrap();

@@ -12,8 +12,8 @@
 //! `skip_bad` it is counted and skipped instead, and the rest of the log still
 //! plays.
 
-use std::borrow::Cow;
 use foldhash::HashMap;
+use std::borrow::Cow;
 use std::fs::File;
 use std::io::{self, BufRead, BufReader, BufWriter, Write};
 use std::path::{Path, PathBuf};
@@ -400,7 +400,10 @@ mod tests {
             false,
         );
         let err = events[0].as_ref().unwrap_err().to_string();
-        assert!(err.ends_with(":1: unknown field `rssi` in a `truth` line"), "{err}");
+        assert!(
+            err.ends_with(":1: unknown field `rssi` in a `truth` line"),
+            "{err}"
+        );
         let err = events[1].as_ref().unwrap_err().to_string();
         assert!(err.ends_with(":2: missing field `to`"), "{err}");
     }
