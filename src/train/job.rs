@@ -159,93 +159,101 @@ pub fn train_paths(
         batch: options.batch,
         seed: options.seed,
     };
-    let started = Instant::now();
-    progress.stage("GAN", gan_config.iterations);
-    let meta = gan_metadata(Kind::Generator, site, set, options, access.weight);
-    let mut trained = gan::train_with_checkpoints(
-        &data,
-        gan_config,
-        Some(&access),
-        options.checkpoint_every,
-        |i, l| progress.step(i, &gan_losses(l)),
-        |i, gan| {
-            write_checkpoint(
-                out,
-                i,
-                [Kind::Generator, Kind::Discriminator],
-                gan,
-                set.frames.ncols(),
-                None,
-                &meta,
-            )
-        },
-    )?;
-    progress.done();
-    let gan_seconds = started.elapsed().as_secs_f64();
-    let mut metrics = measure_generator(
-        site,
-        &mut trained.generator,
-        &mut path_classifier,
-        options.seed,
-    );
-    metrics.insert("train_seconds".into(), gan_seconds);
-    written.extend(write_gan(
+    let frame_len = set.frames.ncols();
+    let plain = GanRun {
+        stage: "GAN",
+        kinds: [Kind::Generator, Kind::Discriminator],
+        data,
+        condition: None,
+        meta: gan_metadata(Kind::Generator, site, set, options, access.weight),
+    };
+    written.extend(train_gan(
         out,
-        [Kind::Generator, Kind::Discriminator],
-        &trained,
-        set.frames.ncols(),
-        None,
-        meta,
-        &metrics,
-        started,
+        plain,
+        gan_config,
+        &access,
+        options,
+        frame_len,
+        progress,
+        |generator| measure_generator(site, generator, &mut path_classifier, options.seed),
     )?);
 
     if options.conditional {
-        let started = Instant::now();
-        let data = conditional_data(set);
-        progress.stage("conditional GAN", gan_config.iterations);
-        let meta = gan_metadata(
-            Kind::ConditionalGenerator,
-            site,
-            set,
-            options,
-            access.weight,
-        );
-        let condition_len = condition::len(set.width, set.height);
-        let mut trained = gan::train_with_checkpoints(
-            &data,
-            gan_config,
-            Some(&access),
-            options.checkpoint_every,
-            |i, l| progress.step(i, &gan_losses(l)),
-            |i, gan| {
-                write_checkpoint(
-                    out,
-                    i,
-                    [Kind::ConditionalGenerator, Kind::ConditionalDiscriminator],
-                    gan,
-                    set.frames.ncols(),
-                    Some(condition_len),
-                    &meta,
-                )
-            },
-        )?;
-        progress.done();
-        let seconds = started.elapsed().as_secs_f64();
-        let mut metrics = measure_conditional(site, set, &mut trained.generator, options.seed);
-        metrics.insert("train_seconds".into(), seconds);
-        written.extend(write_gan(
+        let conditional = GanRun {
+            stage: "conditional GAN",
+            kinds: [Kind::ConditionalGenerator, Kind::ConditionalDiscriminator],
+            data: conditional_data(set),
+            condition: Some(condition::len(set.width, set.height)),
+            meta: gan_metadata(
+                Kind::ConditionalGenerator,
+                site,
+                set,
+                options,
+                access.weight,
+            ),
+        };
+        written.extend(train_gan(
             out,
-            [Kind::ConditionalGenerator, Kind::ConditionalDiscriminator],
-            &trained,
-            set.frames.ncols(),
-            Some(condition_len),
-            meta,
-            &metrics,
-            started,
+            conditional,
+            gan_config,
+            &access,
+            options,
+            frame_len,
+            progress,
+            |generator| measure_conditional(site, set, generator, options.seed),
         )?);
     }
     Ok(written)
+}
+
+/// One GAN to train: its progress stage, what it learns from and the model
+/// kinds it is written as.
+struct GanRun<'a> {
+    stage: &'a str,
+    kinds: [Kind; 2],
+    data: GanData,
+    /// Condition width (conditional GANs).
+    condition: Option<usize>,
+    meta: Metadata,
+}
+
+/// Trains `run` (writing checkpoints when asked for), measures its generator
+/// with `measure`, adds the training time and writes the pair to `out`.
+#[allow(clippy::too_many_arguments)]
+fn train_gan(
+    out: &Path,
+    run: GanRun,
+    config: GanConfig,
+    access: &gan::Access,
+    options: &Options,
+    frame_len: usize,
+    progress: &mut dyn Progress,
+    measure: impl FnOnce(&mut Mlp) -> BTreeMap<String, f64>,
+) -> anyhow::Result<Vec<Trained>> {
+    let started = Instant::now();
+    progress.stage(run.stage, config.iterations);
+    let mut trained = gan::train_with_checkpoints(
+        &run.data,
+        config,
+        Some(access),
+        options.checkpoint_every,
+        |i, l| progress.step(i, &gan_losses(l)),
+        |i, gan| write_checkpoint(out, i, run.kinds, gan, frame_len, run.condition, &run.meta),
+    )?;
+    progress.done();
+    let seconds = started.elapsed().as_secs_f64();
+    let mut metrics = measure(&mut trained.generator);
+    metrics.insert("train_seconds".into(), seconds);
+    write_gan(
+        out,
+        run.kinds,
+        &trained,
+        frame_len,
+        run.condition,
+        run.meta,
+        &metrics,
+        started,
+    )
 }
 
 /// Trains the localization cell classifier on `survey` and writes it to `out`.
