@@ -253,10 +253,9 @@ async fn main() {
     while latencies.len() < sent.len() && Instant::now() < deadline {
         if let Ok(Some((id, at))) =
             tokio::time::timeout(Duration::from_millis(100), rx.recv()).await
+            && let Some(t0) = sent.get(&id)
         {
-            if let Some(t0) = sent.get(&id) {
-                latencies.push(at.duration_since(*t0).as_secs_f64() * 1e3);
-            }
+            latencies.push(at.duration_since(*t0).as_secs_f64() * 1e3);
         }
     }
     drop(gateway);

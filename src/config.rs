@@ -98,7 +98,7 @@ impl Config {
         if !(w.length_s > 0.0 && w.stride_s > 0.0) {
             return Err("[window] `length_s` and `stride_s` must be positive seconds".into());
         }
-        if !(self.tracker.max_speed_mps > 0.0) {
+        if self.tracker.max_speed_mps.is_nan() || self.tracker.max_speed_mps <= 0.0 {
             return Err("[tracker] `max_speed_mps` must be positive".into());
         }
         if !(0.0..=1.0).contains(&self.tracker.stay_probability) {

@@ -376,6 +376,7 @@ fn blocked_cells(site: &Site) -> Vec<usize> {
 /// with the same metadata and metrics. Frames are `frame_len` wide; a
 /// conditional GAN takes its `condition` of the given width as a second input
 /// to both.
+#[allow(clippy::too_many_arguments)]
 fn write_gan(
     out: &Path,
     kinds: [Kind; 2],
