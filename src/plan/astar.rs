@@ -85,7 +85,8 @@ impl PartialOrd for Entry {
 
 /// A* from `from` to `to` over walkable cells. Entering a cell costs the step
 /// length (1 or √2) times `cell_cost(cell)`; pass factors ≥ 1 so the octile
-/// heuristic stays admissible.
+/// heuristic stays admissible. The default profile's search: every walkable
+/// cell passable, no cost of its own, no turn cost.
 pub fn search(
     site: &Site,
     connectivity: Connectivity,
@@ -93,17 +94,7 @@ pub fn search(
     to: Cell,
     cell_cost: impl Fn(Cell) -> f64,
 ) -> Result<Route, PlanError> {
-    search_with(
-        site,
-        connectivity,
-        from,
-        to,
-        &Costs {
-            passable: |c| site.walkable(c),
-            cell_cost,
-            turn_cost: 0.0,
-        },
-    )
+    profile_search(site, connectivity, from, to, Profile::Default, cell_cost)
 }
 
 /// What a search may use and what it pays.
