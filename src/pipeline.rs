@@ -47,17 +47,63 @@ pub struct Pipeline {
 impl Pipeline {
     /// Builds the pipeline a config describes, on an already loaded site.
     pub fn new(config: &Config, site: Arc<Site>) -> anyhow::Result<Pipeline> {
-        let localizer = locate::build(&config.localizer, &site, &config.window)?;
-        Ok(Pipeline {
+        Ok(Self::build(config, site, false)?.0)
+    }
+
+    /// [`Pipeline::new`] for a gateway starting up: a localizer or planner
+    /// whose files do not load (a missing survey, a corrupt model) is replaced
+    /// by the one that needs no files, `pathloss` or `astar`, instead of
+    /// stopping the gateway, so it keeps locating and routing while someone
+    /// fixes the file. Returns, for each replacement, what failed and what
+    /// serves instead.
+    pub fn with_fallbacks(
+        config: &Config,
+        site: Arc<Site>,
+    ) -> anyhow::Result<(Pipeline, Vec<String>)> {
+        Self::build(config, site, true)
+    }
+
+    fn build(
+        config: &Config,
+        site: Arc<Site>,
+        fall_back: bool,
+    ) -> anyhow::Result<(Pipeline, Vec<String>)> {
+        let mut fallbacks = Vec::new();
+        let localizer = match locate::build(&config.localizer, &site, &config.window) {
+            Err(e) if fall_back && config.localizer.method != locate::Method::Pathloss => {
+                fallbacks.push(format!(
+                    "[localizer] method = \"{}\" did not load ({e}); locating with pathloss",
+                    config.localizer.method.name()
+                ));
+                let pathloss = locate::LocalizerConfig {
+                    method: locate::Method::Pathloss,
+                    ..config.localizer.clone()
+                };
+                locate::build(&pathloss, &site, &config.window)?
+            }
+            built => built?,
+        };
+        let planner = match plan::build(&config.planner, site.clone()) {
+            Err(e) if fall_back && config.planner.mode != plan::PlannerMode::Astar => {
+                fallbacks.push(format!("{e:#}; planning with astar"));
+                plan::build_mode(&config.planner, plan::PlannerMode::Astar, site.clone())?
+            }
+            built => built?,
+        };
+        for fallback in &fallbacks {
+            tracing::error!("{fallback}");
+        }
+        let pipeline = Pipeline {
             windows: Windows::new(config.window.clone(), &site),
             localizer,
             tracker: Tracker::new(config.tracker.clone(), site.clone()),
-            planner: plan::build(&config.planner, site.clone())?,
+            planner,
             topics: Topics::new(config.topic_prefix()),
             log_likelihood: vec![0.0; site.open_cells().len()],
             site,
             stats: Stats::default(),
-        })
+        };
+        Ok((pipeline, fallbacks))
     }
 
     pub fn site(&self) -> &Arc<Site> {
@@ -218,5 +264,50 @@ impl Pipeline {
             )),
             Err(e) => error(e.code(), e.to_string()),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The shipped config with a localizer model and a planner model that do
+    /// not exist.
+    fn broken_config() -> Config {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let mut config = Config::load(&root.join("config/gangway.toml")).unwrap();
+        config.localizer.method = locate::Method::Onnx;
+        config.localizer.onnx.model = root.join("models/missing-cells.onnx");
+        config.planner.mode = plan::PlannerMode::Conditional;
+        config.planner.models.conditional_generator = root.join("models/missing-paths.onnx");
+        config
+    }
+
+    #[test]
+    fn files_that_fail_refuse_a_pipeline_or_fall_back_to_file_free_stages() {
+        let config = broken_config();
+        let site = Arc::new(Site::load(&config.site).unwrap());
+        assert!(Pipeline::new(&config, site.clone()).is_err());
+
+        let (pipeline, fallbacks) = Pipeline::with_fallbacks(&config, site).unwrap();
+        assert_eq!(fallbacks.len(), 2, "{fallbacks:?}");
+        assert!(
+            fallbacks[0].contains("missing-cells.onnx") && fallbacks[0].ends_with("pathloss"),
+            "{}",
+            fallbacks[0]
+        );
+        assert!(
+            fallbacks[1].contains("missing-paths.onnx") && fallbacks[1].ends_with("astar"),
+            "{}",
+            fallbacks[1]
+        );
+        // What serves instead are working stages.
+        assert_eq!(pipeline.planner.mode(), "astar");
+        let site = pipeline.site().clone();
+        let (from, to) = (
+            site.place("help desk").unwrap(),
+            site.place("printers").unwrap(),
+        );
+        assert!(pipeline.planner.plan(from, to, Profile::Default).is_ok());
     }
 }

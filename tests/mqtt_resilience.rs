@@ -1,5 +1,6 @@
 //! The gateway against a broker that goes away, a process that is killed, a
-//! radio that is missing, and a config that is reloaded.
+//! radio that is missing, a model that is corrupt, and a config that is
+//! reloaded.
 
 mod mqtt_support;
 
@@ -211,6 +212,75 @@ async fn sighup_applies_a_good_config_and_refuses_a_bad_one() {
         .await
         .json();
     assert_eq!(stats["reload_failures"], 1);
+}
+
+/// A corrupt planner model at start-up: the gateway serves with `astar` and
+/// says so in its stats; once the file is fixed, a reload brings the learned
+/// planner back and empties the list.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_corrupt_model_at_start_up_falls_back_to_astar_until_a_reload() {
+    let broker = Broker::start();
+    let site = repo().join("config/sites/waldo.toml");
+    let planner = |model: &std::path::Path| {
+        format!(
+            "[planner]\nmode = \"conditional\"\n[planner.models]\nconditional_generator = \"{}\"\n",
+            model.display()
+        )
+    };
+    let config = gateway_config("gw-test", &site, &broker, "");
+    let corrupt = config.dir.path().join("conditional_generator.onnx");
+    std::fs::write(&corrupt, b"\x08\x07not a model").unwrap();
+    write_config(&config.path, "gw-test", &site, &broker, &planner(&corrupt));
+    let stats_topic = format!("{PREFIX}/stats");
+    let mut client = Client::connect(&broker, "test-corrupt", &[&format!("{PREFIX}/#")]).await;
+    let gateway = Gateway::start(&config.path, &[]);
+    let stats = client
+        .wait_for("stats", |m| m.topic == stats_topic)
+        .await
+        .json();
+    let fallbacks = stats["fallbacks"].as_array().expect("a list").clone();
+    assert_eq!(fallbacks.len(), 1, "{stats}");
+    let why = fallbacks[0].as_str().unwrap();
+    assert!(
+        why.contains("conditional_generator.onnx") && why.contains("astar"),
+        "{why}"
+    );
+
+    // Routes are still answered: a phone near the help desk asks for one.
+    let uuid = "5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84";
+    let scan = serde_json::json!([{"uuid": uuid, "major": 1, "minor": 3008, "rssi": -55}]);
+    let location = format!("{PREFIX}/devices/phone-1/location");
+    for _ in 0..60 {
+        client
+            .publish(&format!("{PREFIX}/scans/phone-1"), scan.to_string())
+            .await;
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        client.drain();
+        if client.seen.iter().any(|m| m.topic == location) {
+            break;
+        }
+    }
+    client
+        .publish(
+            &format!("{PREFIX}/devices/phone-1/route/set"),
+            r#"{"to":"printers","request_id":"degraded"}"#,
+        )
+        .await;
+    let reply = client.reply(PREFIX, "phone-1", "degraded").await;
+    assert!(reply["waypoints"].is_array(), "{reply}");
+    assert_eq!(reply["planner"], "astar", "{reply}");
+
+    // The real model in place of the corrupt one: the reload applies it.
+    let model = repo().join("models/conditional_generator.onnx");
+    write_config(&config.path, "gw-test", &site, &broker, &planner(&model));
+    signal(&gateway.child, "HUP");
+    let stats = client
+        .wait_for("an applied reload", |m| {
+            m.topic == stats_topic && m.json()["reloads"] == 1
+        })
+        .await
+        .json();
+    assert_eq!(stats["fallbacks"], serde_json::json!([]), "{stats}");
 }
 
 /// A queue bound smaller than what piles up during an outage: the oldest

@@ -86,7 +86,7 @@ struct Daemon {
 
 /// Runs until SIGTERM or SIGINT.
 pub async fn run(options: Options) -> anyhow::Result<()> {
-    let state = state::load(&options.config_path)?;
+    let state = state::load_at_start(&options.config_path)?;
     let config = &state.config;
     let topics = state.pipeline.topics().clone();
     let site_prefix = config.site_prefix(&state.site.name);
@@ -401,6 +401,7 @@ impl Daemon {
             site: self.state.site.name.clone(),
             site_hash: self.state.site.map_hash().to_owned(),
             ble: self.ble.borrow().clone(),
+            fallbacks: self.state.fallbacks.clone(),
         }
     }
 

@@ -2,7 +2,8 @@
 //! loaded as one unit so that SIGHUP can swap them atomically. Everything the
 //! pipeline loads (site now, trained models as they arrive) is checked by
 //! [`Pipeline::new`], so a bad new file fails [`load`] and the old state keeps
-//! serving.
+//! serving. At start-up there is no old state: [`load_at_start`] serves with
+//! the file-free localizer or planner instead of the one that failed.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -17,18 +18,41 @@ pub struct Loaded {
     pub config: Config,
     pub site: Arc<Site>,
     pub pipeline: Pipeline,
+    /// Components that failed to load at start-up and what serves instead
+    /// ([`Pipeline::with_fallbacks`]); empty after a successful reload.
+    pub fallbacks: Vec<String>,
 }
 
-/// Loads the config, its site and everything the pipeline needs.
+/// Loads the config, its site and everything the pipeline needs; any failure
+/// is an error (a reload keeps the old state).
 pub fn load(config_path: &Path) -> anyhow::Result<Loaded> {
+    load_with(config_path, false)
+}
+
+/// [`load`] at start-up: a localizer or planner whose files fail to load falls
+/// back to one that needs none. The config and the site must still load:
+/// without them there is nothing to serve.
+pub fn load_at_start(config_path: &Path) -> anyhow::Result<Loaded> {
+    load_with(config_path, true)
+}
+
+fn load_with(config_path: &Path, fall_back: bool) -> anyhow::Result<Loaded> {
     let config = Config::load(config_path)?;
     let site = Arc::new(Site::load(&config.site)?);
-    let pipeline = Pipeline::new(&config, site.clone())
-        .with_context(|| format!("{}", config_path.display()))?;
+    let context = || format!("{}", config_path.display());
+    let (pipeline, fallbacks) = if fall_back {
+        Pipeline::with_fallbacks(&config, site.clone()).with_context(context)?
+    } else {
+        (
+            Pipeline::new(&config, site.clone()).with_context(context)?,
+            Vec::new(),
+        )
+    };
     Ok(Loaded {
         config,
         site,
         pipeline,
+        fallbacks,
     })
 }
 

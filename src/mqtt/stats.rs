@@ -78,6 +78,9 @@ pub struct Stats {
     /// The site's name and map hash, so a reload is visible.
     pub site: String,
     pub site_hash: String,
+    /// Components that failed to load at start-up, each with what serves
+    /// instead (empty: everything configured is serving).
+    pub fallbacks: Vec<String>,
     pub ble: BleStatus,
 }
 
