@@ -5,7 +5,6 @@ use clap::Parser;
 use tracing_subscriber::EnvFilter;
 
 fn main() -> ExitCode {
-    keep_freed_memory_returnable();
     // RUST_LOG filters. The embedded broker's chatter stays at warn, and its
     // connection module is silenced: it logs every client disconnect as an
     // error (`router-drop`), and its one real failure, a busy port, is
@@ -29,20 +28,5 @@ fn main() -> ExitCode {
             eprintln!("gangway: {e:#}");
             ExitCode::FAILURE
         }
-    }
-}
-
-/// glibc raises its mmap threshold each time a large block is freed; after
-/// that, large blocks come from the heap and stay with the process when
-/// freed. Loading a model frees several model-sized buffers (file, protobuf,
-/// intermediate graphs), so with the dynamic threshold the daemon kept about
-/// 7 MB it no longer used for each model set. A fixed threshold (glibc's
-/// default starting value) gives it back.
-fn keep_freed_memory_returnable() {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    // SAFETY: mallopt only changes allocator tuning and is called before any
-    // other thread exists.
-    unsafe {
-        libc::mallopt(libc::M_MMAP_THRESHOLD, 128 * 1024);
     }
 }
