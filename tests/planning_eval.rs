@@ -13,17 +13,24 @@ use serde_json::Value;
 const HELDOUT: &str = "fixtures/trajectories/waldo-heldout.jsonl";
 const TRAINING: &str = "fixtures/trajectories/waldo.jsonl";
 
-fn eval(args: &[&str]) -> Value {
+/// `gangway eval planning` on the shipped config with `random_pairs` random
+/// pairs and `args`.
+fn eval_pairs(random_pairs: usize, args: &[&str]) -> Value {
+    let pairs = random_pairs.to_string();
     let base = [
         "eval",
         "planning",
         "--config",
         "config/gangway.toml",
         "--random-pairs",
-        "20",
+        &pairs,
         "--json",
     ];
     serde_json::from_str(&gangway_ok(&[&base[..], args].concat())).unwrap()
+}
+
+fn eval(args: &[&str]) -> Value {
+    eval_pairs(20, args)
 }
 
 fn unit_interval(v: &Value) -> f64 {
@@ -86,6 +93,38 @@ fn walk_figures_are_null_without_walks_and_measured_with_them() {
         );
         assert!((0.0..=cells).contains(&novelty), "{mode} novelty {novelty}");
     }
+}
+
+/// The quality the shipped models reached on the sample site (issue 5's
+/// targets, BENCHMARKS.md), on the full evaluation: a retrain or a planner
+/// change that loses one of them fails here. Timings are benchmarks, not
+/// gated.
+#[test]
+fn shipped_models_keep_the_planning_quality_they_reached() {
+    let report = eval_pairs(
+        1000,
+        &["--heldout-walks", HELDOUT, "--training-walks", TRAINING],
+    );
+    assert_eq!(report["pairs"], 1072);
+    for mode in ["astar", "rejection", "conditional"] {
+        let m = &report["modes"][mode];
+        assert_eq!(m["valid_rate"], 1.0, "{mode}: {m}");
+        let ratio = m["length_ratio_mean"].as_f64().unwrap();
+        assert!((1.0..=1.15).contains(&ratio), "{mode} length ratio {ratio}");
+        if mode == "astar" {
+            continue;
+        }
+        assert_eq!(m["deviation_score_max"], 0.0, "{mode}: {m}");
+        let (gan, astar) = (
+            m["human_iou_gan"].as_f64().unwrap(),
+            m["human_iou_astar"].as_f64().unwrap(),
+        );
+        assert!(gan > astar, "{mode}: human IoU {gan} ≤ A*'s {astar}");
+    }
+    let error = report["modes"]["rejection"]["classifier_error"]
+        .as_f64()
+        .unwrap();
+    assert!(error <= 0.0106, "held-out classifier error {error}");
 }
 
 /// A 7 × 3 floor with three places: small enough to train on in a second.

@@ -14,10 +14,11 @@
 //! generated for the same conditions as the real batch.
 //!
 //! Access penalty (not in the paper; off with a weight of 0): the generator's
-//! loss also has a term that drives its output toward −1 on the cells outside
-//! the site's public-access area, which no walk ever lights ([`access_penalty`]).
-//! The adversarial loss learns that only from what the discriminator notices;
-//! the conditional generator kept lighting a few blocked cells for some pairs.
+//! loss also has a hinge that pushes back any cell outside the site's
+//! public-access area that a frame lights, which no walk ever does
+//! ([`access_penalty`]), ramped in over the run. The adversarial loss learns
+//! that only from what the discriminator notices; without the penalty the
+//! conditional generator kept lighting a few blocked cells for some pairs.
 //!
 //! One iteration = one discriminator step on `batch` real and `batch` fake frames
 //! (one matrix product of `2·batch` rows) then one generator step on the same
@@ -65,8 +66,9 @@ pub struct Access {
     /// Frame indices of the cells outside the public-access area (the site's
     /// non-walkable cells).
     pub blocked: Vec<usize>,
-    /// Weight λ of [`access_penalty`] in the generator's loss; 0 trains the
-    /// paper's plain loss (the same weights, bit for bit, as no penalty).
+    /// Weight λ of [`access_penalty`] in the generator's loss at the last
+    /// iteration (it grows linearly from 0 over the run); 0 trains the paper's
+    /// plain loss (the same weights, bit for bit, as no penalty).
     pub weight: f32,
 }
 
@@ -186,7 +188,12 @@ pub fn train_with_checkpoints<E>(
             access_penalty(
                 d_input.slice(s![batch.., ..cells]),
                 &a.blocked,
-                a.weight,
+                // Ramped in from 0: at the start every output sits near 0 and
+                // every blocked cell counts as lit, so the full weight would
+                // drive all outputs to saturated off before the adversarial
+                // loss taught the generator any path (it then never learns
+                // one: tanh's gradient vanishes there).
+                a.weight * iteration as f32 / config.iterations as f32,
                 &mut access_grad,
             )
         });
@@ -216,18 +223,24 @@ pub fn train_with_checkpoints<E>(
     Ok(gan)
 }
 
-/// The access penalty of a batch of generated frames `out` (tanh outputs):
-/// for each frame, the binary cross-entropy of `(out + 1) / 2` against 0 on
-/// each `blocked` cell (no walk lights one), summed over those cells; averaged
-/// over frames and times `weight`. Writes the penalty's gradient with respect
-/// to the output layer's pre-activation `a` into the `blocked` columns of
-/// `grad` and returns the penalty.
+/// Output above which a blocked cell counts as lit for [`access_penalty`]:
+/// halfway between off (−1) and the planner's brightness threshold (0), so a
+/// cell is pushed back before it reaches a route.
+pub const ACCESS_MARGIN: f32 = -0.5;
+
+/// The access penalty of a batch of generated frames `out` (tanh outputs): a
+/// hinge on each `blocked` cell's pre-activation `a = atanh(out)`,
+/// `max(0, a − atanh(ACCESS_MARGIN))`, summed over those cells, averaged over
+/// frames and times `weight`. Writes its gradient with respect to `a` into the
+/// `blocked` columns of `grad` and returns the penalty.
 ///
-/// As `(tanh a + 1) / 2 = σ(2a)`, a cell's term is `softplus(2a)` and its
-/// gradient `2σ(2a) = 1 + out`: exact, and it never vanishes, however
-/// saturated a wrongly lit cell is (through the output it would, as
-/// `1 − out²`). The returned loss caps a term at `−ln ε` (~16) where `out`
-/// rounds to 1 in f32; the gradient needs no cap.
+/// Why a hinge on `a`: a cell already firmly off costs and pulls nothing, so
+/// the penalty acts only on the few cells a frame wrongly lights instead of
+/// pressing on all ~300 blocked cells of every frame (a cross-entropy on every
+/// blocked cell did, and collapsed the generator before it cleared the worst
+/// pair, docs/trajectories.md). On `a` the gradient is a constant `weight /
+/// frames` for a lit cell, however saturated (through `out` it would vanish as
+/// `1 − out²`).
 pub fn access_penalty(
     out: ArrayView2<f32>,
     blocked: &[usize],
@@ -235,13 +248,18 @@ pub fn access_penalty(
     grad: &mut Array2<f32>,
 ) -> f32 {
     let scale = weight / out.nrows() as f32;
+    let threshold = ACCESS_MARGIN.atanh();
+    // The largest |out| whose atanh is finite in f32.
+    let edge = 1.0 - f32::EPSILON;
     let mut loss = 0.0;
     for (row, mut g) in out.rows().into_iter().zip(grad.rows_mut()) {
         for &cell in blocked {
             let y = row[cell];
-            let lit = ((1.0 + y) / 2.0).min(1.0 - f32::EPSILON);
-            loss -= (-lit).ln_1p();
-            g[cell] = scale * (1.0 + y);
+            let lit = y > ACCESS_MARGIN;
+            if lit {
+                loss += y.min(edge).atanh() - threshold;
+            }
+            g[cell] = if lit { scale } else { 0.0 };
         }
     }
     scale * loss
@@ -397,17 +415,25 @@ mod tests {
         }
     }
 
-    /// A saturated wrongly lit cell still gets the full gradient, 1 + out = 2.
+    /// A saturated wrongly lit cell still gets the full gradient; a cell below
+    /// the margin costs and pulls nothing.
     #[test]
-    fn access_penalty_does_not_vanish_when_saturated() {
-        let out = ndarray::array![[1.0f32, -1.0, 0.0]];
-        let mut grad = Array2::zeros((1, 3));
-        let loss = access_penalty(out.view(), &[0, 1, 2], 1.0, &mut grad);
-        assert_eq!(grad.row(0).to_vec(), [2.0, 0.0, 1.0]);
-        assert!(loss.is_finite() && loss > 2f32.ln());
+    fn access_penalty_acts_on_lit_cells_only_and_does_not_vanish() {
+        let out = ndarray::array![[1.0f32, -1.0, 0.0, -0.6, -0.4]];
+        let mut grad = Array2::from_elem((1, 5), 7.0);
+        let loss = access_penalty(out.view(), &[0, 1, 2, 3, 4], 2.0, &mut grad);
+        assert_eq!(grad.row(0).to_vec(), [2.0, 0.0, 2.0, 0.0, 2.0]);
+        let hinge = |y: f32| y.atanh() - ACCESS_MARGIN.atanh();
+        let expected = 2.0 * (hinge(1.0 - f32::EPSILON) + hinge(0.0) + hinge(-0.4));
+        assert!((loss - expected).abs() < 1e-4, "{loss} vs {expected}");
+        let off = ndarray::array![[-0.9f32, -0.99]];
+        let mut grad = Array2::zeros((1, 2));
+        assert_eq!(access_penalty(off.view(), &[0, 1], 2.0, &mut grad), 0.0);
+        assert_eq!(grad.sum(), 0.0);
     }
 
-    /// Mean and largest output on the blocked cells over 256 generated frames.
+    /// Share of blocked-cell outputs above the penalty's margin, and the
+    /// largest one, over 256 generated frames.
     fn blocked_outputs(gan: &mut Gan, blocked: &[usize]) -> (f32, f32) {
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(99);
         let noise =
@@ -418,15 +444,19 @@ mod tests {
             .into_iter()
             .flat_map(|row| blocked.iter().map(move |&c| row[c]))
             .collect();
-        let mean = values.iter().sum::<f32>() / values.len() as f32;
-        (mean, values.iter().copied().fold(f32::MIN, f32::max))
+        let above = values.iter().filter(|&&v| v > ACCESS_MARGIN).count();
+        (
+            above as f32 / values.len() as f32,
+            values.iter().copied().fold(f32::MIN, f32::max),
+        )
     }
 
     #[test]
     fn the_access_penalty_drives_blocked_cells_off() {
         let data = toy();
         let config = GanConfig {
-            iterations: 150,
+            // Short enough that the plain GAN still lights the corners.
+            iterations: 80,
             batch: 4,
             seed: 5,
         };
@@ -437,10 +467,17 @@ mod tests {
             first.get_or_insert(l.access);
             last = l.access;
         });
-        let (plain_mean, _) = blocked_outputs(&mut plain, &access.blocked);
-        let (mean, max) = blocked_outputs(&mut penalized, &access.blocked);
+        let (plain_above, _) = blocked_outputs(&mut plain, &access.blocked);
+        let (above, max) = blocked_outputs(&mut penalized, &access.blocked);
+        assert!(
+            plain_above > 0.1,
+            "without the penalty: {plain_above} above the margin"
+        );
         assert!(max < 0.0, "a blocked cell is lit: {max}");
-        assert!(mean < plain_mean - 0.05, "{mean} vs {plain_mean} without");
+        assert!(
+            above < plain_above / 2.0,
+            "{above} above the margin vs {plain_above} without"
+        );
         let first = first.expect("progress was called");
         assert!(last < first / 2.0, "penalty {first} → {last}");
     }

@@ -71,9 +71,11 @@ const EVAL_SAMPLES: usize = 1024;
 /// at least this probability.
 const CONFIDENT: f32 = 0.9;
 
-/// Trains the path models on `set` and writes them to `out`; the GANs'
-/// generators with the access penalty of `access_weight`
-/// ([`gan::access_penalty`], 0: the paper's plain loss).
+/// Trains the path models on `set` and writes them to `out`; the conditional
+/// generator with the access penalty of `access_weight`
+/// ([`gan::access_penalty`], 0: the paper's plain loss). The unconditional
+/// GAN always keeps the paper's loss: its planner (the paper's Algorithm 1)
+/// rejects frames that leave the public-access area anyway.
 pub fn train_paths(
     site: &Site,
     set: &PathSet,
@@ -150,10 +152,6 @@ pub fn train_paths(
         frames,
         conditions: None,
     };
-    let access = gan::Access {
-        blocked: blocked_cells(site),
-        weight: access_weight,
-    };
     let gan_config = GanConfig {
         iterations: options.iterations,
         batch: options.batch,
@@ -165,13 +163,13 @@ pub fn train_paths(
         kinds: [Kind::Generator, Kind::Discriminator],
         data,
         condition: None,
-        meta: gan_metadata(Kind::Generator, site, set, options, access.weight),
+        access: None,
+        meta: gan_metadata(Kind::Generator, site, set, options, 0.0),
     };
     written.extend(train_gan(
         out,
         plain,
         gan_config,
-        &access,
         options,
         frame_len,
         progress,
@@ -184,19 +182,22 @@ pub fn train_paths(
             kinds: [Kind::ConditionalGenerator, Kind::ConditionalDiscriminator],
             data: conditional_data(set),
             condition: Some(condition::len(set.width, set.height)),
+            access: Some(gan::Access {
+                blocked: blocked_cells(site),
+                weight: access_weight,
+            }),
             meta: gan_metadata(
                 Kind::ConditionalGenerator,
                 site,
                 set,
                 options,
-                access.weight,
+                access_weight,
             ),
         };
         written.extend(train_gan(
             out,
             conditional,
             gan_config,
-            &access,
             options,
             frame_len,
             progress,
@@ -214,17 +215,17 @@ struct GanRun<'a> {
     data: GanData,
     /// Condition width (conditional GANs).
     condition: Option<usize>,
+    /// The generator's access penalty (`None`: the paper's plain loss).
+    access: Option<gan::Access>,
     meta: Metadata,
 }
 
 /// Trains `run` (writing checkpoints when asked for), measures its generator
 /// with `measure`, adds the training time and writes the pair to `out`.
-#[allow(clippy::too_many_arguments)]
 fn train_gan(
     out: &Path,
     run: GanRun,
     config: GanConfig,
-    access: &gan::Access,
     options: &Options,
     frame_len: usize,
     progress: &mut dyn Progress,
@@ -235,7 +236,7 @@ fn train_gan(
     let mut trained = gan::train_with_checkpoints(
         &run.data,
         config,
-        Some(access),
+        run.access.as_ref(),
         options.checkpoint_every,
         |i, l| progress.step(i, &gan_losses(l)),
         |i, gan| write_checkpoint(out, i, run.kinds, gan, frame_len, run.condition, &run.meta),
