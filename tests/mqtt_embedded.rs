@@ -44,13 +44,7 @@ async fn run_without_a_url_serves_on_an_embedded_broker() {
             m.topic == format!("{prefix}/devices/walker-02/location")
         })
         .await;
-    client
-        .publish(
-            &format!("{prefix}/devices/walker-02/route/set"),
-            r#"{"to":"printers","request_id":"e1"}"#,
-        )
-        .await;
-    let reply = client.reply(prefix, "walker-02", "e1").await;
+    let reply = client.route(prefix, "walker-02", "printers", "e1").await;
     assert!(reply["waypoints"].is_array(), "{reply}");
     assert!(gateway.terminate().success());
 }

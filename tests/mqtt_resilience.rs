@@ -124,38 +124,19 @@ async fn without_bluetooth_the_gateway_serves_phone_scans_and_routes() {
     assert!(stats["ble"]["error"].as_str().is_some(), "{stats}");
 
     // A phone near beacon b3008 (the help desk, J10) publishes its scans.
-    let location = format!("{PREFIX}/devices/phone-1/location");
     let uuid = "5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84";
     let scan = serde_json::json!([
         {"uuid": uuid, "major": 1, "minor": 3008, "rssi": -55},
         {"uuid": uuid, "major": 1, "minor": 3005, "rssi": -72},
         {"uuid": uuid, "major": 1, "minor": 3010, "rssi": -80},
-    ])
-    .to_string();
-    let mut fix = None;
-    for _ in 0..60 {
-        client
-            .publish(&format!("{PREFIX}/scans/phone-1"), scan.clone())
-            .await;
-        tokio::time::sleep(Duration::from_millis(500)).await;
-        client.drain();
-        if let Some(m) = client.seen.iter().find(|m| m.topic == location) {
-            fix = Some(m.json());
-            break;
-        }
-    }
+    ]);
+    let fix = client.scan_until_located(PREFIX, "phone-1", &scan).await;
     let fix = fix.expect("a location from the phone's scans");
     let cell: [u16; 2] = serde_json::from_value(fix["cell"].clone()).unwrap();
     let (dx, dy) = (cell[0].abs_diff(9), cell[1].abs_diff(9));
     assert!(dx.max(dy) <= 3, "phone-1 placed at {cell:?}, far from J10");
 
-    client
-        .publish(
-            &format!("{PREFIX}/devices/phone-1/route/set"),
-            r#"{"to":"printers","request_id":"p1"}"#,
-        )
-        .await;
-    let reply = client.reply(PREFIX, "phone-1", "p1").await;
+    let reply = client.route(PREFIX, "phone-1", "printers", "p1").await;
     assert!(reply["waypoints"].is_array(), "{reply}");
 }
 
@@ -187,13 +168,9 @@ async fn sighup_applies_a_good_config_and_refuses_a_bad_one() {
             m.topic == stats_topic && m.json()["reload_failures"] == 1
         })
         .await;
-    client
-        .publish(
-            &format!("{PREFIX}/devices/walker-02/route/set"),
-            r#"{"to":"help desk","request_id":"still"}"#,
-        )
+    let reply = client
+        .route(PREFIX, "walker-02", "help desk", "still")
         .await;
-    let reply = client.reply(PREFIX, "walker-02", "still").await;
     assert!(reply["waypoints"].is_array() || reply["error"]["code"] == "unknown_device");
 
     // The good config again, with a different planner setting: applied.
@@ -204,13 +181,7 @@ async fn sighup_applies_a_good_config_and_refuses_a_bad_one() {
         &broker,
         "[planner]\nconnectivity = \"four\"\n",
     );
-    signal(&gateway.child, "HUP");
-    let stats = client
-        .wait_for("an applied reload", |m| {
-            m.topic == stats_topic && m.json()["reloads"] == 1
-        })
-        .await
-        .json();
+    let stats = reload_applied(&mut client, &gateway).await;
     assert_eq!(stats["reload_failures"], 1);
 }
 
@@ -249,38 +220,34 @@ async fn a_corrupt_model_at_start_up_falls_back_to_astar_until_a_reload() {
     // Routes are still answered: a phone near the help desk asks for one.
     let uuid = "5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84";
     let scan = serde_json::json!([{"uuid": uuid, "major": 1, "minor": 3008, "rssi": -55}]);
-    let location = format!("{PREFIX}/devices/phone-1/location");
-    for _ in 0..60 {
-        client
-            .publish(&format!("{PREFIX}/scans/phone-1"), scan.to_string())
-            .await;
-        tokio::time::sleep(Duration::from_millis(500)).await;
-        client.drain();
-        if client.seen.iter().any(|m| m.topic == location) {
-            break;
-        }
-    }
     client
-        .publish(
-            &format!("{PREFIX}/devices/phone-1/route/set"),
-            r#"{"to":"printers","request_id":"degraded"}"#,
-        )
+        .scan_until_located(PREFIX, "phone-1", &scan)
+        .await
+        .expect("a location from the phone's scans");
+    let reply = client
+        .route(PREFIX, "phone-1", "printers", "degraded")
         .await;
-    let reply = client.reply(PREFIX, "phone-1", "degraded").await;
     assert!(reply["waypoints"].is_array(), "{reply}");
     assert_eq!(reply["planner"], "astar", "{reply}");
 
     // The real model in place of the corrupt one: the reload applies it.
     let model = repo().join("models/conditional_generator.onnx");
     write_config(&config.path, "gw-test", &site, &broker, &planner(&model));
+    let stats = reload_applied(&mut client, &gateway).await;
+    assert_eq!(stats["fallbacks"], serde_json::json!([]), "{stats}");
+}
+
+/// Sends SIGHUP to `gateway` and waits for the stats of its first applied
+/// reload.
+async fn reload_applied(client: &mut Client, gateway: &Gateway) -> serde_json::Value {
     signal(&gateway.child, "HUP");
-    let stats = client
+    let stats_topic = format!("{PREFIX}/stats");
+    client
         .wait_for("an applied reload", |m| {
             m.topic == stats_topic && m.json()["reloads"] == 1
         })
         .await
-        .json();
-    assert_eq!(stats["fallbacks"], serde_json::json!([]), "{stats}");
+        .json()
 }
 
 /// A queue bound smaller than what piles up during an outage: the oldest

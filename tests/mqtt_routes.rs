@@ -127,13 +127,7 @@ async fn requests_during_a_replay_get_valid_routes_and_bad_ones_get_errors() {
         assert_eq!(reply["error"]["code"], *code, "{reply}");
         assert!(reply.get("waypoints").is_none());
     }
-    client
-        .publish(
-            &format!("{PREFIX}/devices/nobody/route/set"),
-            r#"{"to":"help desk","request_id":"nobody"}"#,
-        )
-        .await;
-    let reply = client.reply(PREFIX, "nobody", "nobody").await;
+    let reply = client.route(PREFIX, "nobody", "help desk", "nobody").await;
     assert_eq!(reply["error"]["code"], "unknown_device");
 
     // Feedback is counted; a bad one is rejected; an oversized scan is dropped.

@@ -29,13 +29,7 @@ async fn a_run_records_trajectories_routes_and_feedback() {
             m.topic == format!("{PREFIX}/devices/walker-03/location")
         })
         .await;
-    client
-        .publish(
-            &format!("{PREFIX}/devices/walker-03/route/set"),
-            r#"{"to":"help desk","request_id":"s1"}"#,
-        )
-        .await;
-    let reply = client.reply(PREFIX, "walker-03", "s1").await;
+    let reply = client.route(PREFIX, "walker-03", "help desk", "s1").await;
     let given = reply["waypoints"].as_array().unwrap().len();
     client
         .publish(

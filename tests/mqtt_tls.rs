@@ -135,13 +135,9 @@ async fn the_gateway_serves_over_mutual_tls_with_a_password() {
             m.topic == format!("{prefix}/devices/walker-01/location")
         })
         .await;
-    client
-        .publish(
-            &format!("{prefix}/devices/walker-01/route/set"),
-            r#"{"to":"help desk","request_id":"tls-1"}"#,
-        )
+    let reply = client
+        .route(prefix, "walker-01", "help desk", "tls-1")
         .await;
-    let reply = client.reply(prefix, "walker-01", "tls-1").await;
     assert!(reply["waypoints"].is_array(), "{reply}");
     assert!(gateway.terminate().success());
 }

@@ -377,6 +377,39 @@ impl Client {
         }
     }
 
+    /// Asks for a route from `device`'s position to the place `to` and waits
+    /// for the reply.
+    pub async fn route(&mut self, prefix: &str, device: &str, to: &str, request_id: &str) -> Value {
+        let request = serde_json::json!({"to": to, "request_id": request_id});
+        self.publish(
+            &format!("{prefix}/devices/{device}/route/set"),
+            request.to_string(),
+        )
+        .await;
+        self.reply(prefix, device, request_id).await
+    }
+
+    /// Publishes `scan` as `device`'s phone scan every half second until the
+    /// gateway publishes the device's location (at most 30 s); returns it.
+    pub async fn scan_until_located(
+        &mut self,
+        prefix: &str,
+        device: &str,
+        scan: &Value,
+    ) -> Option<Value> {
+        let location = format!("{prefix}/devices/{device}/location");
+        for _ in 0..60 {
+            self.publish(&format!("{prefix}/scans/{device}"), scan.to_string())
+                .await;
+            tokio::time::sleep(std::time::Duration::from_millis(500)).await;
+            self.drain();
+            if let Some(m) = self.seen.iter().find(|m| m.topic == location) {
+                return Some(m.json());
+            }
+        }
+        None
+    }
+
     /// Waits for the reply on `…/devices/<device>/path` to `request_id`.
     pub async fn reply(&mut self, prefix: &str, device: &str, request_id: &str) -> Value {
         let topic = format!("{prefix}/devices/{device}/path");
