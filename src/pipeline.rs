@@ -51,11 +51,11 @@ impl Pipeline {
     }
 
     /// [`Pipeline::new`] for a gateway starting up: a localizer or planner
-    /// whose files do not load (a missing survey, a corrupt model) is replaced
-    /// by the one that needs no files, `pathloss` or `astar`, instead of
-    /// stopping the gateway, so it keeps locating and routing while someone
-    /// fixes the file. Returns, for each replacement, what failed and what
-    /// serves instead.
+    /// whose files do not load (a missing survey, a corrupt or mismatched
+    /// model) is replaced by the one that needs no files, `pathloss` or
+    /// `astar`, instead of stopping the gateway, so it keeps locating and
+    /// routing while someone fixes the file. Config mistakes are still errors.
+    /// Returns, for each replacement, what failed and what serves instead.
     pub fn with_fallbacks(
         config: &Config,
         site: Arc<Site>,
@@ -70,22 +70,35 @@ impl Pipeline {
     ) -> anyhow::Result<(Pipeline, Vec<String>)> {
         let mut fallbacks = Vec::new();
         let localizer = match locate::build(&config.localizer, &site, &config.window) {
-            Err(e) if fall_back && config.localizer.method != locate::Method::Pathloss => {
-                fallbacks.push(format!(
-                    "[localizer] method = \"{}\" did not load ({e}); locating with pathloss",
+            Err(e)
+                if fall_back
+                    && e.is_file_failure()
+                    && config.localizer.method != locate::Method::Pathloss =>
+            {
+                let failed = format!(
+                    "[localizer] method = \"{}\": {e}",
                     config.localizer.method.name()
-                ));
+                );
                 let pathloss = locate::LocalizerConfig {
                     method: locate::Method::Pathloss,
                     ..config.localizer.clone()
                 };
-                locate::build(&pathloss, &site, &config.window)?
+                let localizer = locate::build(&pathloss, &site, &config.window).map_err(|e| {
+                    anyhow::anyhow!("{failed}; and the pathloss localizer cannot stand in: {e}")
+                })?;
+                fallbacks.push(format!("{failed} (locating with pathloss instead)"));
+                localizer
             }
             built => built?,
         };
         let planner = match plan::build(&config.planner, site.clone()) {
-            Err(e) if fall_back && config.planner.mode != plan::PlannerMode::Astar => {
-                fallbacks.push(format!("{e:#}; planning with astar"));
+            Err(e)
+                if fall_back
+                    && config.planner.mode != plan::PlannerMode::Astar
+                    && e.chain()
+                        .any(|cause| cause.is::<crate::model::ModelError>()) =>
+            {
+                fallbacks.push(format!("{e:#} (planning with astar instead)"));
                 plan::build_mode(&config.planner, plan::PlannerMode::Astar, site.clone())?
             }
             built => built?,
@@ -292,12 +305,16 @@ mod tests {
         let (pipeline, fallbacks) = Pipeline::with_fallbacks(&config, site).unwrap();
         assert_eq!(fallbacks.len(), 2, "{fallbacks:?}");
         assert!(
-            fallbacks[0].contains("missing-cells.onnx") && fallbacks[0].ends_with("pathloss"),
+            fallbacks[0].starts_with("[localizer] method = \"onnx\": ")
+                && fallbacks[0].contains("missing-cells.onnx")
+                && fallbacks[0].ends_with(" (locating with pathloss instead)"),
             "{}",
             fallbacks[0]
         );
         assert!(
-            fallbacks[1].contains("missing-paths.onnx") && fallbacks[1].ends_with("astar"),
+            fallbacks[1].starts_with("[planner] mode = \"conditional\": ")
+                && fallbacks[1].contains("missing-paths.onnx")
+                && fallbacks[1].ends_with(" (planning with astar instead)"),
             "{}",
             fallbacks[1]
         );
@@ -309,5 +326,50 @@ mod tests {
             site.place("printers").unwrap(),
         );
         assert!(pipeline.planner.plan(from, to, Profile::Default).is_ok());
+    }
+
+    /// Only files fall back: a config mistake stops the start-up as it
+    /// stops a reload.
+    #[test]
+    fn config_mistakes_do_not_fall_back() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let shipped = Config::load(&root.join("config/gangway.toml")).unwrap();
+        let site = Arc::new(Site::load(&shipped.site).unwrap());
+
+        let mut no_survey = shipped.clone();
+        no_survey.localizer.method = locate::Method::Knn;
+        no_survey.localizer.knn.survey = None;
+        let err = Pipeline::with_fallbacks(&no_survey, site.clone())
+            .err()
+            .unwrap();
+        assert!(format!("{err:#}").contains("set `survey`"), "{err:#}");
+
+        let mut no_samples = shipped.clone();
+        no_samples.planner.mode = plan::PlannerMode::Conditional;
+        no_samples.planner.conditional.samples = 0;
+        let err = Pipeline::with_fallbacks(&no_samples, site.clone())
+            .err()
+            .unwrap();
+        assert!(format!("{err:#}").contains("samples"), "{err:#}");
+
+        // A file that fails, with nothing to stand in (no beacon has a
+        // position for pathloss): both errors are told.
+        let unplaced = Site::parse(
+            concat!(
+                "name = \"unplaced\"\ncell_m = 1.0\nmap = '''\n###\n'''\n",
+                "[[beacon]]\nid = \"b1\"\nuuid = \"5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84\"\n",
+                "major = 1\nminor = 1\n",
+            ),
+            std::path::Path::new("unplaced.toml"),
+        )
+        .unwrap();
+        let err = Pipeline::with_fallbacks(&broken_config(), Arc::new(unplaced))
+            .err()
+            .unwrap();
+        let text = format!("{err:#}");
+        assert!(
+            text.contains("missing-cells.onnx") && text.contains("cannot stand in"),
+            "{text}"
+        );
     }
 }

@@ -209,6 +209,7 @@ async fn a_corrupt_model_at_start_up_falls_back_to_astar_until_a_reload() {
         .wait_for("stats", |m| m.topic == stats_topic)
         .await
         .json();
+    check_schema("stats", &stats).unwrap();
     let fallbacks = stats["fallbacks"].as_array().expect("a list").clone();
     assert_eq!(fallbacks.len(), 1, "{stats}");
     let why = fallbacks[0].as_str().unwrap();

@@ -276,3 +276,31 @@ fn rejection_keeps_accepted_frames_of_other_pairs_for_later_requests() {
         assert_eq!(deviation_score(&site, p.frame.as_ref().unwrap()), 0.0);
     }
 }
+
+/// With one batch per request and no bank, many requests end with the budget
+/// exhausted; the frame repaired then is still one inside the public area.
+#[test]
+fn a_budget_exhausted_answer_keeps_to_the_public_area() {
+    let site = waldo();
+    let mut config = shipped_models(PlannerMode::Rejection);
+    config.rejection.bank_per_class = 0;
+    config.rejection.warm_samples = 0;
+    config.rejection.max_samples = config.rejection.batch;
+    let planner = gangway::plan::build(&config, site.clone()).unwrap();
+    let places: Vec<Cell> = site.places().values().copied().collect();
+    let mut exhausted = 0;
+    for &from in &places {
+        for &to in places.iter().filter(|&&to| to != from) {
+            let planned = planner.plan(from, to, Profile::Default).unwrap();
+            if planned.origin == Origin::BudgetExhausted {
+                exhausted += 1;
+                assert_eq!(
+                    deviation_score(&site, planned.frame.as_ref().unwrap()),
+                    0.0,
+                    "{from} → {to}"
+                );
+            }
+        }
+    }
+    assert!(exhausted > 0, "no request exhausted its budget");
+}

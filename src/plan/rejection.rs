@@ -14,8 +14,9 @@
 //!   generator, so a banked frame is exactly as likely as a fresh one; the
 //!   bank only stops Algorithm 1 from discarding the work it already did.
 //!   `warm_samples` frames are sorted into the bank when the planner is built;
-//! - the loop stops after `max_samples` frames or `time_budget_ms`; then the
-//!   frame the classifier rated highest for the pair is repaired into a route
+//! - the loop stops after `max_samples` frames or `time_budget_ms`; then, of
+//!   the frames with the fewest cells outside the public-access area, the
+//!   one the classifier rated highest for the pair is repaired into a route
 //!   ([`Origin::BudgetExhausted`]);
 //! - a pair that is not a class of the classifier (Algorithm 1 would loop
 //!   forever) is served by the profile's plain search ([`Origin::Untrained`]);
@@ -239,7 +240,7 @@ impl Planner for Rejection {
             Xoshiro256PlusPlus::seed_from_u64(self.requests.fetch_add(1, Ordering::Relaxed));
         let mut timings = Timings::default();
         let mut samples = 0;
-        let mut best: Option<(f32, Vec<f32>)> = None;
+        let mut best: Option<(usize, f32, Vec<f32>)> = None;
         let mut last_batch = Duration::ZERO;
         while samples < self.config.max_samples
             && (samples == 0 || started.elapsed() + last_batch <= budget)
@@ -268,13 +269,20 @@ impl Planner for Rejection {
                     timings,
                 });
             }
+            // The best frame so far: the fewest cells outside the public
+            // area (so a budget-exhausted answer stays in it whenever any
+            // frame did), then the most likely to be of the class.
             for (frame, p) in batch.frames.rows().into_iter().zip(batch.probs.rows()) {
-                if best.as_ref().is_none_or(|(b, _)| p[class] > *b) {
-                    best = Some((p[class], frame.to_vec()));
+                let frame = frame.as_slice().expect("standard layout");
+                let off = super::cells_off_area(site, frame);
+                if best.as_ref().is_none_or(|(b_off, b_p, _)| {
+                    off < *b_off || (off == *b_off && p[class] > *b_p)
+                }) {
+                    best = Some((off, p[class], frame.to_vec()));
                 }
             }
         }
-        let (_, frame) = best.expect("at least one batch ran");
+        let (_, _, frame) = best.expect("at least one batch ran");
         let (route, _) = route_from_frame(site, self.connectivity, profile, &frame, from, to)?;
         Ok(Planned {
             route,
