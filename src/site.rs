@@ -161,6 +161,8 @@ pub struct Site {
     open_cells: Vec<Cell>,
     /// For each grid cell, its index in `open_cells`, or `u32::MAX`.
     open_index: Vec<u32>,
+    /// Grid indices of the blocked cells, row-major.
+    blocked_indices: Vec<usize>,
     pub beacons: Vec<Beacon>,
     pub gateways: Vec<Gateway>,
     places: BTreeMap<String, Cell>,
@@ -356,11 +358,14 @@ impl Site {
 
         let mut open_cells = Vec::new();
         let mut open_index = vec![u32::MAX; tiles.len()];
+        let mut blocked_indices = Vec::new();
         for (i, tile) in tiles.iter().enumerate() {
             if tile.walkable() {
                 open_index[i] = open_cells.len() as u32;
                 let (y, x) = (i / usize::from(width), i % usize::from(width));
                 open_cells.push(Cell::new(x as u16, y as u16));
+            } else {
+                blocked_indices.push(i);
             }
         }
         let map_hash = hash_map(width, height, &tiles);
@@ -372,6 +377,7 @@ impl Site {
             tiles,
             open_cells,
             open_index,
+            blocked_indices,
             beacons,
             gateways,
             places,
@@ -410,6 +416,12 @@ impl Site {
     /// All walkable cells, row-major. Posteriors over the site use this order.
     pub fn open_cells(&self) -> &[Cell] {
         &self.open_cells
+    }
+
+    /// Grid indices ([`Site::grid_index`]) of the cells outside the
+    /// public-access area, row-major: the cells no path frame may light.
+    pub fn blocked_indices(&self) -> &[usize] {
+        &self.blocked_indices
     }
 
     /// Index of a walkable cell in [`Site::open_cells`].

@@ -350,9 +350,9 @@ pub fn deviation_score(site: &Site, frame: &[f32]) -> f64 {
 
 /// The frame's bright cells outside the public-access area, |G| − |G ∩ B|.
 pub fn cells_off_area(site: &Site, frame: &[f32]) -> usize {
-    (0..site.height())
-        .flat_map(|y| (0..site.width()).map(move |x| Cell::new(x, y)))
-        .filter(|&c| frame::bright(frame, site.grid_index(c)) && !site.walkable(c))
+    site.blocked_indices()
+        .iter()
+        .filter(|&&i| frame::bright(frame, i))
         .count()
 }
 

@@ -32,6 +32,8 @@ use super::paths::PathSet;
 use crate::locate::survey::Survey;
 use crate::model::export::{self, ClipScale, Head, Spec};
 use crate::model::{CellClassifierInput, Kind, Metadata, condition};
+use crate::plan::cells_off_area;
+use crate::plan::frame::bright;
 use crate::site::{Cell, Site};
 
 #[derive(Clone, Debug)]
@@ -183,7 +185,7 @@ pub fn train_paths(
             data: conditional_data(set),
             condition: Some(condition::len(set.width, set.height)),
             access: Some(gan::Access {
-                blocked: blocked_cells(site),
+                blocked: site.blocked_indices().to_vec(),
                 weight: access_weight,
             }),
             meta: gan_metadata(
@@ -362,15 +364,6 @@ fn gan_losses(l: gan::GanLosses) -> [(&'static str, f32); 3] {
         ("g", l.generator),
         ("access", l.access),
     ]
-}
-
-/// Frame indices of the site's cells outside its public-access area.
-fn blocked_cells(site: &Site) -> Vec<usize> {
-    (0..site.height())
-        .flat_map(|y| (0..site.width()).map(move |x| Cell::new(x, y)))
-        .filter(|&c| !site.walkable(c))
-        .map(|c| site.grid_index(c))
-        .collect()
 }
 
 /// Writes a trained GAN's generator and discriminator (`kinds`, in that order)
@@ -556,20 +549,13 @@ fn measure_generator(
 /// Cells on the path (> 0) in generated `frames`, and how many of them are
 /// walkable.
 fn lit_cells(site: &Site, frames: &Array2<f32>) -> (usize, usize) {
-    let (mut on, mut walkable) = (0usize, 0usize);
+    let (mut on, mut off_area) = (0usize, 0usize);
     for row in frames.rows() {
-        for (i, &v) in row.iter().enumerate() {
-            if v > 0.0 {
-                on += 1;
-                let cell = Cell::new(
-                    (i % usize::from(site.width())) as u16,
-                    (i / usize::from(site.width())) as u16,
-                );
-                walkable += usize::from(site.walkable(cell));
-            }
-        }
+        let row = row.to_slice().expect("standard layout");
+        on += (0..row.len()).filter(|&i| bright(row, i)).count();
+        off_area += cells_off_area(site, row);
     }
-    (on, walkable)
+    (on, on - off_area)
 }
 
 /// Share of distinct frames among generated ones: near 0 means the generator
