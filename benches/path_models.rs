@@ -1,13 +1,15 @@
 //! Inference through tract with the shipped models (`models/`), single-threaded
 //! (tract's default): one generated path (batch 1, and batch 32 reported per
-//! path), one path classification, one cell classification.
+//! path), the conditional generator at batch 1 and 2 (the daemon's default of
+//! 2 samples), one path classification, one cell classification.
 //!
 //! `cargo bench --bench path_models`
 
 use std::path::PathBuf;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use gangway::model::runtime::{CellClassifier, PathClassifier, PathGenerator};
+use gangway::model::condition;
+use gangway::model::runtime::{CellClassifier, PathClassifier, PathGenerator, Rows};
 use gangway::site::Site;
 use gangway::train::trajectory;
 use ndarray::Array2;
@@ -18,8 +20,12 @@ fn root() -> PathBuf {
 
 fn benches(c: &mut Criterion) {
     let site = Site::load(&root().join("config/sites/waldo.toml")).expect("site");
-    let generator =
-        PathGenerator::load(&root().join("models/generator.onnx"), &site).expect("generator");
+    let generator = PathGenerator::load(
+        &root().join("models/generator.onnx"),
+        &site,
+        Rows::AlsoSingle,
+    )
+    .expect("generator");
     let classifier = PathClassifier::load(&root().join("models/path_classifier.onnx"), &site)
         .expect("classifier");
     let walks =
@@ -34,6 +40,39 @@ fn benches(c: &mut Criterion) {
         group.throughput(Throughput::Elements(batch as u64));
         group.bench_function(format!("batch {batch}"), |b| {
             b.iter(|| generator.generate(noise.view(), None).expect("runs"))
+        });
+    }
+    group.finish();
+
+    // The daemon's default planner: the conditional generator, 2 samples.
+    let conditional = PathGenerator::load(
+        &root().join("models/conditional_generator.onnx"),
+        &site,
+        Rows::AlsoSingle,
+    )
+    .expect("conditional generator");
+    let mut group = c.benchmark_group("generate conditional");
+    for batch in [1usize, 2] {
+        let noise = Array2::from_shape_fn((batch, conditional.noise_dim()), |(i, j)| {
+            ((i * 31 + j * 17) % 13) as f32 / 6.0 - 1.0
+        });
+        let mut conditions = Array2::zeros((batch, condition::len(site.width(), site.height())));
+        for mut row in conditions.rows_mut() {
+            condition::encode(
+                site.width(),
+                site.height(),
+                walks[0].source(),
+                walks[0].destination(),
+                row.as_slice_mut().expect("contiguous"),
+            );
+        }
+        group.throughput(Throughput::Elements(batch as u64));
+        group.bench_function(format!("batch {batch}"), |b| {
+            b.iter(|| {
+                conditional
+                    .generate(noise.view(), Some(conditions.view()))
+                    .expect("runs")
+            })
         });
     }
     group.finish();

@@ -1,8 +1,10 @@
 #!/usr/bin/env python3
 """Interop check of gangway's ONNX models.
 
-For every reference file written by `cargo test --test onnx_reference` (one JSON
-per model under models/: the model path, fixed inputs and tract's outputs), this
+For every reference file written by `cargo test --test onnx_reference` (two JSON
+per model under models/, a batch and one row, since tract runs one row through
+its own plan when the weights are float16: the model path, fixed inputs and
+tract's outputs), this
 runs the official `onnx` checker on the model and runs it in onnxruntime on the
 same inputs; outputs must agree with tract within 1e-4.
 
@@ -44,7 +46,7 @@ def check(reference_path: pathlib.Path) -> str | None:
     if got.shape != want.shape:
         return f"shape {got.shape} vs tract {want.shape}"
     diff = float(np.max(np.abs(got - want)))
-    print(f"  {ref['model']}: opset {opset}, max |onnxruntime - tract| = {diff:.2e}")
+    print(f"  {reference_path.name} ({ref['model']}): opset {opset}, max |onnxruntime - tract| = {diff:.2e}")
     return None if diff <= TOLERANCE else f"max difference {diff:.2e} > {TOLERANCE}"
 
 

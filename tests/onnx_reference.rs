@@ -1,13 +1,14 @@
 //! Runs every shipped model (`models/*.onnx`) through tract on fixed inputs,
-//! checks what it says, and writes the inputs and tract's outputs as JSON for
-//! `scripts/check_onnx.py`, which runs the same inputs through onnxruntime.
+//! a batch and its first row alone, checks what it says, and writes the inputs
+//! and tract's outputs as JSON for `scripts/check_onnx.py`, which runs the
+//! same inputs through onnxruntime.
 //!
 //! The JSON goes to `$GANGWAY_ONNX_REFERENCE_DIR`, or to a directory under
 //! Cargo's target tmp dir.
 
 use std::path::{Path, PathBuf};
 
-use gangway::model::runtime::Model;
+use gangway::model::runtime::{Model, Rows};
 use gangway::model::{Kind, condition};
 use gangway::site::Site;
 use gangway::train::trajectory;
@@ -101,7 +102,7 @@ fn shipped_models_run_in_tract_and_write_reference_outputs() {
         Kind::CellClassifier,
     ];
     for path in &models {
-        let model = Model::load(path, &site, &all).unwrap();
+        let model = Model::load(path, &site, &all, Rows::AlsoSingle).unwrap();
         let kind = model.metadata().kind;
         let mut inputs: Vec<(String, Array2<f32>)> = model
             .inputs()
@@ -149,16 +150,34 @@ fn shipped_models_run_in_tract_and_write_reference_outputs() {
                 }
             }
         }
-        let reference = serde_json::json!({
-            "model": path,
-            "inputs": inputs.iter().map(|(n, a)| tensor_json(n, a)).collect::<Vec<_>>(),
-            "output": tensor_json(out_name, &output),
-        });
+        // One row runs its own plan when the weights are float16
+        // (model::runtime); it must give that row of the batch, and
+        // onnxruntime checks it as well.
+        let first: Vec<(String, Array2<f32>)> = inputs
+            .iter()
+            .map(|(n, a)| (n.clone(), a.slice(ndarray::s![..1, ..]).to_owned()))
+            .collect();
+        let views: Vec<_> = first.iter().map(|(_, a)| a.view()).collect();
+        let single = model.run(&views).unwrap();
+        for (a, b) in single.iter().zip(output.row(0)) {
+            assert!(
+                (a - b).abs() < 1e-5,
+                "{}: one row {a}, in a batch {b}",
+                path.display()
+            );
+        }
         let stem = path.file_stem().unwrap().to_string_lossy();
-        std::fs::write(
-            out_dir.join(format!("{stem}.json")),
-            serde_json::to_string(&reference).unwrap(),
-        )
-        .unwrap();
+        for (suffix, inputs, output) in [("", &inputs, &output), (".one-row", &first, &single)] {
+            let reference = serde_json::json!({
+                "model": path,
+                "inputs": inputs.iter().map(|(n, a)| tensor_json(n, a)).collect::<Vec<_>>(),
+                "output": tensor_json(out_name, output),
+            });
+            std::fs::write(
+                out_dir.join(format!("{stem}{suffix}.json")),
+                serde_json::to_string(&reference).unwrap(),
+            )
+            .unwrap();
+        }
     }
 }

@@ -6,7 +6,7 @@ mod common;
 use std::path::Path;
 
 use common::{gangway_ok, root, write};
-use gangway::model::runtime::PathGenerator;
+use gangway::model::runtime::{PathGenerator, Rows};
 use gangway::site::Site;
 use serde_json::Value;
 
@@ -199,7 +199,8 @@ fn checkpoints_are_written_loaded_and_plotted_with_sample_routes() {
     for (sub, iterations) in [("iter-0000002", 2), ("iter-0000004", 4)] {
         for file in ["generator.onnx", "conditional_generator.onnx"] {
             // The same checks as a deployed model: site, grid, map, kind.
-            let g = PathGenerator::load(&checkpoints.join(sub).join(file), &site).unwrap();
+            let g = PathGenerator::load(&checkpoints.join(sub).join(file), &site, Rows::Batches)
+                .unwrap();
             assert_eq!(g.model().metadata().iterations, iterations, "{sub}/{file}");
         }
         for file in ["discriminator.onnx", "conditional_discriminator.onnx"] {

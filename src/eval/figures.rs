@@ -14,7 +14,7 @@ use serde::Serialize;
 
 use super::planning::place_pairs;
 use super::plot::line_svg;
-use crate::model::runtime::{PathClassifier, PathGenerator};
+use crate::model::runtime::{PathClassifier, PathGenerator, Rows};
 use crate::model::{Kind, PathClass, condition};
 use crate::plan::{self, PlannerConfig, PlannerMode, Profile};
 use crate::site::{Cell, Site};
@@ -142,7 +142,7 @@ pub fn checkpoint_deviation(
             if !file.is_file() {
                 continue;
             }
-            let generator = PathGenerator::load(&file, site)?;
+            let generator = PathGenerator::load(&file, site, Rows::Batches)?;
             let generated = generate(site, &generator, frames, seed)
                 .with_context(|| format!("{}: generating frames", file.display()))?;
             let scores: Vec<f64> = generated

@@ -5,8 +5,10 @@
 //! normalization), then per layer a `Gemm` (`x·W + b`, weights `in × out`) and
 //! its activation (`LeakyRelu` α = 0.2 or `Tanh`), then the head (`Sigmoid`,
 //! `Softmax`, or a log-softmax spelled out in `ReduceMax`/`Exp`/`ReduceSum`/`Log`). The batch dimension is symbolic (`N`). Weights
-//! are stored little-endian in `raw_data`. The same network always gives the
-//! same bytes.
+//! are stored little-endian in `raw_data`, as f32 or, with [`Weights::F16`],
+//! as float16 initializers each followed by a `Cast` to float, so every
+//! runtime computes in f32 from the same rounded values. The same network
+//! always gives the same bytes.
 
 use std::path::Path;
 
@@ -14,6 +16,7 @@ use prost::Message;
 use tract_onnx::pb;
 use tract_onnx::pb::attribute_proto::AttributeType;
 use tract_onnx::pb::tensor_proto::DataType;
+use tract_onnx::prelude::f16;
 
 use super::Metadata;
 use crate::train::mlp::{Act, LEAKY_SLOPE, Mlp};
@@ -43,9 +46,20 @@ pub struct ClipScale {
     pub scale: f32,
 }
 
+/// How the layers' weight matrices are stored (biases are always f32).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Weights {
+    F32,
+    /// Rounded to float16 (nearest, ties to even): half the bytes to read per
+    /// row at inference, which is what bounds a one-row generator
+    /// (BENCHMARKS.md, "Path models").
+    F16,
+}
+
 /// A network and how it is presented.
 pub struct Spec<'a> {
     pub net: &'a Mlp,
+    pub weights: Weights,
     /// Named inputs with their widths, concatenated in this order.
     pub inputs: &'a [(&'a str, usize)],
     pub normalize: Option<ClipScale>,
@@ -93,11 +107,22 @@ pub fn to_onnx(spec: &Spec, meta: &Metadata) -> pb::ModelProto {
             w *= norm.scale;
         }
         let (wn, bn) = (format!("layer{i}.weight"), format!("layer{i}.bias"));
-        initializers.push(tensor(
-            &wn,
-            &[w.nrows() as i64, w.ncols() as i64],
-            w.as_standard_layout().as_slice().expect("standard layout"),
-        ));
+        let dims = [w.nrows() as i64, w.ncols() as i64];
+        let values = w.as_standard_layout();
+        let values = values.as_slice().expect("standard layout");
+        match spec.weights {
+            Weights::F32 => initializers.push(tensor(&wn, &dims, values)),
+            Weights::F16 => {
+                let stored = format!("{wn}.f16");
+                initializers.push(half_tensor(&stored, &dims, values));
+                nodes.push(node(
+                    "Cast",
+                    vec![stored],
+                    &wn,
+                    vec![int_attr("to", i64::from(DataType::Float as i32))],
+                ));
+            }
+        }
         initializers.push(tensor(
             &bn,
             &[b.len() as i64],
@@ -277,6 +302,20 @@ fn tensor(name: &str, dims: &[i64], data: &[f32]) -> pb::TensorProto {
         dims: dims.to_vec(),
         data_type: DataType::Float as i32,
         raw_data: data.iter().flat_map(|v| v.to_le_bytes()).collect(),
+        ..Default::default()
+    }
+}
+
+/// `data` rounded to float16.
+fn half_tensor(name: &str, dims: &[i64], data: &[f32]) -> pb::TensorProto {
+    pb::TensorProto {
+        name: name.to_owned(),
+        dims: dims.to_vec(),
+        data_type: DataType::Float16 as i32,
+        raw_data: data
+            .iter()
+            .flat_map(|&v| f16::from_f32(v).to_le_bytes())
+            .collect(),
         ..Default::default()
     }
 }

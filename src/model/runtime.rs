@@ -2,6 +2,17 @@
 //! and its graph against the configured site, then keeps an optimized typed
 //! plan with a symbolic batch, so one call runs any number of rows.
 //!
+//! A model whose weights are stored in float16
+//! ([`Weights::F16`](super::export::Weights::F16)) gets a
+//! second plan for one-row calls that keeps those weights in half precision:
+//! one row multiplies each weight once, so its time is the time to read the
+//! weights, and tract's kernel for f16 weights and f32 activations reads half
+//! the bytes. It computes the same products (f16 → f32 is exact) in f32.
+//! Batches keep f32 weights, which tract's matrix kernels run faster. The
+//! second plan holds another, half-size copy of the weights, so it is built
+//! only for callers that ask for it ([`Rows::AlsoSingle`]): the daemon's
+//! planners generate two or more rows per call unless configured otherwise.
+//!
 //! One type per model kind, each with the one call its users need:
 //! [`PathGenerator::generate`], [`Discriminator::score`],
 //! [`PathClassifier::classify`], [`CellClassifier::log_probs`]. All are
@@ -19,12 +30,34 @@ use tract_onnx::prelude::*;
 use super::{Kind, Metadata, ModelError, PathClass};
 use crate::site::Site;
 
+/// The batch sizes a model is planned for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Rows {
+    /// One plan, for any number of rows.
+    Batches,
+    /// Also a plan for one-row calls, when the weights are float16.
+    AlsoSingle,
+}
+
+impl Rows {
+    /// What a caller that runs `rows` rows per call needs.
+    pub fn for_batch(rows: usize) -> Rows {
+        if rows == 1 {
+            Rows::AlsoSingle
+        } else {
+            Rows::Batches
+        }
+    }
+}
+
 /// A loaded model of any kind.
 #[derive(Clone)]
 pub struct Model {
     path: String,
     meta: Metadata,
     plan: Arc<TypedRunnableModel>,
+    /// For one-row calls, when asked for and some weights are exactly float16.
+    single_row_plan: Option<Arc<TypedRunnableModel>>,
     /// Graph inputs in order, with their widths.
     inputs: Vec<(String, usize)>,
     output: (String, usize),
@@ -40,8 +73,9 @@ impl std::fmt::Debug for Model {
 }
 
 impl Model {
-    /// Loads a model for `site` and checks it is one of `kinds`.
-    pub fn load(path: &Path, site: &Site, kinds: &[Kind]) -> Result<Model, ModelError> {
+    /// Loads a model for `site`, planned for `rows`, and checks it is one of
+    /// `kinds`.
+    pub fn load(path: &Path, site: &Site, kinds: &[Kind], rows: Rows) -> Result<Model, ModelError> {
         let name = path.display().to_string();
         let bytes = std::fs::read(path).map_err(|e| ModelError::Read {
             path: name.clone(),
@@ -109,10 +143,19 @@ impl Model {
         // not a crash of the daemon.
         // The protobuf goes as soon as tract has its own graph: each form of
         // the weights alive at once adds to the daemon's peak memory.
-        let plan = std::panic::catch_unwind(AssertUnwindSafe(move || -> TractResult<_> {
+        let plans = std::panic::catch_unwind(AssertUnwindSafe(move || -> TractResult<_> {
             let graph = tract_onnx::onnx().model_for_proto_model(&proto)?;
             drop(proto);
-            graph.into_optimized()?.into_runnable()
+            let graph = graph.into_typed()?.into_decluttered()?;
+            let half = match rows {
+                Rows::AlsoSingle => with_half_weights(&graph)?,
+                Rows::Batches => None,
+            };
+            let single_row_plan = match half {
+                Some(half) => Some(half.into_optimized()?.into_runnable()?),
+                None => None,
+            };
+            Ok((graph.into_optimized()?.into_runnable()?, single_row_plan))
         }))
         .map_err(|_| ModelError::Runtime {
             path: name.clone(),
@@ -122,10 +165,12 @@ impl Model {
             path: name.clone(),
             reason: format!("{e:#}"),
         })?;
+        let (plan, single_row_plan) = plans;
         Ok(Model {
             path: name,
             meta,
             plan,
+            single_row_plan,
             inputs,
             output,
         })
@@ -170,7 +215,11 @@ impl Model {
             let tensor: Tensor = array.as_standard_layout().into_owned().into();
             values.push(tensor.into());
         }
-        let out = self.plan.run(values).map_err(|e| ModelError::Runtime {
+        let plan = match (&self.single_row_plan, rows) {
+            (Some(single_row), 1) => single_row,
+            _ => &self.plan,
+        };
+        let out = plan.run(values).map_err(|e| ModelError::Runtime {
             path: self.path.clone(),
             reason: format!("{e:#}"),
         })?;
@@ -190,6 +239,42 @@ impl Model {
             .collect::<Vec<_>>()
             .join(", ")
     }
+}
+
+/// `model` with every matrix-product weight whose values are all exactly
+/// float16 held as float16; `None` when there is none. tract folds the
+/// exported `Cast` to f32 into the constant while decluttering, so the values
+/// are checked rather than the file's types: the result multiplies exactly
+/// the values `model` does (only the kernels, hence the order of the sums,
+/// differ).
+fn with_half_weights(model: &TypedModel) -> TractResult<Option<TypedModel>> {
+    use tract_onnx::tract_core::ops::einsum::EinSum;
+    use tract_onnx::tract_core::ops::konst::Const;
+
+    let mut half = model.clone();
+    let mut changed = false;
+    for node in model.nodes().iter().filter(|n| n.op_is::<EinSum>()) {
+        for input in &node.inputs {
+            let source = model.node(input.node);
+            let Some(weights) = source.op_as::<Const>().map(|c| c.val()) else {
+                continue;
+            };
+            if weights.datum_type() != f32::datum_type() || source.outputs[0].successors.len() != 1
+            {
+                continue;
+            }
+            let rounded = weights.cast_to::<f16>()?.into_owned();
+            if *rounded.cast_to::<f32>()? != **weights {
+                continue;
+            }
+            let rounded = rounded.into_arc_tensor();
+            let target = half.node_mut(source.id);
+            target.outputs[0].fact = TypedFact::try_from(rounded.clone())?;
+            target.op = Box::new(Const::new(rounded)?);
+            changed = true;
+        }
+    }
+    Ok(changed.then_some(half))
 }
 
 /// The width of a `[N, width]` float input or output.
@@ -213,8 +298,15 @@ fn batch_width(v: &pb::ValueInfoProto) -> Option<usize> {
 pub struct PathGenerator(Model);
 
 impl PathGenerator {
-    pub fn load(path: &Path, site: &Site) -> Result<PathGenerator, ModelError> {
-        Model::load(path, site, &[Kind::Generator, Kind::ConditionalGenerator]).map(PathGenerator)
+    /// Loads a generator planned for `rows` per call.
+    pub fn load(path: &Path, site: &Site, rows: Rows) -> Result<PathGenerator, ModelError> {
+        Model::load(
+            path,
+            site,
+            &[Kind::Generator, Kind::ConditionalGenerator],
+            rows,
+        )
+        .map(PathGenerator)
     }
 
     pub fn model(&self) -> &Model {
@@ -260,6 +352,7 @@ impl Discriminator {
             path,
             site,
             &[Kind::Discriminator, Kind::ConditionalDiscriminator],
+            Rows::Batches,
         )
         .map(Discriminator)
     }
@@ -288,7 +381,7 @@ pub struct PathClassifier(Model);
 
 impl PathClassifier {
     pub fn load(path: &Path, site: &Site) -> Result<PathClassifier, ModelError> {
-        Model::load(path, site, &[Kind::PathClassifier]).map(PathClassifier)
+        Model::load(path, site, &[Kind::PathClassifier], Rows::Batches).map(PathClassifier)
     }
 
     pub fn model(&self) -> &Model {
@@ -312,7 +405,7 @@ pub struct CellClassifier(Model);
 
 impl CellClassifier {
     pub fn load(path: &Path, site: &Site) -> Result<CellClassifier, ModelError> {
-        let model = Model::load(path, site, &[Kind::CellClassifier])?;
+        let model = Model::load(path, site, &[Kind::CellClassifier], Rows::Batches)?;
         let open = site.open_cells().len();
         if model.output.1 != open {
             return Err(ModelError::Metadata {
@@ -358,7 +451,7 @@ impl CellClassifier {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::export::{self, ClipScale, Head, Spec};
+    use crate::model::export::{self, ClipScale, Head, Spec, Weights};
     use crate::model::{CellClassifierInput, Metadata};
     use crate::train::mlp::{Act, Mlp};
     use ndarray::Array2;
@@ -383,44 +476,59 @@ mod tests {
         let s = site("###\n#.#");
         let dir = tempfile::tempdir().unwrap();
         let net = Mlp::new(&[4, 8, 6], &[Act::LeakyRelu, Act::Tanh], 3, 1);
-        let mut reference = net.clone();
         let mut meta = Metadata::for_site(Kind::Generator, &s);
         meta.noise_dim = 4;
         let file = dir.path().join("g.onnx");
-        let spec = Spec {
-            net: &net,
-            inputs: &[("noise", 4)],
-            normalize: None,
-            head: Head::None,
-            output: "frame",
-        };
-        export::write(&file, &spec, &meta).unwrap();
-        let bytes = std::fs::read(&file).unwrap();
-        export::write(&file, &spec, &meta).unwrap();
-        assert_eq!(
-            std::fs::read(&file).unwrap(),
-            bytes,
-            "same model, same bytes"
-        );
+        for weights in [Weights::F16, Weights::F32] {
+            let spec = Spec {
+                net: &net,
+                weights,
+                inputs: &[("noise", 4)],
+                normalize: None,
+                head: Head::None,
+                output: "frame",
+            };
+            export::write(&file, &spec, &meta).unwrap();
+            let bytes = std::fs::read(&file).unwrap();
+            export::write(&file, &spec, &meta).unwrap();
+            assert_eq!(
+                std::fs::read(&file).unwrap(),
+                bytes,
+                "same model, same bytes"
+            );
 
-        let generator = PathGenerator::load(&file, &s).unwrap();
-        assert!(!generator.is_conditional());
-        for rows in [1, 3, 5] {
-            let x = inputs(rows, 4);
-            let ours = reference.predict(x.view());
-            let theirs = generator.generate(x.view(), None).unwrap();
-            assert_eq!(theirs.dim(), (rows, 6));
-            for (a, b) in ours.iter().zip(&theirs) {
-                assert!((a - b).abs() < 1e-5, "{a} vs {b}");
+            let mut reference = net.clone();
+            if weights == Weights::F16 {
+                reference.round_weights_to_f16();
+            }
+            let batches_only = PathGenerator::load(&file, &s, Rows::Batches).unwrap();
+            assert!(batches_only.model().single_row_plan.is_none());
+            let generator = PathGenerator::load(&file, &s, Rows::AlsoSingle).unwrap();
+            assert!(!generator.is_conditional());
+            assert_eq!(
+                generator.model().single_row_plan.is_some(),
+                weights == Weights::F16,
+                "{weights:?}: only half-precision weights get a single-row plan"
+            );
+            // Rows 1 and 3 run different plans when the weights are f16.
+            for rows in [1, 3, 5] {
+                let x = inputs(rows, 4);
+                let ours = reference.predict(x.view());
+                let theirs = generator.generate(x.view(), None).unwrap();
+                assert_eq!(theirs.dim(), (rows, 6));
+                for (a, b) in ours.iter().zip(&theirs) {
+                    assert!((a - b).abs() < 1e-5, "{weights:?}: {a} vs {b}");
+                }
             }
         }
+        let generator = PathGenerator::load(&file, &s, Rows::Batches).unwrap();
         let err = generator
             .generate(inputs(2, 5).view(), None)
             .unwrap_err()
             .to_string();
         assert!(err.contains("`noise`") && err.contains("[2, 4]"), "{err}");
 
-        let err = PathGenerator::load(&file, &site("###\n###"))
+        let err = PathGenerator::load(&file, &site("###\n###"), Rows::Batches)
             .unwrap_err()
             .to_string();
         assert!(err.contains("gangway.map_hash"), "{err}");
@@ -440,6 +548,7 @@ mod tests {
         let file = dir.path().join("c.onnx");
         let spec = Spec {
             net: &net,
+            weights: Weights::F32,
             inputs: &[("frame", 4)],
             normalize: None,
             head: Head::Softmax,
@@ -478,6 +587,7 @@ mod tests {
         );
         let spec = Spec {
             net: &net,
+            weights: Weights::F32,
             inputs: &[("rssi", 2)],
             normalize: Some(ClipScale {
                 lo: floor,

@@ -304,12 +304,13 @@ pub fn build_mode(
     mode: PlannerMode,
     site: Arc<Site>,
 ) -> anyhow::Result<Box<dyn Planner>> {
-    use crate::model::runtime::{PathClassifier, PathGenerator};
+    use crate::model::runtime::{PathClassifier, PathGenerator, Rows};
     let context = |what: &str| format!("[planner] mode = \"{}\": loading the {what}", mode.name());
     Ok(match mode {
         PlannerMode::Astar => Box::new(astar::AStar::new(site, config.connectivity)),
         PlannerMode::Rejection => {
-            let generator = PathGenerator::load(&config.models.generator, &site)
+            let rows = Rows::for_batch(config.rejection.batch);
+            let generator = PathGenerator::load(&config.models.generator, &site, rows)
                 .with_context(|| context("generator ([planner.models] generator)"))?;
             let classifier = PathClassifier::load(&config.models.path_classifier, &site)
                 .with_context(|| context("path classifier ([planner.models] path_classifier)"))?;
@@ -325,7 +326,8 @@ pub fn build_mode(
             )
         }
         PlannerMode::Conditional => {
-            let generator = PathGenerator::load(&config.models.conditional_generator, &site)
+            let rows = Rows::for_batch(config.conditional.samples);
+            let generator = PathGenerator::load(&config.models.conditional_generator, &site, rows)
                 .with_context(|| {
                     context("conditional generator ([planner.models] conditional_generator)")
                 })?;

@@ -30,7 +30,7 @@ use super::gan::{self, GanConfig, GanData, NOISE_DIM};
 use super::mlp::{Adam, Mlp};
 use super::paths::PathSet;
 use crate::locate::survey::Survey;
-use crate::model::export::{self, ClipScale, Head, Spec};
+use crate::model::export::{self, ClipScale, Head, Spec, Weights};
 use crate::model::{CellClassifierInput, Kind, Metadata, condition};
 use crate::plan::cells_off_area;
 use crate::plan::frame::bright;
@@ -139,6 +139,7 @@ pub fn train_paths(
         out,
         &Spec {
             net: &path_classifier,
+            weights: Weights::F32,
             inputs: &[("frame", set.frames.ncols())],
             normalize: None,
             head: Head::Softmax,
@@ -245,6 +246,7 @@ fn train_gan(
     )?;
     progress.done();
     let seconds = started.elapsed().as_secs_f64();
+    trained.generator.round_weights_to_f16();
     let mut metrics = measure(&mut trained.generator);
     metrics.insert("train_seconds".into(), seconds);
     write_gan(
@@ -326,6 +328,7 @@ pub fn train_cells(
         out,
         &Spec {
             net: &net,
+            weights: Weights::F32,
             inputs: &[("rssi", survey.anchors.len())],
             normalize: Some(ClipScale {
                 lo: floor,
@@ -391,6 +394,7 @@ fn write_gan(
         (
             generator,
             &trained.generator,
+            Weights::F16,
             with_condition(("noise", NOISE_DIM)),
             "frame",
             Head::None,
@@ -398,13 +402,14 @@ fn write_gan(
         (
             discriminator,
             &trained.discriminator,
+            Weights::F32,
             with_condition(("frame", frame_len)),
             "real",
             Head::Sigmoid,
         ),
     ]
     .into_iter()
-    .map(|(kind, net, inputs, output, head)| {
+    .map(|(kind, net, weights, inputs, output, head)| {
         let meta = Metadata {
             kind,
             metrics: metrics.clone(),
@@ -414,6 +419,7 @@ fn write_gan(
             out,
             &Spec {
                 net,
+                weights,
                 inputs: &inputs,
                 normalize: None,
                 head,

@@ -167,6 +167,17 @@ impl Mlp {
         self.max_batch
     }
 
+    /// Rounds every weight matrix to the nearest float16, as
+    /// [`Weights::F16`](crate::model::export::Weights::F16) stores it, so what
+    /// is measured of this network is what is exported.
+    pub fn round_weights_to_f16(&mut self) {
+        for layer in &mut self.layers {
+            layer
+                .w
+                .mapv_inplace(|v| tract_onnx::prelude::f16::from_f32(v).to_f32());
+        }
+    }
+
     /// Number of trainable parameters.
     pub fn parameters(&self) -> usize {
         self.layers.iter().map(|l| l.w.len() + l.b.len()).sum()
