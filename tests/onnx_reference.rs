@@ -150,6 +150,13 @@ fn shipped_models_run_in_tract_and_write_reference_outputs() {
                 }
             }
         }
+        // The shipped generators store float16 weights for exactly this plan.
+        assert_eq!(
+            model.has_single_row_plan(),
+            matches!(kind, Kind::Generator | Kind::ConditionalGenerator),
+            "{}",
+            path.display()
+        );
         // One row runs its own plan when the weights are float16
         // (model::runtime); it must give that row of the batch, and
         // onnxruntime checks it as well.

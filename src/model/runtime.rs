@@ -2,9 +2,10 @@
 //! and its graph against the configured site, then keeps an optimized typed
 //! plan with a symbolic batch, so one call runs any number of rows.
 //!
-//! A model whose weights are stored in float16
-//! ([`Weights::F16`](super::export::Weights::F16)) gets a
-//! second plan for one-row calls that keeps those weights in half precision:
+//! A model whose weights are float16 values (stored as
+//! [`Weights::F16`](super::export::Weights::F16); the values are what is
+//! checked) gets a second plan for one-row calls that keeps those weights in
+//! half precision:
 //! one row multiplies each weight once, so its time is the time to read the
 //! weights, and tract's kernel for f16 weights and f32 activations reads half
 //! the bytes. It computes the same products (f16 → f32 is exact) in f32.
@@ -143,17 +144,18 @@ impl Model {
         // not a crash of the daemon.
         // The protobuf goes as soon as tract has its own graph: each form of
         // the weights alive at once adds to the daemon's peak memory.
+        let plan_name = name.clone();
         let plans = std::panic::catch_unwind(AssertUnwindSafe(move || -> TractResult<_> {
             let graph = tract_onnx::onnx().model_for_proto_model(&proto)?;
             drop(proto);
             let graph = graph.into_typed()?.into_decluttered()?;
-            let half = match rows {
-                Rows::AlsoSingle => with_half_weights(&graph)?,
+            let single_row_plan = match rows {
+                Rows::AlsoSingle => single_row_plan(&graph).unwrap_or_else(|e| {
+                    // Only a speed-up: the batch plan still serves one row.
+                    tracing::warn!(model = %plan_name, "no single-row plan: {e:#}");
+                    None
+                }),
                 Rows::Batches => None,
-            };
-            let single_row_plan = match half {
-                Some(half) => Some(half.into_optimized()?.into_runnable()?),
-                None => None,
             };
             Ok((graph.into_optimized()?.into_runnable()?, single_row_plan))
         }))
@@ -183,6 +185,11 @@ impl Model {
     /// The graph's input names and widths, in order.
     pub fn inputs(&self) -> &[(String, usize)] {
         &self.inputs
+    }
+
+    /// Whether one-row calls run their own plan with float16 weights.
+    pub fn has_single_row_plan(&self) -> bool {
+        self.single_row_plan.is_some()
     }
 
     /// The graph's output name and width.
@@ -238,6 +245,15 @@ impl Model {
             .map(|(n, _)| format!("`{n}`"))
             .collect::<Vec<_>>()
             .join(", ")
+    }
+}
+
+/// The plan of `model` with its float16-exact weights held as float16
+/// ([`with_half_weights`]); `None` when it has none.
+fn single_row_plan(model: &TypedModel) -> TractResult<Option<Arc<TypedRunnableModel>>> {
+    match with_half_weights(model)? {
+        Some(half) => Ok(Some(half.into_optimized()?.into_runnable()?)),
+        None => Ok(None),
     }
 }
 
@@ -502,11 +518,11 @@ mod tests {
                 reference.round_weights_to_f16();
             }
             let batches_only = PathGenerator::load(&file, &s, Rows::Batches).unwrap();
-            assert!(batches_only.model().single_row_plan.is_none());
+            assert!(!batches_only.model().has_single_row_plan());
             let generator = PathGenerator::load(&file, &s, Rows::AlsoSingle).unwrap();
             assert!(!generator.is_conditional());
             assert_eq!(
-                generator.model().single_row_plan.is_some(),
+                generator.model().has_single_row_plan(),
                 weights == Weights::F16,
                 "{weights:?}: only half-precision weights get a single-row plan"
             );
