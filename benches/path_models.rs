@@ -18,6 +18,13 @@ fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// Fixed noise in [−1, 1] for `batch` rows.
+fn noise(batch: usize, dim: usize) -> Array2<f32> {
+    Array2::from_shape_fn((batch, dim), |(i, j)| {
+        ((i * 31 + j * 17) % 13) as f32 / 6.0 - 1.0
+    })
+}
+
 fn benches(c: &mut Criterion) {
     let site = Site::load(&root().join("config/sites/waldo.toml")).expect("site");
     let generator = PathGenerator::load(
@@ -34,9 +41,7 @@ fn benches(c: &mut Criterion) {
 
     let mut group = c.benchmark_group("generate");
     for batch in [1usize, 32] {
-        let noise = Array2::from_shape_fn((batch, generator.noise_dim()), |(i, j)| {
-            ((i * 31 + j * 17) % 13) as f32 / 6.0 - 1.0
-        });
+        let noise = noise(batch, generator.noise_dim());
         group.throughput(Throughput::Elements(batch as u64));
         group.bench_function(format!("batch {batch}"), |b| {
             b.iter(|| generator.generate(noise.view(), None).expect("runs"))
@@ -53,9 +58,7 @@ fn benches(c: &mut Criterion) {
     .expect("conditional generator");
     let mut group = c.benchmark_group("generate conditional");
     for batch in [1usize, 2] {
-        let noise = Array2::from_shape_fn((batch, conditional.noise_dim()), |(i, j)| {
-            ((i * 31 + j * 17) % 13) as f32 / 6.0 - 1.0
-        });
+        let noise = noise(batch, conditional.noise_dim());
         let mut conditions = Array2::zeros((batch, condition::len(site.width(), site.height())));
         for mut row in conditions.rows_mut() {
             condition::encode(
