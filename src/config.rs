@@ -107,6 +107,9 @@ impl Config {
         if !(0.0..=1.0).contains(&self.tracker.stay_probability) {
             return Err("[tracker] `stay_probability` must be between 0 and 1".into());
         }
+        if !(0.0..=1.0).contains(&self.localizer.min_confidence) {
+            return Err("[localizer] `min_confidence` must be between 0 and 1".into());
+        }
         self.localizer
             .pathloss
             .validate()

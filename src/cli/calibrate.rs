@@ -69,18 +69,19 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     )?;
     let seconds = started.elapsed().as_secs_f64();
     let text = format!(
-        "# Written by `gangway calibrate` from {} windows of {}.\n# Load it with \
-         [localizer.pathloss] calibration = \"{}\".\n{}",
-        windows,
+        "# Written by `gangway calibrate --from {} --out {}` ({} windows).\n# Load it with \
+         [localizer.pathloss] calibration = \"<this file, relative to the gateway config>\".\n{}",
         args.from
             .iter()
             .map(|p| p.display().to_string())
             .collect::<Vec<_>>()
-            .join(", "),
+            .join(" "),
         args.out.display(),
+        windows,
         fitted.calibration.to_toml()
     );
-    std::fs::write(&args.out, text).with_context(|| format!("cannot write {}", args.out.display()))?;
+    std::fs::write(&args.out, text)
+        .with_context(|| format!("cannot write {}", args.out.display()))?;
     if args.json {
         let report = serde_json::json!({
             "windows": windows,
@@ -161,7 +162,10 @@ fn read(
                     push(f);
                 }
             }
-            Event::Truth(truth) => truths.entry(truth.device).or_default().push((truth.t, truth.cell)),
+            Event::Truth(truth) => truths
+                .entry(truth.device)
+                .or_default()
+                .push((truth.t, truth.cell)),
             Event::Request(_) => {}
         }
     }

@@ -8,7 +8,7 @@ use anyhow::Context;
 use clap::Subcommand;
 
 use crate::config::Config;
-use crate::eval::localization::{Setup, Split, UnlabelledRows, evaluate};
+use crate::eval::localization::{Holdout, RowFix, Setup, Split, UnlabelledRows, evaluate};
 use crate::eval::similarity::TrainingFrames;
 use crate::locate::survey::{Survey, SurveyRows};
 use crate::locate::tracker::{TrackerConfig, TrackerKind};
@@ -72,9 +72,22 @@ struct LocalizationArgs {
     /// The site file.
     #[arg(long)]
     site: PathBuf,
-    /// The labelled survey (CSV).
+    /// The labelled survey (CSV), split 70/30 by `--split`.
+    #[arg(long, required_unless_present = "train", conflicts_with_all = ["train", "test"])]
+    survey: Option<PathBuf>,
+    /// A fixed split instead: the labelled rows to build from (CSV)...
+    #[arg(long, requires = "test")]
+    train: Option<PathBuf>,
+    /// ...and the labelled rows to measure on (CSV); evaluated once.
+    #[arg(long, requires = "train")]
+    test: Option<PathBuf>,
+    /// A gap longer than this (seconds) between rows starts a new walking session.
+    #[arg(long, default_value_t = crate::eval::localization::SESSION_GAP_S)]
+    session_gap: f64,
+    /// Write every held-out row's fix as CSV (seed, session, row, t, truth,
+    /// fix, confidence, error).
     #[arg(long)]
-    survey: PathBuf,
+    rows: Option<PathBuf>,
     /// `session` holds out whole walking sessions (honest); `random` holds out rows.
     #[arg(long, value_enum, default_value = "session")]
     split: Split,
@@ -195,18 +208,35 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
             TrackerConfig::default(),
         ),
     };
-    localizer.knn.survey = Some(args.survey.clone());
     if let Some(not_heard) = args.not_heard {
         localizer.knn.not_heard = not_heard;
     }
     let anchors = anchor_ids(&site, window.orientation);
-    let survey = Survey::load(&args.survey, &site, &anchors, localizer.knn.not_heard)?;
+    let load = |path: &PathBuf| Survey::load(path, &site, &anchors, localizer.knn.not_heard);
+    let (survey, holdout, source) = match (&args.survey, &args.train, &args.test) {
+        (Some(path), _, _) => (
+            load(path)?,
+            Holdout::Drawn(args.split),
+            path.display().to_string(),
+        ),
+        (None, Some(train), Some(test)) => {
+            let (train_rows, test_rows) = (load(train)?, load(test)?);
+            let mut held = vec![false; train_rows.samples.len()];
+            held.resize(train_rows.samples.len() + test_rows.samples.len(), true);
+            let mut survey = train_rows;
+            survey.samples.extend(test_rows.samples);
+            let source = format!("{} → {}", train.display(), test.display());
+            (survey, Holdout::Fixed(held), source)
+        }
+        _ => unreachable!("clap requires --survey or --train and --test"),
+    };
     let calibrate_from = match &args.calibrate {
         Some(path) => Some(unlabelled(path, &site, &anchors, localizer.knn.not_heard)?),
         None => None,
     };
     let setup = |method: Method, kind: TrackerKind| Setup {
-        split: args.split,
+        holdout: holdout.clone(),
+        session_gap_s: args.session_gap,
         seeds: args.seeds,
         method,
         localizer: localizer.clone(),
@@ -219,16 +249,21 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
         calibrate_from: calibrate_from.clone(),
     };
     let outcome = evaluate(&site, &survey, &setup(args.method, args.tracker))?;
+    if let Some(path) = &args.rows {
+        write_rows(path, &outcome.rows)?;
+    }
     let m = &outcome.metrics;
     if args.json {
         println!("{}", serde_json::to_string(m)?);
     } else {
         println!(
-            "localization on {} ({} rows), {:?} split, {} seeds, {} + tracker {:?}",
-            args.survey.display(),
+            "localization on {} ({} rows), {}, {} + tracker {:?}",
+            source,
             survey.samples.len(),
-            args.split,
-            args.seeds,
+            match &holdout {
+                Holdout::Drawn(split) => format!("{split:?} split, {} seeds", args.seeds),
+                Holdout::Fixed(_) => "fixed split".to_owned(),
+            },
             args.method.name(),
             args.tracker
         );
@@ -297,4 +332,38 @@ fn unlabelled(
         .map(|row| row.map(|r| (r.t.expect("checked: the file has a clock"), r.rssi)))
         .collect::<Result<Vec<_>, _>>()?;
     Ok(UnlabelledRows { rows })
+}
+
+/// Writes per-row fixes as CSV.
+fn write_rows(path: &std::path::Path, rows: &[RowFix]) -> anyhow::Result<()> {
+    let mut out =
+        csv::Writer::from_path(path).with_context(|| format!("cannot write {}", path.display()))?;
+    out.write_record([
+        "seed",
+        "session",
+        "row",
+        "t",
+        "truth_x",
+        "truth_y",
+        "x",
+        "y",
+        "confidence",
+        "error_cells",
+    ])?;
+    for r in rows {
+        out.write_record([
+            r.seed.to_string(),
+            r.session.to_string(),
+            r.row.to_string(),
+            r.t.to_string(),
+            r.truth.x.to_string(),
+            r.truth.y.to_string(),
+            r.cell.x.to_string(),
+            r.cell.y.to_string(),
+            format!("{:.4}", r.confidence),
+            format!("{:.4}", r.error_cells),
+        ])?;
+    }
+    out.flush()?;
+    Ok(())
 }

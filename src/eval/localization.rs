@@ -22,6 +22,7 @@ use serde::Serialize;
 use crate::locate::knn::Knn;
 use crate::locate::onnx::Onnx;
 use crate::locate::pathloss::PathLoss;
+use crate::locate::radiomap::RadioMap;
 use crate::locate::survey::{Sample, Survey};
 use crate::locate::tracker::TrackerConfig;
 use crate::locate::tracker::{Tracker, TrackerKind};
@@ -31,7 +32,8 @@ use crate::score::ErrorSummary;
 use crate::site::Site;
 use crate::train::job::{Options, Progress, train_cells};
 
-/// A gap longer than this (seconds) between survey rows starts a new session.
+/// A gap longer than this (seconds) between survey rows starts a new session,
+/// unless `--session-gap` says otherwise.
 pub const SESSION_GAP_S: f64 = 20.0;
 
 /// Share of rows (random) or sessions (session) held out for testing.
@@ -43,10 +45,20 @@ pub enum Split {
     Session,
 }
 
+/// Which rows are held out: drawn per seed, or fixed (`--train`/`--test`).
+#[derive(Clone, Debug)]
+pub enum Holdout {
+    Drawn(Split),
+    /// `true` for the test rows; evaluated once.
+    Fixed(Vec<bool>),
+}
+
 /// What to evaluate.
 #[derive(Clone, Debug)]
 pub struct Setup {
-    pub split: Split,
+    pub holdout: Holdout,
+    /// A gap longer than this (seconds) between rows starts a new walking session.
+    pub session_gap_s: f64,
     pub seeds: u64,
     pub method: Method,
     pub localizer: LocalizerConfig,
@@ -119,14 +131,38 @@ fn reliability(fixes: &[(f32, f64)]) -> (Vec<ReliabilityBin>, f64) {
 pub struct Outcome {
     pub metrics: Metrics,
     pub errors: Vec<f64>,
+    /// Every held-out row's fix, for `--rows`.
+    pub rows: Vec<RowFix>,
+}
+
+/// One held-out row's fix.
+#[derive(Clone, Debug)]
+pub struct RowFix {
+    pub seed: u64,
+    pub session: usize,
+    /// The row's index in the survey file (0 = first data row).
+    pub row: usize,
+    pub t: f64,
+    pub truth: crate::site::Cell,
+    pub cell: crate::site::Cell,
+    pub confidence: f32,
+    pub error_cells: f64,
 }
 
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {
     #[error("the survey has no time column; sessions and tracking need `date` or `t`")]
     NoTime,
-    #[error("too few rows or sessions to split 70/30")]
-    TooSmall,
+    #[error(
+        "too few rows or sessions to split 70/30: {rows} rows in {sessions} walking sessions \
+         (a gap over {gap_s} s starts one); try --split random, a smaller --session-gap, or \
+         --train and --test"
+    )]
+    TooSmall {
+        rows: usize,
+        sessions: usize,
+        gap_s: f64,
+    },
     #[error(transparent)]
     Localizer(#[from] LocalizerError),
     #[error("training the cell classifier: {0:#}")]
@@ -161,7 +197,8 @@ fn train_cell_classifier(site: &Site, train: &Survey, seed: u64) -> Result<Onnx,
 }
 
 pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outcome, EvalError> {
-    let needs_time = setup.split == Split::Session || setup.tracker.kind == TrackerKind::Hmm;
+    let needs_time = matches!(setup.holdout, Holdout::Drawn(Split::Session))
+        || setup.tracker.kind == TrackerKind::Hmm;
     let times: Vec<f64> = if needs_time {
         survey
             .samples
@@ -171,7 +208,7 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
     } else {
         (0..survey.samples.len()).map(|i| i as f64).collect()
     };
-    let walks = Sessions::of(&times);
+    let walks = Sessions::of(&times, setup.session_gap_s);
     let (session, sessions) = (&walks.session, walks.count);
     let walk_rows = walks.sequences();
     // Survey-free with calibration: fitted once, on unlabelled rows only, so
@@ -184,10 +221,16 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
     let mut per_seed = Vec::new();
     let mut errors = Vec::new();
     let mut confidences = Vec::new();
-    for seed in 0..setup.seeds {
+    let mut row_fixes = Vec::new();
+    let seeds = match setup.holdout {
+        Holdout::Fixed(_) => 1,
+        Holdout::Drawn(_) => setup.seeds,
+    };
+    for seed in 0..seeds {
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
-        let test: Vec<bool> = match setup.split {
-            Split::Random => {
+        let test: Vec<bool> = match &setup.holdout {
+            Holdout::Fixed(test) => test.clone(),
+            Holdout::Drawn(Split::Random) => {
                 let mut rows: Vec<usize> = (0..survey.samples.len()).collect();
                 rows.shuffle(&mut rng);
                 let n_test = (rows.len() as f64 * TEST_SHARE).round() as usize;
@@ -195,7 +238,7 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
                 rows[..n_test].iter().for_each(|&r| test[r] = true);
                 test
             }
-            Split::Session => {
+            Holdout::Drawn(Split::Session) => {
                 let mut ids: Vec<usize> = (0..sessions).collect();
                 ids.shuffle(&mut rng);
                 let n_test = (sessions as f64 * TEST_SHARE).round() as usize;
@@ -206,7 +249,11 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
         let train_rows: Vec<usize> = (0..survey.samples.len()).filter(|&i| !test[i]).collect();
         let train: Vec<&Sample> = train_rows.iter().map(|&i| &survey.samples[i]).collect();
         if train.is_empty() || test.iter().all(|t| !t) {
-            return Err(EvalError::TooSmall);
+            return Err(EvalError::TooSmall {
+                rows: survey.samples.len(),
+                sessions,
+                gap_s: setup.session_gap_s,
+            });
         }
         let mut localizer: Box<dyn Localizer> = match setup.method {
             Method::Knn => Box::new(Knn::new(
@@ -214,6 +261,15 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
                 site,
                 &train,
                 setup.window.missing_dbm,
+                &setup.tracker,
+            )?),
+            Method::Radiomap => Box::new(RadioMap::new(
+                &setup.localizer.radiomap,
+                site,
+                &survey.anchors,
+                setup.window.orientation,
+                &setup.tracker,
+                &train,
             )?),
             Method::Onnx => Box::new(train_cell_classifier(
                 site,
@@ -262,9 +318,21 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
                 tracker.smooth(&windows, setup.smooth_lag)
             };
             for (fix, &row) in fixes.iter().zip(rows) {
-                let error = fix.cell.distance(survey.samples[row].cell);
+                let truth = survey.samples[row].cell;
+                let error = fix.cell.distance(truth);
+                let confidence = localizer.confidence(fix.confidence);
                 seed_errors.push(error);
-                confidences.push((fix.confidence, error));
+                confidences.push((confidence, error));
+                row_fixes.push(RowFix {
+                    seed,
+                    session: session[row],
+                    row,
+                    t: times[row],
+                    truth,
+                    cell: fix.cell,
+                    confidence,
+                    error_cells: error,
+                });
             }
         }
         let us_per_fix = started.elapsed().as_secs_f64() * 1e6 / seed_errors.len() as f64;
@@ -279,11 +347,12 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
             ..average(&per_seed)
         },
         errors,
+        rows: row_fixes,
     })
 }
 
 /// Rows in time order (the UCI file is newest first) and the walking session
-/// of each: a gap over [`SESSION_GAP_S`] starts a new one.
+/// of each: a gap over `gap_s` starts a new one.
 struct Sessions {
     order: Vec<usize>,
     session: Vec<usize>,
@@ -291,12 +360,12 @@ struct Sessions {
 }
 
 impl Sessions {
-    fn of(times: &[f64]) -> Sessions {
+    fn of(times: &[f64], gap_s: f64) -> Sessions {
         let mut order: Vec<usize> = (0..times.len()).collect();
         order.sort_by(|&a, &b| times[a].total_cmp(&times[b]));
         let mut session = vec![0usize; times.len()];
         for w in order.windows(2) {
-            session[w[1]] = session[w[0]] + usize::from(times[w[1]] - times[w[0]] > SESSION_GAP_S);
+            session[w[1]] = session[w[0]] + usize::from(times[w[1]] - times[w[0]] > gap_s);
         }
         let count = order.last().map_or(0, |&i| session[i] + 1);
         Sessions {
@@ -334,7 +403,7 @@ fn calibrated_anchors(
     use crate::locate::calibrate::{Window, fit};
     use crate::locate::pathloss::anchors;
     let times: Vec<f64> = unlabelled.rows.iter().map(|r| r.0).collect();
-    let trajectories: Vec<Vec<Window>> = Sessions::of(&times)
+    let trajectories: Vec<Vec<Window>> = Sessions::of(&times, setup.session_gap_s)
         .sequences()
         .into_iter()
         .map(|rows| {
@@ -351,7 +420,12 @@ fn calibrated_anchors(
                 .collect()
         })
         .collect();
-    let start = anchors(site, setup.window.orientation, &setup.localizer.pathloss, None);
+    let start = anchors(
+        site,
+        setup.window.orientation,
+        &setup.localizer.pathloss,
+        None,
+    );
     let fitted = fit(
         site,
         &survey.anchors,

@@ -217,7 +217,10 @@ impl PathLoss {
             Some(path) => Some(super::calibrate::Calibration::load(path, site)?),
             None => None,
         };
-        Self::with_anchors(site, &anchors(site, orientation, config, calibration.as_ref()))
+        Self::with_anchors(
+            site,
+            &anchors(site, orientation, config, calibration.as_ref()),
+        )
     }
 
     /// The model for given anchors (calibration and evaluation build these).
@@ -227,8 +230,11 @@ impl PathLoss {
         }
         let cells = site.open_cells();
         let n = cells.len() * anchors.len();
-        let (mut expected, mut log_hit, mut log_miss) =
-            (Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n));
+        let (mut expected, mut log_hit, mut log_miss) = (
+            Vec::with_capacity(n),
+            Vec::with_capacity(n),
+            Vec::with_capacity(n),
+        );
         for &cell in cells {
             let here = site.metres(cell);
             for anchor in anchors {
@@ -259,6 +265,26 @@ impl PathLoss {
                 .map(|a| a.map_or(0.0, |(_, r)| (1.0 / r.shadowing_db) as f32))
                 .collect(),
         })
+    }
+}
+
+impl PathLoss {
+    /// Likelihood tables made elsewhere (the radio map), `[cell][anchor]`.
+    pub(crate) fn from_tables(
+        n_cells: usize,
+        expected: Vec<f32>,
+        log_hit: Vec<f32>,
+        log_miss: Vec<f32>,
+        inv_sigma: Vec<f32>,
+    ) -> Self {
+        PathLoss {
+            n_cells,
+            n_anchors: inv_sigma.len(),
+            expected,
+            log_hit,
+            log_miss,
+            inv_sigma,
+        }
     }
 }
 
@@ -324,7 +350,9 @@ cell = [9, 0]
     }
 
     fn best(ll: &[f32]) -> usize {
-        (0..ll.len()).max_by(|&a, &b| ll[a].total_cmp(&ll[b])).unwrap()
+        (0..ll.len())
+            .max_by(|&a, &b| ll[a].total_cmp(&ll[b]))
+            .unwrap()
     }
 
     #[test]
@@ -355,15 +383,25 @@ cell = [9, 0]
         let mut one = PathLoss::with_anchors(
             &site,
             &[
-                Some((site.metres(Cell::new(0, 0)), PathLossConfig::default().radio(-59.0))),
+                Some((
+                    site.metres(Cell::new(0, 0)),
+                    PathLossConfig::default().radio(-59.0),
+                )),
                 None,
             ],
         )
         .unwrap();
-        one.log_likelihood(&[-80.0, -105.0], &[true, false], &mut unheard_anchor_ignored);
+        one.log_likelihood(
+            &[-80.0, -105.0],
+            &[true, false],
+            &mut unheard_anchor_ignored,
+        );
         let penalty = |ll: &[f32]| ll[9] - ll[5];
         assert!(penalty(&silent) < penalty(&unheard_anchor_ignored));
-        assert!(penalty(&silent) > -10.0, "silence is not a verdict: {silent:?}");
+        assert!(
+            penalty(&silent) > -10.0,
+            "silence is not a verdict: {silent:?}"
+        );
     }
 
     #[test]
