@@ -104,6 +104,7 @@ impl Config {
         if !(0.0..=1.0).contains(&self.tracker.stay_probability) {
             return Err("[tracker] `stay_probability` must be between 0 and 1".into());
         }
+        self.ble.validate()?;
         self.mqtt.validate().map_err(|e| e.to_string())?;
         self.store.validate()?;
         Ok(())
