@@ -29,14 +29,15 @@ pub async fn radio(
     events: mpsc::Sender<Event>,
     status: watch::Sender<BleStatus>,
 ) {
-    let report = |state: &'static str, error: Option<String>, failures: u64, retry_in_s: Option<f64>| {
-        status.send_modify(|s| {
-            s.state = state;
-            s.error = error;
-            s.failures = failures;
-            s.retry_in_s = retry_in_s;
-        });
-    };
+    let report =
+        |state: &'static str, error: Option<String>, failures: u64, retry_in_s: Option<f64>| {
+            status.send_modify(|s| {
+                s.state = state;
+                s.error = error;
+                s.failures = failures;
+                s.retry_in_s = retry_in_s;
+            });
+        };
     let mut manager = None;
     let mut backoff = BLE_RETRY_MIN;
     let mut failures = 0u64;
@@ -72,7 +73,12 @@ pub async fn radio(
                 "Bluetooth unavailable: {error}; MQTT keeps serving, retrying"
             );
         }
-        report("retrying", Some(error), failures, Some(backoff.as_secs_f64()));
+        report(
+            "retrying",
+            Some(error),
+            failures,
+            Some(backoff.as_secs_f64()),
+        );
         tokio::select! {
             _ = tokio::time::sleep(backoff) => {}
             _ = events.closed() => return,

@@ -20,8 +20,8 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use btleplug::api::{
     Central, CentralEvent, CentralState, Manager as _, Peripheral as _, ScanFilter,
 };
-pub use btleplug::platform::{Adapter, Manager};
 use btleplug::platform::PeripheralId;
+pub use btleplug::platform::{Adapter, Manager};
 use futures::StreamExt;
 use serde::Deserialize;
 use tokio::sync::mpsc;
@@ -215,7 +215,13 @@ impl Heard {
         match event {
             // A new (or already known) device: its first advert's data.
             CentralEvent::DeviceDiscovered(id) => {
-                let properties = adapter.peripheral(&id).await.ok()?.properties().await.ok()??;
+                let properties = adapter
+                    .peripheral(&id)
+                    .await
+                    .ok()?
+                    .properties()
+                    .await
+                    .ok()??;
                 self.classify(id, &properties.manufacturer_data);
                 None
             }
@@ -275,10 +281,7 @@ mod tests {
 
     #[test]
     fn silent_restart_defaults_to_a_minute_and_zero_turns_it_off() {
-        assert_eq!(
-            config("").silent_restart(),
-            Some(Duration::from_secs(60))
-        );
+        assert_eq!(config("").silent_restart(), Some(Duration::from_secs(60)));
         assert_eq!(config("silent_restart_s = 0").silent_restart(), None);
         assert_eq!(
             config("silent_restart_s = 2.5").silent_restart(),
@@ -288,7 +291,11 @@ mod tests {
 
     #[test]
     fn a_negative_or_infinite_silent_restart_names_the_key() {
-        for bad in ["silent_restart_s = -1", "silent_restart_s = inf", "silent_restart_s = nan"] {
+        for bad in [
+            "silent_restart_s = -1",
+            "silent_restart_s = inf",
+            "silent_restart_s = nan",
+        ] {
             let error = config(bad).validate().unwrap_err();
             assert!(error.contains("[ble] `silent_restart_s`"), "{bad}: {error}");
         }
