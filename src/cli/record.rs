@@ -45,10 +45,8 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         let adapter = ble::adapter(&manager, &config).await?;
         let (tx, mut rx) = mpsc::channel(4096);
         let silent_restart = config.silent_restart();
-        let scanner =
-            tokio::spawn(
-                async move { ble::scan(&adapter, observer, silent_restart, tx, || {}).await },
-            );
+        let scan = async move { ble::scan(&adapter, observer, silent_restart, tx, || {}).await };
+        let scanner = tokio::spawn(scan);
         let deadline =
             tokio::time::sleep(args.duration.map_or(Duration::MAX, Duration::from_secs_f64));
         tokio::pin!(deadline);
