@@ -31,10 +31,17 @@ fn the_real_survey_stays_at_or_above_the_reached_targets() {
     assert_eq!(
         session.as_object().unwrap().keys().collect::<Vec<_>>(),
         [
+            "confidence_gap_max",
             "exact",
             "mean_error_cells",
             "mean_error_m",
+            "median_error_cells",
+            "median_error_m",
+            "p75_error_cells",
+            "p75_error_m",
             "p90_error_cells",
+            "p90_error_m",
+            "reliability",
             "us_per_fix",
             "within_1",
             "within_2"

@@ -8,9 +8,9 @@ use anyhow::Context;
 use clap::Subcommand;
 
 use crate::config::Config;
-use crate::eval::localization::{Setup, Split, evaluate};
+use crate::eval::localization::{Setup, Split, UnlabelledRows, evaluate};
 use crate::eval::similarity::TrainingFrames;
-use crate::locate::survey::Survey;
+use crate::locate::survey::{Survey, SurveyRows};
 use crate::locate::tracker::{TrackerConfig, TrackerKind};
 use crate::locate::window::{WindowConfig, anchor_ids};
 use crate::locate::{LocalizerConfig, Method};
@@ -99,6 +99,15 @@ struct LocalizationArgs {
     /// Write the error CDF of every method, with and without tracking, as SVG.
     #[arg(long)]
     plot: Option<PathBuf>,
+    /// The files' "not heard" RSSI value (default: the config's
+    /// `[localizer.knn] not_heard`, -200).
+    #[arg(long, allow_negative_numbers = true)]
+    not_heard: Option<i16>,
+    /// Unlabelled scans (the same CSV layouts; `location` may be `?`) that
+    /// the survey-free model is calibrated on before measuring, as `gangway
+    /// calibrate` does. Only `--method pathloss` uses them.
+    #[arg(long)]
+    calibrate: Option<PathBuf>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
@@ -187,12 +196,15 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
         ),
     };
     localizer.knn.survey = Some(args.survey.clone());
-    let survey = Survey::load(
-        &args.survey,
-        &site,
-        &anchor_ids(&site, window.orientation),
-        localizer.knn.not_heard,
-    )?;
+    if let Some(not_heard) = args.not_heard {
+        localizer.knn.not_heard = not_heard;
+    }
+    let anchors = anchor_ids(&site, window.orientation);
+    let survey = Survey::load(&args.survey, &site, &anchors, localizer.knn.not_heard)?;
+    let calibrate_from = match &args.calibrate {
+        Some(path) => Some(unlabelled(path, &site, &anchors, localizer.knn.not_heard)?),
+        None => None,
+    };
     let setup = |method: Method, kind: TrackerKind| Setup {
         split: args.split,
         seeds: args.seeds,
@@ -204,6 +216,7 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
             ..tracker.clone()
         },
         smooth_lag: args.smooth_lag,
+        calibrate_from: calibrate_from.clone(),
     };
     let outcome = evaluate(&site, &survey, &setup(args.method, args.tracker))?;
     let m = &outcome.metrics;
@@ -219,15 +232,30 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
             args.method.name(),
             args.tracker
         );
+        let e = &m.errors;
         println!(
-            "exact {:.3}  within_1 {:.3}  within_2 {:.3}  mean_error_cells {:.3}  mean_error_m {:.3}  p90_error_cells {:.3}  us_per_fix {:.2}",
-            m.errors.exact,
-            m.errors.within_1,
-            m.errors.within_2,
-            m.errors.mean_error_cells,
-            m.errors.mean_error_m,
-            m.errors.p90_error_cells,
-            m.us_per_fix
+            "exact {:.3}  within_1 {:.3}  within_2 {:.3}  us_per_fix {:.2}",
+            e.exact, e.within_1, e.within_2, m.us_per_fix
+        );
+        println!(
+            "error cells: mean {:.3}  median {:.3}  p75 {:.3}  p90 {:.3}",
+            e.mean_error_cells, e.median_error_cells, e.p75_error_cells, e.p90_error_cells
+        );
+        println!(
+            "error m:     mean {:.3}  median {:.3}  p75 {:.3}  p90 {:.3}",
+            e.mean_error_m, e.median_error_m, e.p75_error_m, e.p90_error_m
+        );
+        println!("confidence   fixes  mean   within 1 cell");
+        for bin in m.reliability.iter().filter(|b| b.fixes > 0) {
+            println!(
+                "{:.1}–{:.1}  {:>7}  {:.3}  {:.3}",
+                bin.from, bin.to, bin.fixes, bin.mean_confidence, bin.within_1
+            );
+        }
+        println!(
+            "largest calibration gap (bins of {}+ fixes): {:.3}",
+            crate::eval::localization::RELIABLE_BIN,
+            m.confidence_gap_max
         );
     }
     if let Some(path) = &args.plot {
@@ -249,4 +277,24 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
         eprintln!("wrote {}", path.display());
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Reads scans with times and any (or no) positions for calibration.
+fn unlabelled(
+    path: &std::path::Path,
+    site: &Site,
+    anchors: &[String],
+    not_heard: i16,
+) -> anyhow::Result<UnlabelledRows> {
+    let rows = SurveyRows::open(path, site, anchors, not_heard)?;
+    if !rows.has_clock() {
+        anyhow::bail!(
+            "{}: no time column; calibration follows walks in time, so it needs `date` or `t`",
+            path.display()
+        );
+    }
+    let rows = rows
+        .map(|row| row.map(|r| (r.t.expect("checked: the file has a clock"), r.rssi)))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(UnlabelledRows { rows })
 }

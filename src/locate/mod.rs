@@ -6,6 +6,7 @@
 //!   with motion);
 //! - [`tracker`] keeps a belief per entity that respects walls and walking speed.
 
+pub mod calibrate;
 pub mod knn;
 pub mod onnx;
 pub mod pathloss;
@@ -88,6 +89,8 @@ pub enum LocalizerError {
     #[error(transparent)]
     Survey(#[from] survey::SurveyError),
     #[error(transparent)]
+    Calibration(#[from] calibrate::CalibrationError),
+    #[error(transparent)]
     Model(#[from] crate::model::ModelError),
 }
 
@@ -101,6 +104,7 @@ impl LocalizerError {
             LocalizerError::EmptySurvey
                 | LocalizerError::SurveyOnBlockedCell(_)
                 | LocalizerError::Survey(_)
+                | LocalizerError::Calibration(_)
                 | LocalizerError::Model(_)
         )
     }
