@@ -80,7 +80,8 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         args.out.display(),
         fitted.calibration.to_toml()
     );
-    std::fs::write(&args.out, text).with_context(|| format!("cannot write {}", args.out.display()))?;
+    std::fs::write(&args.out, text)
+        .with_context(|| format!("cannot write {}", args.out.display()))?;
     if args.json {
         let report = serde_json::json!({
             "windows": windows,
@@ -161,7 +162,10 @@ fn read(
                     push(f);
                 }
             }
-            Event::Truth(truth) => truths.entry(truth.device).or_default().push((truth.t, truth.cell)),
+            Event::Truth(truth) => truths
+                .entry(truth.device)
+                .or_default()
+                .push((truth.t, truth.cell)),
             Event::Request(_) => {}
         }
     }

@@ -351,7 +351,12 @@ fn calibrated_anchors(
                 .collect()
         })
         .collect();
-    let start = anchors(site, setup.window.orientation, &setup.localizer.pathloss, None);
+    let start = anchors(
+        site,
+        setup.window.orientation,
+        &setup.localizer.pathloss,
+        None,
+    );
     let fitted = fit(
         site,
         &survey.anchors,

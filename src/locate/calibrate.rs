@@ -417,9 +417,24 @@ impl Stats {
         let slopes = [1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0];
         let maxima: Vec<f64> = (0..14).map(|i| 0.35 + 0.05 * f64::from(i)).collect();
         for _ in 0..3 {
-            radio.range_m = best(&ranges, |v| ll(&Radio { range_m: v, ..radio }));
-            radio.range_slope = best(&slopes, |v| ll(&Radio { range_slope: v, ..radio }));
-            radio.max_detection = best(&maxima, |v| ll(&Radio { max_detection: v, ..radio }));
+            radio.range_m = best(&ranges, |v| {
+                ll(&Radio {
+                    range_m: v,
+                    ..radio
+                })
+            });
+            radio.range_slope = best(&slopes, |v| {
+                ll(&Radio {
+                    range_slope: v,
+                    ..radio
+                })
+            });
+            radio.max_detection = best(&maxima, |v| {
+                ll(&Radio {
+                    max_detection: v,
+                    ..radio
+                })
+            });
         }
         radio
     }

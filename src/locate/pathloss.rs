@@ -217,7 +217,10 @@ impl PathLoss {
             Some(path) => Some(super::calibrate::Calibration::load(path, site)?),
             None => None,
         };
-        Self::with_anchors(site, &anchors(site, orientation, config, calibration.as_ref()))
+        Self::with_anchors(
+            site,
+            &anchors(site, orientation, config, calibration.as_ref()),
+        )
     }
 
     /// The model for given anchors (calibration and evaluation build these).
@@ -227,8 +230,11 @@ impl PathLoss {
         }
         let cells = site.open_cells();
         let n = cells.len() * anchors.len();
-        let (mut expected, mut log_hit, mut log_miss) =
-            (Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n));
+        let (mut expected, mut log_hit, mut log_miss) = (
+            Vec::with_capacity(n),
+            Vec::with_capacity(n),
+            Vec::with_capacity(n),
+        );
         for &cell in cells {
             let here = site.metres(cell);
             for anchor in anchors {
@@ -324,7 +330,9 @@ cell = [9, 0]
     }
 
     fn best(ll: &[f32]) -> usize {
-        (0..ll.len()).max_by(|&a, &b| ll[a].total_cmp(&ll[b])).unwrap()
+        (0..ll.len())
+            .max_by(|&a, &b| ll[a].total_cmp(&ll[b]))
+            .unwrap()
     }
 
     #[test]
@@ -355,15 +363,25 @@ cell = [9, 0]
         let mut one = PathLoss::with_anchors(
             &site,
             &[
-                Some((site.metres(Cell::new(0, 0)), PathLossConfig::default().radio(-59.0))),
+                Some((
+                    site.metres(Cell::new(0, 0)),
+                    PathLossConfig::default().radio(-59.0),
+                )),
                 None,
             ],
         )
         .unwrap();
-        one.log_likelihood(&[-80.0, -105.0], &[true, false], &mut unheard_anchor_ignored);
+        one.log_likelihood(
+            &[-80.0, -105.0],
+            &[true, false],
+            &mut unheard_anchor_ignored,
+        );
         let penalty = |ll: &[f32]| ll[9] - ll[5];
         assert!(penalty(&silent) < penalty(&unheard_anchor_ignored));
-        assert!(penalty(&silent) > -10.0, "silence is not a verdict: {silent:?}");
+        assert!(
+            penalty(&silent) > -10.0,
+            "silence is not a verdict: {silent:?}"
+        );
     }
 
     #[test]
