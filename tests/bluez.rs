@@ -477,3 +477,50 @@ async fn record_writes_the_adverts_bluez_reports() {
         "record stops the scan it started"
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_powered_off_adapter_is_waited_for_and_scanned_again_when_on() {
+    let Some(mut s) = setup("bluez-power", "").await else {
+        return;
+    };
+    location_after(&mut s.client, 0, "a location before the power goes off").await;
+    s.client.drain();
+    let seen = s.client.seen.len();
+    s.mock.send("adapter-power hci0 off");
+    let off = wait_after(
+        &mut s.client,
+        seen,
+        "the radio retrying, powered off",
+        |m| {
+            is_stats(m)
+                && m.json()["ble"]["state"] == "retrying"
+                && m.json()["ble"]["error"]
+                    .as_str()
+                    .is_some_and(|e| e.contains("hci0 is powered off"))
+        },
+    )
+    .await;
+    check_schema("stats", &off).unwrap();
+    // It waits with backoff instead of starting scans BlueZ would refuse.
+    let starts = s.mock.calls("StartDiscovery");
+    wait_after(&mut s.client, seen, "a third retry", |m| {
+        is_stats(m) && m.json()["ble"]["failures"].as_u64() >= Some(3)
+    })
+    .await;
+    assert_eq!(s.mock.calls("StartDiscovery"), starts);
+    s.client.drain();
+    assert!(
+        !s.client.seen[seen..]
+            .iter()
+            .any(|m| is_stats(m) && m.json()["ble"]["state"] == "scanning"),
+        "no scan while the adapter is off"
+    );
+
+    let seen = s.client.seen.len();
+    s.mock.send("adapter-power hci0 on");
+    wait_after(&mut s.client, seen, "scanning after power on", |m| {
+        is_stats(m) && m.json()["ble"]["state"] == "scanning"
+    })
+    .await;
+    location_after(&mut s.client, seen, "a location after power on").await;
+}

@@ -93,6 +93,8 @@ pub enum BleError {
          and `bluetoothctl show`"
     )]
     AdapterLost(String),
+    #[error("the Bluetooth adapter {0} is powered off; `bluetoothctl power on` turns it on")]
+    PoweredOff(String),
     #[error("BlueZ stopped sending events (the D-Bus connection closed)")]
     EventsEnded,
     #[error("Bluetooth: {0}")]
@@ -107,8 +109,16 @@ pub async fn connect() -> Result<Manager, BleError> {
     Manager::new().await.map_err(BleError::NoBluez)
 }
 
-/// Opens the configured adapter.
+/// Opens the configured adapter, which must be powered.
 pub async fn adapter(manager: &Manager, config: &BleConfig) -> Result<Adapter, BleError> {
+    let adapter = find(manager, config).await?;
+    if adapter.adapter_state().await? != CentralState::PoweredOn {
+        return Err(BleError::PoweredOff(name(&adapter).await));
+    }
+    Ok(adapter)
+}
+
+async fn find(manager: &Manager, config: &BleConfig) -> Result<Adapter, BleError> {
     let adapters = manager.adapters().await.map_err(BleError::NoBluez)?;
     let Some(name) = &config.adapter else {
         return adapters.into_iter().next().ok_or(BleError::NoAdapter);
@@ -124,6 +134,16 @@ pub async fn adapter(manager: &Manager, config: &BleConfig) -> Result<Adapter, B
     Err(BleError::AdapterNotFound(name.clone(), names.join(", ")))
 }
 
+/// The adapter's name as BlueZ gives it (`hci0`).
+async fn name(adapter: &Adapter) -> String {
+    adapter
+        .adapter_info()
+        .await
+        .ok()
+        .and_then(|info| info.split_whitespace().next().map(str::to_owned))
+        .unwrap_or_else(|| "(unnamed)".to_owned())
+}
+
 /// Scans until `events` is closed (then returns `Ok` after stopping
 /// discovery) or the adapter fails, sending one [`Event::Advert`] per iBeacon
 /// advert heard; `observer` names this host. A scan silent for
@@ -135,12 +155,7 @@ pub async fn scan(
     events: mpsc::Sender<Event>,
     mut restarted: impl FnMut(),
 ) -> Result<(), BleError> {
-    let name = adapter
-        .adapter_info()
-        .await
-        .ok()
-        .and_then(|info| info.split_whitespace().next().map(str::to_owned))
-        .unwrap_or_else(|| "(unnamed)".to_owned());
+    let name = name(adapter).await;
     let mut stream = adapter.events().await?;
     adapter.start_scan(ScanFilter::default()).await?;
     let mut heard = Heard::default();

@@ -8,6 +8,7 @@ command with one line, `ok ...` or `error ...`:
 
   adapter-add NAME                      add adapter NAME (e.g. hci0)
   adapter-remove NAME                   remove it and its devices (an unplug)
+  adapter-power NAME on|off             power it on or off
   beacon NAME ADDR UUID MAJOR MINOR POWER RSSI
                                         a device on NAME that advertises an
                                         iBeacon frame, announced as BlueZ does
@@ -123,6 +124,10 @@ class Mock:
         prefix = f"/org/bluez/{name}/"
         self.beacons = {a: b for a, b in self.beacons.items() if not b[0].startswith(prefix)}
 
+    def adapter_power(self, name, state):
+        powered = dbus.Boolean(state == "on", variant_level=1)
+        self.mock_of(f"/org/bluez/{name}").UpdateProperties("org.bluez.Adapter1", {"Powered": powered})
+
     def beacon(self, adapter, address, proximity_uuid, major, minor, power, rssi):
         path = device_path(adapter, address)
         payload = ibeacon_payload(proximity_uuid, int(major), int(minor), int(power))
@@ -168,6 +173,8 @@ class Mock:
             return self.adapter_add(*args)
         if verb == "adapter-remove":
             return self.adapter_remove(*args)
+        if verb == "adapter-power":
+            return self.adapter_power(*args)
         if verb == "beacon":
             return self.beacon(*args)
         if verb == "rssi":
