@@ -349,6 +349,9 @@ async fn a_lost_adapter_is_reported_retried_and_scanning_resumes_when_it_returns
         waits.windows(2).any(|w| w[1] > w[0]),
         "retry waits {waits:?} grow: {backoff}"
     );
+    // However often it retries, the gateway keeps one connection to the bus.
+    let pid = s.gateway.child.id();
+    assert_eq!(s.mock.send(&format!("connections {pid}")), "1");
 
     s.client.drain();
     let seen = s.client.seen.len();

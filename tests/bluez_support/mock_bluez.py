@@ -19,6 +19,7 @@ command with one line, `ok ...` or `error ...`:
                                         advert (PropertiesChanged of RSSI, as
                                         BlueZ reports duplicates); 0 stops
   calls NAME METHOD                     how often METHOD was called on NAME
+  connections PID                       how many bus connections process PID has
   quit
 
 What the template cannot carry and this script adds through the mock's
@@ -167,6 +168,12 @@ class Mock:
     def calls(self, adapter, method):
         return len(self.mock_of(f"/org/bluez/{adapter}").GetMethodCalls(method))
 
+    def connections(self, pid):
+        daemon = dbus.Interface(self.bus.get_object("org.freedesktop.DBus", "/org/freedesktop/DBus"),
+                                "org.freedesktop.DBus")
+        owners = [n for n in daemon.ListNames() if n.startswith(":")]
+        return sum(1 for n in owners if daemon.GetConnectionUnixProcessID(n) == int(pid))
+
     def command(self, words):
         verb, args = words[0], words[1:]
         if verb == "adapter-add":
@@ -182,6 +189,8 @@ class Mock:
         if verb == "adverts":
             self.advert_period = int(args[0]) / 1000.0
             return None
+        if verb == "connections":
+            return self.connections(*args)
         if verb == "calls":
             return self.calls(*args)
         raise ValueError(f"unknown command {verb!r}")
