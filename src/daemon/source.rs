@@ -121,7 +121,11 @@ pub async fn replay(replay: Replay, events: mpsc::Sender<Event>) -> anyhow::Resu
         if replay.speed > 0.0 {
             let t0 = *first_t.get_or_insert(event.t());
             let due = Duration::from_secs_f64(((event.t() - t0) / replay.speed).max(0.0));
-            tokio::time::sleep_until(started + due).await;
+            tokio::select! {
+                _ = tokio::time::sleep_until(started + due) => {}
+                // Shutting down: stop now rather than at the next advert.
+                _ = events.closed() => break,
+            }
         }
         if events.send(event).await.is_err() {
             break;
