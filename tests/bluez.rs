@@ -414,9 +414,10 @@ async fn a_silent_scan_is_restarted_within_its_time_and_counted() {
         "silent scan restarted {restarted_s:.1} s after the last advert (limit {SILENT_S} s)"
     );
     // The restart is due SILENT_S after the last advert, which is at most one
-    // advert period before the adverts stopped; allow the stats' trip.
+    // advert period before the adverts stopped; allow the stats' trip on a
+    // loaded machine.
     assert!(
-        restarted_s <= SILENT_S + 0.5,
+        restarted_s <= SILENT_S + 1.0,
         "restarted {restarted_s:.1} s after going silent"
     );
 
