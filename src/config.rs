@@ -114,6 +114,7 @@ impl Config {
             .pathloss
             .validate()
             .map_err(|e| format!("[localizer.pathloss] {e}"))?;
+        self.ble.validate()?;
         self.mqtt.validate().map_err(|e| e.to_string())?;
         self.store.validate()?;
         Ok(())

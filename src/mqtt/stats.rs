@@ -8,7 +8,7 @@ pub const STATS_SCHEMA: &str = "gangway.stats/1";
 
 /// The counters in [`Stats`] that only grow, with a human name each (Home
 /// Assistant discovery makes one sensor per entry).
-pub const COUNTERS: [(&str, &str); 20] = [
+pub const COUNTERS: [(&str, &str); 21] = [
     ("sightings", "Sightings"),
     ("sightings_ignored", "Sightings ignored"),
     ("fixes", "Fixes"),
@@ -29,6 +29,7 @@ pub const COUNTERS: [(&str, &str); 20] = [
     ("reload_failures", "Refused reloads"),
     ("recorded", "Learning records"),
     ("store_errors", "Learning store errors"),
+    ("scan_restarts", "Silent scan restarts"),
 ];
 
 /// Gauges (current values), with a human name each.
@@ -74,6 +75,8 @@ pub struct Stats {
     /// Rows written to the learning store, and failed writes.
     pub recorded: u64,
     pub store_errors: u64,
+    /// Bluetooth scans restarted after `[ble] silent_restart_s` of silence.
+    pub scan_restarts: u64,
     pub tracked: u64,
     /// The site's name and map hash, so a reload is visible.
     pub site: String,
@@ -96,4 +99,7 @@ pub struct BleStatus {
     pub failures: u64,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub retry_in_s: Option<f64>,
+    /// Silent scans restarted; published as the top-level `scan_restarts`.
+    #[serde(skip)]
+    pub scan_restarts: u64,
 }
