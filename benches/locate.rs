@@ -65,14 +65,7 @@ fn benches(c: &mut Criterion) {
     let samples: Vec<_> = survey.samples.iter().collect();
     let missing = WindowConfig::default().missing_dbm;
     let tracker_config = TrackerConfig::default();
-    let mut knn = Knn::new(
-        &KnnConfig::default(),
-        &site,
-        &samples,
-        missing,
-        &tracker_config,
-    )
-    .unwrap();
+    let mut knn = Knn::new(&KnnConfig::default(), &site, &samples, missing).unwrap();
     let mut radiomap = RadioMap::new(
         &RadioMapConfig::default(),
         &site,

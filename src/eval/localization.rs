@@ -261,7 +261,6 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
                 site,
                 &train,
                 setup.window.missing_dbm,
-                &setup.tracker,
             )?),
             Method::Radiomap => Box::new(RadioMap::new(
                 &setup.localizer.radiomap,

@@ -170,7 +170,6 @@ pub fn build(
             site,
             &window::anchor_ids(site, windows.orientation),
             windows.missing_dbm,
-            tracker,
         )?),
         Method::Radiomap => Box::new(radiomap::RadioMap::load(
             &config.radiomap,
