@@ -175,7 +175,7 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
         out: Vec::new(),
         state,
     };
-    daemon.send();
+    daemon.publish_occupancy();
 
     let mut terminate = signal(SignalKind::terminate())?;
     let mut interrupt = signal(SignalKind::interrupt())?;
@@ -339,9 +339,7 @@ impl Daemon {
         if announced {
             self.refresh_birth();
         }
-        if let Some(counts) = self.occupancy.update(&self.topics, now()) {
-            self.link.publish(&counts);
-        }
+        self.publish_occupancy();
     }
 
     /// Keeps the discovery configs re-sent after a reconnect in step with the
@@ -429,6 +427,7 @@ impl Daemon {
     /// places it no longer has).
     fn reload_places(&mut self) {
         self.occupancy = occupancy(&self.state);
+        self.publish_occupancy();
         let Some(old) = self.discovery.replace(discovery(&self.state)) else {
             return;
         };
@@ -441,7 +440,17 @@ impl Daemon {
                 self.link.publish_raw(gone, Vec::new(), true);
             }
         }
+        for config in new.gateway() {
+            self.link.publish(&config);
+        }
         self.refresh_birth();
+    }
+
+    /// The occupancy counts, if they changed since they were last sent.
+    fn publish_occupancy(&mut self) {
+        if let Some(counts) = self.occupancy.update(&self.topics, now()) {
+            self.link.publish(&counts);
+        }
     }
 
     /// SIGHUP: load everything anew; swap only if all of it loads.
