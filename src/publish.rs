@@ -5,6 +5,9 @@
 //! Topics under the prefix (default `gangway/<gateway id>`):
 //! - `<prefix>/devices/<device>/location`: a [`Location`] per fix;
 //! - `<prefix>/devices/<device>/path`: a [`RouteReply`] per route request;
+//! - `<prefix>/devices/<device>/presence`: Home Assistant's tracker state
+//!   (`mqtt::discovery`);
+//! - `<prefix>/occupancy`: devices per named place (`mqtt::occupancy`);
 //! - `<prefix>/status`, `<prefix>/stats` and the subscribed topics
 //!   (`route/set`, `feedback`, `scans`): see `mqtt` and docs/mqtt.md.
 
@@ -142,6 +145,16 @@ impl Topics {
 
     pub fn location(&self, device: &str) -> String {
         format!("{}/devices/{device}/location", self.prefix)
+    }
+
+    /// Plain-text tracker state for Home Assistant: place, `home` or `not_home`.
+    pub fn presence(&self, device: &str) -> String {
+        format!("{}/devices/{device}/presence", self.prefix)
+    }
+
+    /// Retained devices per named place.
+    pub fn occupancy(&self) -> String {
+        format!("{}/occupancy", self.prefix)
     }
 
     pub fn path(&self, device: &str) -> String {

@@ -27,12 +27,12 @@ fn analyze(args: &[&str], unit: &Path) -> std::process::Output {
 fn the_unit_verifies_and_is_hardened() {
     let repo = Path::new(env!("CARGO_MANIFEST_DIR"));
     let unit = std::fs::read_to_string(repo.join("systemd/gangway.service")).unwrap();
-    assert!(unit.contains("ExecStart=/usr/local/bin/gangway run"));
+    assert!(unit.contains("ExecStart=/usr/bin/gangway run"));
     let dir = tempfile::tempdir().unwrap();
     let copy = dir.path().join("gangway.service");
     std::fs::write(
         &copy,
-        unit.replace("/usr/local/bin/gangway", env!("CARGO_BIN_EXE_gangway")),
+        unit.replace("/usr/bin/gangway", env!("CARGO_BIN_EXE_gangway")),
     )
     .unwrap();
 

@@ -23,6 +23,7 @@ use tokio::time::{Instant, MissedTickBehavior};
 use crate::locate::window::Orientation;
 use crate::mqtt::discovery::Discovery;
 use crate::mqtt::inbound::{Inbound, Inbox, Rejected};
+use crate::mqtt::occupancy::Occupancy;
 use crate::mqtt::stats::{BleStatus, STATS_SCHEMA, Stats};
 use crate::mqtt::{self, Link, sightings};
 use crate::pipeline;
@@ -75,6 +76,8 @@ struct Daemon {
     discovery: Option<Discovery>,
     /// Devices with a published discovery config.
     announced: HashSet<String>,
+    /// Devices per named place, sent when it changes.
+    occupancy: Occupancy,
     site_prefix: String,
     /// Own sightings waiting to be shared (advertiser orientation only).
     share: Option<Vec<Sighting>>,
@@ -119,13 +122,7 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
         inbox.subscriptions(),
     )?;
     let (link, mut inbound) = Link::start(settings);
-    let discovery = config.mqtt.ha_discovery.then(|| {
-        Discovery::new(
-            &config.mqtt.discovery_prefix,
-            &config.gateway_id,
-            topics.clone(),
-        )
-    });
+    let discovery = config.mqtt.ha_discovery.then(|| discovery(&state));
     if let Some(d) = &discovery {
         link.set_birth(&d.gateway(), true);
     }
@@ -170,6 +167,7 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
         link,
         discovery,
         announced: HashSet::new(),
+        occupancy: occupancy(&state),
         site_prefix,
         share: sharing.then(Vec::new),
         counters: Counters::default(),
@@ -179,6 +177,7 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
         out: Vec::new(),
         state,
     };
+    daemon.publish_occupancy();
 
     let mut terminate = signal(SignalKind::terminate())?;
     let mut interrupt = signal(SignalKind::interrupt())?;
@@ -321,7 +320,9 @@ impl Daemon {
     }
 
     /// Publishes what the pipeline produced, announcing new devices to Home
-    /// Assistant before their first location.
+    /// Assistant before their first location and giving each tracker its
+    /// state before the location that carries its attributes; then the
+    /// occupancy counts, if they changed.
     fn send(&mut self) {
         let mut announced = false;
         for message in self.out.drain(..) {
@@ -334,6 +335,11 @@ impl Daemon {
                 self.link.publish(&discovery.device_tracker(device));
                 announced = true;
             }
+            if let Some((topic, state)) = self.discovery.as_ref().and_then(|d| d.presence(&message))
+            {
+                self.link.publish_raw(topic, state.into_bytes(), false);
+            }
+            self.occupancy.observe(&message);
             if let Some(recorder) = &mut self.recorder {
                 recorder.published(&message);
             }
@@ -342,6 +348,7 @@ impl Daemon {
         if announced {
             self.refresh_birth();
         }
+        self.publish_occupancy();
     }
 
     /// Keeps the discovery configs re-sent after a reconnect in step with the
@@ -425,6 +432,37 @@ impl Daemon {
         });
     }
 
+    /// After a reload: occupancy starts afresh with the tracks, and Home
+    /// Assistant gets sensors for the new site's places (and loses those of
+    /// places it no longer has).
+    fn reload_places(&mut self) {
+        self.occupancy = occupancy(&self.state);
+        self.publish_occupancy();
+        let Some(old) = self.discovery.replace(discovery(&self.state)) else {
+            return;
+        };
+        let new = self.discovery.as_ref().expect("just set");
+        for place in old.place_names() {
+            let topic = old.occupancy_config_topic(place);
+            if let Some(gone) =
+                topic.filter(|t| new.occupancy_config_topic(place).as_ref() != Some(t))
+            {
+                self.link.publish_raw(gone, Vec::new(), true);
+            }
+        }
+        for config in new.gateway() {
+            self.link.publish(&config);
+        }
+        self.refresh_birth();
+    }
+
+    /// The occupancy counts, if they changed since they were last sent.
+    fn publish_occupancy(&mut self) {
+        if let Some(counts) = self.occupancy.update(&self.topics, now()) {
+            self.link.publish(&counts);
+        }
+    }
+
     /// SIGHUP: load everything anew; swap only if all of it loads.
     fn reload(&mut self, config_path: &std::path::Path) {
         let _ = sd_notify::notify(&[sd_notify::NotifyState::Reloading]);
@@ -449,6 +487,7 @@ impl Daemon {
                         "reloaded config and site; tracks start afresh"
                     );
                     self.counters.reloads += 1;
+                    self.reload_places();
                     None
                 }
             },
@@ -460,6 +499,21 @@ impl Daemon {
         self.publish_stats();
         let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
     }
+}
+
+/// Home Assistant discovery for the loaded config and site.
+fn discovery(state: &Loaded) -> Discovery {
+    Discovery::new(
+        &state.config.mqtt.discovery_prefix,
+        &state.config.gateway_id,
+        state.pipeline.topics().clone(),
+        state.site.places().keys().map(String::as_str),
+    )
+}
+
+/// Occupancy of the loaded site's places, everyone away.
+fn occupancy(state: &Loaded) -> Occupancy {
+    Occupancy::new(state.site.places().keys().map(String::as_str))
 }
 
 fn now() -> f64 {

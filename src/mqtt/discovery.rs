@@ -1,13 +1,37 @@
 //! Home Assistant MQTT discovery: retained config messages under
 //! `<discovery prefix>/<component>/<node>/<object>/config` that make Home
-//! Assistant create a `device_tracker` per tracked device (attributes x, y,
-//! place, confidence) and, for the gateway, a connectivity sensor and one
-//! sensor per counter of `<prefix>/stats`.
+//! Assistant create
+//! - a `device_tracker` per tracked device: state from the plain-text
+//!   `<prefix>/devices/<device>/presence` ([`Discovery::presence`]), attributes
+//!   x, y, place, confidence, cell, label and t from its location messages;
+//! - for the gateway: a connectivity sensor, one sensor per counter of
+//!   `<prefix>/stats`, and one occupancy sensor per named place of the site,
+//!   reading `<prefix>/occupancy` (see `occupancy`).
+//!
+//! Why a separate presence topic: Home Assistant's MQTT device tracker (up to
+//! 2024.1 at least) compares a value template's result only with
+//! `payload_home` / `payload_not_home` and otherwise takes the *raw* payload
+//! as the location name, so a tracker reading the location JSON shows the
+//! whole JSON whenever the device is at a named place. A payload that already
+//! is the state is read the same way by every version.
 
 use serde_json::json;
 
 use super::stats::{COUNTERS, GAUGES};
 use crate::publish::{Message, Topics};
+
+/// Tracker state of a device located in the building but at no named place.
+pub const HOME: &str = "home";
+/// Tracker state of a device whose location is unknown.
+pub const NOT_HOME: &str = "not_home";
+
+/// The tracker's attributes, from one location message. `get` keeps keys the
+/// message leaves out (an older gateway's `label`) from failing the template:
+/// every message updates every attribute, null when it has no value.
+const TRACKER_ATTRIBUTES: &str = "{{ {'x': value_json.get('x_m'), 'y': value_json.get('y_m'), \
+     'place': value_json.get('place'), 'confidence': value_json.get('confidence'), \
+     'cell': value_json.get('cell'), 'label': value_json.get('label'), \
+     't': value_json.get('t')} | tojson }}";
 
 /// Builds discovery messages for one gateway.
 pub struct Discovery {
@@ -15,15 +39,29 @@ pub struct Discovery {
     gateway_id: String,
     node: String,
     topics: Topics,
+    /// The site's named places with the object id of each one's occupancy
+    /// sensor, in the site's order.
+    places: Vec<(String, String)>,
 }
 
 impl Discovery {
-    pub fn new(discovery_prefix: &str, gateway_id: &str, topics: Topics) -> Self {
+    pub fn new<'a>(
+        discovery_prefix: &str,
+        gateway_id: &str,
+        topics: Topics,
+        places: impl IntoIterator<Item = &'a str>,
+    ) -> Self {
+        let places: Vec<&str> = places.into_iter().collect();
+        let places = places
+            .iter()
+            .map(|&place| (place.to_owned(), occupancy_object_id(place, &places)))
+            .collect();
         Discovery {
             prefix: discovery_prefix.to_owned(),
             gateway_id: gateway_id.to_owned(),
             node: object_id(gateway_id),
             topics,
+            places,
         }
     }
 
@@ -45,15 +83,20 @@ impl Discovery {
         }])
     }
 
+    fn config_topic(&self, component: &str, object: &str) -> String {
+        format!("{}/{component}/{}/{object}/config", self.prefix, self.node)
+    }
+
     fn config(&self, component: &str, object: &str, payload: serde_json::Value) -> Message {
         Message {
-            topic: format!("{}/{component}/{}/{object}/config", self.prefix, self.node),
+            topic: self.config_topic(component, object),
             payload,
             retain: true,
         }
     }
 
-    /// The gateway's own entities: connectivity and counters.
+    /// The gateway's own entities: connectivity, counters and one occupancy
+    /// sensor per named place.
     pub fn gateway(&self) -> Vec<Message> {
         let mut out = vec![self.config(
             "binary_sensor",
@@ -88,7 +131,51 @@ impl Discovery {
                 }),
             ));
         }
+        for (place, object) in &self.places {
+            out.push(self.occupancy_sensor(place, object));
+        }
         out
+    }
+
+    fn occupancy_sensor(&self, place: &str, object: &str) -> Message {
+        // A JSON string is also a Jinja string literal: quotes and backslashes
+        // in a place's name stay inside it.
+        let key = serde_json::Value::from(place).to_string();
+        self.config(
+            "sensor",
+            object,
+            json!({
+                "name": format!("{place} occupancy"),
+                "unique_id": format!("gangway_{}_{object}", self.node),
+                "state_topic": self.topics.occupancy(),
+                "value_template": format!("{{{{ value_json.places[{key}] | default(0) }}}}"),
+                "unit_of_measurement": "devices",
+                "state_class": "measurement",
+                "icon": "mdi:account-group",
+                "availability": self.availability(),
+                "device": self.gateway_device(),
+            }),
+        )
+    }
+
+    /// The named places with an occupancy sensor.
+    pub fn place_names(&self) -> impl Iterator<Item = &str> {
+        self.places.iter().map(|(name, _)| name.as_str())
+    }
+
+    /// The config topic of `place`'s occupancy sensor (`None` for a name the
+    /// site does not have): an empty retained message there removes it.
+    pub fn occupancy_config_topic(&self, place: &str) -> Option<String> {
+        self.places
+            .iter()
+            .find(|(name, _)| name == place)
+            .map(|(_, object)| self.config_topic("sensor", object))
+    }
+
+    /// The config topic of `device`'s tracker: an empty retained message there
+    /// removes the tracker from Home Assistant and the broker.
+    pub fn tracker_config_topic(&self, device: &str) -> String {
+        self.config_topic("device_tracker", &object_id(device))
     }
 
     /// A tracker for one device, sent once per device the gateway locates.
@@ -98,16 +185,14 @@ impl Discovery {
             "device_tracker",
             &object,
             json!({
-                "name": device,
+                // No entity name of its own: the tracker is the device, and
+                // Home Assistant names it after the device (an entity name
+                // equal to the device name draws a warning and is replaced).
+                "name": null,
                 "unique_id": format!("gangway_{}_{object}", self.node),
-                "state_topic": self.topics.location(device),
-                // Home Assistant reads any state other than home/not_home as
-                // a location name: the place, or `home` between places.
-                "value_template": "{{ value_json.place | default('home', true) }}",
+                "state_topic": self.topics.presence(device),
                 "json_attributes_topic": self.topics.location(device),
-                "json_attributes_template":
-                    "{{ {'x': value_json.x_m, 'y': value_json.y_m, 'place': value_json.place, \
-                     'confidence': value_json.confidence, 'cell': value_json.cell} | tojson }}",
+                "json_attributes_template": TRACKER_ATTRIBUTES,
                 "source_type": "bluetooth_le",
                 "availability": self.availability(),
                 "device": {
@@ -117,6 +202,24 @@ impl Discovery {
                 },
             }),
         )
+    }
+
+    /// The tracker state a location message sets, as `(topic, payload)`:
+    /// the named place, [`HOME`] in the building at no named place, or
+    /// [`NOT_HOME`] when the location is unknown (no cell). `None` for any
+    /// other message.
+    pub fn presence(&self, message: &Message) -> Option<(String, String)> {
+        let location = &message.payload;
+        if location["schema"] != crate::publish::LOCATION_SCHEMA {
+            return None;
+        }
+        let device = location["device"].as_str()?;
+        let state = if location["cell"].is_null() {
+            NOT_HOME
+        } else {
+            location["place"].as_str().unwrap_or(HOME)
+        };
+        Some((self.topics.presence(device), state.to_owned()))
     }
 }
 
@@ -133,28 +236,122 @@ fn object_id(id: &str) -> String {
         .collect()
 }
 
+/// `occupancy_<place>`, made unique among `all` places: names that map to the
+/// same object id (`a b`, `a_b`) each get a short hash of their own name.
+fn occupancy_object_id(place: &str, all: &[&str]) -> String {
+    use sha2::Digest;
+    let id = object_id(place);
+    if all.iter().filter(|&&p| object_id(p) == id).count() == 1 {
+        return format!("occupancy_{id}");
+    }
+    let hash = sha2::Sha256::digest(place.as_bytes());
+    format!(
+        "occupancy_{id}_{:02x}{:02x}{:02x}{:02x}",
+        hash[0], hash[1], hash[2], hash[3]
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::publish::LOCATION_SCHEMA;
+
+    fn discovery() -> Discovery {
+        Discovery::new(
+            "homeassistant",
+            "gw.1",
+            Topics::new("gangway/gw.1"),
+            ["help desk", "north stacks"],
+        )
+    }
 
     #[test]
-    fn a_tracker_reads_its_state_and_attributes_from_the_location_topic() {
-        let d = Discovery::new("homeassistant", "gw.1", Topics::new("gangway/gw.1"));
+    fn a_tracker_reads_its_state_from_presence_and_attributes_from_the_location_topic() {
+        let d = discovery();
         let m = d.device_tracker("phone 7");
         assert_eq!(m.topic, "homeassistant/device_tracker/gw_1/phone_7/config");
+        assert_eq!(m.topic, d.tracker_config_topic("phone 7"));
         assert!(m.retain);
+        assert_eq!(
+            m.payload["state_topic"],
+            "gangway/gw.1/devices/phone 7/presence"
+        );
+        assert!(m.payload.get("value_template").is_none());
         assert_eq!(
             m.payload["json_attributes_topic"],
             "gangway/gw.1/devices/phone 7/location"
         );
+        assert!(m.payload["name"].is_null());
+        assert_eq!(m.payload["device"]["name"], "phone 7");
         assert_eq!(m.payload["availability"][0]["topic"], "gangway/gw.1/status");
     }
 
+    fn location(place: serde_json::Value, cell: serde_json::Value) -> Message {
+        Message {
+            topic: "gangway/gw.1/devices/phone 7/location".into(),
+            payload: json!({"schema": LOCATION_SCHEMA, "device": "phone 7", "cell": cell,
+                            "place": place}),
+            retain: false,
+        }
+    }
+
     #[test]
-    fn the_gateway_has_a_status_and_one_sensor_per_stat() {
-        let d = Discovery::new("ha", "gw", Topics::new("gangway/gw"));
+    fn presence_is_the_place_home_between_places_and_not_home_when_unknown() {
+        let d = discovery();
+        let topic = "gangway/gw.1/devices/phone 7/presence".to_owned();
+        let at = |place, cell| d.presence(&location(place, cell));
+        assert_eq!(
+            at(json!("help desk"), json!([9, 9])),
+            Some((topic.clone(), "help desk".into()))
+        );
+        assert_eq!(
+            at(json!(null), json!([3, 4])),
+            Some((topic.clone(), HOME.into()))
+        );
+        assert_eq!(at(json!(null), json!(null)), Some((topic, NOT_HOME.into())));
+        let stats = Message {
+            topic: "gangway/gw.1/stats".into(),
+            payload: json!({"schema": "gangway.stats/1"}),
+            retain: true,
+        };
+        assert_eq!(d.presence(&stats), None);
+    }
+
+    #[test]
+    fn the_gateway_has_a_status_one_sensor_per_stat_and_one_per_place() {
+        let d = discovery();
         let configs = d.gateway();
-        assert_eq!(configs.len(), 1 + COUNTERS.len() + GAUGES.len());
-        assert!(configs.iter().all(|m| m.topic.starts_with("ha/")));
+        assert_eq!(configs.len(), 1 + COUNTERS.len() + GAUGES.len() + 2);
+        assert!(
+            configs
+                .iter()
+                .all(|m| m.topic.starts_with("homeassistant/"))
+        );
+        let desk = configs
+            .iter()
+            .find(|m| Some(&m.topic) == d.occupancy_config_topic("help desk").as_ref())
+            .expect("a help desk occupancy sensor");
+        assert_eq!(
+            desk.topic,
+            "homeassistant/sensor/gw_1/occupancy_help_desk/config"
+        );
+        assert_eq!(desk.payload["state_topic"], "gangway/gw.1/occupancy");
+        assert_eq!(
+            desk.payload["value_template"],
+            "{{ value_json.places[\"help desk\"] | default(0) }}"
+        );
+        assert_eq!(d.occupancy_config_topic("moon"), None);
+    }
+
+    #[test]
+    fn places_with_the_same_object_id_get_distinct_sensors() {
+        let d = Discovery::new("ha", "gw", Topics::new("gangway/gw"), ["a b", "a_b", "c"]);
+        let topics: Vec<_> = ["a b", "a_b", "c"]
+            .iter()
+            .map(|p| d.occupancy_config_topic(p).unwrap())
+            .collect();
+        assert_ne!(topics[0], topics[1]);
+        assert!(topics[0].starts_with("ha/sensor/gw/occupancy_a_b_"));
+        assert_eq!(topics[2], "ha/sensor/gw/occupancy_c/config");
     }
 }

@@ -8,6 +8,7 @@
 //!   shared sightings) read into what the pipeline consumes;
 //! - [`sightings`]: the shared-sightings payload between gateways of a site;
 //! - [`stats`]: the retained counters payload;
+//! - [`occupancy`]: the retained devices-per-place payload;
 //! - [`discovery`]: Home Assistant MQTT discovery;
 //! - [`broker`]: the embedded broker used when no url is configured.
 
@@ -16,6 +17,7 @@ pub mod config;
 pub mod discovery;
 pub mod inbound;
 pub mod link;
+pub mod occupancy;
 pub mod queue;
 pub mod sightings;
 pub mod stats;

@@ -21,7 +21,7 @@ pub fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-fn free_port() -> u16 {
+pub fn free_port() -> u16 {
     TcpListener::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
@@ -451,6 +451,7 @@ pub fn schema_of(topic: &str) -> Option<&'static str> {
         "location" => "location",
         "path" => "path",
         "stats" => "stats",
+        "occupancy" => "occupancy",
         _ if topic.contains("/sightings/") => "sightings",
         _ => return None,
     })
