@@ -6,6 +6,7 @@
 //!   with motion);
 //! - [`tracker`] keeps a belief per entity that respects walls and walking speed.
 
+pub mod bounds;
 pub mod knn;
 pub mod onnx;
 pub mod pathloss;
