@@ -166,15 +166,19 @@ async fn every_request_of_a_flood_is_answered() {
     let path = format!("{PREFIX}/devices/walker-01/path");
     let mut codes: HashMap<String, String> = HashMap::new();
     let deadline = tokio::time::Instant::now() + Duration::from_secs(60);
+    let mut last_stats = Value::Null;
     while codes.len() < N {
         assert!(
             tokio::time::Instant::now() < deadline,
-            "{} of {N} requests answered",
+            "{} of {N} requests answered; {last_stats}",
             codes.len()
         );
         client.drain();
         for m in client.seen.drain(..) {
             let reply = m.json();
+            if m.topic.ends_with("/stats") {
+                last_stats = reply.clone();
+            }
             let Some(id) = reply["request_id"].as_str().filter(|_| m.topic == path) else {
                 continue;
             };

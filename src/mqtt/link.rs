@@ -280,6 +280,10 @@ struct Controller {
     birth: BTreeMap<String, Outgoing>,
     /// When connections were lost recently (within [`FLAP_WINDOW`]).
     losses: VecDeque<Instant>,
+    /// Acknowledgements the session's channel had no room for yet (payloads
+    /// dropped: only the packet id and QoS matter). A lost one would hold a
+    /// slot of the broker's inflight window until the next session.
+    acks: VecDeque<Publish>,
     /// Handed to the current session, in order, not yet seen on the wire.
     handed: VecDeque<Outgoing>,
     /// Written with this packet id, awaiting PUBACK; the sequence number
@@ -308,6 +312,7 @@ impl Controller {
             held: VecDeque::new(),
             birth: BTreeMap::new(),
             losses: VecDeque::new(),
+            acks: VecDeque::new(),
             handed: VecDeque::new(),
             awaiting: BTreeMap::new(),
             next_seq: 0,
@@ -459,7 +464,8 @@ impl Controller {
         }
         // Acknowledged only once the daemon's channel takes them (`deliver`).
         options.set_manual_acks(true);
-        let (client, mut eventloop) = AsyncClient::new(options, SESSION_WINDOW);
+        // Room for a full window of publications and as many acknowledgements.
+        let (client, mut eventloop) = AsyncClient::new(options, 2 * SESSION_WINDOW);
         // Route replies are small and wanted now: without TCP_NODELAY, Nagle's
         // algorithm holds a reply until the broker acknowledges the last
         // packet, which with delayed ACKs cost tens of milliseconds per reply.
@@ -545,13 +551,27 @@ impl Controller {
         self.held.push_back((received, publish));
     }
 
-    fn ack(&self, publish: &Publish) {
-        if let Conn::Session { client, .. } = &self.conn
-            && let Err(e) = client.try_ack(publish)
-        {
-            // The session's channel is full or gone: the broker redelivers
-            // what it did not see acknowledged when the session is renewed.
-            tracing::debug!("cannot acknowledge a message now: {e}");
+    /// Acknowledges a message now, or as soon as the session's channel has
+    /// room (acknowledgements go before publications, see `flush`).
+    fn ack(&mut self, publish: &Publish) {
+        if publish.qos == QoS::AtMostOnce {
+            return;
+        }
+        let mut ack = publish.clone();
+        ack.payload = Bytes::new();
+        self.acks.push_back(ack);
+        self.send_acks();
+    }
+
+    fn send_acks(&mut self) {
+        let Conn::Session { client, .. } = &self.conn else {
+            return;
+        };
+        while let Some(ack) = self.acks.front() {
+            if client.try_ack(ack).is_err() {
+                return;
+            }
+            self.acks.pop_front();
         }
     }
 
@@ -616,6 +636,7 @@ impl Controller {
         // Unacknowledged messages come again from the broker on the next
         // session; only QoS 0 ones, which nobody redelivers, are kept.
         self.held.retain(|(_, p)| p.qos == QoS::AtMostOnce);
+        self.acks.clear();
         self.stats.connected.store(false, Ordering::Relaxed);
         self.stats.connect_failures.fetch_add(1, Ordering::Relaxed);
         let wait = self.backoff;
@@ -647,6 +668,7 @@ impl Controller {
 
     /// Moves queued messages into the connected session, up to its window.
     fn flush(&mut self) {
+        self.send_acks();
         let Conn::Session {
             client,
             connected: true,
