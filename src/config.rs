@@ -79,7 +79,7 @@ impl Default for LimitsConfig {
             max_pending_requests: 256,
             request_deadline_s: 2.0,
             scans_per_device_per_s: 10,
-            requests_per_device_per_s: 5,
+            requests_per_device_per_s: 20,
         }
     }
 }

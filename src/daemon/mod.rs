@@ -139,7 +139,7 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
     // A store that cannot be opened never stops the gateway: it is moved
     // aside (or, if even that fails, the gateway serves without recording).
     let (recorder, store_fallback) = if config.store.enabled {
-        match Recorder::open(&config.store) {
+        match Recorder::open(&config.store, now()) {
             Ok((recorder, moved)) => (Some(recorder), moved),
             Err(e) => {
                 let why = format!("[store] {e}; serving without recording");
@@ -344,7 +344,9 @@ impl Daemon {
                 code,
                 message,
             }) => {
-                tracing::warn!(%topic, code, "refused route request: {message}");
+                if let Some(more) = self.throttles.rejected.ready() {
+                    tracing::warn!(%topic, code, not_logged = more, "refused route request: {message}");
+                }
                 if code == "payload_too_large" {
                     self.counters.oversized += 1;
                 }

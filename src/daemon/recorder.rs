@@ -58,7 +58,12 @@ struct RouteFields {
 impl Recorder {
     /// Opens the store, moving a broken one aside; returns the recorder and,
     /// when the store had to be moved aside, what happened.
-    pub fn open(config: &StoreConfig) -> Result<(Recorder, Option<String>), StoreError> {
+    /// The first prune is an hour after `now` (seconds since the epoch), not
+    /// at once: a replayed log's old timestamps would be pruned as they come.
+    pub fn open(
+        config: &StoreConfig,
+        now: f64,
+    ) -> Result<(Recorder, Option<String>), StoreError> {
         let path = config.resolved_path();
         let (store, moved) = Store::open_or_move_aside(&path)?;
         if let Some(moved) = &moved {
@@ -69,7 +74,7 @@ impl Recorder {
             store,
             config: config.clone(),
             pending: Vec::new(),
-            last_prune: f64::NEG_INFINITY,
+            last_prune: now,
             last_quota: f64::NEG_INFINITY,
             errors: 0,
             written: 0,
