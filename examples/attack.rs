@@ -331,7 +331,7 @@ async fn fakes(count: usize) {
             None => lost += 1,
         }
         n += 1;
-        tokio::time::sleep(Duration::from_millis(100)).await;
+        tokio::time::sleep(Duration::from_millis(20)).await;
     }
     let flood_s = started.elapsed().as_secs_f64();
     let flood = flooding.await.unwrap();
@@ -364,7 +364,7 @@ async fn fakes(count: usize) {
         "health_max_ms": latencies.last(), "target_p99_ms": 200,
         "tracked": stats["tracked"], "windows": stats["windows"], "announced": stats["announced"],
         "evicted_devices": stats["evicted_devices"], "retained_tracker_configs": retained,
-        "rate_limited": stats["rate_limited"], "inbound_dropped": stats["inbound_dropped"],
+        "rate_limited": stats["rate_limited"], "inbound_dropped": stats["inbound_dropped"], "queue_dropped": stats["queue_dropped"],
         "max_devices": 10_000,
     }));
 }

@@ -66,6 +66,10 @@ pub struct LimitsConfig {
     pub request_deadline_s: f64,
     /// Phone scans taken per device per second; more are dropped and counted.
     pub scans_per_device_per_s: u32,
+    /// Phone scans taken per second from all devices together: a flood of
+    /// fake ids (a few scans each) is shed here, cheaply, so that route
+    /// requests behind it are still answered in time.
+    pub scans_per_s: u32,
     /// Route requests taken per device per second; more are answered
     /// `rate_limited`.
     pub requests_per_device_per_s: u32,
@@ -79,6 +83,7 @@ impl Default for LimitsConfig {
             max_pending_requests: 256,
             request_deadline_s: 2.0,
             scans_per_device_per_s: 10,
+            scans_per_s: 2000,
             requests_per_device_per_s: 20,
         }
     }
@@ -94,9 +99,13 @@ impl LimitsConfig {
                 "[limits] `device_idle_s` and `request_deadline_s` must be positive seconds".into(),
             );
         }
-        if self.scans_per_device_per_s == 0 || self.requests_per_device_per_s == 0 {
+        if self.scans_per_device_per_s == 0
+            || self.scans_per_s == 0
+            || self.requests_per_device_per_s == 0
+        {
             return Err(
-                "[limits] `scans_per_device_per_s` and `requests_per_device_per_s` must be positive"
+                "[limits] `scans_per_device_per_s`, `scans_per_s` and `requests_per_device_per_s` \
+                 must be positive"
                     .into(),
             );
         }

@@ -54,6 +54,8 @@ const RECORD_INTERVAL: Duration = Duration::from_secs(1);
 const ISSUED_ROUTES: usize = 10_000;
 /// At most one line per this period for each kind of repeated refusal.
 const WARN_EVERY: Duration = Duration::from_secs(10);
+/// How often a backed-up link is checked for room again.
+const BACKLOG_POLL: Duration = Duration::from_millis(5);
 /// What an `overloaded` or `rate_limited` reply suggests waiting, seconds.
 const RETRY_AFTER_S: f64 = 1.0;
 
@@ -106,6 +108,8 @@ struct Daemon {
     announced_bounds: Bounds,
     requests: Requests,
     scan_rate: PerSecond,
+    /// All scans together (one key).
+    scan_total: PerSecond,
     request_rate: PerSecond,
     issued: Issued,
     throttles: Throttles,
@@ -224,6 +228,7 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
             Duration::from_secs_f64(limits.request_deadline_s),
         ),
         scan_rate: PerSecond::new(limits.scans_per_device_per_s),
+        scan_total: PerSecond::new(limits.scans_per_s),
         request_rate: PerSecond::new(limits.requests_per_device_per_s),
         issued: Issued::new(ISSUED_ROUTES),
         throttles: Throttles {
@@ -268,7 +273,12 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
                     daemon.send();
                 }
             },
-            Some(message) = inbound.recv() => daemon.inbound(&message),
+            // Nothing is taken in while the link is backed up: the replies
+            // would push older ones out of its queue; the broker (and the
+            // link's unacknowledged hold) keeps the requests meanwhile. A
+            // backlog drains with the broker's acknowledgements, so poll.
+            Some(message) = inbound.recv(), if daemon.link.has_room() => daemon.inbound(&message),
+            () = tokio::time::sleep(BACKLOG_POLL), if !daemon.link.has_room() => {}
             // Planning is the costly part: one request per turn, so that
             // reading (and answering `overloaded`) keeps pace with the broker.
             () = std::future::ready(()), if !daemon.requests.is_empty() => daemon.serve_next(),
@@ -370,11 +380,11 @@ impl Daemon {
                 }
                 let device = scan.first().map(|s| s.observer.clone());
                 if let Some(device) = device
-                    && !self.scan_rate.allow(&device, now)
+                    && !(self.scan_total.allow("", now) && self.scan_rate.allow(&device, now))
                 {
                     self.counters.rate_limited += 1;
                     if let Some(more) = self.throttles.rate_limited.ready() {
-                        tracing::warn!(%topic, not_logged = more, "phone scans over [limits] scans_per_device_per_s dropped");
+                        tracing::warn!(%topic, not_logged = more, "phone scans over [limits] scans_per_s or scans_per_device_per_s dropped");
                     }
                     return;
                 }

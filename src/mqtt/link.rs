@@ -206,20 +206,29 @@ impl Link {
     /// Waits until at most half the queue bound is waiting or in flight. A
     /// producer that must not lose messages (`replay` at full speed) calls it
     /// between publications; the daemon does not, so that it keeps locating
-    /// while the broker is away.
+    /// while the broker is away (it checks [`Link::has_room`] before taking
+    /// requests instead).
     pub async fn wait_for_room(&self) {
-        let limit = (self.queue_max_messages / 2).max(1) as u64;
         loop {
-            let backlog = self.submitted.load(Ordering::Relaxed)
-                - self.stats.commands_taken.load(Ordering::Relaxed)
-                + self.stats.outstanding.load(Ordering::Relaxed);
-            if backlog < limit || self.task.is_finished() {
+            if self.has_room() {
                 return;
             }
             // Polling a counter is simpler than a wake-up protocol with the
             // link task, and a replay waiting on the broker can spare 2 ms.
             tokio::time::sleep(Duration::from_millis(2)).await;
         }
+    }
+
+    /// Whether at most half the queue bound is waiting or in flight (or the
+    /// link is gone, when waiting would be forever). The daemon takes no
+    /// request while it is not: replies it could not send would push older
+    /// ones out of the queue, so the broker holds the requests instead.
+    pub fn has_room(&self) -> bool {
+        let limit = (self.queue_max_messages / 2).max(1) as u64;
+        let backlog = self.submitted.load(Ordering::Relaxed)
+            - self.stats.commands_taken.load(Ordering::Relaxed)
+            + self.stats.outstanding.load(Ordering::Relaxed);
+        backlog < limit || self.task.is_finished()
     }
 
     /// Adds (or replaces, by topic) messages sent (before the queue) after
