@@ -101,7 +101,6 @@ impl Rig {
                 .unwrap(),
         )
     }
-
 }
 
 /// An MQTT client that can send anything, and sees replies and stats.
@@ -400,13 +399,19 @@ async fn requests(count: usize) {
         while codes.len() < count {
             let Some((reply, _)) = probe
                 .wait(Duration::from_secs(30), |t, v| {
-                    t.ends_with("/path") && v["request_id"].as_str().is_some_and(|id| id.starts_with('q'))
+                    t.ends_with("/path")
+                        && v["request_id"]
+                            .as_str()
+                            .is_some_and(|id| id.starts_with('q'))
                 })
                 .await
             else {
                 break;
             };
-            let code = reply["error"]["code"].as_str().unwrap_or("route").to_owned();
+            let code = reply["error"]["code"]
+                .as_str()
+                .unwrap_or("route")
+                .to_owned();
             codes.insert(reply["request_id"].as_str().unwrap().to_owned(), code);
         }
         let elapsed = started.elapsed().as_secs_f64();
@@ -528,7 +533,8 @@ fn garbage(mib: usize) {
     let lines = dir.path().join("garbage.jsonl");
     {
         let mut out = std::io::BufWriter::new(std::fs::File::create(&lines).unwrap());
-        let line = b"{\"t\": 1, \"type\": \"advert\", garbage garbage garbage garbage garbage garbage\n";
+        let line =
+            b"{\"t\": 1, \"type\": \"advert\", garbage garbage garbage garbage garbage garbage\n";
         for _ in 0..(mib * MIB / line.len()) {
             out.write_all(line).unwrap();
         }

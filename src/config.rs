@@ -92,7 +92,9 @@ impl Default for LimitsConfig {
 impl LimitsConfig {
     fn validate(&self) -> Result<(), String> {
         if self.max_devices == 0 || self.max_pending_requests == 0 {
-            return Err("[limits] `max_devices` and `max_pending_requests` must be positive".into());
+            return Err(
+                "[limits] `max_devices` and `max_pending_requests` must be positive".into(),
+            );
         }
         if !(self.device_idle_s > 0.0 && self.request_deadline_s > 0.0) {
             return Err(
@@ -136,9 +138,16 @@ pub enum ConfigError {
 /// Keys whose values are secrets: never repeated in an error.
 fn is_secret_key(key: &str) -> bool {
     let key = key.to_ascii_lowercase();
-    ["password", "passwd", "secret", "token", "credential", "private_key"]
-        .iter()
-        .any(|s| key.contains(s))
+    [
+        "password",
+        "passwd",
+        "secret",
+        "token",
+        "credential",
+        "private_key",
+    ]
+    .iter()
+    .any(|s| key.contains(s))
         && !key.ends_with("_file")
 }
 
@@ -204,8 +213,7 @@ impl Config {
             path: path.to_owned(),
             source,
         })?;
-        let mut config: Config =
-            toml::from_str(&text).map_err(|e| toml_error(path, &text, &e))?;
+        let mut config: Config = toml::from_str(&text).map_err(|e| toml_error(path, &text, &e))?;
         let base = path.parent().unwrap_or(Path::new("."));
         config.site = base.join(&config.site);
         if let Some(survey) = &mut config.localizer.knn.survey {

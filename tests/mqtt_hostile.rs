@@ -88,8 +88,18 @@ async fn messages_of_any_size_never_cost_the_connection() {
     let cases = [
         ("scans/poison", MIB, QoS::AtMostOnce, false),
         ("scans/poison", 2 * MIB, QoS::AtLeastOnce, false),
-        ("devices/walker-01/feedback", MIB + 1, QoS::AtLeastOnce, false),
-        ("devices/walker-01/route/set", 2 * MIB, QoS::AtLeastOnce, false),
+        (
+            "devices/walker-01/feedback",
+            MIB + 1,
+            QoS::AtLeastOnce,
+            false,
+        ),
+        (
+            "devices/walker-01/route/set",
+            2 * MIB,
+            QoS::AtLeastOnce,
+            false,
+        ),
         // Retained: every (re)subscription gets it again.
         ("scans/poison", 16 * MIB, QoS::AtLeastOnce, true),
     ];
@@ -141,7 +151,9 @@ async fn messages_of_any_size_never_cost_the_connection() {
     .await;
     assert_eq!(stats["disconnects"], 0, "{stats}");
     client
-        .wait_for("status online", |m| m.topic.ends_with("/status") && m.text() == "online")
+        .wait_for("status online", |m| {
+            m.topic.ends_with("/status") && m.text() == "online"
+        })
         .await;
 }
 
@@ -220,9 +232,7 @@ async fn fake_devices_are_bounded_and_their_trackers_withdrawn() {
         "gw-test",
         &waldo(),
         &broker,
-        &format!(
-            "[ble]\nadapter = \"hci-gangway-test-none\"\n[limits]\nmax_devices = {MAX}\n"
-        ),
+        &format!("[ble]\nadapter = \"hci-gangway-test-none\"\n[limits]\nmax_devices = {MAX}\n"),
     );
     let trackers = "homeassistant/device_tracker/gw-test/#".to_owned();
     let mut filters = replies_and_stats();
@@ -259,12 +269,17 @@ async fn fake_devices_are_bounded_and_their_trackers_withdrawn() {
         let withdrawn = client
             .seen
             .iter()
-            .filter(|m| m.topic.starts_with("homeassistant/device_tracker/") && m.payload.is_empty())
+            .filter(|m| {
+                m.topic.starts_with("homeassistant/device_tracker/") && m.payload.is_empty()
+            })
             .count();
         if withdrawn >= FAKES - MAX as usize {
             break;
         }
-        assert!(tokio::time::Instant::now() < deadline, "{withdrawn} withdrawn");
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "{withdrawn} withdrawn"
+        );
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
     // What the broker retains is at most the bound: a new subscriber gets
@@ -306,7 +321,10 @@ async fn a_truncated_store_is_moved_aside_and_feedback_needs_a_route_given() {
         "gw-test",
         &waldo(),
         &broker,
-        &format!("[store]\nenabled = true\npath = \"{}\"\n", store_path.display()),
+        &format!(
+            "[store]\nenabled = true\npath = \"{}\"\n",
+            store_path.display()
+        ),
     );
     let mut client = client(&broker, "test-store", &replies_and_stats()).await;
     let _gateway = Gateway::start(&config.path, &["--replay", &fixture(), "--speed", "4"]);
@@ -314,17 +332,25 @@ async fn a_truncated_store_is_moved_aside_and_feedback_needs_a_route_given() {
         s["fallbacks"].to_string().contains("moved it aside")
     })
     .await;
-    assert!(stats["fallbacks"].to_string().contains("learning.sqlite"), "{stats}");
+    assert!(
+        stats["fallbacks"].to_string().contains("learning.sqlite"),
+        "{stats}"
+    );
     located(&mut client, "walker-03").await;
     let reply = client.route(PREFIX, "walker-03", "help desk", "s1").await;
     assert!(reply["waypoints"].is_array(), "{reply}");
 
     let feedback = format!("{PREFIX}/devices/walker-03/feedback");
-    client.publish(&feedback, r#"{"request_id":"s1","score":5}"#).await;
+    client
+        .publish(&feedback, r#"{"request_id":"s1","score":5}"#)
+        .await;
     for never in ["never-given", "s1"] {
         // A route never given, and one already scored.
         client
-            .publish(&feedback, format!(r#"{{"request_id":"{never}","score":1}}"#))
+            .publish(
+                &feedback,
+                format!(r#"{{"request_id":"{never}","score":1}}"#),
+            )
             .await;
         let error = client
             .wait_for("the feedback error", |m| {
@@ -347,7 +373,8 @@ async fn a_truncated_store_is_moved_aside_and_feedback_needs_a_route_given() {
         .unwrap()
         .filter(|e| {
             let name = e.as_ref().unwrap().file_name();
-            name.to_string_lossy().starts_with("learning.sqlite.broken-")
+            name.to_string_lossy()
+                .starts_with("learning.sqlite.broken-")
         })
         .count();
     assert!(aside >= 1, "the broken store is kept for inspection");
@@ -379,7 +406,10 @@ async fn replay_lines_whose_ids_cannot_be_topics_are_refused_per_line() {
     std::fs::write(&log, text).unwrap();
     let config = gateway_config("gw-test", &waldo(), &broker, "");
     let mut client = client(&broker, "test-ids", &replies_and_stats()).await;
-    let _gateway = Gateway::start(&config.path, &["--replay", log.to_str().unwrap(), "--speed", "0"]);
+    let _gateway = Gateway::start(
+        &config.path,
+        &["--replay", log.to_str().unwrap(), "--speed", "0"],
+    );
     let reply = client.reply(PREFIX, "walker-01", "good").await;
     assert!(reply["waypoints"].is_array(), "{reply}");
     let reply = client.route(PREFIX, "walker-01", "printers", "live").await;
@@ -422,7 +452,10 @@ async fn no_password_appears_in_any_output() {
 
     // Someone puts the password in the config itself: `check` and a reload
     // refuse it without repeating it.
-    let inline = good.replace("password_file = \"pw\"", &format!("password = \"{SECRET}\""));
+    let inline = good.replace(
+        "password_file = \"pw\"",
+        &format!("password = \"{SECRET}\""),
+    );
     let inline_path = config.dir.path().join("inline.toml");
     std::fs::write(&inline_path, &inline).unwrap();
     let check = std::process::Command::new(env!("CARGO_BIN_EXE_gangway"))
@@ -439,14 +472,20 @@ async fn no_password_appears_in_any_output() {
     assert!(check_output.contains("password_file"), "{check_output}");
     std::fs::write(&config.path, &inline).unwrap();
     signal(&gateway.child, "HUP");
-    stats_where(&mut client, "the refused reload", |s| s["reload_failures"] == 1).await;
+    stats_where(&mut client, "the refused reload", |s| {
+        s["reload_failures"] == 1
+    })
+    .await;
     tokio::time::sleep(Duration::from_secs(1)).await;
     client.drain();
 
     let log_text = std::fs::read_to_string(&log).unwrap();
     assert!(log_text.contains("reload refused"), "the log is read");
     assert!(log_text.contains("password_file"));
-    for (what, text) in [("check", check_output.as_str()), ("the log", log_text.as_str())] {
+    for (what, text) in [
+        ("check", check_output.as_str()),
+        ("the log", log_text.as_str()),
+    ] {
         assert!(!text.contains(SECRET), "the password is in {what}");
     }
     let mut messages = 0;

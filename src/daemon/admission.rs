@@ -173,7 +173,9 @@ mod tests {
         let mut q = Requests::new(2, Duration::from_millis(30));
         assert!(q.push(request("a")).is_ok());
         assert!(q.push(request("b")).is_ok());
-        assert!(matches!(q.push(request("c")), Err(Admit::Overloaded(r, _)) if r.request_id.as_deref() == Some("c")));
+        assert!(
+            matches!(q.push(request("c")), Err(Admit::Overloaded(r, _)) if r.request_id.as_deref() == Some("c"))
+        );
         assert!(matches!(q.next(), Some(Admit::Serve(_))));
         std::thread::sleep(Duration::from_millis(40));
         assert!(matches!(q.next(), Some(Admit::Overloaded(_, why)) if why.contains("deadline")));

@@ -396,9 +396,7 @@ impl Daemon {
             Ok(Inbound::Shared(shared)) => {
                 self.counters.shared_in += shared.len() as u64;
                 for s in shared {
-                    self.state
-                        .pipeline
-                        .handle(&Event::Advert(s), &mut self.out);
+                    self.state.pipeline.handle(&Event::Advert(s), &mut self.out);
                 }
             }
             Err(Rejected::Own { .. }) => {}
@@ -433,9 +431,15 @@ impl Daemon {
     /// counts it, and logs it (at most once per [`WARN_EVERY`] per kind).
     fn refuse_route(&mut self, request: &RouteRequest, code: &'static str, why: String) {
         let (count, throttle) = if code == "overloaded" {
-            (&mut self.counters.overloaded, &mut self.throttles.overloaded)
+            (
+                &mut self.counters.overloaded,
+                &mut self.throttles.overloaded,
+            )
         } else {
-            (&mut self.counters.rate_limited, &mut self.throttles.rate_limited)
+            (
+                &mut self.counters.rate_limited,
+                &mut self.throttles.rate_limited,
+            )
         };
         *count += 1;
         if let Some(more) = throttle.ready() {
@@ -557,12 +561,14 @@ impl Daemon {
             |id| forgotten.push(id.clone()),
         );
         for id in forgotten {
-            self.link.clear_retained(discovery.device_tracker(&id).topic);
+            self.link
+                .clear_retained(discovery.device_tracker(&id).topic);
         }
         self.announced.insert(device.into(), t);
         // Sent now and kept for every reconnect (a restarted broker may have
         // lost it); the link keeps births by topic, so this costs one config.
-        self.link.set_birth(&[discovery.device_tracker(device)], true);
+        self.link
+            .set_birth(&[discovery.device_tracker(device)], true);
     }
 
     /// Removes a forgotten device's tracker from Home Assistant (an empty
@@ -571,7 +577,8 @@ impl Daemon {
         if let Some(discovery) = &self.discovery
             && self.announced.remove(device).is_some()
         {
-            self.link.clear_retained(discovery.device_tracker(device).topic);
+            self.link
+                .clear_retained(discovery.device_tracker(device).topic);
         }
     }
 

@@ -60,10 +60,7 @@ impl Recorder {
     /// when the store had to be moved aside, what happened.
     /// The first prune is an hour after `now` (seconds since the epoch), not
     /// at once: a replayed log's old timestamps would be pruned as they come.
-    pub fn open(
-        config: &StoreConfig,
-        now: f64,
-    ) -> Result<(Recorder, Option<String>), StoreError> {
+    pub fn open(config: &StoreConfig, now: f64) -> Result<(Recorder, Option<String>), StoreError> {
         let path = config.resolved_path();
         let (store, moved) = Store::open_or_move_aside(&path)?;
         if let Some(moved) = &moved {
@@ -138,7 +135,10 @@ impl Recorder {
                 Ok(0) => {}
                 Ok(n) => {
                     self.quota_deleted += n as u64;
-                    tracing::warn!(deleted = n, "learning store over its quota: oldest rows deleted");
+                    tracing::warn!(
+                        deleted = n,
+                        "learning store over its quota: oldest rows deleted"
+                    );
                 }
                 Err(e) => {
                     self.errors += 1;

@@ -178,13 +178,18 @@ impl Tracker {
         };
         let full = self.tracks.len() >= self.bounds.max() && !self.tracks.contains_key(entity);
         let evicted = &mut self.evicted;
-        self.bounds
-            .make_room(&mut self.tracks, t, full, |track| track.t, |id| {
+        self.bounds.make_room(
+            &mut self.tracks,
+            t,
+            full,
+            |track| track.t,
+            |id| {
                 if evicted.len() >= MAX_EVICTED_KEPT {
                     evicted.pop_front();
                 }
                 evicted.push_back(id.clone());
-            });
+            },
+        );
         let track = self.tracks.entry(entity.clone()).or_insert_with(|| Track {
             t: f64::NEG_INFINITY,
             belief: Vec::new(),

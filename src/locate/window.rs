@@ -211,8 +211,7 @@ impl Windows {
             return None;
         };
         // Looked up only when full: this runs once per advert.
-        let full =
-            self.entities.len() >= self.bounds.max() && !self.entities.contains_key(&entity);
+        let full = self.entities.len() >= self.bounds.max() && !self.entities.contains_key(&entity);
         self.bounds
             .make_room(&mut self.entities, s.t, full, |w| w.last_seen, |_| {});
         if self.advertiser_ids.len() > self.bounds.max().saturating_mul(2) {

@@ -197,7 +197,10 @@ impl MqttConfig {
         // Any packet the protocol allows is taken in, so that no message can
         // cost the connection; the link drops payloads over
         // `max_payload_bytes` before they are queued (see `link`).
-        options.set_max_packet_size(super::link::MQTT_MAX_PACKET, super::link::MAX_OUTGOING_PACKET);
+        options.set_max_packet_size(
+            super::link::MQTT_MAX_PACKET,
+            super::link::MAX_OUTGOING_PACKET,
+        );
         // A persistent session: the broker keeps the subscriptions and queues
         // route requests while the gateway is away (restart, network loss).
         // Outgoing redelivery is the link's own (see `link`): every session

@@ -93,13 +93,6 @@ pub struct Received {
     pub size: usize,
 }
 
-impl Received {
-    /// Whether the payload was cut off for being over the limit.
-    pub fn oversized(&self) -> bool {
-        self.size != self.payload.len()
-    }
-}
-
 /// Counters the link shares with whoever reports stats.
 #[derive(Debug, Default)]
 pub struct LinkStats {

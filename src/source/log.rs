@@ -29,9 +29,9 @@ use uuid::Uuid;
 use super::{Event, RouteRequest, Truth};
 use crate::plan::Destination;
 use crate::publish::valid_device_id;
-use crate::throttle::Throttle;
 use crate::sighting::{BeaconId, Sighting};
 use crate::site::Cell;
+use crate::throttle::Throttle;
 
 /// One line of the log, read and written.
 ///
@@ -292,7 +292,11 @@ impl<R: BufRead> LogReader<R> {
     /// left empty).
     fn read_line(&mut self) -> io::Result<Option<bool>> {
         let limit = MAX_LINE_BYTES as u64 + 1;
-        if (&mut self.input).take(limit).read_until(b'\n', &mut self.buf)? == 0 {
+        if (&mut self.input)
+            .take(limit)
+            .read_until(b'\n', &mut self.buf)?
+            == 0
+        {
             return Ok(None);
         }
         if self.buf.len() as u64 == limit && self.buf.last() != Some(&b'\n') {
@@ -496,7 +500,10 @@ mod tests {
             false,
         );
         let err = events[0].as_ref().unwrap_err().to_string();
-        assert!(err.contains("`device` cannot be an MQTT topic level"), "{err}");
+        assert!(
+            err.contains("`device` cannot be an MQTT topic level"),
+            "{err}"
+        );
     }
 
     #[test]

@@ -205,7 +205,12 @@ pub struct Gateway {
 
 impl Gateway {
     pub fn start(config: &Path, args: &[&str]) -> Gateway {
-        Gateway::spawn(config, args, "info,rumqttd=warn,rumqttd::server::broker=off", test_logs())
+        Gateway::spawn(
+            config,
+            args,
+            "info,rumqttd=warn,rumqttd::server::broker=off",
+            test_logs(),
+        )
     }
 
     /// A gateway whose log (at `filter`, e.g. `debug`) goes to `log`, for
