@@ -81,25 +81,26 @@ impl Requests {
         self.queue.is_empty()
     }
 
-    /// Queues a request, or hands it back when the queue is full.
-    pub fn push(&mut self, request: RouteRequest) -> Result<(), Admit> {
+    /// Queues a request; when the queue is full, hands it back to be
+    /// answered `overloaded`, with why.
+    pub fn push(&mut self, request: RouteRequest) -> Option<(RouteRequest, String)> {
         if self.queue.len() >= self.max {
             let why = format!(
                 "the gateway is overloaded: {} route requests are waiting",
                 self.queue.len()
             );
-            return Err(Admit::Overloaded(request, why));
+            return Some((request, why));
         }
         self.queue.push_back(Waiting {
             request,
             received: Instant::now(),
         });
-        Ok(())
+        None
     }
 
     /// The next request, to plan or, if it waited past the deadline, to
     /// answer `overloaded`.
-    pub fn next(&mut self) -> Option<Admit> {
+    pub fn take_next(&mut self) -> Option<Admit> {
         let w = self.queue.pop_front()?;
         let waited = w.received.elapsed();
         Some(if waited > self.deadline {
@@ -171,15 +172,17 @@ mod tests {
     #[test]
     fn a_full_queue_and_a_late_request_are_answered_overloaded() {
         let mut q = Requests::new(2, Duration::from_millis(30));
-        assert!(q.push(request("a")).is_ok());
-        assert!(q.push(request("b")).is_ok());
+        assert!(q.push(request("a")).is_none());
+        assert!(q.push(request("b")).is_none());
         assert!(
-            matches!(q.push(request("c")), Err(Admit::Overloaded(r, _)) if r.request_id.as_deref() == Some("c"))
+            matches!(q.push(request("c")), Some((r, _)) if r.request_id.as_deref() == Some("c"))
         );
-        assert!(matches!(q.next(), Some(Admit::Serve(_))));
+        assert!(matches!(q.take_next(), Some(Admit::Serve(_))));
         std::thread::sleep(Duration::from_millis(40));
-        assert!(matches!(q.next(), Some(Admit::Overloaded(_, why)) if why.contains("deadline")));
-        assert!(q.next().is_none());
+        assert!(
+            matches!(q.take_next(), Some(Admit::Overloaded(_, why)) if why.contains("deadline"))
+        );
+        assert!(q.take_next().is_none());
     }
 
     #[test]

@@ -344,7 +344,7 @@ impl Daemon {
                         self.state.config.limits.requests_per_device_per_s
                     );
                     self.refuse_route(&request, "rate_limited", why);
-                } else if let Err(Admit::Overloaded(request, why)) = self.requests.push(request) {
+                } else if let Some((request, why)) = self.requests.push(request) {
                     self.refuse_route(&request, "overloaded", why);
                 }
             }
@@ -416,7 +416,7 @@ impl Daemon {
     /// Plans the next waiting route request (or answers `overloaded` if it
     /// waited too long).
     fn serve_next(&mut self) {
-        match self.requests.next() {
+        match self.requests.take_next() {
             Some(Admit::Serve(request)) => {
                 let reply = self.state.pipeline.route(&request);
                 self.out.push(self.topics.encode_route(&reply));
