@@ -499,3 +499,28 @@ async fn no_password_appears_in_any_output() {
     }
     assert!(messages > 10, "{messages} messages checked");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_gateway_that_cannot_stay_connected_says_so() {
+    let mut broker = Broker::start();
+    let config = gateway_config("gw-test", &waldo(), &broker, "");
+    let mut client = client(&broker, "test-flap", &replies_and_stats()).await;
+    let log = config.dir.path().join("gateway.log");
+    let _gateway = Gateway::start_logged(&config.path, &[], "info", &log);
+    stats_where(&mut client, "the first stats", |s| s["mqtt"] == "connected").await;
+    // Five connections lost within a minute.
+    for lost in 1..=5u64 {
+        broker.restart();
+        stats_where(&mut client, "stats after the reconnect", |s| {
+            s["reconnects"].as_u64() >= Some(lost)
+        })
+        .await;
+    }
+    let stats = stats_where(&mut client, "stats saying so", |s| s["mqtt"] == "flapping").await;
+    assert!(stats["disconnects"].as_u64() >= Some(5), "{stats}");
+    let log = std::fs::read_to_string(&log).unwrap();
+    assert!(
+        log.contains("cannot stay connected to the MQTT broker"),
+        "{log}"
+    );
+}
