@@ -13,6 +13,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use gangway::locate::Localizer;
 use gangway::locate::knn::{Knn, KnnConfig};
 use gangway::locate::pathloss::{PathLoss, PathLossConfig};
+use gangway::locate::radiomap::{RadioMap, RadioMapConfig};
 use gangway::locate::survey::Survey;
 use gangway::locate::tracker::{Tracker, TrackerConfig};
 use gangway::locate::window::{Orientation, WindowConfig, Windows, anchor_ids};
@@ -63,7 +64,17 @@ fn benches(c: &mut Criterion) {
     let survey = survey(&site);
     let samples: Vec<_> = survey.samples.iter().collect();
     let missing = WindowConfig::default().missing_dbm;
+    let tracker_config = TrackerConfig::default();
     let mut knn = Knn::new(&KnnConfig::default(), &site, &samples, missing).unwrap();
+    let mut radiomap = RadioMap::new(
+        &RadioMapConfig::default(),
+        &site,
+        &anchor_ids(&site, Orientation::Observer),
+        Orientation::Observer,
+        &tracker_config,
+        &samples,
+    )
+    .unwrap();
     let mut pathloss =
         PathLoss::new(&PathLossConfig::default(), &site, Orientation::Observer).unwrap();
     let fingerprints: Vec<(Vec<f32>, Vec<bool>, f64)> = survey
@@ -87,6 +98,14 @@ fn benches(c: &mut Criterion) {
             let (rssi, heard, _) = &fingerprints[i % fingerprints.len()];
             i += 1;
             knn.log_likelihood(rssi, heard, &mut ll);
+            black_box(&ll);
+        })
+    });
+    c.bench_function("localize_radiomap", |b| {
+        b.iter(|| {
+            let (rssi, heard, _) = &fingerprints[i % fingerprints.len()];
+            i += 1;
+            radiomap.log_likelihood(rssi, heard, &mut ll);
             black_box(&ll);
         })
     });

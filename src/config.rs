@@ -220,6 +220,9 @@ impl Config {
             *survey = base.join(&*survey);
         }
         config.localizer.onnx.model = base.join(&config.localizer.onnx.model);
+        if let Some(calibration) = &mut config.localizer.pathloss.calibration {
+            *calibration = base.join(&*calibration);
+        }
         config.mqtt.resolve_paths(base);
         config.planner.resolve_paths(base);
         if let Some(path) = &mut config.store.path {
@@ -249,6 +252,14 @@ impl Config {
         if !(0.0..=1.0).contains(&self.tracker.stay_probability) {
             return Err("[tracker] `stay_probability` must be between 0 and 1".into());
         }
+        if !(0.0..=1.0).contains(&self.localizer.min_confidence) {
+            return Err("[localizer] `min_confidence` must be between 0 and 1".into());
+        }
+        self.localizer
+            .pathloss
+            .validate()
+            .map_err(|e| format!("[localizer.pathloss] {e}"))?;
+        self.ble.validate()?;
         self.mqtt.validate().map_err(|e| e.to_string())?;
         self.store.validate()?;
         self.limits.validate()?;

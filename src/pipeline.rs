@@ -41,6 +41,8 @@ pub struct Pipeline {
     planner: Box<dyn Planner>,
     topics: Topics,
     log_likelihood: Vec<f32>,
+    /// Published confidence under which a fix is published as unknown.
+    min_confidence: f32,
     stats: Stats,
 }
 
@@ -69,21 +71,25 @@ impl Pipeline {
         fall_back: bool,
     ) -> anyhow::Result<(Pipeline, Vec<String>)> {
         let mut fallbacks = Vec::new();
-        let localizer = match locate::build(&config.localizer, &site, &config.window) {
-            Err(e)
-                if fall_back
-                    && e.is_file_failure()
-                    && config.localizer.method != locate::Method::Pathloss =>
-            {
+        let build = |localizer: &locate::LocalizerConfig| {
+            locate::build(localizer, &site, &config.window, &config.tracker)
+        };
+        let localizer = match build(&config.localizer) {
+            Err(e) if fall_back && e.is_file_failure() => {
                 let failed = format!(
                     "[localizer] method = \"{}\": {e}",
                     config.localizer.method.name()
                 );
-                let pathloss = locate::LocalizerConfig {
+                // The survey-free model stands in; without its calibration
+                // file when that is what failed.
+                let mut pathloss = locate::LocalizerConfig {
                     method: locate::Method::Pathloss,
                     ..config.localizer.clone()
                 };
-                let localizer = locate::build(&pathloss, &site, &config.window).map_err(|e| {
+                if matches!(e, locate::LocalizerError::Calibration(_)) {
+                    pathloss.pathloss.calibration = None;
+                }
+                let localizer = build(&pathloss).map_err(|e| {
                     anyhow::anyhow!("{failed}; and the pathloss localizer cannot stand in: {e}")
                 })?;
                 fallbacks.push(format!("{failed} (locating with pathloss instead)"));
@@ -116,6 +122,7 @@ impl Pipeline {
             topics: Topics::new(config.topic_prefix()),
             log_likelihood: vec![0.0; site.open_cells().len()],
             site,
+            min_confidence: config.localizer.min_confidence,
             stats: Stats::default(),
         };
         Ok((pipeline, fallbacks))
@@ -196,17 +203,22 @@ impl Pipeline {
             .log_likelihood(&fp.rssi, &fp.heard, &mut self.log_likelihood);
         let fix = self.tracker.update(&fp.entity, fp.t, &self.log_likelihood);
         self.stats.fixes += 1;
-        let (x_m, y_m) = self.site.metres(fix.cell);
+        let confidence = self.localizer.confidence(fix.confidence);
+        let known = confidence >= self.min_confidence;
+        let cell = known.then_some(fix.cell);
+        let metres = cell.map(|c| self.site.metres(c));
         let location = Location {
             schema: LOCATION_SCHEMA,
             device: fp.entity.to_string(),
             t: fp.t,
-            cell: fix.cell,
-            label: self.site.label(fix.cell),
-            x_m,
-            y_m,
-            place: self.site.nearest_place(fix.cell, 2.0).map(str::to_owned),
-            confidence: fix.confidence,
+            cell,
+            label: cell.and_then(|c| self.site.label(c)),
+            x_m: metres.map(|m| m.0),
+            y_m: metres.map(|m| m.1),
+            place: cell
+                .and_then(|c| self.site.nearest_place(c, 2.0))
+                .map(str::to_owned),
+            confidence,
             anchors_heard: fp.heard_count(),
         };
         out.push(self.topics.encode_location(&location));

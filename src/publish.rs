@@ -25,23 +25,26 @@ pub struct Message {
     pub retain: bool,
 }
 
-/// A device's position after a fix.
+/// A device's position after a fix. When the evidence was too weak to name a
+/// cell (published confidence under `[localizer] min_confidence`) the fix is
+/// an explicit unknown: `cell`, `label`, `x_m`, `y_m` and `place` are `null`,
+/// never a guessed cell. Every key is always present, so templates (Home
+/// Assistant's among them) can read any of them without a default.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Location {
     pub schema: &'static str,
     pub device: String,
     /// Time of the fix (end of its fingerprint window), seconds.
     pub t: f64,
-    pub cell: Cell,
+    pub cell: Option<Cell>,
     /// The cell's survey label (`O02`) when the site has a label scheme.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub label: Option<String>,
-    pub x_m: f64,
-    pub y_m: f64,
+    pub x_m: Option<f64>,
+    pub y_m: Option<f64>,
     /// The nearest named place within two cells.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub place: Option<String>,
-    /// Posterior probability of `cell`.
+    /// Probability of being within one cell of `cell`, calibrated where the
+    /// localizer has held-out truth (or, when unknown, of the best guess).
     pub confidence: f32,
     /// How many anchors were heard in the window.
     pub anchors_heard: usize,

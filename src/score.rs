@@ -135,8 +135,13 @@ pub struct ErrorSummary {
     pub within_2: f64,
     pub mean_error_cells: f64,
     pub mean_error_m: f64,
-    /// The 90th percentile error (nearest rank).
+    /// Percentiles of the error (nearest rank), in cells and metres.
+    pub median_error_cells: f64,
+    pub p75_error_cells: f64,
     pub p90_error_cells: f64,
+    pub median_error_m: f64,
+    pub p75_error_m: f64,
+    pub p90_error_m: f64,
 }
 
 impl ErrorSummary {
@@ -152,14 +157,19 @@ impl ErrorSummary {
         let mean = errors.iter().sum::<f64>() / n;
         let mut sorted = errors.to_vec();
         sorted.sort_by(f64::total_cmp);
-        let rank = ((n * 0.9).ceil() as usize).clamp(1, sorted.len());
+        let percentile = |q: f64| sorted[((n * q).ceil() as usize).clamp(1, sorted.len()) - 1];
         Some(ErrorSummary {
             exact: share(0.0),
             within_1: share(1.0),
             within_2: share(2.0),
             mean_error_cells: mean,
             mean_error_m: mean * cell_m,
-            p90_error_cells: sorted[rank - 1],
+            median_error_cells: percentile(0.5),
+            p75_error_cells: percentile(0.75),
+            p90_error_cells: percentile(0.9),
+            median_error_m: percentile(0.5) * cell_m,
+            p75_error_m: percentile(0.75) * cell_m,
+            p90_error_m: percentile(0.9) * cell_m,
         })
     }
 }
@@ -209,10 +219,10 @@ mod tests {
             schema: LOCATION_SCHEMA,
             device: device.into(),
             t,
-            cell,
+            cell: Some(cell),
             label: None,
-            x_m: 0.0,
-            y_m: 0.0,
+            x_m: Some(0.0),
+            y_m: Some(0.0),
             place: None,
             confidence: 0.5,
             anchors_heard: 1,

@@ -31,10 +31,17 @@ fn the_real_survey_stays_at_or_above_the_reached_targets() {
     assert_eq!(
         session.as_object().unwrap().keys().collect::<Vec<_>>(),
         [
+            "confidence_gap_max",
             "exact",
             "mean_error_cells",
             "mean_error_m",
+            "median_error_cells",
+            "median_error_m",
+            "p75_error_cells",
+            "p75_error_m",
             "p90_error_cells",
+            "p90_error_m",
+            "reliability",
             "us_per_fix",
             "within_1",
             "within_2"
@@ -59,6 +66,127 @@ fn the_real_survey_stays_at_or_above_the_reached_targets() {
         "random split: {random}"
     );
     assert!(figure(&random, "exact") >= 0.35, "random split: {random}");
+}
+
+/// The survey-free model calibrated on the crowd-sourced file alone (no
+/// position known) and the cross-validated radio map hold what they reached
+/// on the real floor; the radio map's published confidence stays honest.
+#[test]
+fn calibration_and_the_radio_map_hold_their_figures() {
+    let Some(survey) = common::uci_survey() else {
+        return;
+    };
+    let unlabelled = survey.with_file_name("iBeacon_RSSI_Unlabeled.csv");
+    let site = "config/sites/waldo.toml";
+    let survey = survey.to_str().unwrap();
+    let calibrated = eval(&[
+        "--site",
+        site,
+        "--survey",
+        survey,
+        "--method",
+        "pathloss",
+        "--calibrate",
+        unlabelled.to_str().unwrap(),
+    ]);
+    assert!(
+        figure(&calibrated, "mean_error_cells") <= 1.80,
+        "calibrated pathloss: {calibrated}"
+    );
+    assert!(
+        figure(&calibrated, "within_2") >= 0.60,
+        "calibrated pathloss: {calibrated}"
+    );
+    let map = eval(&["--site", site, "--survey", survey, "--method", "radiomap"]);
+    assert!(figure(&map, "mean_error_cells") <= 1.40, "radiomap: {map}");
+    assert!(
+        figure(&map, "confidence_gap_max") <= 0.10,
+        "radiomap: {map}"
+    );
+
+    // The calibration file round-trips into a config the gateway accepts.
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("calibration.toml");
+    let out = gangway_ok(&[
+        "calibrate",
+        "--from",
+        unlabelled.to_str().unwrap(),
+        "--out",
+        file.to_str().unwrap(),
+        "--json",
+    ]);
+    let report: Value = serde_json::from_str(out.trim()).expect("one JSON object");
+    assert_eq!(report["anchors"].as_array().unwrap().len(), 13, "{report}");
+    // The shipped config, its relative paths made absolute, with the file.
+    let root = common::root();
+    let config = std::fs::read_to_string(root.join("config/gangway.toml"))
+        .unwrap()
+        .replace("\"../", &format!("\"{}/", root.display()))
+        .replace("\"sites/", &format!("\"{}/config/sites/", root.display()))
+        .replace(
+            "# calibration = \"",
+            &format!("calibration = \"{}\" # ", file.display()),
+        );
+    let config = write(dir.path(), "gangway.toml", &config);
+    gangway_ok(&["check", "--config", config.to_str().unwrap()]);
+}
+
+/// A fixed split, per-row fixes, and the errors a user meets first: a
+/// positive "not heard" value and rows without a position.
+#[test]
+fn fixed_splits_rows_and_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let site = write(dir.path(), "workshop.toml", SMALL_SITE);
+    let survey = small_survey();
+    let (header, rows) = survey.split_once('\n').unwrap();
+    let rows: Vec<&str> = rows.lines().collect();
+    let (train, test) = rows.split_at(rows.len() * 2 / 3);
+    let train = write(
+        dir.path(),
+        "train.csv",
+        &format!("{header}\n{}\n", train.join("\n")),
+    );
+    let test = write(
+        dir.path(),
+        "test.csv",
+        &format!("{header}\n{}\n", test.join("\n")),
+    );
+    let per_row = dir.path().join("rows.csv");
+    let m = eval(&[
+        "--site",
+        site.to_str().unwrap(),
+        "--train",
+        train.to_str().unwrap(),
+        "--test",
+        test.to_str().unwrap(),
+        "--method",
+        "radiomap",
+        "--rows",
+        per_row.to_str().unwrap(),
+    ]);
+    assert!(figure(&m, "mean_error_cells") < 1.5, "{m}");
+    let written = std::fs::read_to_string(&per_row).unwrap();
+    assert_eq!(written.lines().count(), rows.len() - rows.len() * 2 / 3 + 1);
+
+    let hundred = write(
+        dir.path(),
+        "hundred.csv",
+        &format!("{header}\n0,0,0,100,-70,-80,-90\n"),
+    );
+    let run = common::gangway(&[
+        "eval",
+        "localization",
+        "--site",
+        site.to_str().unwrap(),
+        "--survey",
+        hundred.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success());
+    assert!(
+        stderr.contains("hundred.csv:2") && stderr.contains("--not-heard 100"),
+        "{stderr}"
+    );
 }
 
 /// The `onnx` method trains a cell classifier per split, exports it and runs it

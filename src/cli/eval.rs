@@ -8,9 +8,9 @@ use anyhow::Context;
 use clap::Subcommand;
 
 use crate::config::Config;
-use crate::eval::localization::{Setup, Split, evaluate};
+use crate::eval::localization::{Holdout, RowFix, Setup, Split, UnlabelledRows, evaluate};
 use crate::eval::similarity::TrainingFrames;
-use crate::locate::survey::Survey;
+use crate::locate::survey::{Survey, SurveyRows};
 use crate::locate::tracker::{TrackerConfig, TrackerKind};
 use crate::locate::window::{WindowConfig, anchor_ids};
 use crate::locate::{LocalizerConfig, Method};
@@ -72,9 +72,22 @@ struct LocalizationArgs {
     /// The site file.
     #[arg(long)]
     site: PathBuf,
-    /// The labelled survey (CSV).
+    /// The labelled survey (CSV), split 70/30 by `--split`.
+    #[arg(long, required_unless_present = "train", conflicts_with_all = ["train", "test"])]
+    survey: Option<PathBuf>,
+    /// A fixed split instead: the labelled rows to build from (CSV)...
+    #[arg(long, requires = "test")]
+    train: Option<PathBuf>,
+    /// ...and the labelled rows to measure on (CSV); evaluated once.
+    #[arg(long, requires = "train")]
+    test: Option<PathBuf>,
+    /// A gap longer than this (seconds) between rows starts a new walking session.
+    #[arg(long, default_value_t = crate::eval::localization::SESSION_GAP_S)]
+    session_gap: f64,
+    /// Write every held-out row's fix as CSV (seed, session, row, t, truth,
+    /// fix, confidence, error).
     #[arg(long)]
-    survey: PathBuf,
+    rows: Option<PathBuf>,
     /// `session` holds out whole walking sessions (honest); `random` holds out rows.
     #[arg(long, value_enum, default_value = "session")]
     split: Split,
@@ -99,6 +112,15 @@ struct LocalizationArgs {
     /// Write the error CDF of every method, with and without tracking, as SVG.
     #[arg(long)]
     plot: Option<PathBuf>,
+    /// The files' "not heard" RSSI value (default: the config's
+    /// `[localizer.knn] not_heard`, -200).
+    #[arg(long, allow_negative_numbers = true)]
+    not_heard: Option<i16>,
+    /// Unlabelled scans (the same CSV layouts; `location` may be `?`) that
+    /// the survey-free model is calibrated on before measuring, as `gangway
+    /// calibrate` does. Only `--method pathloss` uses them.
+    #[arg(long)]
+    calibrate: Option<PathBuf>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
@@ -186,15 +208,35 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
             TrackerConfig::default(),
         ),
     };
-    localizer.knn.survey = Some(args.survey.clone());
-    let survey = Survey::load(
-        &args.survey,
-        &site,
-        &anchor_ids(&site, window.orientation),
-        localizer.knn.not_heard,
-    )?;
+    if let Some(not_heard) = args.not_heard {
+        localizer.knn.not_heard = not_heard;
+    }
+    let anchors = anchor_ids(&site, window.orientation);
+    let load = |path: &PathBuf| Survey::load(path, &site, &anchors, localizer.knn.not_heard);
+    let (survey, holdout, source) = match (&args.survey, &args.train, &args.test) {
+        (Some(path), _, _) => (
+            load(path)?,
+            Holdout::Drawn(args.split),
+            path.display().to_string(),
+        ),
+        (None, Some(train), Some(test)) => {
+            let (train_rows, test_rows) = (load(train)?, load(test)?);
+            let mut held = vec![false; train_rows.samples.len()];
+            held.resize(train_rows.samples.len() + test_rows.samples.len(), true);
+            let mut survey = train_rows;
+            survey.samples.extend(test_rows.samples);
+            let source = format!("{} → {}", train.display(), test.display());
+            (survey, Holdout::Fixed(held), source)
+        }
+        _ => unreachable!("clap requires --survey or --train and --test"),
+    };
+    let calibrate_from = match &args.calibrate {
+        Some(path) => Some(unlabelled(path, &site, &anchors, localizer.knn.not_heard)?),
+        None => None,
+    };
     let setup = |method: Method, kind: TrackerKind| Setup {
-        split: args.split,
+        holdout: holdout.clone(),
+        session_gap_s: args.session_gap,
         seeds: args.seeds,
         method,
         localizer: localizer.clone(),
@@ -204,30 +246,51 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
             ..tracker.clone()
         },
         smooth_lag: args.smooth_lag,
+        calibrate_from: calibrate_from.clone(),
     };
     let outcome = evaluate(&site, &survey, &setup(args.method, args.tracker))?;
+    if let Some(path) = &args.rows {
+        write_rows(path, &outcome.rows)?;
+    }
     let m = &outcome.metrics;
     if args.json {
         println!("{}", serde_json::to_string(m)?);
     } else {
         println!(
-            "localization on {} ({} rows), {:?} split, {} seeds, {} + tracker {:?}",
-            args.survey.display(),
+            "localization on {} ({} rows), {}, {} + tracker {:?}",
+            source,
             survey.samples.len(),
-            args.split,
-            args.seeds,
+            match &holdout {
+                Holdout::Drawn(split) => format!("{split:?} split, {} seeds", args.seeds),
+                Holdout::Fixed(_) => "fixed split".to_owned(),
+            },
             args.method.name(),
             args.tracker
         );
+        let e = &m.errors;
         println!(
-            "exact {:.3}  within_1 {:.3}  within_2 {:.3}  mean_error_cells {:.3}  mean_error_m {:.3}  p90_error_cells {:.3}  us_per_fix {:.2}",
-            m.errors.exact,
-            m.errors.within_1,
-            m.errors.within_2,
-            m.errors.mean_error_cells,
-            m.errors.mean_error_m,
-            m.errors.p90_error_cells,
-            m.us_per_fix
+            "exact {:.3}  within_1 {:.3}  within_2 {:.3}  us_per_fix {:.2}",
+            e.exact, e.within_1, e.within_2, m.us_per_fix
+        );
+        println!(
+            "error cells: mean {:.3}  median {:.3}  p75 {:.3}  p90 {:.3}",
+            e.mean_error_cells, e.median_error_cells, e.p75_error_cells, e.p90_error_cells
+        );
+        println!(
+            "error m:     mean {:.3}  median {:.3}  p75 {:.3}  p90 {:.3}",
+            e.mean_error_m, e.median_error_m, e.p75_error_m, e.p90_error_m
+        );
+        println!("confidence   fixes  mean   within 1 cell");
+        for bin in m.reliability.iter().filter(|b| b.fixes > 0) {
+            println!(
+                "{:.1}–{:.1}  {:>7}  {:.3}  {:.3}",
+                bin.from, bin.to, bin.fixes, bin.mean_confidence, bin.within_1
+            );
+        }
+        println!(
+            "largest calibration gap (bins of {}+ fixes): {:.3}",
+            crate::eval::localization::RELIABLE_BIN,
+            m.confidence_gap_max
         );
     }
     if let Some(path) = &args.plot {
@@ -249,4 +312,58 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
         eprintln!("wrote {}", path.display());
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Reads scans with times and any (or no) positions for calibration.
+fn unlabelled(
+    path: &std::path::Path,
+    site: &Site,
+    anchors: &[String],
+    not_heard: i16,
+) -> anyhow::Result<UnlabelledRows> {
+    let rows = SurveyRows::open(path, site, anchors, not_heard)?;
+    if !rows.has_clock() {
+        anyhow::bail!(
+            "{}: no time column; calibration follows walks in time, so it needs `date` or `t`",
+            path.display()
+        );
+    }
+    let rows = rows
+        .map(|row| row.map(|r| (r.t.expect("checked: the file has a clock"), r.rssi)))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(UnlabelledRows { rows })
+}
+
+/// Writes per-row fixes as CSV.
+fn write_rows(path: &std::path::Path, rows: &[RowFix]) -> anyhow::Result<()> {
+    let mut out =
+        csv::Writer::from_path(path).with_context(|| format!("cannot write {}", path.display()))?;
+    out.write_record([
+        "seed",
+        "session",
+        "row",
+        "t",
+        "truth_x",
+        "truth_y",
+        "x",
+        "y",
+        "confidence",
+        "error_cells",
+    ])?;
+    for r in rows {
+        out.write_record([
+            r.seed.to_string(),
+            r.session.to_string(),
+            r.row.to_string(),
+            r.t.to_string(),
+            r.truth.x.to_string(),
+            r.truth.y.to_string(),
+            r.cell.x.to_string(),
+            r.cell.y.to_string(),
+            format!("{:.4}", r.confidence),
+            format!("{:.4}", r.error_cells),
+        ])?;
+    }
+    out.flush()?;
+    Ok(())
 }

@@ -2,6 +2,7 @@
 //! struct and a `run` function. Subcommands only wire stages together; the work
 //! is in the library modules.
 
+mod calibrate;
 mod check;
 mod eval;
 mod plan;
@@ -35,6 +36,8 @@ enum Command {
     Simulate(simulate::Args),
     /// Run the gateway daemon: scan BLE, locate, plan, publish over MQTT.
     Run(run::Args),
+    /// Fit the survey-free radio model to captures, with no positions needed.
+    Calibrate(calibrate::Args),
     /// Load and validate a config with its site, survey and models.
     Check(check::Args),
     /// Plan one route on a site and print it.
@@ -57,6 +60,7 @@ impl Cli {
             Command::Replay(args) => replay::run(args),
             Command::Simulate(args) => simulate::run(args),
             Command::Run(args) => run::run(args),
+            Command::Calibrate(args) => calibrate::run(args),
             Command::Check(args) => check::run(args),
             Command::Plan(args) => plan::run(args),
             Command::Train(args) => train::run(args),

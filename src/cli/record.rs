@@ -37,12 +37,16 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let observer: Arc<str> = args.observer.clone().unwrap_or_else(hostname).into();
     let mut writer = CaptureWriter::create(&args.out, args.format)?;
     super::runtime()?.block_on(async {
-        let adapter = ble::adapter(&BleConfig {
+        let config = BleConfig {
             adapter: args.adapter.clone(),
-        })
-        .await?;
+            ..BleConfig::default()
+        };
+        let manager = ble::connect().await?;
+        let adapter = ble::adapter(&manager, &config).await?;
         let (tx, mut rx) = mpsc::channel(4096);
-        let scanner = tokio::spawn(async move { ble::scan(&adapter, observer, tx).await });
+        let silent_restart = config.silent_restart();
+        let scan = async move { ble::scan(&adapter, observer, silent_restart, tx, || {}).await };
+        let scanner = tokio::spawn(scan);
         let deadline =
             tokio::time::sleep(args.duration.map_or(Duration::MAX, Duration::from_secs_f64));
         tokio::pin!(deadline);

@@ -48,6 +48,8 @@ use state::Loaded;
 const SHARE_INTERVAL: Duration = Duration::from_millis(250);
 /// Largest batch of shared sightings in one message.
 const SHARE_BATCH: usize = 256;
+/// How long the source gets at shutdown to stop (a scan stops discovery).
+const SOURCE_STOP: Duration = Duration::from_secs(2);
 /// How often the learning store is written.
 const RECORD_INTERVAL: Duration = Duration::from_secs(1);
 /// Routes remembered for feedback.
@@ -194,7 +196,7 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
         state: "starting",
         ..BleStatus::default()
     });
-    let source_task = match options.replay {
+    let mut source_task = match options.replay {
         Some(replay) => {
             ble_tx.send_replace(BleStatus {
                 state: "replay",
@@ -307,7 +309,14 @@ pub async fn run(options: Options) -> anyhow::Result<()> {
     }
     tracing::info!("shutting down: sending what is queued, then `offline`");
     let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
-    source_task.abort();
+    // Closing the channel lets a scan stop discovery before it returns.
+    drop(events);
+    if tokio::time::timeout(SOURCE_STOP, &mut source_task)
+        .await
+        .is_err()
+    {
+        source_task.abort();
+    }
     daemon.flush_shared();
     daemon.flush_records();
     daemon.publish_stats();
@@ -646,6 +655,7 @@ impl Daemon {
             reload_failures: c.reload_failures,
             recorded: self.recorder.as_ref().map_or(0, |r| r.written),
             store_errors: self.recorder.as_ref().map_or(0, |r| r.errors),
+            scan_restarts: self.ble.borrow().scan_restarts,
             tracked: self.state.pipeline.tracked() as u64,
             site: self.state.site.name.clone(),
             site_hash: self.state.site.map_hash().to_owned(),

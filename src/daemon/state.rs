@@ -64,6 +64,8 @@ pub fn restart_needed(old: &Loaded, new: &Loaded) -> Option<&'static str> {
         Some("`gateway_id` changed")
     } else if old.config.mqtt != new.config.mqtt {
         Some("[mqtt] changed")
+    } else if old.config.ble != new.config.ble {
+        Some("[ble] changed")
     } else if old.config.store != new.config.store {
         Some("[store] changed")
     } else if old.config.limits != new.config.limits {

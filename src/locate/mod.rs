@@ -7,9 +7,13 @@
 //! - [`tracker`] keeps a belief per entity that respects walls and walking speed.
 
 pub mod bounds;
+pub mod calibrate;
+pub mod crossval;
 pub mod knn;
 pub mod onnx;
 pub mod pathloss;
+pub mod radiomap;
+pub mod reliability;
 pub mod survey;
 pub mod tracker;
 pub mod window;
@@ -29,23 +33,55 @@ pub trait Localizer: Send + Sync {
     /// log-likelihood, up to an additive constant, of hearing `rssi` (with the
     /// anchors flagged in `heard`) at each cell.
     fn log_likelihood(&mut self, rssi: &[f32], heard: &[bool], out: &mut [f32]);
+
+    /// The published confidence of a fix whose raw confidence (the tracker's
+    /// belief within one cell) is `raw`: localizers that have held-out truth
+    /// to learn from map it so that it means what it says
+    /// ([`reliability::ConfidenceMap`]).
+    fn confidence(&self, raw: f32) -> f32 {
+        raw
+    }
+}
+
+impl Default for LocalizerConfig {
+    fn default() -> Self {
+        LocalizerConfig {
+            method: Method::default(),
+            min_confidence: default_min_confidence(),
+            pathloss: Default::default(),
+            knn: Default::default(),
+            radiomap: Default::default(),
+            onnx: Default::default(),
+        }
+    }
 }
 
 /// `[localizer]` in the gateway config.
-#[derive(Clone, Debug, Default, Deserialize)]
+#[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LocalizerConfig {
     #[serde(default)]
     pub method: Method,
+    /// A fix whose published confidence (the chance it is within one cell)
+    /// is under this is published as an unknown location, not a guessed cell.
+    #[serde(default = "default_min_confidence")]
+    pub min_confidence: f32,
     /// `[localizer.pathloss]`: the radio model.
     #[serde(default)]
     pub pathloss: pathloss::PathLossConfig,
     /// `[localizer.knn]`: the survey and the vote.
     #[serde(default)]
     pub knn: knn::KnnConfig,
+    /// `[localizer.radiomap]`: the survey and, optionally, fixed map settings.
+    #[serde(default)]
+    pub radiomap: radiomap::RadioMapConfig,
     /// `[localizer.onnx]`: the trained cell classifier.
     #[serde(default)]
     pub onnx: onnx::OnnxConfig,
+}
+
+fn default_min_confidence() -> f32 {
+    0.15
 }
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, clap::ValueEnum)]
@@ -56,6 +92,8 @@ pub enum Method {
     Pathloss,
     /// Weighted k-nearest neighbours over a survey.
     Knn,
+    /// A radio map interpolated from a survey, its settings cross-validated.
+    Radiomap,
     /// The MLP cell classifier trained by `gangway train --survey`.
     Onnx,
 }
@@ -65,6 +103,7 @@ impl Method {
         match self {
             Method::Pathloss => "pathloss",
             Method::Knn => "knn",
+            Method::Radiomap => "radiomap",
             Method::Onnx => "onnx",
         }
     }
@@ -78,7 +117,10 @@ pub enum LocalizerError {
          `cell`; add `cell = [x, y]` to the site's beacons or gateways"
     )]
     NoAnchorPositions,
-    #[error("the knn localizer needs a survey: set `survey` in [localizer.knn]")]
+    #[error(
+        "the knn and radiomap localizers need a survey: set `survey` in [localizer.knn] or \
+         [localizer.radiomap]"
+    )]
     NoSurvey,
     #[error("the survey has no rows to learn from")]
     EmptySurvey,
@@ -88,6 +130,8 @@ pub enum LocalizerError {
     SurveyOnBlockedCell(crate::site::Cell),
     #[error(transparent)]
     Survey(#[from] survey::SurveyError),
+    #[error(transparent)]
+    Calibration(#[from] calibrate::CalibrationError),
     #[error(transparent)]
     Model(#[from] crate::model::ModelError),
 }
@@ -102,16 +146,19 @@ impl LocalizerError {
             LocalizerError::EmptySurvey
                 | LocalizerError::SurveyOnBlockedCell(_)
                 | LocalizerError::Survey(_)
+                | LocalizerError::Calibration(_)
                 | LocalizerError::Model(_)
         )
     }
 }
 
-/// Builds the configured localizer for a site and the windows that feed it.
+/// Builds the configured localizer for a site and the windows that feed it
+/// (the radio map cross-validates its settings with `tracker`).
 pub fn build(
     config: &LocalizerConfig,
     site: &Arc<Site>,
     windows: &window::WindowConfig,
+    tracker: &tracker::TrackerConfig,
 ) -> Result<Box<dyn Localizer>, LocalizerError> {
     Ok(match config.method {
         Method::Pathloss => Box::new(pathloss::PathLoss::new(
@@ -124,6 +171,13 @@ pub fn build(
             site,
             &window::anchor_ids(site, windows.orientation),
             windows.missing_dbm,
+        )?),
+        Method::Radiomap => Box::new(radiomap::RadioMap::load(
+            &config.radiomap,
+            site,
+            &window::anchor_ids(site, windows.orientation),
+            windows.orientation,
+            tracker,
         )?),
         Method::Onnx => Box::new(onnx::Onnx::load(&config.onnx.model, site)?),
     })

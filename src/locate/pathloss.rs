@@ -1,14 +1,27 @@
-//! The log-distance path-loss model, used both to localize without a survey and
-//! to simulate what a walker hears.
+//! The survey-free localizer: a radio model per anchor, used both to localize
+//! without a survey and to simulate what a walker hears.
 //!
-//! Expected RSSI at distance `d` metres from an anchor with measured power `P`
-//! (RSSI at 1 m): `P − 10·n·log10(d)`, with Gaussian shadowing of `σ` dB. An anchor
-//! that is not heard is evidence too: it is likely far away, with probability
-//! `Φ((sensitivity − expected) / σ)`.
+//! Real BLE is mostly silence: a phone scanning for a few seconds hears one to
+//! three beacons of a dozen, and which ones it hears says more about where it
+//! is than how loud they were. So each anchor has two parts:
+//! - **detection**: the chance it is heard at all in a window at distance `d`,
+//!   `p_max / (1 + (d / range_m)^slope)`, a logistic in log-distance: near 1
+//!   close by, one half at `range_m`, falling off past it. An anchor that is not
+//!   heard contributes `ln(1 − P(heard | d))`: weak evidence of distance, never a
+//!   verdict, because adverts collide and scans miss even close beacons;
+//! - **strength**: when heard, RSSI is `tx − 10·n·log10(d)` with Gaussian
+//!   shadowing of `σ` dB, a deliberately wide spread (walls, bodies and shelves
+//!   are not in the model).
+//!
+//! Every parameter has a default that suits no site in particular; a
+//! calibration file written by `gangway calibrate` (fitted from what the
+//! gateway hears, no positions needed: [`super::calibrate`]) replaces them per
+//! anchor, and a site's `tx_power` sets an anchor's `tx`.
 
+use std::path::PathBuf;
 use std::sync::Arc;
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use super::window::Orientation;
 use super::{Localizer, LocalizerError};
@@ -25,8 +38,17 @@ pub struct PathLossConfig {
     pub exponent: f64,
     /// Shadowing standard deviation in dB.
     pub shadowing_db: f64,
-    /// Weakest RSSI a receiver reports.
+    /// Weakest RSSI a receiver reports (the simulator drops weaker readings).
     pub sensitivity_dbm: f64,
+    /// Distance in metres at which an anchor is heard in half the windows.
+    pub range_m: f64,
+    /// How fast detection falls off past `range_m` (the exponent of `d/range_m`).
+    pub range_slope: f64,
+    /// Chance of hearing an anchor right next to it in one window.
+    pub max_detection: f64,
+    /// Per-anchor parameters written by `gangway calibrate`; anchors it does
+    /// not list keep the values above.
+    pub calibration: Option<PathBuf>,
 }
 
 impl Default for PathLossConfig {
@@ -36,6 +58,10 @@ impl Default for PathLossConfig {
             exponent: 2.2,
             shadowing_db: 5.0,
             sensitivity_dbm: -100.0,
+            range_m: 5.0,
+            range_slope: 3.0,
+            max_detection: 0.9,
+            calibration: None,
         }
     }
 }
@@ -43,73 +69,186 @@ impl Default for PathLossConfig {
 impl PathLossConfig {
     /// Expected RSSI at `distance_m` from an anchor with measured power `tx`.
     pub fn expected_rssi(&self, tx_dbm: f64, distance_m: f64) -> f64 {
-        // Closer than half a metre the model is meaningless; clamp.
-        tx_dbm - 10.0 * self.exponent * distance_m.max(0.5).log10()
+        tx_dbm - 10.0 * self.exponent * distance_m.max(NEAREST_M).log10()
+    }
+
+    /// The radio model of an anchor with measured power `tx_dbm`.
+    pub fn radio(&self, tx_dbm: f64) -> Radio {
+        Radio {
+            tx_dbm,
+            exponent: self.exponent,
+            shadowing_db: self.shadowing_db,
+            range_m: self.range_m,
+            range_slope: self.range_slope,
+            max_detection: self.max_detection,
+        }
+    }
+
+    /// Checks the values a user can get wrong, naming the key.
+    pub fn validate(&self) -> Result<(), String> {
+        self.radio(self.tx_power_dbm).validate()
     }
 }
 
-/// Anchor positions and measured powers in the orientation's anchor order.
-/// `None` for an anchor without a known cell.
-pub fn anchor_positions(
+/// Closer than this the model is meaningless (antennas are not points).
+const NEAREST_M: f64 = 0.5;
+
+/// One anchor's radio model.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Radio {
+    /// RSSI at 1 m, dBm.
+    pub tx_dbm: f64,
+    /// Path-loss exponent.
+    pub exponent: f64,
+    /// Spread of RSSI around the expected value, dB.
+    pub shadowing_db: f64,
+    /// Distance of 50%-of-`max_detection` detection, metres.
+    pub range_m: f64,
+    /// Fall-off of detection past `range_m`.
+    pub range_slope: f64,
+    /// Detection right next to the anchor.
+    pub max_detection: f64,
+}
+
+impl Radio {
+    pub fn expected_rssi(&self, distance_m: f64) -> f64 {
+        self.tx_dbm - 10.0 * self.exponent * distance_m.max(NEAREST_M).log10()
+    }
+
+    /// Chance the anchor is heard in one window at `distance_m`, kept inside
+    /// [`DETECTION_BOUNDS`] so neither hearing nor silence is ever impossible.
+    pub fn detection(&self, distance_m: f64) -> f64 {
+        let d = distance_m.max(NEAREST_M) / self.range_m;
+        let p = self.max_detection / (1.0 + d.powf(self.range_slope));
+        p.clamp(DETECTION_BOUNDS.0, DETECTION_BOUNDS.1)
+    }
+
+    pub fn validate(&self) -> Result<(), String> {
+        let checks: [(&str, f64, bool); 5] = [
+            ("exponent", self.exponent, self.exponent > 0.0),
+            ("shadowing_db", self.shadowing_db, self.shadowing_db > 0.0),
+            ("range_m", self.range_m, self.range_m > 0.0),
+            ("range_slope", self.range_slope, self.range_slope > 0.0),
+            (
+                "max_detection",
+                self.max_detection,
+                self.max_detection > 0.0 && self.max_detection <= 1.0,
+            ),
+        ];
+        for (key, value, ok) in checks {
+            if !(ok && value.is_finite()) {
+                return Err(format!(
+                    "`{key}` = {value} is out of range (positive; max_detection at most 1)"
+                ));
+            }
+        }
+        if !self.tx_dbm.is_finite() {
+            return Err(format!("`tx_dbm` = {} is not a number", self.tx_dbm));
+        }
+        Ok(())
+    }
+}
+
+/// Detection probabilities are kept in this range: a beacon next to you is
+/// still missed now and then (collisions, scan gaps), and one across the
+/// floor is still heard through a reflection.
+pub const DETECTION_BOUNDS: (f64, f64) = (1e-3, 0.98);
+
+/// An anchor's position (metres) and radio model, in the orientation's anchor
+/// order; `None` for an anchor without a known position.
+pub type Anchor = Option<((f64, f64), Radio)>;
+
+/// The anchors of the site in the orientation's order, with the radio model
+/// each one gets: the calibration's entry, else the config's values with the
+/// site's `tx_power`.
+pub fn anchors(
     site: &Site,
     orientation: Orientation,
     config: &PathLossConfig,
-) -> Vec<Option<(Cell, f64)>> {
-    match orientation {
+    calibration: Option<&super::calibrate::Calibration>,
+) -> Vec<Anchor> {
+    let entries: Vec<(&str, Option<Cell>, Option<f64>)> = match orientation {
         Orientation::Observer => site
             .beacons
             .iter()
-            .map(|b| {
-                b.cell
-                    .map(|c| (c, b.tx_power.map_or(config.tx_power_dbm, f64::from)))
-            })
+            .map(|b| (b.id.as_str(), b.cell, b.tx_power.map(f64::from)))
             .collect(),
         Orientation::Advertiser => site
             .gateways
             .iter()
-            .map(|g| g.cell.map(|c| (c, config.tx_power_dbm)))
+            .map(|g| (g.id.as_str(), g.cell, None))
             .collect(),
-    }
+    };
+    entries
+        .into_iter()
+        .map(|(id, cell, tx)| {
+            let cell = cell?;
+            let radio = calibration
+                .and_then(|c| c.radio(id))
+                .unwrap_or_else(|| config.radio(tx.unwrap_or(config.tx_power_dbm)));
+            Some((site.metres(cell), radio))
+        })
+        .collect()
 }
 
-/// Localizes from the path-loss model: a Gaussian likelihood per heard anchor
-/// and a miss probability per silent one.
+/// Localizes from the anchors' radio models.
 pub struct PathLoss {
     n_cells: usize,
     n_anchors: usize,
-    /// Expected RSSI, `[cell][anchor]` row-major; NaN for anchors without a cell.
+    /// Expected RSSI, `[cell][anchor]` row-major; NaN for anchors without a position.
     expected: Vec<f32>,
+    /// ln P(heard), same layout.
+    log_hit: Vec<f32>,
     /// ln P(not heard), same layout.
     log_miss: Vec<f32>,
-    inv_sigma: f32,
+    /// 1/σ per anchor.
+    inv_sigma: Vec<f32>,
 }
 
 impl PathLoss {
+    /// The model from the config (and its calibration file, if any).
     pub fn new(
         config: &PathLossConfig,
         site: &Arc<Site>,
         orientation: Orientation,
     ) -> Result<Self, LocalizerError> {
-        let anchors = anchor_positions(site, orientation, config);
+        let calibration = match &config.calibration {
+            Some(path) => Some(super::calibrate::Calibration::load(path, site)?),
+            None => None,
+        };
+        Self::with_anchors(
+            site,
+            &anchors(site, orientation, config, calibration.as_ref()),
+        )
+    }
+
+    /// The model for given anchors (calibration and evaluation build these).
+    pub fn with_anchors(site: &Site, anchors: &[Anchor]) -> Result<Self, LocalizerError> {
         if anchors.iter().all(Option::is_none) {
             return Err(LocalizerError::NoAnchorPositions);
         }
         let cells = site.open_cells();
-        let mut expected = Vec::with_capacity(cells.len() * anchors.len());
-        let mut log_miss = Vec::with_capacity(cells.len() * anchors.len());
+        let n = cells.len() * anchors.len();
+        let (mut expected, mut log_hit, mut log_miss) = (
+            Vec::with_capacity(n),
+            Vec::with_capacity(n),
+            Vec::with_capacity(n),
+        );
         for &cell in cells {
-            for anchor in &anchors {
+            let here = site.metres(cell);
+            for anchor in anchors {
                 match anchor {
-                    Some((at, tx)) => {
-                        let mu = config.expected_rssi(*tx, cell.distance(*at) * site.cell_m);
-                        let miss = normal_cdf((config.sensitivity_dbm - mu) / config.shadowing_db);
-                        expected.push(mu as f32);
-                        // Floor: even a beacon next to you is missed now and then
-                        // (collisions, scan gaps), so silence is never impossible.
-                        log_miss.push(miss.max(0.02).ln() as f32);
+                    Some((at, radio)) => {
+                        let d = (here.0 - at.0).hypot(here.1 - at.1);
+                        let p = radio.detection(d);
+                        expected.push(radio.expected_rssi(d) as f32);
+                        log_hit.push(p.ln() as f32);
+                        log_miss.push((1.0 - p).ln() as f32);
                     }
                     None => {
                         expected.push(f32::NAN);
+                        log_hit.push(0.0);
                         log_miss.push(0.0);
                     }
                 }
@@ -119,9 +258,33 @@ impl PathLoss {
             n_cells: cells.len(),
             n_anchors: anchors.len(),
             expected,
+            log_hit,
             log_miss,
-            inv_sigma: (1.0 / config.shadowing_db) as f32,
+            inv_sigma: anchors
+                .iter()
+                .map(|a| a.map_or(0.0, |(_, r)| (1.0 / r.shadowing_db) as f32))
+                .collect(),
         })
+    }
+}
+
+impl PathLoss {
+    /// Likelihood tables made elsewhere (the radio map), `[cell][anchor]`.
+    pub(crate) fn from_tables(
+        n_cells: usize,
+        expected: Vec<f32>,
+        log_hit: Vec<f32>,
+        log_miss: Vec<f32>,
+        inv_sigma: Vec<f32>,
+    ) -> Self {
+        PathLoss {
+            n_cells,
+            n_anchors: inv_sigma.len(),
+            expected,
+            log_hit,
+            log_miss,
+            inv_sigma,
+        }
     }
 }
 
@@ -133,18 +296,22 @@ impl Localizer for PathLoss {
     fn log_likelihood(&mut self, rssi: &[f32], heard: &[bool], out: &mut [f32]) {
         debug_assert_eq!(rssi.len(), self.n_anchors);
         debug_assert_eq!(out.len(), self.n_cells);
-        let rows = self.expected.chunks_exact(self.n_anchors);
-        let misses = self.log_miss.chunks_exact(self.n_anchors);
-        for ((slot, expected), log_miss) in out.iter_mut().zip(rows).zip(misses) {
+        let n = self.n_anchors;
+        let rows = self
+            .expected
+            .chunks_exact(n)
+            .zip(self.log_hit.chunks_exact(n))
+            .zip(self.log_miss.chunks_exact(n));
+        for (slot, ((expected, log_hit), log_miss)) in out.iter_mut().zip(rows) {
             let mut ll = 0.0f32;
-            for a in 0..self.n_anchors {
-                let mu = expected[a];
-                if mu.is_nan() {
-                    continue;
-                }
+            for a in 0..n {
                 if heard[a] {
-                    let z = (rssi[a] - mu) * self.inv_sigma;
-                    ll -= 0.5 * z * z;
+                    let mu = expected[a];
+                    if mu.is_nan() {
+                        continue;
+                    }
+                    let z = (rssi[a] - mu) * self.inv_sigma[a];
+                    ll += log_hit[a] - 0.5 * z * z + self.inv_sigma[a].ln();
                 } else {
                     ll += log_miss[a];
                 }
@@ -154,37 +321,12 @@ impl Localizer for PathLoss {
     }
 }
 
-/// Standard normal CDF. Hand-written (Abramowitz & Stegun 26.2.17, error below
-/// 7.5e-8) because it is the only special function the crate needs.
-pub fn normal_cdf(z: f64) -> f64 {
-    let t = 1.0 / (1.0 + 0.231_641_9 * z.abs());
-    let poly = t
-        * (0.319_381_530
-            + t * (-0.356_563_782
-                + t * (1.781_477_937 + t * (-1.821_255_978 + t * 1.330_274_429))));
-    let tail = (-0.5 * z * z).exp() / (2.0 * std::f64::consts::PI).sqrt() * poly;
-    if z >= 0.0 { 1.0 - tail } else { tail }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use std::path::Path;
 
-    #[test]
-    fn normal_cdf_matches_known_values() {
-        for (z, p) in [
-            (0.0, 0.5),
-            (1.0, 0.841_344_7),
-            (-1.96, 0.024_997_9),
-            (3.0, 0.998_650_1),
-        ] {
-            assert!((normal_cdf(z) - p).abs() < 1e-6, "Φ({z})");
-        }
-    }
-
-    #[test]
-    fn the_cell_next_to_the_loudest_beacon_scores_best() {
+    fn corridor() -> Arc<Site> {
         let text = r#"
 name = "corridor"
 cell_m = 1.0
@@ -204,10 +346,20 @@ major = 1
 minor = 2
 cell = [9, 0]
 "#;
-        let site = Arc::new(Site::parse(text, Path::new("t.toml")).unwrap());
-        let mut model =
-            PathLoss::new(&PathLossConfig::default(), &site, Orientation::Observer).unwrap();
+        Arc::new(Site::parse(text, Path::new("t.toml")).unwrap())
+    }
+
+    fn best(ll: &[f32]) -> usize {
+        (0..ll.len())
+            .max_by(|&a, &b| ll[a].total_cmp(&ll[b]))
+            .unwrap()
+    }
+
+    #[test]
+    fn the_cell_next_to_the_loudest_beacon_scores_best() {
+        let site = corridor();
         let config = PathLossConfig::default();
+        let mut model = PathLoss::new(&config, &site, Orientation::Observer).unwrap();
         // Standing at x = 2: west at 2 m, east at 7 m.
         let rssi = [
             config.expected_rssi(-59.0, 2.0) as f32,
@@ -215,7 +367,60 @@ cell = [9, 0]
         ];
         let mut ll = vec![0.0; 10];
         model.log_likelihood(&rssi, &[true, true], &mut ll);
-        let best = (0..10).max_by(|&a, &b| ll[a].total_cmp(&ll[b])).unwrap();
-        assert_eq!(best, 2);
+        assert_eq!(best(&ll), 2);
+    }
+
+    #[test]
+    fn silence_is_weak_evidence_of_distance() {
+        // West heard faintly, east silent: the cells next to east lose, but
+        // only by what one missed advert costs, never outright.
+        let site = corridor();
+        let mut model =
+            PathLoss::new(&PathLossConfig::default(), &site, Orientation::Observer).unwrap();
+        let mut silent = vec![0.0; 10];
+        model.log_likelihood(&[-80.0, -105.0], &[true, false], &mut silent);
+        let mut unheard_anchor_ignored = vec![0.0; 10];
+        let mut one = PathLoss::with_anchors(
+            &site,
+            &[
+                Some((
+                    site.metres(Cell::new(0, 0)),
+                    PathLossConfig::default().radio(-59.0),
+                )),
+                None,
+            ],
+        )
+        .unwrap();
+        one.log_likelihood(
+            &[-80.0, -105.0],
+            &[true, false],
+            &mut unheard_anchor_ignored,
+        );
+        let penalty = |ll: &[f32]| ll[9] - ll[5];
+        assert!(penalty(&silent) < penalty(&unheard_anchor_ignored));
+        assert!(
+            penalty(&silent) > -10.0,
+            "silence is not a verdict: {silent:?}"
+        );
+    }
+
+    #[test]
+    fn detection_falls_with_distance_and_is_never_certain() {
+        let radio = PathLossConfig::default().radio(-59.0);
+        let near = radio.detection(0.0);
+        let half = radio.detection(radio.range_m);
+        let far = radio.detection(100.0);
+        assert!(near > half && half > far);
+        assert!((half - radio.max_detection / 2.0).abs() < 1e-9);
+        assert!(near <= DETECTION_BOUNDS.1 && far >= DETECTION_BOUNDS.0);
+    }
+
+    #[test]
+    fn a_bad_value_is_named() {
+        let config = PathLossConfig {
+            max_detection: 1.5,
+            ..PathLossConfig::default()
+        };
+        assert!(config.validate().unwrap_err().contains("max_detection"));
     }
 }

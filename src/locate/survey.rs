@@ -23,6 +23,9 @@ use std::path::{Path, PathBuf};
 
 use crate::site::{Cell, Site};
 
+/// The weakest RSSI a BLE controller can report.
+const MIN_RSSI_DBM: i16 = -127;
+
 /// One labelled reading.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Sample {
@@ -210,32 +213,45 @@ impl<'a> SurveyRows<'a> {
         &self.ignored_columns
     }
 
-    /// Parses the row in `self.record`.
-    fn parse(&self) -> Result<Row, SurveyError> {
-        let record = &self.record;
-        let line = record.position().map_or(0, |p| p.line());
-        let field = |column: usize, reason: String| SurveyError::Field {
+    fn field_error(&self, line: u64, column: usize, reason: String) -> SurveyError {
+        SurveyError::Field {
             path: self.path.clone(),
             line,
             column: self.headers.get(column).unwrap_or("?").to_owned(),
             reason,
-        };
-        let get = |i: usize| {
-            record.get(i).ok_or_else(|| {
-                field(
-                    i,
-                    format!(
-                        "missing: the row has {} fields and the header {}",
-                        record.len(),
-                        self.headers.len()
-                    ),
-                )
-            })
-        };
+        }
+    }
+
+    /// Field `i` of the row in `self.record`.
+    fn get(&self, line: u64, i: usize) -> Result<&str, SurveyError> {
+        self.record.get(i).ok_or_else(|| {
+            self.field_error(
+                line,
+                i,
+                format!(
+                    "missing: the row has {} fields and the header {}",
+                    self.record.len(),
+                    self.headers.len()
+                ),
+            )
+        })
+    }
+
+    /// Parses the row in `self.record`.
+    fn parse(&self) -> Result<Row, SurveyError> {
+        let record = &self.record;
+        let line = record.position().map_or(0, |p| p.line());
+        let field = |column: usize, reason: String| self.field_error(line, column, reason);
+        let get = |i: usize| self.get(line, i);
         let cell = match self.position {
             None => None,
             Some(Position::Label(i)) => {
                 let label = get(i)?;
+                // Crowd-sourced rows (the UCI unlabelled file) say `?`: heard
+                // somewhere, position unknown.
+                if matches!(label.trim(), "" | "?") {
+                    return self.finish(line, None);
+                }
                 Some(self.site.parse_label(label).ok_or_else(|| {
                     field(
                         i,
@@ -256,6 +272,14 @@ impl<'a> SurveyRows<'a> {
                 Some(cell)
             }
         };
+        self.finish(line, cell)
+    }
+
+    /// Parses the time and readings of the row in `self.record`, whose
+    /// position is `cell`.
+    fn finish(&self, line: u64, cell: Option<Cell>) -> Result<Row, SurveyError> {
+        let field = |column: usize, reason: String| self.field_error(line, column, reason);
+        let get = |i: usize| self.get(line, i);
         let t = match self.clock {
             Clock::None => None,
             Clock::Date(i) => {
@@ -286,7 +310,20 @@ impl<'a> SurveyRows<'a> {
                     let v: i16 = text
                         .parse()
                         .map_err(|_| field(*i, format!("{text:?} is not an RSSI in whole dBm")))?;
-                    (v != self.not_heard).then_some(v)
+                    if v > 0 && v != self.not_heard {
+                        return Err(field(
+                            *i,
+                            format!(
+                                "{v} is a positive RSSI, which no receiver reports; if it marks \
+                                 \"not heard\" in this file, say so (`--not-heard {v}`, or \
+                                 `not_heard = {v}`)"
+                            ),
+                        ));
+                    }
+                    // Below -127 dBm is outside what BLE reports (an i8): such
+                    // values are "not heard" markers of their own (the UCI
+                    // files have a few -198 and -199 beside -200).
+                    (v != self.not_heard && v >= MIN_RSSI_DBM).then_some(v)
                 }
             });
         }
@@ -337,8 +374,17 @@ impl Survey {
         let ignored_columns = rows.ignored_columns().to_vec();
         let samples = rows
             .map(|row| {
-                row.map(|row| Sample {
-                    cell: row.cell.expect("checked: the survey has position columns"),
+                let row = row?;
+                let cell = row.cell.ok_or_else(|| SurveyError::Field {
+                    path: path.to_owned(),
+                    line: row.line,
+                    column: "location".into(),
+                    reason: "no position (`?`): a survey needs every row's cell; give \
+                             unlabelled rows to `gangway calibrate` or `--calibrate` instead"
+                        .into(),
+                })?;
+                Ok(Sample {
+                    cell,
                     t: row.t,
                     rssi: row.rssi,
                 })

@@ -80,7 +80,7 @@ pub enum TrackerKind {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Fix {
     pub cell: Cell,
-    /// Posterior probability of `cell`.
+    /// Posterior probability of being within one cell of `cell`.
     pub confidence: f32,
 }
 
@@ -202,7 +202,7 @@ impl Tracker {
         let steps = model.steps(t - track.t);
         model.filter(&mut track.belief, steps, &likelihood, &mut self.scratch);
         track.t = t;
-        track.fix = estimate(self.config.estimate, self.site.open_cells(), &track.belief);
+        track.fix = estimate(self.config.estimate, &self.site, &track.belief);
         track.fix
     }
 
@@ -213,52 +213,89 @@ impl Tracker {
     /// would publish each such fix `lag` windows late; recorded walks can
     /// afford it. With `lag` 0 this is the online filter.
     pub fn smooth(&self, windows: &[(f64, Vec<f32>)], lag: usize) -> Vec<Fix> {
-        let model = MotionModel {
+        let model = self.model();
+        let forward = model.forward(windows);
+        let n = windows.len();
+        let mut scratch = Vec::new();
+        (0..n)
+            .map(|k| {
+                let mut backward = vec![1.0f32; forward.filtered[k].len()];
+                for j in (k + 1..=(k + lag).min(n.saturating_sub(1))).rev() {
+                    forward.pull_back_through(&model, j, &mut backward, &mut scratch);
+                }
+                let smoothed = forward.combine(k, &backward);
+                estimate(self.config.estimate, &self.site, &smoothed)
+            })
+            .collect()
+    }
+
+    /// The belief over open cells at every window of one recorded trajectory,
+    /// given all of it (forward-backward): what calibration weighs each
+    /// window's evidence by when no position is known.
+    pub fn posteriors(&self, windows: &[(f64, Vec<f32>)]) -> Vec<Vec<f32>> {
+        let model = self.model();
+        let forward = model.forward(windows);
+        let n = windows.len();
+        let mut out = vec![Vec::new(); n];
+        let mut backward = vec![1.0f32; self.neighbours.len()];
+        let mut scratch = Vec::new();
+        for k in (0..n).rev() {
+            out[k] = forward.combine(k, &backward);
+            if k > 0 {
+                forward.pull_back_through(&model, k, &mut backward, &mut scratch);
+            }
+        }
+        out
+    }
+
+    fn model(&self) -> MotionModel<'_> {
+        MotionModel {
             config: &self.config,
             neighbours: &self.neighbours,
             cell_m: self.site.cell_m,
-        };
-        let mut scratch = Vec::new();
-        let mut filtered: Vec<Vec<f32>> = Vec::with_capacity(windows.len());
-        let mut likelihoods = Vec::with_capacity(windows.len());
-        let mut steps = Vec::with_capacity(windows.len());
-        let mut belief = Vec::new();
-        let mut last_t = f64::NEG_INFINITY;
-        for (t, log_likelihood) in windows {
-            let likelihood = model.likelihood(log_likelihood);
-            let s = model.steps(t - last_t);
-            model.filter(&mut belief, s, &likelihood, &mut scratch);
-            filtered.push(belief.clone());
-            likelihoods.push(likelihood);
-            steps.push(s);
-            last_t = *t;
         }
-        let n = windows.len();
-        (0..n)
-            .map(|k| {
-                let mut backward = vec![1.0f32; filtered[k].len()];
-                for j in (k + 1..=(k + lag).min(n.saturating_sub(1))).rev() {
-                    let Some(s) = steps[j] else {
-                        // The track restarted at j: nothing after it informs k.
-                        backward.fill(1.0);
-                        continue;
-                    };
-                    for (b, l) in backward.iter_mut().zip(&likelihoods[j]) {
-                        *b *= l;
-                    }
-                    model.pull_back(&mut backward, s, &mut scratch);
-                }
-                let mut smoothed: Vec<f32> = filtered[k]
-                    .iter()
-                    .zip(&backward)
-                    .map(|(a, b)| a * b)
-                    .collect();
-                if !normalize(&mut smoothed) {
-                    smoothed.clone_from(&filtered[k]);
-                }
-                estimate(self.config.estimate, self.site.open_cells(), &smoothed)
-            })
-            .collect()
+    }
+}
+
+/// The forward pass over one trajectory, kept for a backward pass.
+struct Forward {
+    filtered: Vec<Vec<f32>>,
+    likelihoods: Vec<Vec<f32>>,
+    /// Motion steps into each window; `None` where the track restarted.
+    steps: Vec<Option<usize>>,
+}
+
+impl Forward {
+    /// Moves a backward message from window `j` to window `j − 1`.
+    fn pull_back_through(
+        &self,
+        model: &MotionModel,
+        j: usize,
+        backward: &mut Vec<f32>,
+        scratch: &mut Vec<f32>,
+    ) {
+        let Some(s) = self.steps[j] else {
+            // The track restarted at j: nothing after it informs j − 1.
+            backward.fill(1.0);
+            return;
+        };
+        for (b, l) in backward.iter_mut().zip(&self.likelihoods[j]) {
+            *b *= l;
+        }
+        model.pull_back(backward, s, scratch);
+    }
+
+    /// The smoothed belief at window `k` given its backward message.
+    fn combine(&self, k: usize, backward: &[f32]) -> Vec<f32> {
+        let mut smoothed: Vec<f32> = self.filtered[k]
+            .iter()
+            .zip(backward)
+            .map(|(a, b)| a * b)
+            .collect();
+        if !normalize(&mut smoothed) {
+            smoothed.clone_from(&self.filtered[k]);
+        }
+        smoothed
     }
 }
 
@@ -282,6 +319,28 @@ impl MotionModel<'_> {
             .iter()
             .map(|&ll| ((ll - max_ll) * weight).exp())
             .collect()
+    }
+
+    /// The forward filter over a whole trajectory.
+    fn forward(&self, windows: &[(f64, Vec<f32>)]) -> Forward {
+        let mut scratch = Vec::new();
+        let mut forward = Forward {
+            filtered: Vec::with_capacity(windows.len()),
+            likelihoods: Vec::with_capacity(windows.len()),
+            steps: Vec::with_capacity(windows.len()),
+        };
+        let mut belief = Vec::new();
+        let mut last_t = f64::NEG_INFINITY;
+        for (t, log_likelihood) in windows {
+            let likelihood = self.likelihood(log_likelihood);
+            let s = self.steps(t - last_t);
+            self.filter(&mut belief, s, &likelihood, &mut scratch);
+            forward.filtered.push(belief.clone());
+            forward.likelihoods.push(likelihood);
+            forward.steps.push(s);
+            last_t = *t;
+        }
+        forward
     }
 
     /// Motion steps for a gap of `dt` seconds since the last window, or `None`
@@ -361,16 +420,33 @@ impl MotionModel<'_> {
     }
 }
 
-/// The reported fix of a belief over `cells`.
-fn estimate(how: Estimate, cells: &[Cell], belief: &[f32]) -> Fix {
+/// The reported fix of a belief over the site's open cells.
+fn estimate(how: Estimate, site: &Site, belief: &[f32]) -> Fix {
+    let cells = site.open_cells();
     let best = match how {
         Estimate::Mode => argmax(belief),
         Estimate::Median => spatial_median(cells, belief),
     };
+    let cell = cells[best];
     Fix {
-        cell: cells[best],
-        confidence: belief[best],
+        cell,
+        confidence: within_one_cell(site, cell, belief),
     }
+}
+
+/// The belief that the entity is within one cell of `cell` (the cell or one
+/// of its four edge neighbours): what a published `confidence` promises.
+fn within_one_cell(site: &Site, cell: Cell, belief: &[f32]) -> f32 {
+    let near = [(0, 0), (-1, 0), (1, 0), (0, -1), (0, 1)];
+    near.iter()
+        .filter_map(|&(dx, dy)| {
+            let x = cell.x.checked_add_signed(dx)?;
+            let y = cell.y.checked_add_signed(dy)?;
+            site.open_index(Cell::new(x, y))
+        })
+        .map(|i| belief[i])
+        .sum::<f32>()
+        .min(1.0)
 }
 
 fn argmax(v: &[f32]) -> usize {

@@ -8,7 +8,7 @@ pub const STATS_SCHEMA: &str = "gangway.stats/1";
 
 /// The counters in [`Stats`] that only grow, with a human name each (Home
 /// Assistant discovery makes one sensor per entry).
-pub const COUNTERS: [(&str, &str); 27] = [
+pub const COUNTERS: [(&str, &str); 28] = [
     ("sightings", "Sightings"),
     ("sightings_ignored", "Sightings ignored"),
     ("fixes", "Fixes"),
@@ -36,6 +36,7 @@ pub const COUNTERS: [(&str, &str); 27] = [
     ("evicted_devices", "Devices forgotten"),
     ("disconnects", "Broker connections lost"),
     ("unpublishable", "Unpublishable messages"),
+    ("scan_restarts", "Silent scan restarts"),
 ];
 
 /// Gauges (current values), with a human name each.
@@ -101,6 +102,8 @@ pub struct Stats {
     pub disconnects: u64,
     /// Outgoing messages no broker would take (a bad topic), dropped.
     pub unpublishable: u64,
+    /// Bluetooth scans restarted after `[ble] silent_restart_s` of silence.
+    pub scan_restarts: u64,
     pub tracked: u64,
     /// Entities with an open fingerprint window.
     pub windows: u64,
@@ -132,4 +135,7 @@ pub struct BleStatus {
     pub failures: u64,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub retry_in_s: Option<f64>,
+    /// Silent scans restarted; published as the top-level `scan_restarts`.
+    #[serde(skip)]
+    pub scan_restarts: u64,
 }

@@ -1,0 +1,194 @@
+//! `gangway calibrate`: fits the survey-free radio model to what was heard,
+//! with no positions, and writes the calibration file `[localizer.pathloss]
+//! calibration` loads.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+
+use anyhow::Context;
+
+use crate::locate::calibrate::{Window, fit};
+use crate::locate::pathloss::anchors;
+use crate::locate::window::{Windows, anchor_ids};
+use crate::source::Event;
+use crate::source::capture::{CaptureReader, Format, ReadOptions};
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[arg(long, default_value_os_t = super::default_config())]
+    config: PathBuf,
+    /// Captures heard on this site (any format `replay` reads: JSON Lines
+    /// advert logs, CSV scan logs with or without positions, btsnoop). Rows
+    /// with a position (a few surveyed points) are used as such.
+    #[arg(long, required = true, num_args = 1..)]
+    from: Vec<PathBuf>,
+    /// The capture format; detected per file by default.
+    #[arg(long, value_enum)]
+    format: Option<Format>,
+    /// RSSI value that means "not heard" in CSV scan logs.
+    #[arg(long, default_value_t = -200, allow_negative_numbers = true)]
+    not_heard: i16,
+    /// Where to write the calibration (TOML).
+    #[arg(long)]
+    out: PathBuf,
+    /// EM iterations.
+    #[arg(long, default_value_t = crate::eval::localization::CALIBRATION_ITERATIONS)]
+    iterations: usize,
+    /// Print the report as one JSON object.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let (config, site) = super::load(&args.config)?;
+    let orientation = config.window.orientation;
+    let ids = anchor_ids(&site, orientation);
+    let mut trajectories = Vec::new();
+    for path in &args.from {
+        trajectories.extend(read(&args, path, &site, &config.window)?);
+    }
+    let windows: usize = trajectories.iter().map(Vec::len).sum();
+    anyhow::ensure!(
+        windows > 0,
+        "no fingerprint windows in {:?}: do the captures hear the site's beacons?",
+        args.from
+    );
+    // Starts from the configured model, without any calibration it names.
+    let pathloss = &config.localizer.pathloss;
+    let start = anchors(&site, orientation, pathloss, None);
+    let started = std::time::Instant::now();
+    let fitted = fit(
+        &site,
+        &ids,
+        &start,
+        &config.tracker,
+        &trajectories,
+        args.iterations,
+    )?;
+    let seconds = started.elapsed().as_secs_f64();
+    let text = format!(
+        "# Written by `gangway calibrate --from {} --out {}` ({} windows).\n# Load it with \
+         [localizer.pathloss] calibration = \"<this file, relative to the gateway config>\".\n{}",
+        args.from
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(" "),
+        args.out.display(),
+        windows,
+        fitted.calibration.to_toml()
+    );
+    std::fs::write(&args.out, text)
+        .with_context(|| format!("cannot write {}", args.out.display()))?;
+    if args.json {
+        let report = serde_json::json!({
+            "windows": windows,
+            "trajectories": trajectories.len(),
+            "iterations": args.iterations,
+            "seconds": seconds,
+            "log_likelihood_per_window": fitted.log_likelihood_per_window,
+            "anchors": fitted.changes,
+        });
+        println!("{report}");
+    } else {
+        println!(
+            "calibrated {} anchors from {windows} windows ({} trajectories) in {seconds:.1} s; wrote {}",
+            fitted.changes.len(),
+            trajectories.len(),
+            args.out.display()
+        );
+        println!("anchor    heard  tx dBm   n     σ dB  range m  slope  p_max   Δrssi dB  Δdetect");
+        for c in &fitted.changes {
+            let r = &c.after;
+            println!(
+                "{:<9} {:>5}  {:>6.1}  {:>4.2}  {:>5.1}  {:>7.1}  {:>5.1}  {:>5.2}  {:>+8.1}  {:>+7.3}",
+                c.id,
+                c.heard,
+                r.tx_dbm,
+                r.exponent,
+                r.shadowing_db,
+                r.range_m,
+                r.range_slope,
+                r.max_detection,
+                c.rssi_shift_db,
+                c.detection_shift
+            );
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The fingerprint windows of one capture, one trajectory per device, through
+/// the config's windows (what the daemon localizes), with the capture's
+/// truths as known positions.
+fn read(
+    args: &Args,
+    path: &std::path::Path,
+    site: &Arc<crate::site::Site>,
+    window: &crate::locate::window::WindowConfig,
+) -> anyhow::Result<Vec<Vec<Window>>> {
+    let reader = CaptureReader::open(
+        path,
+        site,
+        &ReadOptions {
+            format: args.format,
+            skip_bad: false,
+            device: None,
+            not_heard: args.not_heard,
+        },
+    )?;
+    let mut windows = Windows::new(window.clone(), site);
+    let mut by_device: BTreeMap<Arc<str>, Vec<Window>> = BTreeMap::new();
+    let mut truths: BTreeMap<String, Vec<(f64, crate::site::Cell)>> = BTreeMap::new();
+    let mut push = |f: crate::locate::window::Fingerprint| {
+        let rssi = f
+            .rssi
+            .iter()
+            .zip(&f.heard)
+            .map(|(&r, &h)| h.then_some(r))
+            .collect();
+        by_device.entry(f.entity).or_default().push(Window {
+            t: f.t,
+            rssi,
+            cell: None,
+        });
+    };
+    for event in reader {
+        match event? {
+            Event::Advert(s) => {
+                if let Some(f) = windows.push(&s) {
+                    push(f);
+                }
+            }
+            Event::Truth(truth) => truths
+                .entry(truth.device)
+                .or_default()
+                .push((truth.t, truth.cell)),
+            Event::Request(_) => {}
+        }
+    }
+    windows.flush().into_iter().for_each(&mut push);
+    Ok(by_device
+        .into_iter()
+        .map(|(device, mut trajectory)| {
+            trajectory.sort_by(|a, b| a.t.total_cmp(&b.t));
+            if let Some(known) = truths.get(&*device) {
+                for w in &mut trajectory {
+                    w.cell = at(known, w.t, window.length_s);
+                }
+            }
+            trajectory
+        })
+        .collect())
+}
+
+/// The truth within `tolerance_s` of `t`, if any.
+fn at(truths: &[(f64, crate::site::Cell)], t: f64, tolerance_s: f64) -> Option<crate::site::Cell> {
+    truths
+        .iter()
+        .filter(|(tt, _)| (tt - t).abs() <= tolerance_s)
+        .min_by(|a, b| (a.0 - t).abs().total_cmp(&(b.0 - t).abs()))
+        .map(|&(_, cell)| cell)
+}

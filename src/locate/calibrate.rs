@@ -1,0 +1,451 @@
+//! Self-calibration of the survey-free radio model from what the gateway
+//! hears, with no position known.
+//!
+//! Expectation-maximisation over the tracker's own belief: with the current
+//! per-anchor [`Radio`] models, every recorded trajectory is localized with
+//! the forward-backward smoother ([`Tracker::posteriors`]), which gives each
+//! window a belief over cells. Each anchor's parameters are then refitted as if
+//! every window had been taken at every cell in proportion to that belief:
+//! detection (`range_m`, `range_slope`, `max_detection`) by maximum weighted
+//! likelihood of heard/not heard against distance, and strength (`tx_dbm`,
+//! `exponent`, `shadowing_db`) by weighted least squares of RSSI on
+//! log-distance. Walls and the walking-speed limit keep the belief honest, so
+//! the loop does not drift into "everything is everywhere". Windows of known
+//! position (a few labelled points) enter with their belief fixed at that cell.
+//!
+//! Detection is fitted on a histogram over distance (0.25 m bins), so the cost
+//! of a refit does not grow with the site; the E-step is one smoothing pass.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use serde::{Deserialize, Serialize};
+
+use super::pathloss::{Anchor, PathLoss, Radio};
+use super::tracker::{Tracker, TrackerConfig};
+use super::{Localizer, LocalizerError};
+use crate::site::{Cell, Site};
+
+/// One window of a trajectory: when, what was heard (one slot per anchor,
+/// `None` when silent) and, when known, where.
+#[derive(Clone, Debug)]
+pub struct Window {
+    pub t: f64,
+    pub rssi: Vec<Option<f32>>,
+    pub cell: Option<Cell>,
+}
+
+/// Anchors heard in fewer windows than this keep their starting model: too
+/// few readings to fit six parameters.
+const MIN_HEARD: f64 = 20.0;
+/// Width of the distance bins detection is fitted on, metres.
+const BIN_M: f64 = 0.25;
+
+/// A calibration file: per-anchor radio models by anchor id.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Calibration {
+    /// The site it was fitted on (informational: positions matter, not names).
+    pub site: String,
+    /// Windows it was fitted from.
+    pub windows: usize,
+    pub iterations: usize,
+    #[serde(rename = "anchor")]
+    pub anchors: Vec<AnchorCalibration>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AnchorCalibration {
+    pub id: String,
+    /// Windows in which the anchor was heard.
+    pub heard: usize,
+    #[serde(flatten)]
+    pub radio: Radio,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum CalibrationError {
+    #[error("{path}: cannot read the calibration file: {reason}")]
+    Read { path: PathBuf, reason: String },
+    #[error("{path}: {reason}")]
+    Invalid { path: PathBuf, reason: String },
+}
+
+impl Calibration {
+    /// Reads and checks a calibration file against the site's anchor ids.
+    pub fn load(path: &Path, site: &Site) -> Result<Calibration, CalibrationError> {
+        let read = |reason: String| CalibrationError::Read {
+            path: path.to_owned(),
+            reason,
+        };
+        let invalid = |reason: String| CalibrationError::Invalid {
+            path: path.to_owned(),
+            reason,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| read(e.to_string()))?;
+        let calibration: Calibration = toml::from_str(&text).map_err(|e| invalid(e.to_string()))?;
+        for a in &calibration.anchors {
+            let known = site.beacons.iter().any(|b| b.id == a.id)
+                || site.gateways.iter().any(|g| g.id == a.id);
+            if !known {
+                return Err(invalid(format!(
+                    "anchor `{}` is not a beacon or gateway of site `{}`; recalibrate for this site",
+                    a.id, site.name
+                )));
+            }
+            a.radio
+                .validate()
+                .map_err(|e| invalid(format!("anchor `{}`: {e}", a.id)))?;
+        }
+        Ok(calibration)
+    }
+
+    /// The radio model of one anchor, if calibrated.
+    pub fn radio(&self, id: &str) -> Option<Radio> {
+        self.anchors.iter().find(|a| a.id == id).map(|a| a.radio)
+    }
+
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).expect("a calibration serializes")
+    }
+}
+
+/// How far one anchor's model moved.
+#[derive(Clone, Debug, Serialize)]
+pub struct Change {
+    pub id: String,
+    pub heard: usize,
+    pub before: Radio,
+    pub after: Radio,
+    /// Mean change of the expected RSSI over 1–10 m, dB.
+    pub rssi_shift_db: f64,
+    /// Mean change of the detection probability over 1–10 m.
+    pub detection_shift: f64,
+}
+
+/// The fitted calibration and what changed.
+pub struct Fitted {
+    pub calibration: Calibration,
+    pub changes: Vec<Change>,
+    /// Mean log-likelihood per window under the final model.
+    pub log_likelihood_per_window: f64,
+}
+
+/// Fits every positioned anchor's radio model to `trajectories` (each in time
+/// order), starting from `start` (in the orientation's anchor order, with the
+/// anchors' ids in `ids`).
+pub fn fit(
+    site: &Arc<Site>,
+    ids: &[String],
+    start: &[Anchor],
+    tracker: &TrackerConfig,
+    trajectories: &[Vec<Window>],
+    iterations: usize,
+) -> Result<Fitted, LocalizerError> {
+    let mut anchors = start.to_vec();
+    initialise(site, &mut anchors, trajectories);
+    let tracker = Tracker::new(tracker.clone(), site.clone());
+    let cells = site.open_cells();
+    // Distance from every open cell to every anchor, metres, [cell][anchor].
+    let distance: Vec<f64> = cells
+        .iter()
+        .flat_map(|&c| {
+            let here = site.metres(c);
+            anchors
+                .iter()
+                .map(move |a| a.map_or(f64::NAN, |(at, _)| (here.0 - at.0).hypot(here.1 - at.1)))
+        })
+        .collect();
+    let n_anchors = anchors.len();
+    let bins = distance
+        .iter()
+        .filter(|d| d.is_finite())
+        .fold(0.0f64, |m, &d| m.max(d))
+        .div_euclid(BIN_M) as usize
+        + 1;
+    let windows: usize = trajectories.iter().map(Vec::len).sum();
+    let mut log_likelihood_per_window = f64::NAN;
+    for _ in 0..iterations.max(1) {
+        let mut stats = vec![Stats::new(bins); n_anchors];
+        let mut localizer = PathLoss::with_anchors(site, &anchors)?;
+        let mut total_ll = 0.0;
+        let mut rssi = vec![0.0f32; n_anchors];
+        let mut heard = vec![false; n_anchors];
+        for trajectory in trajectories {
+            let lls: Vec<(f64, Vec<f32>)> = trajectory
+                .iter()
+                .map(|w| {
+                    for (a, r) in w.rssi.iter().enumerate() {
+                        heard[a] = r.is_some();
+                        rssi[a] = r.unwrap_or(0.0);
+                    }
+                    let mut ll = vec![0.0f32; cells.len()];
+                    localizer.log_likelihood(&rssi, &heard, &mut ll);
+                    if let Some(i) = w.cell.and_then(|c| site.open_index(c)) {
+                        // A known position: all belief there.
+                        ll.iter_mut().enumerate().for_each(|(j, v)| {
+                            if j != i {
+                                *v = f32::NEG_INFINITY;
+                            }
+                        });
+                    }
+                    (w.t, ll)
+                })
+                .collect();
+            let posteriors = tracker.posteriors(&lls);
+            for ((w, (_, ll)), belief) in trajectory.iter().zip(&lls).zip(&posteriors) {
+                total_ll += belief
+                    .iter()
+                    .zip(ll)
+                    .filter(|(b, _)| **b > 0.0)
+                    .map(|(b, l)| f64::from(*b) * f64::from(*l))
+                    .sum::<f64>();
+                for (c, &b) in belief.iter().enumerate() {
+                    // Cells holding almost none of the belief add nothing.
+                    if b < 1e-5 {
+                        continue;
+                    }
+                    let b = f64::from(b);
+                    let row = &distance[c * n_anchors..(c + 1) * n_anchors];
+                    for (a, stat) in stats.iter_mut().enumerate() {
+                        if row[a].is_finite() {
+                            stat.add(row[a], w.rssi[a], b);
+                        }
+                    }
+                }
+            }
+        }
+        log_likelihood_per_window = total_ll / windows.max(1) as f64;
+        for (anchor, stat) in anchors.iter_mut().zip(&stats) {
+            if let Some((_, radio)) = anchor
+                && stat.heard >= MIN_HEARD
+            {
+                *radio = stat.refit(radio);
+            }
+        }
+    }
+    let heard: Vec<usize> = (0..n_anchors)
+        .map(|a| {
+            trajectories
+                .iter()
+                .flatten()
+                .filter(|w| w.rssi[a].is_some())
+                .count()
+        })
+        .collect();
+    let mut entries = Vec::new();
+    let mut changes = Vec::new();
+    for (a, (anchor, before)) in anchors.iter().zip(start).enumerate() {
+        let (Some((_, after)), Some((_, before))) = (anchor, before) else {
+            continue;
+        };
+        entries.push(AnchorCalibration {
+            id: ids[a].clone(),
+            heard: heard[a],
+            radio: *after,
+        });
+        changes.push(Change::between(&ids[a], heard[a], before, after));
+    }
+    Ok(Fitted {
+        calibration: Calibration {
+            site: site.name.clone(),
+            windows,
+            iterations,
+            anchors: entries,
+        },
+        changes,
+        log_likelihood_per_window,
+    })
+}
+
+/// A start for EM read off the data alone, so that it does not depend on how
+/// far the configured defaults are from this site's radios (EM only finds the
+/// nearest optimum):
+/// - each anchor's `tx_dbm` is the 90th percentile of its readings: the
+///   loudest readings are taken near it, about a metre away;
+/// - one `range_m` for all anchors makes the expected number of anchors heard
+///   per window, over the site's open cells, equal to the number heard.
+fn initialise(site: &Site, anchors: &mut [Anchor], trajectories: &[Vec<Window>]) {
+    let windows: Vec<&Window> = trajectories.iter().flatten().collect();
+    if windows.is_empty() {
+        return;
+    }
+    for (a, anchor) in anchors.iter_mut().enumerate() {
+        let Some((_, radio)) = anchor else { continue };
+        let mut readings: Vec<f32> = windows.iter().filter_map(|w| w.rssi[a]).collect();
+        if (readings.len() as f64) < MIN_HEARD {
+            continue;
+        }
+        let rank = ((readings.len() as f64 * 0.9) as usize).min(readings.len() - 1);
+        let (_, loud, _) = readings.select_nth_unstable_by(rank, f32::total_cmp);
+        radio.tx_dbm = f64::from(*loud);
+    }
+    let heard = windows
+        .iter()
+        .map(|w| w.rssi.iter().filter(|r| r.is_some()).count())
+        .sum::<usize>() as f64
+        / windows.len() as f64;
+    let cells = site.open_cells();
+    let expected_heard = |range_m: f64, anchors: &[Anchor]| -> f64 {
+        cells
+            .iter()
+            .map(|&c| {
+                let here = site.metres(c);
+                anchors
+                    .iter()
+                    .flatten()
+                    .map(|(at, r)| {
+                        Radio { range_m, ..*r }.detection((here.0 - at.0).hypot(here.1 - at.1))
+                    })
+                    .sum::<f64>()
+            })
+            .sum::<f64>()
+            / cells.len() as f64
+    };
+    // Bisection in log-range: more range, more anchors heard.
+    let (mut lo, mut hi) = (0.25f64.ln(), 200f64.ln());
+    for _ in 0..40 {
+        let mid = 0.5 * (lo + hi);
+        if expected_heard(mid.exp(), anchors) < heard {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    let range_m = (0.5 * (lo + hi)).exp();
+    for (_, radio) in anchors.iter_mut().flatten() {
+        radio.range_m = range_m;
+    }
+}
+
+impl Change {
+    fn between(id: &str, heard: usize, before: &Radio, after: &Radio) -> Change {
+        let metres: Vec<f64> = (1..=10).map(f64::from).collect();
+        let mean = |f: &dyn Fn(f64) -> f64| metres.iter().map(|&d| f(d)).sum::<f64>() / 10.0;
+        Change {
+            id: id.to_owned(),
+            heard,
+            before: *before,
+            after: *after,
+            rssi_shift_db: mean(&|d| after.expected_rssi(d) - before.expected_rssi(d)),
+            detection_shift: mean(&|d| after.detection(d) - before.detection(d)),
+        }
+    }
+}
+
+/// Belief-weighted sufficient statistics of one anchor.
+#[derive(Clone)]
+struct Stats {
+    /// Weight of windows in which it was heard / silent, per distance bin.
+    hit: Vec<f64>,
+    miss: Vec<f64>,
+    /// Weighted sums for the regression of RSSI on x = log10(distance).
+    w: f64,
+    wx: f64,
+    wxx: f64,
+    wy: f64,
+    wxy: f64,
+    wyy: f64,
+    heard: f64,
+}
+
+impl Stats {
+    fn new(bins: usize) -> Stats {
+        Stats {
+            hit: vec![0.0; bins],
+            miss: vec![0.0; bins],
+            w: 0.0,
+            wx: 0.0,
+            wxx: 0.0,
+            wy: 0.0,
+            wxy: 0.0,
+            wyy: 0.0,
+            heard: 0.0,
+        }
+    }
+
+    fn add(&mut self, distance_m: f64, rssi: Option<f32>, weight: f64) {
+        let bin = ((distance_m / BIN_M) as usize).min(self.hit.len() - 1);
+        match rssi {
+            Some(r) => {
+                self.hit[bin] += weight;
+                self.heard += weight;
+                let x = distance_m.max(0.5).log10();
+                let y = f64::from(r);
+                self.w += weight;
+                self.wx += weight * x;
+                self.wxx += weight * x * x;
+                self.wy += weight * y;
+                self.wxy += weight * x * y;
+                self.wyy += weight * y * y;
+            }
+            None => self.miss[bin] += weight,
+        }
+    }
+
+    /// The anchor's model refitted to these statistics, from `current`.
+    fn refit(&self, current: &Radio) -> Radio {
+        let mut radio = *current;
+        // Strength: weighted least squares of RSSI on log10(d).
+        let det = self.w * self.wxx - self.wx * self.wx;
+        if det > 1e-9 * self.w * self.w {
+            let slope = (self.w * self.wxy - self.wx * self.wy) / det;
+            // Exponents outside 0.5–6 are a degenerate fit, not a building.
+            radio.exponent = (-slope / 10.0).clamp(0.5, 6.0);
+        }
+        let slope = -10.0 * radio.exponent;
+        radio.tx_dbm = (self.wy - slope * self.wx) / self.w;
+        let residual = (self.wyy - 2.0 * radio.tx_dbm * self.wy - 2.0 * slope * self.wxy
+            + radio.tx_dbm * radio.tx_dbm * self.w
+            + 2.0 * radio.tx_dbm * slope * self.wx
+            + slope * slope * self.wxx)
+            / self.w;
+        // Readings are whole dBm and a window's spread is never below a few dB.
+        radio.shadowing_db = residual.max(0.0).sqrt().max(2.0);
+        // Detection: coordinate search over its three parameters.
+        let ll = |r: &Radio| -> f64 {
+            (0..self.hit.len())
+                .filter(|&i| self.hit[i] + self.miss[i] > 0.0)
+                .map(|i| {
+                    let p = r.detection((i as f64 + 0.5) * BIN_M);
+                    self.hit[i] * p.ln() + self.miss[i] * (1.0 - p).ln()
+                })
+                .sum()
+        };
+        let ranges: Vec<f64> = (0..48).map(|i| 0.5 * 1.1f64.powi(i)).collect();
+        let slopes = [1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0];
+        let maxima: Vec<f64> = (0..14).map(|i| 0.35 + 0.05 * f64::from(i)).collect();
+        for _ in 0..3 {
+            radio.range_m = best(&ranges, |v| {
+                ll(&Radio {
+                    range_m: v,
+                    ..radio
+                })
+            });
+            radio.range_slope = best(&slopes, |v| {
+                ll(&Radio {
+                    range_slope: v,
+                    ..radio
+                })
+            });
+            radio.max_detection = best(&maxima, |v| {
+                ll(&Radio {
+                    max_detection: v,
+                    ..radio
+                })
+            });
+        }
+        radio
+    }
+}
+
+/// The candidate with the highest score.
+fn best(candidates: &[f64], score: impl Fn(f64) -> f64) -> f64 {
+    candidates
+        .iter()
+        .copied()
+        .map(|v| (v, score(v)))
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .map_or(candidates[0], |(v, _)| v)
+}

@@ -1,0 +1,132 @@
+//! Settings of a surveyed localizer chosen from its own survey: each
+//! candidate localizes every walking session of the survey from a model built
+//! on the other sessions, through the tracker, and the candidate with the
+//! least mean error wins. The winner's held-out fixes also fit the map from
+//! raw to published confidence ([`ConfidenceMap`]).
+//!
+//! This replaces constants that suit one floor: a survey of 24 beacons on
+//! shelves wants another kernel than one of 13 on walls, and only its own
+//! sessions can say which.
+
+use std::sync::Arc;
+
+use super::reliability::ConfidenceMap;
+use super::survey::Sample;
+use super::tracker::{Tracker, TrackerConfig};
+use super::{Localizer, LocalizerError};
+use crate::site::Site;
+
+/// Folds of the cross-validation.
+const FOLDS: usize = 3;
+/// A gap longer than this (seconds) between survey rows starts a new session.
+const SESSION_GAP_S: f64 = 20.0;
+
+/// The chosen candidate, its mean held-out error (cells) and the confidence
+/// map of its held-out fixes.
+pub struct Chosen<C> {
+    pub candidate: C,
+    pub error_cells: f64,
+    pub confidence: ConfidenceMap,
+}
+
+/// Tries every candidate; `build` makes a localizer of one candidate from
+/// some survey rows; anchors not heard read `missing_dbm`, as in a window.
+pub fn choose<C: Clone, L: Localizer>(
+    candidates: &[C],
+    site: &Arc<Site>,
+    tracker: &TrackerConfig,
+    samples: &[&Sample],
+    missing_dbm: f32,
+    build: impl Fn(&C, &[&Sample]) -> Result<L, LocalizerError>,
+) -> Result<Chosen<C>, LocalizerError> {
+    let folds = folds(samples);
+    let mut best: Option<(Chosen<C>, Vec<HeldOutFix>)> = None;
+    for candidate in candidates {
+        let fixes = held_out_fixes(site, tracker, samples, &folds, missing_dbm, |rows| {
+            build(candidate, rows)
+        })?;
+        let error = fixes.iter().map(|f| f.1).sum::<f64>() / fixes.len().max(1) as f64;
+        if best.as_ref().is_none_or(|b| error < b.0.error_cells) {
+            best = Some((
+                Chosen {
+                    candidate: candidate.clone(),
+                    error_cells: error,
+                    confidence: ConfidenceMap::default(),
+                },
+                fixes,
+            ));
+        }
+    }
+    let (mut chosen, fixes) = best.expect("at least one candidate");
+    chosen.confidence = ConfidenceMap::fit(&fixes);
+    Ok(chosen)
+}
+
+/// The fold of each row: whole walking sessions when the survey has times
+/// (the honest split: a held-out session is a new visitor), else rows in turn.
+fn folds(samples: &[&Sample]) -> Vec<usize> {
+    let times: Option<Vec<f64>> = samples.iter().map(|s| s.t).collect();
+    let Some(times) = times else {
+        return (0..samples.len()).map(|i| i % FOLDS).collect();
+    };
+    let mut order: Vec<usize> = (0..samples.len()).collect();
+    order.sort_by(|&a, &b| times[a].total_cmp(&times[b]));
+    let mut fold = vec![0usize; samples.len()];
+    let mut session = 0usize;
+    for w in order.windows(2) {
+        session += usize::from(times[w[1]] - times[w[0]] > SESSION_GAP_S);
+        fold[w[1]] = session % FOLDS;
+    }
+    fold
+}
+
+/// (raw confidence, error in cells) of one held-out row.
+type HeldOutFix = (f32, f64);
+
+/// Every row localized by a model of the other folds, in time order through
+/// the tracker: (raw confidence, error in cells) per row heard at all.
+fn held_out_fixes<L: Localizer>(
+    site: &Arc<Site>,
+    tracker: &TrackerConfig,
+    samples: &[&Sample],
+    folds: &[usize],
+    missing_dbm: f32,
+    build: impl Fn(&[&Sample]) -> Result<L, LocalizerError>,
+) -> Result<Vec<HeldOutFix>, LocalizerError> {
+    let n_anchors = samples.first().map_or(0, |s| s.rssi.len());
+    let mut fixes = Vec::new();
+    let mut rssi = vec![0.0f32; n_anchors];
+    let mut heard = vec![false; n_anchors];
+    let mut ll = vec![0.0f32; site.open_cells().len()];
+    for fold in 0..FOLDS {
+        let in_fold = |want: bool| -> Vec<&Sample> {
+            samples
+                .iter()
+                .zip(folds)
+                .filter(|(_, f)| (**f == fold) == want)
+                .map(|(s, _)| *s)
+                .collect()
+        };
+        let (mut held, train) = (in_fold(true), in_fold(false));
+        if train.is_empty() || held.is_empty() {
+            continue;
+        }
+        held.sort_by(|a, b| a.t.unwrap_or(0.0).total_cmp(&b.t.unwrap_or(0.0)));
+        let mut localizer = build(&train)?;
+        let mut tracker = Tracker::new(tracker.clone(), site.clone());
+        let entity: Arc<str> = Arc::from("held-out");
+        for s in held {
+            for (a, r) in s.rssi.iter().enumerate() {
+                heard[a] = r.is_some();
+                rssi[a] = r.map_or(missing_dbm, f32::from);
+            }
+            if !heard.contains(&true) {
+                continue;
+            }
+            localizer.log_likelihood(&rssi, &heard, &mut ll);
+            let fix = tracker.update(&entity, s.t.unwrap_or(0.0), &ll);
+            fixes.push((fix.confidence, fix.cell.distance(s.cell)));
+        }
+    }
+    Ok(fixes)
+}
