@@ -16,10 +16,11 @@
 //! and share of one core, and its RSS at the end and at its peak. Everything
 //! it starts, it stops.
 
+mod support;
+
 use std::collections::HashMap;
-use std::net::TcpListener;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use clap::Parser;
@@ -27,6 +28,7 @@ use gangway::config::Config;
 use gangway::publish::Topics;
 use gangway::site::Site;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
+use support::{Guard, gangway, mosquitto, percentile, usage};
 
 #[derive(Parser)]
 struct Args {
@@ -42,66 +44,6 @@ struct Args {
     /// The gateway config (site, planner, topic prefix), relative to the repository.
     #[arg(long, default_value = "config/gangway.toml")]
     config: PathBuf,
-}
-
-/// Kills the child when dropped, so nothing outlives the test.
-struct Guard(Child);
-
-impl Drop for Guard {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
-fn gangway() -> PathBuf {
-    let exe = std::env::current_exe().unwrap();
-    // target/release/examples/loadtest → target/release/gangway
-    let bin = exe.parent().unwrap().parent().unwrap().join("gangway");
-    assert!(
-        bin.exists(),
-        "build the gateway first: cargo build --release"
-    );
-    bin
-}
-
-/// (CPU seconds, RSS now and at its peak in KiB) of a process, from /proc.
-fn usage(pid: u32) -> (f64, u64, u64) {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
-    let fields: Vec<&str> = stat
-        .rsplit(')')
-        .next()
-        .unwrap_or("")
-        .split_whitespace()
-        .collect();
-    let ticks: f64 = fields.get(11..13).map_or(0.0, |f| {
-        f.iter().filter_map(|v| v.parse::<f64>().ok()).sum()
-    });
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
-    let kib = |key: &str| {
-        status
-            .lines()
-            .find(|l| l.starts_with(key))
-            .and_then(|l| l.split_whitespace().nth(1))
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(0)
-    };
-    (ticks / 100.0, kib("VmRSS:"), kib("VmHWM:")) // USER_HZ is 100 on Linux
-}
-
-fn percentile(sorted: &[f64], p: f64) -> f64 {
-    if sorted.is_empty() {
-        return f64::NAN;
-    }
-    sorted[((sorted.len() as f64 * p).ceil() as usize).clamp(1, sorted.len()) - 1]
 }
 
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
@@ -121,27 +63,7 @@ async fn main() {
     let topics = Topics::new(config.topic_prefix());
 
     // The broker.
-    let port = free_port();
-    let user = Command::new("id").arg("-un").output().unwrap().stdout;
-    let conf = dir.path().join("mosquitto.conf");
-    std::fs::write(
-        &conf,
-        format!(
-            "listener {port} 127.0.0.1\nallow_anonymous true\nuser {}\nmax_queued_messages 100000\nset_tcp_nodelay true\nlog_dest none\n",
-            String::from_utf8_lossy(&user).trim()
-        ),
-    )
-    .unwrap();
-    let _broker = Guard(
-        Command::new("mosquitto")
-            .arg("-c")
-            .arg(&conf)
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("mosquitto (apt-get install mosquitto)"),
-    );
-    std::thread::sleep(Duration::from_millis(300));
+    let (_broker, port) = mosquitto(dir.path(), "");
     let url = format!("mqtt://127.0.0.1:{port}");
 
     // The walk: enough for warm-up, the measured span and a tail.

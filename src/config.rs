@@ -40,22 +40,170 @@ pub struct Config {
     /// `[store]`: the crowd-sourced learning store.
     #[serde(default)]
     pub store: StoreConfig,
+    /// `[limits]`: what anyone on the air or the broker can make the gateway
+    /// hold or do.
+    #[serde(default)]
+    pub limits: LimitsConfig,
+}
+
+/// `[limits]` in the gateway config: bounds on per-device state and on the
+/// work other parties can ask for. Everything from the air or the broker is
+/// hostile; these are what keeps a flood of fake devices or requests from
+/// exhausting the gateway.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LimitsConfig {
+    /// Devices tracked at most (fingerprint windows, tracks, Home Assistant
+    /// trackers); past it the least recently seen is forgotten.
+    pub max_devices: usize,
+    /// A device unheard this long (seconds of event time) is forgotten.
+    pub device_idle_s: f64,
+    /// Route requests waiting to be planned at most; past it a request is
+    /// answered `overloaded` at once.
+    pub max_pending_requests: usize,
+    /// A request that waited longer than this (seconds) is answered
+    /// `overloaded` instead of planned.
+    pub request_deadline_s: f64,
+    /// Phone scans taken per device per second; more are dropped and counted.
+    pub scans_per_device_per_s: u32,
+    /// Phone scans taken per second from all devices together: a flood of
+    /// fake ids (a few scans each) is shed here, cheaply, so that route
+    /// requests behind it are still answered in time.
+    pub scans_per_s: u32,
+    /// Route requests taken per device per second; more are answered
+    /// `rate_limited`.
+    pub requests_per_device_per_s: u32,
+}
+
+impl Default for LimitsConfig {
+    fn default() -> Self {
+        LimitsConfig {
+            max_devices: 10_000,
+            device_idle_s: 900.0,
+            max_pending_requests: 256,
+            request_deadline_s: 2.0,
+            scans_per_device_per_s: 10,
+            scans_per_s: 2000,
+            requests_per_device_per_s: 20,
+        }
+    }
+}
+
+impl LimitsConfig {
+    fn validate(&self) -> Result<(), String> {
+        if self.max_devices == 0 || self.max_pending_requests == 0 {
+            return Err(
+                "[limits] `max_devices` and `max_pending_requests` must be positive".into(),
+            );
+        }
+        if !(self.device_idle_s > 0.0 && self.request_deadline_s > 0.0) {
+            return Err(
+                "[limits] `device_idle_s` and `request_deadline_s` must be positive seconds".into(),
+            );
+        }
+        if self.scans_per_device_per_s == 0
+            || self.scans_per_s == 0
+            || self.requests_per_device_per_s == 0
+        {
+            return Err(
+                "[limits] `scans_per_device_per_s`, `scans_per_s` and `requests_per_device_per_s` \
+                 must be positive"
+                    .into(),
+            );
+        }
+        Ok(())
+    }
 }
 
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
-    #[error("{path}: cannot read the config file: {source}")]
+    #[error("{}: cannot read the config file: {source}", path.display())]
     Read {
         path: PathBuf,
         source: std::io::Error,
     },
-    #[error("{path}: {source}")]
+    /// A TOML or type error, told without the file's text: the line could
+    /// hold a secret someone put in the wrong place.
+    #[error("{}: {where_}{message}", path.display())]
     Toml {
         path: PathBuf,
-        source: toml::de::Error,
+        /// `line L, column C: `, when known.
+        where_: String,
+        message: String,
     },
-    #[error("{path}: {message}")]
+    #[error("{}: {message}", path.display())]
     Invalid { path: PathBuf, message: String },
+}
+
+/// Keys whose values are secrets: never repeated in an error.
+fn is_secret_key(key: &str) -> bool {
+    let key = key.to_ascii_lowercase();
+    [
+        "password",
+        "passwd",
+        "secret",
+        "token",
+        "credential",
+        "private_key",
+    ]
+    .iter()
+    .any(|s| key.contains(s))
+        && !key.ends_with("_file")
+}
+
+/// The values of secret-looking keys in `text`, as written and unquoted.
+fn secret_values(text: &str) -> Vec<String> {
+    let mut values = Vec::new();
+    for line in text.lines() {
+        let Some((key, value)) = line.split_once('=') else {
+            continue;
+        };
+        let key = key.trim().trim_matches(['"', '\'']);
+        if !is_secret_key(key) {
+            continue;
+        }
+        let value = value.trim();
+        let unquoted = value.trim_matches(['"', '\'']);
+        for v in [value, unquoted] {
+            if !v.is_empty() {
+                values.push(v.to_owned());
+            }
+        }
+    }
+    // Longest first, so a quoted value goes before its unquoted part.
+    values.sort_by_key(|v| std::cmp::Reverse(v.len()));
+    values
+}
+
+/// A TOML error as `line, column: message`, without the snippet of the file
+/// toml's own message carries, and with any secret value redacted.
+fn toml_error(path: &Path, text: &str, e: &toml::de::Error) -> ConfigError {
+    let where_ = e.span().map_or_else(String::new, |span| {
+        let before = &text[..span.start.min(text.len())];
+        let line = before.matches('\n').count() + 1;
+        let column = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+        format!("line {line}, column {column}: ")
+    });
+    let mut message = e.message().trim().to_owned();
+    for secret in secret_values(text) {
+        message = message.replace(&secret, "<redacted>");
+    }
+    if let Some(key) = message
+        .strip_prefix("unknown field `")
+        .and_then(|rest| rest.split('`').next())
+        .filter(|key| is_secret_key(key))
+    {
+        message = format!(
+            "`{key}` cannot be set in the config (a secret does not belong in a file anyone \
+             can read); put it in a file of its own and name that file with `{key}_file`, or \
+             pass it as the systemd credential `mqtt-password`"
+        );
+    }
+    ConfigError::Toml {
+        path: path.to_owned(),
+        where_,
+        message,
+    }
 }
 
 impl Config {
@@ -65,10 +213,7 @@ impl Config {
             path: path.to_owned(),
             source,
         })?;
-        let mut config: Config = toml::from_str(&text).map_err(|source| ConfigError::Toml {
-            path: path.to_owned(),
-            source,
-        })?;
+        let mut config: Config = toml::from_str(&text).map_err(|e| toml_error(path, &text, &e))?;
         let base = path.parent().unwrap_or(Path::new("."));
         config.site = base.join(&config.site);
         if let Some(survey) = &mut config.localizer.knn.survey {
@@ -117,6 +262,7 @@ impl Config {
         self.ble.validate()?;
         self.mqtt.validate().map_err(|e| e.to_string())?;
         self.store.validate()?;
+        self.limits.validate()?;
         Ok(())
     }
 
@@ -143,5 +289,33 @@ impl Config {
             .client_id
             .clone()
             .unwrap_or_else(|| format!("gangway-{}", self.gateway_id))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_password_in_the_config_is_refused_without_repeating_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("gangway.toml");
+        for text in [
+            "gateway_id = \"gw\"\nsite = \"s.toml\"\n[mqtt]\nusername = \"u\"\npassword = \"hunter2-secret\"\n",
+            "gateway_id = \"gw\"\nsite = \"s.toml\"\n[mqtt]\nqos = \"hunter2-secret\"\npassword = \"hunter2-secret\"\n",
+            "gateway_id = \"gw\"\nsite = \"s.toml\"\n[mqtt]\npassword = hunter2-secret\n",
+        ] {
+            std::fs::write(&path, text).unwrap();
+            let err = Config::load(&path).unwrap_err().to_string();
+            assert!(!err.contains("hunter2"), "{err}");
+            assert!(err.contains("gangway.toml: line "), "{err}");
+        }
+        std::fs::write(
+            &path,
+            "gateway_id = \"gw\"\nsite = \"s.toml\"\n[mqtt]\npassword = \"hunter2\"\n",
+        )
+        .unwrap();
+        let err = Config::load(&path).unwrap_err().to_string();
+        assert!(err.contains("`password_file`"), "{err}");
     }
 }

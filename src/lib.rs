@@ -31,4 +31,5 @@ pub mod sighting;
 pub mod site;
 pub mod source;
 pub mod store;
+pub mod throttle;
 pub mod train;

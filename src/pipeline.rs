@@ -113,9 +113,11 @@ impl Pipeline {
             tracing::error!("{fallback}");
         }
         let pipeline = Pipeline {
-            windows: Windows::new(config.window.clone(), &site),
+            windows: Windows::new(config.window.clone(), &site)
+                .bound(config.limits.max_devices, config.limits.device_idle_s),
             localizer,
-            tracker: Tracker::new(config.tracker.clone(), site.clone()),
+            tracker: Tracker::new(config.tracker.clone(), site.clone())
+                .bound(config.limits.max_devices, config.limits.device_idle_s),
             planner,
             topics: Topics::new(config.topic_prefix()),
             log_likelihood: vec![0.0; site.open_cells().len()],
@@ -146,6 +148,22 @@ impl Pipeline {
     /// Number of entities with a track.
     pub fn tracked(&self) -> usize {
         self.tracker.len()
+    }
+
+    /// Entities with an open fingerprint window.
+    pub fn windows_open(&self) -> usize {
+        self.windows.entity_count()
+    }
+
+    /// Windows and tracks forgotten by `[limits]` (idle, or least recently
+    /// seen past `max_devices`).
+    pub fn evicted(&self) -> (u64, u64) {
+        (self.windows.evicted_count(), self.tracker.evicted_count())
+    }
+
+    /// The devices whose tracks were forgotten since the last call.
+    pub fn take_evicted(&mut self) -> Vec<Arc<str>> {
+        self.tracker.take_evicted()
     }
 
     /// Handles one event, appending what it causes to publish to `out`.

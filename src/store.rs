@@ -5,6 +5,12 @@
 //!
 //! The daemon writes through [`Store::write`]; training reads through
 //! [`Store::trajectories`] and [`Store::routes`] (`gangway train --from-store`).
+//!
+//! What goes in comes from the air and the broker, so the store is bounded in
+//! rows and bytes, in total and per device ([`Store::enforce_quotas`]), and a
+//! file that cannot be opened (corrupt, truncated, of another version) never
+//! stops the gateway: [`Store::open_or_move_aside`] keeps it for inspection
+//! and starts a fresh one. Files are created readable by their owner only.
 
 use std::path::{Path, PathBuf};
 
@@ -29,6 +35,12 @@ pub struct StoreConfig {
     pub retention_days: f64,
     /// At most this many fixes are kept (the oldest go first).
     pub max_fixes: u64,
+    /// At most this many rows in all tables together (the oldest go first).
+    pub max_rows: u64,
+    /// At most this many rows of one device in each table.
+    pub max_rows_per_device: u64,
+    /// At most this many bytes of pages in use (the oldest rows go first).
+    pub max_bytes: u64,
 }
 
 impl Default for StoreConfig {
@@ -38,6 +50,9 @@ impl Default for StoreConfig {
             path: None,
             retention_days: 30.0,
             max_fixes: 2_000_000,
+            max_rows: 3_000_000,
+            max_rows_per_device: 200_000,
+            max_bytes: 512 << 20,
         }
     }
 }
@@ -47,8 +62,15 @@ impl StoreConfig {
         if !(self.retention_days > 0.0 && self.retention_days.is_finite()) {
             return Err("[store] `retention_days` must be a positive number of days".into());
         }
-        if self.max_fixes == 0 {
-            return Err("[store] `max_fixes` must be positive".into());
+        if self.max_fixes == 0
+            || self.max_rows == 0
+            || self.max_rows_per_device == 0
+            || self.max_bytes == 0
+        {
+            return Err(
+                "[store] `max_fixes`, `max_rows`, `max_rows_per_device` and `max_bytes` must be positive"
+                    .into(),
+            );
         }
         Ok(())
     }
@@ -77,6 +99,13 @@ pub enum StoreError {
         path.display()
     )]
     Version { path: PathBuf, found: i64 },
+    #[error("{}: the integrity check failed: {found}", path.display())]
+    Corrupt { path: PathBuf, found: String },
+    #[error("{}: cannot create the store: {source}", path.display())]
+    Create {
+        path: PathBuf,
+        source: std::io::Error,
+    },
 }
 
 /// One thing worth learning from.
@@ -126,16 +155,68 @@ pub struct Store {
     path: PathBuf,
 }
 
+/// The tables, each with its time column `t` and `device`.
+const TABLES: [&str; 3] = ["fixes", "routes", "feedback"];
+
 impl Store {
-    /// Opens (creating if needed) a store for writing.
+    /// Opens (creating if needed, readable by its owner only) a store for
+    /// writing, after SQLite's quick integrity check.
     pub fn open(path: &Path) -> Result<Store, StoreError> {
+        create_private(path)?;
         let conn = Connection::open(path).map_err(|e| sql(path, e))?;
         let store = Store {
             conn,
             path: path.to_owned(),
         };
         store.init()?;
+        let check: String = store
+            .conn
+            .query_row("PRAGMA quick_check(1)", [], |r| r.get(0))
+            .map_err(|e| sql(path, e))?;
+        if check != "ok" {
+            return Err(StoreError::Corrupt {
+                path: path.to_owned(),
+                found: check,
+            });
+        }
         Ok(store)
+    }
+
+    /// [`Store::open`], and when that fails (a corrupt or truncated file, one
+    /// of another version), the file is moved aside to
+    /// `<name>.broken-<unix time>` (with its WAL files) and a fresh store is
+    /// started. Returns the store and, when it had to, what happened.
+    pub fn open_or_move_aside(path: &Path) -> Result<(Store, Option<String>), StoreError> {
+        let error = match Store::open(path) {
+            Ok(store) => return Ok((store, None)),
+            Err(e) => e,
+        };
+        let stamp = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs());
+        let mut aside = path.as_os_str().to_owned();
+        aside.push(format!(".broken-{stamp}"));
+        let aside = PathBuf::from(aside);
+        std::fs::rename(path, &aside).map_err(|source| StoreError::Create {
+            path: path.to_owned(),
+            source,
+        })?;
+        for suffix in ["-wal", "-shm"] {
+            let mut from = path.as_os_str().to_owned();
+            from.push(suffix);
+            let mut to = aside.as_os_str().to_owned();
+            to.push(suffix);
+            // Absent unless the last writer died: nothing to keep then.
+            let _ = std::fs::rename(&from, &to);
+        }
+        let store = Store::open(path)?;
+        Ok((
+            store,
+            Some(format!(
+                "[store] {error}; moved it aside to {} and started a fresh store",
+                aside.display()
+            )),
+        ))
     }
 
     /// Opens an existing store read-only (training while the daemon writes).
@@ -269,6 +350,86 @@ impl Store {
         Ok(deleted)
     }
 
+    /// Keeps the store within `config`'s quotas: each device's rows per
+    /// table, all rows, and the bytes of pages in use; the oldest rows go
+    /// first. Returns the number of rows deleted.
+    pub fn enforce_quotas(&mut self, config: &StoreConfig) -> Result<usize, StoreError> {
+        let path = self.path.clone();
+        let err = |e| sql(&path, e);
+        let per_device = i64::try_from(config.max_rows_per_device).unwrap_or(i64::MAX);
+        let mut deleted = 0;
+        for table in TABLES {
+            let over: Vec<String> = self
+                .conn
+                .prepare(&format!(
+                    "SELECT device FROM {table} GROUP BY device HAVING COUNT(*) > ?1"
+                ))
+                .and_then(|mut stmt| {
+                    stmt.query_map([per_device], |r| r.get(0))?
+                        .collect::<Result<_, _>>()
+                })
+                .map_err(err)?;
+            for device in over {
+                deleted += self
+                    .conn
+                    .execute(
+                        &format!(
+                            "DELETE FROM {table} WHERE rowid IN (SELECT rowid FROM {table} \
+                             WHERE device = ?1 ORDER BY t DESC LIMIT -1 OFFSET ?2)"
+                        ),
+                        params![device, per_device],
+                    )
+                    .map_err(err)?;
+            }
+        }
+        // Past the total, or the bytes: the oldest tenth of the largest
+        // table goes, until both hold (bounded, so a quota far too small
+        // for the rows cannot spin).
+        for _ in 0..20 {
+            let mut counts = Vec::with_capacity(TABLES.len());
+            for table in TABLES {
+                let n: i64 = self
+                    .conn
+                    .query_row(&format!("SELECT COUNT(*) FROM {table}"), [], |r| r.get(0))
+                    .map_err(err)?;
+                counts.push((n, table));
+            }
+            let rows: i64 = counts.iter().map(|c| c.0).sum();
+            let used: i64 = self
+                .conn
+                .query_row(
+                    "SELECT (SELECT page_count FROM pragma_page_count()) - \
+                     (SELECT freelist_count FROM pragma_freelist_count())",
+                    [],
+                    |r| r.get(0),
+                )
+                .map_err(err)?;
+            let page: i64 = self
+                .conn
+                .query_row("PRAGMA page_size", [], |r| r.get(0))
+                .map_err(err)?;
+            let over_rows = u64::try_from(rows).unwrap_or(0) > config.max_rows;
+            let over_bytes = u64::try_from(used * page).unwrap_or(0) > config.max_bytes;
+            let (largest, table) = counts.into_iter().max().expect("three tables");
+            if !(over_rows || over_bytes) || largest == 0 {
+                break;
+            }
+            let excess = (rows - i64::try_from(config.max_rows).unwrap_or(i64::MAX)).max(0);
+            let cut = excess.max(largest / 10).max(1);
+            deleted += self
+                .conn
+                .execute(
+                    &format!(
+                        "DELETE FROM {table} WHERE rowid IN \
+                         (SELECT rowid FROM {table} ORDER BY t LIMIT ?1)"
+                    ),
+                    [cut],
+                )
+                .map_err(err)?;
+        }
+        Ok(deleted)
+    }
+
     /// Every device's walk, split wherever two fixes are more than `max_gap_s`
     /// apart (a device that left and came back walks twice).
     pub fn trajectories(&self, max_gap_s: f64) -> Result<Vec<Trajectory>, StoreError> {
@@ -353,6 +514,26 @@ impl Store {
     }
 }
 
+/// Creates the file readable and writable by its owner only, so SQLite (which
+/// gives its WAL and shared-memory files the database's mode) keeps all three
+/// private whatever the umask; an existing file is left as it is.
+fn create_private(path: &Path) -> Result<(), StoreError> {
+    use std::os::unix::fs::OpenOptionsExt;
+    match std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .mode(0o600)
+        .open(path)
+    {
+        Ok(_) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(()),
+        Err(source) => Err(StoreError::Create {
+            path: path.to_owned(),
+            source,
+        }),
+    }
+}
+
 fn sql(path: &Path, source: rusqlite::Error) -> StoreError {
     StoreError::Sqlite {
         path: path.to_owned(),
@@ -432,6 +613,57 @@ mod tests {
             .map(|p| p.0)
             .collect();
         assert_eq!(times, [7.0, 8.0, 9.0]);
+    }
+
+    #[test]
+    fn a_truncated_store_is_moved_aside_and_a_fresh_one_started() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.sqlite");
+        let mut store = Store::open(&path).unwrap();
+        let records: Vec<Record> = (0..5000).map(|i| fix("a", f64::from(i), 1)).collect();
+        store.write(&records).unwrap();
+        drop(store);
+        let bytes = std::fs::read(&path).unwrap();
+        std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
+        let _ = std::fs::remove_file(dir.path().join("s.sqlite-wal"));
+
+        assert!(Store::open(&path).is_err());
+        let (mut store, note) = Store::open_or_move_aside(&path).unwrap();
+        let note = note.expect("a fallback is reported");
+        assert!(note.contains("moved it aside"), "{note}");
+        store.write(&[fix("b", 1.0, 1)]).unwrap();
+        let kept: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .filter(|n| n.starts_with("s.sqlite.broken-"))
+            .collect();
+        assert!(!kept.is_empty(), "the broken file is kept");
+        use std::os::unix::fs::PermissionsExt;
+        let mode = std::fs::metadata(&path).unwrap().permissions().mode();
+        assert_eq!(mode & 0o777, 0o600);
+    }
+
+    #[test]
+    fn quotas_bound_rows_per_device_and_in_total() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut store = Store::open(&dir.path().join("s.sqlite")).unwrap();
+        let mut records: Vec<Record> = (0..300).map(|i| fix("greedy", f64::from(i), 1)).collect();
+        records.extend((0..50).map(|i| fix(&format!("d{i}"), 1000.0 + f64::from(i), 1)));
+        store.write(&records).unwrap();
+        let config = StoreConfig {
+            max_rows_per_device: 100,
+            max_rows: 120,
+            ..StoreConfig::default()
+        };
+        let deleted = store.enforce_quotas(&config).unwrap();
+        let walks = store.trajectories(1e9).unwrap();
+        let rows: usize = walks.iter().map(|w| w.points.len()).sum();
+        assert!(rows <= 120, "{rows}");
+        assert_eq!(deleted, 350 - rows);
+        let greedy = walks.iter().find(|w| w.device == "greedy");
+        // The greedy device's oldest went first; the newest devices stay.
+        assert!(greedy.is_none_or(|w| w.points.len() <= 100));
+        assert!(walks.iter().any(|w| w.device == "d49"));
     }
 
     #[test]

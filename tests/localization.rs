@@ -470,7 +470,9 @@ fn the_radio_map_beats_a_plain_knn_regressor_on_another_site() {
         by_distance.sort_by(|a, b| a.0.total_cmp(&b.0));
         let (x, y) = by_distance[..5]
             .iter()
-            .fold((0.0, 0.0), |acc, (_, (x, y))| (acc.0 + x / 5.0, acc.1 + y / 5.0));
+            .fold((0.0, 0.0), |acc, (_, (x, y))| {
+                (acc.0 + x / 5.0, acc.1 + y / 5.0)
+            });
         knn_error += ((x - tx).powi(2) + (y - ty).powi(2)).sqrt();
     }
     knn_error /= test.len() as f64;

@@ -61,6 +61,8 @@ fn the_unit_verifies_and_is_hardened() {
         "PrivateTmp=yes",
         "NoNewPrivileges=yes",
         "RestrictAddressFamilies=AF_UNIX AF_INET AF_INET6",
+        "MemoryMax=",
+        "TasksMax=",
     ] {
         assert!(unit.contains(key), "the unit lacks {key}");
     }
@@ -95,7 +97,8 @@ fn the_daemon_notifies_readiness_and_pings_the_watchdog() {
             seen.push(String::from_utf8_lossy(&buf[..n]).into_owned());
         }
         let pings = seen.iter().filter(|m| m.contains("WATCHDOG=1")).count();
-        if pings >= 2 && !stopping_asked {
+        let connected = seen.iter().any(|m| m.contains("STATUS=broker connected"));
+        if pings >= 2 && connected && !stopping_asked {
             mqtt_support::signal(&child, "TERM");
             stopping_asked = true;
         }
@@ -108,4 +111,9 @@ fn the_daemon_notifies_readiness_and_pings_the_watchdog() {
         "{seen:?}"
     );
     assert!(seen.iter().any(|m| m.contains("STOPPING=1")), "{seen:?}");
+    // `systemctl status` tells how the broker connection is.
+    assert!(
+        seen.iter().any(|m| m.contains("STATUS=broker connected;")),
+        "{seen:?}"
+    );
 }

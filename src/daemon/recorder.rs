@@ -3,7 +3,10 @@
 //! reply a route given, plus the feedback received. Records are buffered and
 //! written once a second in one transaction; a failing disk is logged and
 //! counted, and never stops the daemon (the buffer is dropped, so memory stays
-//! bounded).
+//! bounded). A store that cannot be opened is moved aside and started afresh
+//! ([`Store::open_or_move_aside`]); one that cannot even be created leaves
+//! the gateway serving without recording. Either way it is listed in the
+//! stats' fallbacks.
 
 use serde::Deserialize;
 
@@ -13,6 +16,8 @@ use crate::store::{Record, Store, StoreConfig, StoreError};
 
 /// How often old rows are pruned, in seconds.
 const PRUNE_EVERY_S: f64 = 3600.0;
+/// How often the quotas are enforced, in seconds.
+const QUOTA_EVERY_S: f64 = 60.0;
 /// Records buffered at most between two writes.
 const MAX_PENDING: usize = 100_000;
 
@@ -21,8 +26,11 @@ pub struct Recorder {
     config: StoreConfig,
     pending: Vec<Record>,
     last_prune: f64,
+    last_quota: f64,
     pub errors: u64,
     pub written: u64,
+    /// Rows deleted to stay within the quotas.
+    pub quota_deleted: u64,
 }
 
 #[derive(Deserialize)]
@@ -48,18 +56,28 @@ struct RouteFields {
 }
 
 impl Recorder {
-    pub fn open(config: &StoreConfig) -> Result<Recorder, StoreError> {
+    /// Opens the store, moving a broken one aside; returns the recorder and,
+    /// when the store had to be moved aside, what happened.
+    /// The first prune is an hour after `now` (seconds since the epoch), not
+    /// at once: a replayed log's old timestamps would be pruned as they come.
+    pub fn open(config: &StoreConfig, now: f64) -> Result<(Recorder, Option<String>), StoreError> {
         let path = config.resolved_path();
-        let store = Store::open(&path)?;
+        let (store, moved) = Store::open_or_move_aside(&path)?;
+        if let Some(moved) = &moved {
+            tracing::error!("{moved}");
+        }
         tracing::info!(path = %path.display(), "recording trajectories, routes and feedback");
-        Ok(Recorder {
+        let recorder = Recorder {
             store,
             config: config.clone(),
             pending: Vec::new(),
-            last_prune: f64::NEG_INFINITY,
+            last_prune: now,
+            last_quota: f64::NEG_INFINITY,
             errors: 0,
             written: 0,
-        })
+            quota_deleted: 0,
+        };
+        Ok((recorder, moved))
     }
 
     /// Keeps what a published message teaches: fixes and routes given.
@@ -110,6 +128,23 @@ impl Recorder {
                 }
             }
             self.pending.clear();
+        }
+        if now - self.last_quota >= QUOTA_EVERY_S {
+            self.last_quota = now;
+            match self.store.enforce_quotas(&self.config) {
+                Ok(0) => {}
+                Ok(n) => {
+                    self.quota_deleted += n as u64;
+                    tracing::warn!(
+                        deleted = n,
+                        "learning store over its quota: oldest rows deleted"
+                    );
+                }
+                Err(e) => {
+                    self.errors += 1;
+                    tracing::error!("learning store: {e}");
+                }
+            }
         }
         if now - self.last_prune >= PRUNE_EVERY_S {
             self.last_prune = now;

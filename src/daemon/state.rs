@@ -57,7 +57,8 @@ fn load_with(config_path: &Path, fall_back: bool) -> anyhow::Result<Loaded> {
 }
 
 /// Why `new` cannot replace `old` without a restart: settings the live MQTT
-/// connection and subscriptions were built from.
+/// connection and subscriptions were built from, and the limits the daemon's
+/// queues and rate limiters were.
 pub fn restart_needed(old: &Loaded, new: &Loaded) -> Option<&'static str> {
     if old.config.gateway_id != new.config.gateway_id {
         Some("`gateway_id` changed")
@@ -67,6 +68,8 @@ pub fn restart_needed(old: &Loaded, new: &Loaded) -> Option<&'static str> {
         Some("[ble] changed")
     } else if old.config.store != new.config.store {
         Some("[store] changed")
+    } else if old.config.limits != new.config.limits {
+        Some("[limits] changed")
     } else if old.config.window.orientation != new.config.window.orientation {
         Some("[window] orientation changed")
     } else if old.config.site_prefix(&old.site.name) != new.config.site_prefix(&new.site.name) {

@@ -6,6 +6,7 @@
 //!   with motion);
 //! - [`tracker`] keeps a belief per entity that respects walls and walking speed.
 
+pub mod bounds;
 pub mod calibrate;
 pub mod crossval;
 pub mod knn;

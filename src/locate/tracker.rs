@@ -9,12 +9,18 @@
 //! prior mass. The `none` tracker is the plain per-window argmax.
 
 use foldhash::HashMap;
+use std::collections::VecDeque;
 use std::sync::Arc;
 
 use serde::Deserialize;
 
+use super::bounds::Bounds;
 use crate::plan::Connectivity;
 use crate::site::{Cell, Site};
+
+/// Forgotten entities kept for [`Tracker::take_evicted`] at most; a caller
+/// that never takes them loses the oldest.
+const MAX_EVICTED_KEPT: usize = 65_536;
 
 /// `[tracker]` in the gateway config.
 #[derive(Clone, Debug, Deserialize)]
@@ -92,6 +98,9 @@ pub struct Tracker {
     neighbours: Vec<Vec<u32>>,
     tracks: HashMap<Arc<str>, Track>,
     scratch: Vec<f32>,
+    bounds: Bounds,
+    /// Entities forgotten since the last [`Tracker::take_evicted`].
+    evicted: VecDeque<Arc<str>>,
 }
 
 impl Tracker {
@@ -123,7 +132,27 @@ impl Tracker {
             neighbours,
             tracks: HashMap::default(),
             scratch: Vec::new(),
+            bounds: Bounds::default(),
+            evicted: VecDeque::new(),
         }
+    }
+
+    /// Keeps at most `max` tracks, and none without a window for `idle_s`
+    /// seconds (see [`Bounds`]).
+    pub fn bound(mut self, max: usize, idle_s: f64) -> Self {
+        self.bounds = Bounds::new(max, idle_s);
+        self
+    }
+
+    /// Tracks forgotten since start.
+    pub fn evicted_count(&self) -> u64 {
+        self.bounds.evicted()
+    }
+
+    /// The entities forgotten since the last call (whoever announced them
+    /// can withdraw them).
+    pub fn take_evicted(&mut self) -> Vec<Arc<str>> {
+        std::mem::take(&mut self.evicted).into()
     }
 
     /// The latest fix of an entity.
@@ -147,6 +176,20 @@ impl Tracker {
             neighbours: &self.neighbours,
             cell_m: self.site.cell_m,
         };
+        let full = self.tracks.len() >= self.bounds.max() && !self.tracks.contains_key(entity);
+        let evicted = &mut self.evicted;
+        self.bounds.make_room(
+            &mut self.tracks,
+            t,
+            full,
+            |track| track.t,
+            |id| {
+                if evicted.len() >= MAX_EVICTED_KEPT {
+                    evicted.pop_front();
+                }
+                evicted.push_back(id.clone());
+            },
+        );
         let track = self.tracks.entry(entity.clone()).or_insert_with(|| Track {
             t: f64::NEG_INFINITY,
             belief: Vec::new(),

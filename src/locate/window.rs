@@ -10,6 +10,9 @@
 //! sightings with `b - length < t <= b` and is emitted when the first sighting
 //! after `b` arrives (or at [`Windows::flush`]). Sightings that share a timestamp,
 //! as the adverts of one scan do, therefore always land in the same window.
+//!
+//! Entities come from the air and the broker, so their number is bounded
+//! ([`Windows::bound`], [`Bounds`]).
 
 use std::collections::hash_map::Entry;
 
@@ -21,6 +24,7 @@ use std::sync::Arc;
 
 use serde::Deserialize;
 
+use super::bounds::Bounds;
 use crate::sighting::{BeaconId, Sighting};
 use crate::site::Site;
 
@@ -97,9 +101,15 @@ impl Fingerprint {
     }
 }
 
+/// Sightings one entity's window holds at most (the oldest go first): a
+/// window of real adverts holds a few hundred.
+const MAX_SAMPLES: usize = 4096;
+
 struct EntityWindow {
     /// (time, anchor index, rssi), oldest first.
     samples: VecDeque<(f64, u16, i16)>,
+    /// Time of the latest sighting.
+    last_seen: f64,
     /// The end of the window that closes next.
     boundary: f64,
     /// The end of the last window emitted.
@@ -118,6 +128,7 @@ pub struct Windows {
     unknown_anchor: u64,
     /// Reused per-anchor buffers for aggregation.
     scratch: Vec<Vec<i16>>,
+    bounds: Bounds,
 }
 
 impl Windows {
@@ -147,7 +158,19 @@ impl Windows {
             entities: HashMap::default(),
             unknown_anchor: 0,
             scratch: vec![Vec::new(); n_anchors],
+            bounds: Bounds::default(),
         }
+    }
+
+    /// Keeps at most `max` entities, and none unheard for `idle_s` seconds.
+    pub fn bound(mut self, max: usize, idle_s: f64) -> Self {
+        self.bounds = Bounds::new(max, idle_s);
+        self
+    }
+
+    /// Entities forgotten (idle or least recently heard past the maximum).
+    pub fn evicted_count(&self) -> u64 {
+        self.bounds.evicted()
     }
 
     pub fn config(&self) -> &WindowConfig {
@@ -187,11 +210,20 @@ impl Windows {
             self.unknown_anchor += 1;
             return None;
         };
+        // Looked up only when full: this runs once per advert.
+        let full = self.entities.len() >= self.bounds.max() && !self.entities.contains_key(&entity);
+        self.bounds
+            .make_room(&mut self.entities, s.t, full, |w| w.last_seen, |_| {});
+        if self.advertiser_ids.len() > self.bounds.max().saturating_mul(2) {
+            // A cache of formatted ids: cheaper to rebuild than to bound.
+            self.advertiser_ids.clear();
+        }
         let stride = self.config.stride_s;
         let (window, closed_at) = match self.entities.entry(entity.clone()) {
             Entry::Vacant(v) => (
                 v.insert(EntityWindow {
                     samples: VecDeque::new(),
+                    last_seen: s.t,
                     boundary: s.t,
                     emitted: f64::NEG_INFINITY,
                 }),
@@ -220,7 +252,11 @@ impl Windows {
                 end,
             )
         });
+        if window.samples.len() >= MAX_SAMPLES {
+            window.samples.pop_front();
+        }
         window.samples.push_back((s.t, anchor, s.rssi));
+        window.last_seen = window.last_seen.max(s.t);
         fingerprint
     }
 

@@ -17,10 +17,9 @@ use serde::Deserialize;
 /// Name of the systemd credential read when `password_file` is unset.
 pub const PASSWORD_CREDENTIAL: &str = "mqtt-password";
 
-/// Largest packet the client accepts from the broker. Larger ones would make
-/// rumqttc drop the connection; the application limit (`max_payload_bytes`) is
-/// far below it, so an oversized request still gets its error reply.
-const MAX_PACKET_BYTES: usize = 1 << 20;
+/// Largest `max_payload_bytes`: far below the packets the link sends and
+/// takes, so an oversized request still gets its error reply.
+const MAX_PAYLOAD_LIMIT: usize = 512 * 1024;
 
 /// `[mqtt]` in the gateway config.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
@@ -150,7 +149,7 @@ impl MqttConfig {
         if self.queue_max_messages == 0 || self.queue_max_bytes == 0 {
             return bad("`queue_max_messages` and `queue_max_bytes` must be positive");
         }
-        if self.max_payload_bytes == 0 || self.max_payload_bytes > MAX_PACKET_BYTES / 2 {
+        if self.max_payload_bytes == 0 || self.max_payload_bytes > MAX_PAYLOAD_LIMIT {
             return bad("`max_payload_bytes` must be between 1 and 524288");
         }
         for (key, prefix) in [
@@ -195,7 +194,13 @@ impl MqttConfig {
         let port = parsed.port().unwrap_or(if tls { 8883 } else { 1883 });
         let mut options = MqttOptions::new(client_id, host, port);
         options.set_keep_alive(Duration::from_secs(self.keep_alive_s.max(5)));
-        options.set_max_packet_size(MAX_PACKET_BYTES, MAX_PACKET_BYTES);
+        // Any packet the protocol allows is taken in, so that no message can
+        // cost the connection; the link drops payloads over
+        // `max_payload_bytes` before they are queued (see `link`).
+        options.set_max_packet_size(
+            super::link::MQTT_MAX_PACKET,
+            super::link::MAX_OUTGOING_PACKET,
+        );
         // A persistent session: the broker keeps the subscriptions and queues
         // route requests while the gateway is away (restart, network loss).
         // Outgoing redelivery is the link's own (see `link`): every session

@@ -147,6 +147,18 @@ impl Inbox {
 
     /// Reads one message received at `now` (seconds since the epoch).
     pub fn read(&self, topic: &str, payload: &[u8], now: f64) -> Result<Inbound, Rejected> {
+        self.read_sized(topic, payload, payload.len(), now)
+    }
+
+    /// [`Inbox::read`] of a message of `size` bytes whose payload the link
+    /// cut off (empty) for being over the limit.
+    pub fn read_sized(
+        &self,
+        topic: &str,
+        payload: &[u8],
+        size: usize,
+        now: f64,
+    ) -> Result<Inbound, Rejected> {
         let unknown = || Rejected::UnknownTopic {
             topic: topic.to_owned(),
         };
@@ -156,16 +168,16 @@ impl Inbox {
                 topic: topic.to_owned(),
             });
         }
-        let too_large = payload.len() > self.max_payload;
+        let too_large = size.max(payload.len()) > self.max_payload;
         let bad = |reason: String| Rejected::BadPayload {
             topic: topic.to_owned(),
             reason,
         };
         match kind {
-            Kind::RouteSet => Ok(self.route(id, payload, too_large, now)),
+            Kind::RouteSet => Ok(self.route(id, payload, size, now)),
             _ if too_large => Err(Rejected::TooLarge {
                 topic: topic.to_owned(),
-                size: payload.len(),
+                size,
                 max: self.max_payload,
             }),
             Kind::Feedback => {
@@ -176,6 +188,9 @@ impl Inbox {
                 })?;
                 if !(1..=5).contains(&body.score) {
                     return Err(bad(format!("score {} is not 1..5", body.score)));
+                }
+                if !valid_request_id(&body.request_id) {
+                    return Err(bad(REQUEST_ID_RULE.to_owned()));
                 }
                 Ok(Inbound::Feedback(Feedback {
                     t: now,
@@ -217,20 +232,19 @@ impl Inbox {
         }
     }
 
-    fn route(&self, device: &str, payload: &[u8], too_large: bool, now: f64) -> Inbound {
+    fn route(&self, device: &str, payload: &[u8], size: usize, now: f64) -> Inbound {
         let bad = |request_id, code, message| Inbound::BadRoute {
             device: device.to_owned(),
             request_id,
             code,
             message,
         };
-        if too_large {
+        if size.max(payload.len()) > self.max_payload {
             return bad(
                 None,
                 "payload_too_large",
                 format!(
-                    "the request is {} bytes; the limit is {}",
-                    payload.len(),
+                    "the request is {size} bytes; the limit is {}",
                     self.max_payload
                 ),
             );
@@ -245,12 +259,17 @@ impl Inbox {
                 );
             }
         };
-        // Echo the request id even when the rest of the request is wrong.
+        // Echo the request id even when the rest of the request is wrong
+        // (but not one too long to be an id: it would be echoed and stored).
         let request_id = value
             .get("request_id")
             .and_then(|id| id.as_str())
+            .filter(|id| valid_request_id(id))
             .map(str::to_owned);
         match serde_json::from_value::<RouteSet>(value) {
+            Ok(r) if !r.request_id.as_deref().is_none_or(valid_request_id) => {
+                bad(None, "invalid_request", REQUEST_ID_RULE.to_owned())
+            }
             Ok(r) => Inbound::Route(RouteRequest {
                 t: now,
                 device: device.to_owned(),
@@ -285,6 +304,15 @@ impl Inbox {
         let gateway = strip(topic, &self.site_prefix)?.strip_prefix("sightings/")?;
         self.share.then_some((Kind::Sightings, gateway))
     }
+}
+
+/// Longest request id, in bytes: ids are echoed in replies and kept in the
+/// learning store, so a client cannot make them large.
+pub const MAX_REQUEST_ID_BYTES: usize = 128;
+const REQUEST_ID_RULE: &str = "`request_id` must be 1 to 128 bytes without control characters";
+
+fn valid_request_id(id: &str) -> bool {
+    !id.is_empty() && id.len() <= MAX_REQUEST_ID_BYTES && !id.chars().any(char::is_control)
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -362,6 +390,16 @@ mod tests {
         assert_eq!(
             code(i.read(t, &vec![b' '; 1001], 0.0).unwrap()).0,
             "payload_too_large"
+        );
+        // Cut off by the link: empty, with the size it had.
+        assert_eq!(
+            code(i.read_sized(t, b"", 16 << 20, 0.0).unwrap()).0,
+            "payload_too_large"
+        );
+        let long_id = format!(r#"{{"to":"x","request_id":"{}"}}"#, "i".repeat(129));
+        assert_eq!(
+            code(i.read(t, long_id.as_bytes(), 0.0).unwrap()),
+            ("invalid_request", None)
         );
     }
 

@@ -12,12 +12,22 @@
 //! On every connect the link subscribes again and sends its birth messages
 //! (retained `online`, discovery configs) before the queue; the last will makes
 //! the broker publish the retained `offline` if the process dies.
+//!
+//! Incoming messages are hostile. The client accepts any packet the protocol
+//! allows, so no message can make it drop the connection (a broker redelivers
+//! a QoS 1 message on every reconnect, so one that broke the connection would
+//! break every later one too); a payload over the application limit is cut
+//! off here, before it is queued for the daemon, and counted. Acknowledgements
+//! are manual: a QoS 1 message is acknowledged only once the daemon's channel
+//! took it, so a daemon that falls behind holds the broker back (its inflight
+//! window) instead of losing what was acknowledged.
 
 use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
+use bytes::Bytes;
 use rumqttc::{
     AsyncClient, ConnectionError, Event, EventLoop, LastWill, MqttOptions, Outgoing as Out, Packet,
     Publish, QoS,
@@ -30,6 +40,26 @@ use super::queue::{OfflineQueue, Outgoing};
 /// Capacity of a session's rumqttc request channel; the link never hands over
 /// more than this many unacknowledged messages at once.
 const SESSION_WINDOW: usize = 256;
+
+/// Largest packet MQTT allows (a 268,435,455-byte remaining length and its
+/// 5-byte fixed header). The client accepts all of them, so a big message is
+/// dropped by the link and never costs the connection.
+pub const MQTT_MAX_PACKET: usize = 268_435_455 + 5;
+
+/// Largest packet the link sends: far above any payload the gateway makes, so
+/// only a message that would make rumqttc fail the connection is refused.
+pub const MAX_OUTGOING_PACKET: usize = 1 << 20;
+
+/// Received messages held back (not acknowledged) while the daemon's channel
+/// is full, at most; past it QoS 0 messages are dropped and counted (QoS 1 and
+/// 2 are bounded by the broker's inflight window and stay held).
+const HELD_MAX: usize = 4096;
+
+/// A window over which lost connections are counted: losing the broker this
+/// many times within it is logged as an error (the gateway cannot stay
+/// connected), not just a warning.
+const FLAP_WINDOW: Duration = Duration::from_secs(60);
+const FLAP_COUNT: usize = 5;
 
 /// What a link is set up with.
 #[derive(Clone, Debug)]
@@ -47,6 +77,20 @@ pub struct LinkSettings {
     pub shutdown_grace: Duration,
     /// Capacity of the channel of received messages.
     pub inbound_capacity: usize,
+    /// Received payloads larger than this reach the daemon empty, with their
+    /// size, so it can refuse them (and answer a route request) without
+    /// holding them.
+    pub max_inbound_payload: usize,
+}
+
+/// A received message, as the daemon gets it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Received {
+    pub topic: String,
+    /// Empty when the payload was over [`LinkSettings::max_inbound_payload`].
+    pub payload: Bytes,
+    /// The payload's size as received.
+    pub size: usize,
 }
 
 /// Counters the link shares with whoever reports stats.
@@ -60,8 +104,17 @@ pub struct LinkStats {
     pub queue_bytes: AtomicU64,
     pub queue_dropped: AtomicU64,
     pub published: AtomicU64,
-    /// Received messages dropped because the consumer was behind.
+    /// Received messages dropped because the consumer was behind (QoS 0 only:
+    /// QoS 1 and 2 are held unacknowledged instead).
     pub inbound_dropped: AtomicU64,
+    /// Outgoing messages refused because no broker would take them (a topic
+    /// with a wildcard, empty, or a packet over the outgoing limit).
+    pub unpublishable: AtomicU64,
+    /// Connections lost after they were up.
+    pub disconnects: AtomicU64,
+    /// Whether the connection was lost [`FLAP_COUNT`] times within
+    /// [`FLAP_WINDOW`]: the gateway cannot stay connected.
+    pub flapping: AtomicBool,
     /// Publish commands taken in, and messages queued or in flight: with the
     /// handle's count of commands sent, what [`Link::wait_for_room`] needs.
     commands_taken: AtomicU64,
@@ -73,6 +126,9 @@ enum Command {
     /// Replaces the birth messages sent after each connect; sends them now too
     /// when the flag is set.
     Birth(Vec<Outgoing>, bool),
+    /// Drops a birth message and publishes an empty retained payload on its
+    /// topic.
+    ClearRetained(String),
     Shutdown(oneshot::Sender<()>),
 }
 
@@ -90,7 +146,7 @@ pub struct Link {
 impl Link {
     /// Starts the link task; returns the handle and the channel of received
     /// messages (on the subscribed topics).
-    pub fn start(settings: LinkSettings) -> (Link, mpsc::Receiver<Publish>) {
+    pub fn start(settings: LinkSettings) -> (Link, mpsc::Receiver<Received>) {
         let (commands, commands_rx) = mpsc::unbounded_channel();
         let (inbound_tx, inbound_rx) = mpsc::channel(settings.inbound_capacity.max(1));
         let stats = Arc::new(LinkStats::default());
@@ -115,6 +171,12 @@ impl Link {
         &self.stats
     }
 
+    /// Whether the link task still runs (it ends only after a shutdown, or
+    /// if it panicked).
+    pub fn is_alive(&self) -> bool {
+        !self.task.is_finished()
+    }
+
     /// Queues a JSON message; never blocks.
     pub fn publish(&self, message: &crate::publish::Message) {
         self.publish_raw(
@@ -137,14 +199,11 @@ impl Link {
     /// Waits until at most half the queue bound is waiting or in flight. A
     /// producer that must not lose messages (`replay` at full speed) calls it
     /// between publications; the daemon does not, so that it keeps locating
-    /// while the broker is away.
+    /// while the broker is away (it checks [`Link::has_room`] before taking
+    /// requests instead).
     pub async fn wait_for_room(&self) {
-        let limit = (self.queue_max_messages / 2).max(1) as u64;
         loop {
-            let backlog = self.submitted.load(Ordering::Relaxed)
-                - self.stats.commands_taken.load(Ordering::Relaxed)
-                + self.stats.outstanding.load(Ordering::Relaxed);
-            if backlog < limit || self.task.is_finished() {
+            if self.has_room() {
                 return;
             }
             // Polling a counter is simpler than a wake-up protocol with the
@@ -153,8 +212,21 @@ impl Link {
         }
     }
 
-    /// Sets the messages sent (before the queue) after every connect; with
-    /// `send_now` they are also sent on the current connection.
+    /// Whether at most half the queue bound is waiting or in flight (or the
+    /// link is gone, when waiting would be forever). The daemon takes no
+    /// request while it is not: replies it could not send would push older
+    /// ones out of the queue, so the broker holds the requests instead.
+    pub fn has_room(&self) -> bool {
+        let limit = (self.queue_max_messages / 2).max(1) as u64;
+        let backlog = self.submitted.load(Ordering::Relaxed)
+            - self.stats.commands_taken.load(Ordering::Relaxed)
+            + self.stats.outstanding.load(Ordering::Relaxed);
+        backlog < limit || self.task.is_finished()
+    }
+
+    /// Adds (or replaces, by topic) messages sent (before the queue) after
+    /// every connect; with `send_now` they are also sent on the current
+    /// connection. Costs the messages given, not the birth already kept.
     pub fn set_birth(&self, messages: &[crate::publish::Message], send_now: bool) {
         let birth = messages
             .iter()
@@ -166,6 +238,12 @@ impl Link {
             })
             .collect();
         let _ = self.commands.send(Command::Birth(birth, send_now));
+    }
+
+    /// Removes the birth message of `topic` (a device that is no longer
+    /// tracked) and clears its retained message on the broker now.
+    pub fn clear_retained(&self, topic: String) {
+        let _ = self.commands.send(Command::ClearRetained(topic));
     }
 
     /// Publishes the offline status, waits (up to the grace period) until every
@@ -195,9 +273,19 @@ type SessionEvent = (u64, Result<Event, ConnectionError>);
 struct Controller {
     settings: LinkSettings,
     stats: Arc<LinkStats>,
-    inbound: mpsc::Sender<Publish>,
+    inbound: mpsc::Sender<Received>,
+    /// Received, not yet taken by the daemon's channel (full), and so not
+    /// yet acknowledged.
+    held: VecDeque<(Received, Publish)>,
     queue: OfflineQueue,
-    birth: Vec<Outgoing>,
+    /// Sent after every connect, by topic.
+    birth: BTreeMap<String, Outgoing>,
+    /// When connections were lost recently (within [`FLAP_WINDOW`]).
+    losses: VecDeque<Instant>,
+    /// Acknowledgements the session's channel had no room for yet (payloads
+    /// dropped: only the packet id and QoS matter). A lost one would hold a
+    /// slot of the broker's inflight window until the next session.
+    acks: VecDeque<Publish>,
     /// Handed to the current session, in order, not yet seen on the wire.
     handed: VecDeque<Outgoing>,
     /// Written with this packet id, awaiting PUBACK; the sequence number
@@ -215,7 +303,7 @@ struct Controller {
 }
 
 impl Controller {
-    fn new(settings: LinkSettings, stats: Arc<LinkStats>, inbound: mpsc::Sender<Publish>) -> Self {
+    fn new(settings: LinkSettings, stats: Arc<LinkStats>, inbound: mpsc::Sender<Received>) -> Self {
         let (events_tx, events_rx) = mpsc::unbounded_channel();
         Controller {
             queue: OfflineQueue::new(settings.queue_max_messages, settings.queue_max_bytes),
@@ -223,7 +311,10 @@ impl Controller {
             settings,
             stats,
             inbound,
-            birth: Vec::new(),
+            held: VecDeque::new(),
+            birth: BTreeMap::new(),
+            losses: VecDeque::new(),
+            acks: VecDeque::new(),
             handed: VecDeque::new(),
             awaiting: BTreeMap::new(),
             next_seq: 0,
@@ -246,7 +337,17 @@ impl Controller {
                 Conn::Session { .. } => None,
             };
             let deadline = self.shutdown.as_ref().map(|(_, d)| *d);
+            // A sender of our own, so that waiting for room does not borrow
+            // the controller the branches below change.
+            let inbound = self.inbound.clone();
+            let holding = !self.held.is_empty();
             tokio::select! {
+                Ok(permit) = inbound.reserve(), if holding => {
+                    if let Some((received, publish)) = self.held.pop_front() {
+                        permit.send(received);
+                        self.ack(&publish);
+                    }
+                }
                 command = commands.recv(), if self.shutdown.is_none() => match command {
                     Some(Command::Publish(m)) => {
                         self.stats.commands_taken.fetch_add(1, Ordering::Relaxed);
@@ -254,13 +355,24 @@ impl Controller {
                         self.flush();
                     }
                     Some(Command::Birth(birth, send_now)) => {
-                        self.birth = birth.clone();
-                        if send_now && self.is_connected() {
-                            for m in birth {
-                                self.queue.push(m);
+                        let connected = self.is_connected();
+                        for m in birth {
+                            if send_now && connected {
+                                self.queue.push(m.clone());
                             }
-                            self.flush();
+                            self.birth.insert(m.topic.clone(), m);
                         }
+                        self.flush();
+                    }
+                    Some(Command::ClearRetained(topic)) => {
+                        self.birth.remove(&topic);
+                        self.queue.push(Outgoing {
+                            topic,
+                            payload: Vec::new(),
+                            qos: self.settings.qos,
+                            retain: true,
+                        });
+                        self.flush();
                     }
                     Some(Command::Shutdown(done)) => self.begin_shutdown(done),
                     // Every handle is gone: nobody can ask for a clean
@@ -352,7 +464,10 @@ impl Controller {
                 true,
             ));
         }
-        let (client, mut eventloop) = AsyncClient::new(options, SESSION_WINDOW);
+        // Acknowledged only once the daemon's channel takes them (`deliver`).
+        options.set_manual_acks(true);
+        // Room for a full window of publications and as many acknowledgements.
+        let (client, mut eventloop) = AsyncClient::new(options, 2 * SESSION_WINDOW);
         // Route replies are small and wanted now: without TCP_NODELAY, Nagle's
         // algorithm holds a reply until the broker acknowledges the last
         // packet, which with delayed ACKs cost tens of milliseconds per reply.
@@ -373,11 +488,7 @@ impl Controller {
     fn on_event(&mut self, event: Result<Event, ConnectionError>) -> bool {
         match event {
             Ok(Event::Incoming(Packet::ConnAck(_))) => self.on_connected(),
-            Ok(Event::Incoming(Packet::Publish(p))) => {
-                if self.inbound.try_send(p).is_err() {
-                    self.stats.inbound_dropped.fetch_add(1, Ordering::Relaxed);
-                }
-            }
+            Ok(Event::Incoming(Packet::Publish(p))) => self.deliver(p),
             Ok(Event::Incoming(Packet::PubAck(ack))) => self.acked(ack.pkid),
             Ok(Event::Incoming(Packet::PubComp(comp))) => self.acked(comp.pkid),
             Ok(Event::Outgoing(Out::Publish(pkid))) => {
@@ -395,6 +506,75 @@ impl Controller {
         }
         self.flush();
         false
+    }
+
+    /// Hands a received message to the daemon, cut off if over the limit;
+    /// acknowledges it once handed over.
+    fn deliver(&mut self, publish: Publish) {
+        let size = publish.payload.len();
+        // The daemon counts and answers it from its size.
+        let payload = if size > self.settings.max_inbound_payload {
+            Bytes::new()
+        } else {
+            publish.payload.clone()
+        };
+        let received = Received {
+            topic: publish.topic.clone(),
+            payload,
+            size,
+        };
+        if !self.held.is_empty() {
+            self.hold(received, publish);
+            return;
+        }
+        match self.inbound.try_send(received) {
+            Ok(()) => self.ack(&publish),
+            Err(mpsc::error::TrySendError::Full(received)) => self.hold(received, publish),
+            // The daemon is gone (shutting down): nothing will read it.
+            Err(mpsc::error::TrySendError::Closed(_)) => {}
+        }
+    }
+
+    /// Keeps a message the daemon's channel has no room for, unacknowledged,
+    /// so the broker holds back what follows; past [`HELD_MAX`] a QoS 0
+    /// message (which nobody redelivers anyway) is dropped and counted.
+    fn hold(&mut self, received: Received, publish: Publish) {
+        if self.held.len() >= HELD_MAX && publish.qos == QoS::AtMostOnce {
+            let dropped = self.stats.inbound_dropped.fetch_add(1, Ordering::Relaxed) + 1;
+            if dropped.is_power_of_two() {
+                tracing::warn!(
+                    dropped,
+                    topic = %received.topic,
+                    "the gateway is behind: QoS 0 messages dropped (use QoS 1 for requests)"
+                );
+            }
+            return;
+        }
+        self.held.push_back((received, publish));
+    }
+
+    /// Acknowledges a message now, or as soon as the session's channel has
+    /// room (acknowledgements go before publications, see `flush`).
+    fn ack(&mut self, publish: &Publish) {
+        if publish.qos == QoS::AtMostOnce {
+            return;
+        }
+        let mut ack = publish.clone();
+        ack.payload = Bytes::new();
+        self.acks.push_back(ack);
+        self.send_acks();
+    }
+
+    fn send_acks(&mut self) {
+        let Conn::Session { client, .. } = &self.conn else {
+            return;
+        };
+        while let Some(ack) = self.acks.front() {
+            if client.try_ack(ack).is_err() {
+                return;
+            }
+            self.acks.pop_front();
+        }
     }
 
     fn acked(&mut self, pkid: u16) {
@@ -442,7 +622,7 @@ impl Controller {
                 retain: true,
             });
         }
-        birth.extend(self.birth.iter().cloned());
+        birth.extend(self.birth.values().cloned());
         self.queue.requeue_front(birth.into_iter());
     }
 
@@ -455,13 +635,30 @@ impl Controller {
             .chain(self.handed.drain(..))
             .collect();
         self.queue.requeue_front(undelivered.into_iter());
+        // Unacknowledged messages come again from the broker on the next
+        // session; only QoS 0 ones, which nobody redelivers, are kept.
+        self.held.retain(|(_, p)| p.qos == QoS::AtMostOnce);
+        self.acks.clear();
         self.stats.connected.store(false, Ordering::Relaxed);
         self.stats.connect_failures.fetch_add(1, Ordering::Relaxed);
         let wait = self.backoff;
         self.backoff = (self.backoff * 2).min(self.settings.reconnect_max);
         let broker = broker_address(&self.settings.options);
         if was_connected {
-            tracing::warn!(%broker, retry_in_s = wait.as_secs_f64(), queued = self.queue.len(), "lost the MQTT broker: {error}");
+            self.stats.disconnects.fetch_add(1, Ordering::Relaxed);
+            self.losses.push_back(Instant::now());
+            self.publish_stats();
+            if self.stats.flapping.load(Ordering::Relaxed) {
+                tracing::error!(
+                    %broker,
+                    lost = self.losses.len(),
+                    within_s = FLAP_WINDOW.as_secs(),
+                    retry_in_s = wait.as_secs_f64(),
+                    "cannot stay connected to the MQTT broker: {error}"
+                );
+            } else {
+                tracing::warn!(%broker, retry_in_s = wait.as_secs_f64(), queued = self.queue.len(), "lost the MQTT broker: {error}");
+            }
         } else {
             tracing::warn!(%broker, retry_in_s = wait.as_secs_f64(), "cannot connect to the MQTT broker: {error}");
         }
@@ -473,6 +670,7 @@ impl Controller {
 
     /// Moves queued messages into the connected session, up to its window.
     fn flush(&mut self) {
+        self.send_acks();
         let Conn::Session {
             client,
             connected: true,
@@ -483,6 +681,15 @@ impl Controller {
         };
         while self.handed.len() + self.awaiting.len() < SESSION_WINDOW {
             let Some(m) = self.queue.pop() else { break };
+            if let Some(why) = unpublishable(&m) {
+                // rumqttc would refuse it forever (a wildcard) or fail the
+                // connection on it (too large): drop it, never retry it.
+                let n = self.stats.unpublishable.fetch_add(1, Ordering::Relaxed) + 1;
+                if n.is_power_of_two() {
+                    tracing::error!(topic = %m.topic, refused = n, "not published: {why}");
+                }
+                continue;
+            }
             match client.try_publish(&m.topic, m.qos, m.retain, m.payload.clone()) {
                 Ok(()) => self.handed.push_back(m),
                 Err(e) => {
@@ -495,8 +702,19 @@ impl Controller {
         }
     }
 
-    fn publish_stats(&self) {
+    fn publish_stats(&mut self) {
+        // Flapping ends once the window holds fewer losses again.
+        let now = Instant::now();
+        while self
+            .losses
+            .front()
+            .is_some_and(|&t| now.duration_since(t) > FLAP_WINDOW)
+        {
+            self.losses.pop_front();
+        }
         let s = &self.stats;
+        s.flapping
+            .store(self.losses.len() >= FLAP_COUNT, Ordering::Relaxed);
         s.outstanding.store(
             (self.queue.len() + self.handed.len() + self.awaiting.len()) as u64,
             Ordering::Relaxed,
@@ -507,6 +725,19 @@ impl Controller {
             .store(self.queue.bytes() as u64, Ordering::Relaxed);
         s.queue_dropped
             .store(self.queue.dropped(), Ordering::Relaxed);
+    }
+}
+
+/// Why no broker would take `m`, if so.
+fn unpublishable(m: &Outgoing) -> Option<&'static str> {
+    if m.topic.is_empty() || m.topic.contains(['+', '#', '\0']) {
+        Some("the topic is empty or has a wildcard or NUL")
+    } else if m.topic.len() > usize::from(u16::MAX) {
+        Some("the topic is over 65535 bytes")
+    } else if m.size() + 16 > MAX_OUTGOING_PACKET {
+        Some("the message is over the 1 MiB packet limit")
+    } else {
+        None
     }
 }
 

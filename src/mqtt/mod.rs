@@ -25,7 +25,7 @@ pub mod stats;
 use std::time::Duration;
 
 pub use config::{MqttConfig, MqttError};
-pub use link::{Link, LinkSettings, LinkStats};
+pub use link::{Link, LinkSettings, LinkStats, Received};
 
 /// The broker to use: `override_url`, else `[mqtt] url`, else an embedded
 /// broker started now on 127.0.0.1.
@@ -62,5 +62,6 @@ pub fn link_settings(
         reconnect_max: Duration::from_secs_f64(config.reconnect_max_s),
         shutdown_grace: Duration::from_secs_f64(config.shutdown_grace_s),
         inbound_capacity: 1024,
+        max_inbound_payload: config.max_payload_bytes,
     })
 }

@@ -8,7 +8,7 @@ pub const STATS_SCHEMA: &str = "gangway.stats/1";
 
 /// The counters in [`Stats`] that only grow, with a human name each (Home
 /// Assistant discovery makes one sensor per entry).
-pub const COUNTERS: [(&str, &str); 21] = [
+pub const COUNTERS: [(&str, &str); 28] = [
     ("sightings", "Sightings"),
     ("sightings_ignored", "Sightings ignored"),
     ("fixes", "Fixes"),
@@ -29,13 +29,23 @@ pub const COUNTERS: [(&str, &str); 21] = [
     ("reload_failures", "Refused reloads"),
     ("recorded", "Learning records"),
     ("store_errors", "Learning store errors"),
+    ("store_quota_deleted", "Learning rows over quota"),
+    ("overloaded", "Requests refused: overloaded"),
+    ("rate_limited", "Messages refused: rate limit"),
+    ("feedback_refused", "Feedback refused"),
+    ("evicted_devices", "Devices forgotten"),
+    ("disconnects", "Broker connections lost"),
+    ("unpublishable", "Unpublishable messages"),
     ("scan_restarts", "Silent scan restarts"),
 ];
 
 /// Gauges (current values), with a human name each.
-pub const GAUGES: [(&str, &str); 2] = [
+pub const GAUGES: [(&str, &str); 5] = [
     ("queue_depth", "Offline queue depth"),
     ("tracked", "Tracked devices"),
+    ("windows", "Open fingerprint windows"),
+    ("announced", "Announced device trackers"),
+    ("pending_requests", "Route requests waiting"),
 ];
 
 /// One stats message.
@@ -75,9 +85,35 @@ pub struct Stats {
     /// Rows written to the learning store, and failed writes.
     pub recorded: u64,
     pub store_errors: u64,
+    /// Rows the learning store deleted to stay within its quotas.
+    pub store_quota_deleted: u64,
+    /// Route requests answered `overloaded` (too many waiting, or waited past
+    /// `[limits] request_deadline_s`).
+    pub overloaded: u64,
+    /// Scans dropped and route requests answered `rate_limited` (`[limits]`).
+    pub rate_limited: u64,
+    /// Feedback for a route this gateway did not give (or already scored).
+    pub feedback_refused: u64,
+    /// Devices (tracks) and fingerprint windows forgotten: idle, or least
+    /// recently seen past `[limits] max_devices`.
+    pub evicted_devices: u64,
+    pub evicted_windows: u64,
+    /// MQTT connections lost after they were up.
+    pub disconnects: u64,
+    /// Outgoing messages no broker would take (a bad topic), dropped.
+    pub unpublishable: u64,
     /// Bluetooth scans restarted after `[ble] silent_restart_s` of silence.
     pub scan_restarts: u64,
     pub tracked: u64,
+    /// Entities with an open fingerprint window.
+    pub windows: u64,
+    /// Devices with a Home Assistant tracker config on the broker.
+    pub announced: u64,
+    /// Route requests waiting to be planned.
+    pub pending_requests: u64,
+    /// `connected`, `disconnected`, or `flapping` (lost repeatedly within a
+    /// minute: the gateway cannot stay connected).
+    pub mqtt: &'static str,
     /// The site's name and map hash, so a reload is visible.
     pub site: String,
     pub site_hash: String,

@@ -7,15 +7,19 @@
 //! {"t":13.0,"type":"truth","device":"phone-7","cell":[9,9]}
 //! ```
 //!
-//! The reader streams: it holds one line at a time, so a log of any size replays
-//! in constant memory. A bad line is reported as `file:line: reason`; with
-//! `skip_bad` it is counted and skipped instead, and the rest of the log still
-//! plays.
+//! The reader streams: it holds one line at a time, and a line over
+//! [`MAX_LINE_BYTES`] is a bad line (read past, never held), so a log of any
+//! size or shape replays in constant memory. A bad line is reported as
+//! `file:line: reason`; with `skip_bad` it is counted and skipped instead, and
+//! the rest of the log still plays: the first few are logged each, then one
+//! summary per [`SKIP_WARN_EVERY`] (the caller logs the final count). A device
+//! or observer id that cannot be an MQTT topic level makes a line bad too, as
+//! it would in a message from the broker.
 
 use foldhash::HashMap;
 use std::borrow::Cow;
 use std::fs::File;
-use std::io::{self, BufRead, BufReader, BufWriter, Write};
+use std::io::{self, BufRead, BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -24,8 +28,10 @@ use uuid::Uuid;
 
 use super::{Event, RouteRequest, Truth};
 use crate::plan::Destination;
+use crate::publish::valid_device_id;
 use crate::sighting::{BeaconId, Sighting};
 use crate::site::Cell;
+use crate::throttle::Throttle;
 
 /// One line of the log, read and written.
 ///
@@ -134,6 +140,25 @@ fn required<T>(value: Option<T>, field: &str) -> Result<T, String> {
     value.ok_or_else(|| format!("missing field `{field}`"))
 }
 
+/// Longest line read, in bytes; a longer one is a bad line.
+pub const MAX_LINE_BYTES: usize = 1 << 20;
+/// Bad lines logged one by one with `skip_bad` before summaries start.
+const SKIP_WARN_FIRST: u64 = 10;
+/// Then one summary line per this period.
+const SKIP_WARN_EVERY: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// An id (device, observer) that must be usable as one MQTT topic level.
+fn topic_id(id: String, field: &str) -> Result<String, String> {
+    if valid_device_id(&id) {
+        Ok(id)
+    } else {
+        Err(format!(
+            "`{field}` cannot be an MQTT topic level (empty, over 128 bytes, or `+`, `#`, `/`, \
+             control characters)"
+        ))
+    }
+}
+
 /// A line that could not be used.
 #[derive(Debug, thiserror::Error)]
 #[error("{}:{line}: {reason}", path.display())]
@@ -151,6 +176,8 @@ pub struct LogReader<R> {
     buf: Vec<u8>,
     skip_bad: bool,
     skipped: u64,
+    /// Summarises warnings about skipped lines.
+    skip_warnings: Throttle,
     /// Observers repeat on every line; sharing one `Arc<str>` per observer keeps
     /// replay from allocating a string per advert.
     observers: HashMap<String, Arc<str>>,
@@ -182,6 +209,7 @@ impl<R: BufRead> LogReader<R> {
             buf: Vec::new(),
             skip_bad,
             skipped: 0,
+            skip_warnings: Throttle::new(SKIP_WARN_EVERY),
             observers: HashMap::default(),
         }
     }
@@ -222,8 +250,9 @@ impl<R: BufRead> LogReader<R> {
                 let observer = match self.observers.get(observer.as_ref()) {
                     Some(o) => o.clone(),
                     None => {
-                        let o: Arc<str> = observer.as_ref().into();
-                        self.observers.insert(observer.into_owned(), o.clone());
+                        let observer = topic_id(observer.into_owned(), "observer")?;
+                        let o: Arc<str> = observer.as_str().into();
+                        self.observers.insert(observer, o.clone());
                         o
                     }
                 };
@@ -241,14 +270,14 @@ impl<R: BufRead> LogReader<R> {
             }
             Kind::Request => Event::Request(RouteRequest {
                 t,
-                device: required(line.device, "device")?,
+                device: topic_id(required(line.device, "device")?, "device")?,
                 to: required(line.to, "to")?,
                 profile: line.profile,
                 request_id: line.request_id,
             }),
             Kind::Truth => Event::Truth(Truth {
                 t,
-                device: required(line.device, "device")?,
+                device: topic_id(required(line.device, "device")?, "device")?,
                 cell: required(line.cell, "cell")?,
             }),
         };
@@ -256,6 +285,49 @@ impl<R: BufRead> LogReader<R> {
             return Err("`t` must be a finite number of seconds".into());
         }
         Ok(Some(event))
+    }
+
+    /// Reads the next line into `buf`; `Ok(None)` at the end, `Ok(Some(false))`
+    /// for a line over [`MAX_LINE_BYTES`] (read past in bounded chunks, `buf`
+    /// left empty).
+    fn read_line(&mut self) -> io::Result<Option<bool>> {
+        let limit = MAX_LINE_BYTES as u64 + 1;
+        if (&mut self.input)
+            .take(limit)
+            .read_until(b'\n', &mut self.buf)?
+            == 0
+        {
+            return Ok(None);
+        }
+        if self.buf.len() as u64 == limit && self.buf.last() != Some(&b'\n') {
+            loop {
+                self.buf.clear();
+                let n = (&mut self.input)
+                    .take(1 << 16)
+                    .read_until(b'\n', &mut self.buf)?;
+                if n == 0 || self.buf.last() == Some(&b'\n') {
+                    break;
+                }
+            }
+            self.buf.clear();
+            return Ok(Some(false));
+        }
+        Ok(Some(true))
+    }
+
+    /// Counts a skipped line and logs it, or a summary, or nothing.
+    fn skip(&mut self, reason: String) {
+        self.skipped += 1;
+        if self.skipped <= SKIP_WARN_FIRST {
+            tracing::warn!("{}", self.error(reason));
+        } else if let Some(not_logged) = self.skip_warnings.ready() {
+            tracing::warn!(
+                skipped = self.skipped,
+                not_logged,
+                "{} (bad lines are summarised from here on; the total is logged at the end)",
+                self.error(reason)
+            );
+        }
     }
 }
 
@@ -266,18 +338,18 @@ impl<R: BufRead> Iterator for LogReader<R> {
         loop {
             self.buf.clear();
             self.line_no += 1;
-            match self.input.read_until(b'\n', &mut self.buf) {
-                Ok(0) => return None,
-                Ok(_) => {}
+            let parsed = match self.read_line() {
+                Ok(None) => return None,
+                Ok(Some(true)) => self.parse_line(),
+                Ok(Some(false)) => Err(format!(
+                    "the line is longer than {MAX_LINE_BYTES} bytes; an event is one short JSON line"
+                )),
                 Err(e) => return Some(Err(self.error(format!("cannot read: {e}")))),
-            }
-            match self.parse_line() {
+            };
+            match parsed {
                 Ok(Some(event)) => return Some(Ok(event)),
                 Ok(None) => continue,
-                Err(reason) if self.skip_bad => {
-                    self.skipped += 1;
-                    tracing::warn!("{}", self.error(reason));
-                }
+                Err(reason) if self.skip_bad => self.skip(reason),
                 Err(reason) => return Some(Err(self.error(reason))),
             }
         }
@@ -389,6 +461,49 @@ mod tests {
         let err = events[1].as_ref().unwrap_err();
         assert_eq!(err.line, 2);
         assert!(err.reason.contains("EOF"), "{}", err.reason);
+    }
+
+    #[test]
+    fn a_line_too_long_is_a_bad_line_read_past_in_bounded_memory() {
+        let mut bytes = vec![b'x'; MAX_LINE_BYTES * 3];
+        bytes.push(b'\n');
+        bytes.extend_from_slice(format!("{ADVERT}\n").as_bytes());
+        bytes.extend(std::iter::repeat_n(b'y', MAX_LINE_BYTES + 10)); // no newline at the end
+        let mut reader = LogReader::new(&bytes[..], Path::new("t.jsonl"), false);
+        let err = reader.next().unwrap().unwrap_err();
+        assert_eq!(err.line, 1);
+        assert!(err.reason.contains("longer than"), "{}", err.reason);
+        assert!(reader.buf.capacity() <= MAX_LINE_BYTES + 1 + (1 << 16));
+        assert!(reader.next().unwrap().is_ok(), "the next line still reads");
+        assert!(reader.next().unwrap().is_err());
+        assert!(reader.next().is_none());
+    }
+
+    #[test]
+    fn ids_that_cannot_be_topic_levels_are_bad_lines() {
+        let (events, skipped) = read(
+            concat!(
+                r#"{"t":1,"type":"request","device":"a/#","to":"desk"}"#,
+                "\n",
+                r#"{"t":1,"type":"truth","device":"","cell":[1,2]}"#,
+                "\n",
+                r#"{"t":1,"type":"advert","observer":"g+w","uuid":"5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84","major":1,"minor":2,"rssi":-70}"#,
+                "\n",
+            )
+            .as_bytes(),
+            true,
+        );
+        assert!(events.is_empty());
+        assert_eq!(skipped, 3);
+        let (events, _) = read(
+            br#"{"t":1,"type":"request","device":"a/#","to":"desk"}"#,
+            false,
+        );
+        let err = events[0].as_ref().unwrap_err().to_string();
+        assert!(
+            err.contains("`device` cannot be an MQTT topic level"),
+            "{err}"
+        );
     }
 
     #[test]

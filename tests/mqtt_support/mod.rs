@@ -205,14 +205,30 @@ pub struct Gateway {
 
 impl Gateway {
     pub fn start(config: &Path, args: &[&str]) -> Gateway {
+        Gateway::spawn(
+            config,
+            args,
+            "info,rumqttd=warn,rumqttd::server::broker=off",
+            test_logs(),
+        )
+    }
+
+    /// A gateway whose log (at `filter`, e.g. `debug`) goes to `log`, for
+    /// tests that read it.
+    pub fn start_logged(config: &Path, args: &[&str], filter: &str, log: &Path) -> Gateway {
+        let file = std::fs::File::create(log).unwrap();
+        Gateway::spawn(config, args, filter, Stdio::from(file))
+    }
+
+    fn spawn(config: &Path, args: &[&str], filter: &str, stderr: Stdio) -> Gateway {
         let child = Command::new(env!("CARGO_BIN_EXE_gangway"))
             .arg("run")
             .arg("--config")
             .arg(config)
             .args(args)
-            .env("RUST_LOG", "info,rumqttd=warn,rumqttd::server::broker=off")
+            .env("RUST_LOG", filter)
             .stdout(Stdio::null())
-            .stderr(test_logs())
+            .stderr(stderr)
             .spawn()
             .expect("start the gateway");
         Gateway { child }
@@ -452,6 +468,7 @@ pub fn schema_of(topic: &str) -> Option<&'static str> {
         "path" => "path",
         "stats" => "stats",
         "occupancy" => "occupancy",
+        "error" if topic.ends_with("/feedback/error") => "feedback-error",
         _ if topic.contains("/sightings/") => "sightings",
         _ => return None,
     })

@@ -1,0 +1,103 @@
+//! Shared by the example programs that drive a real gateway through a real
+//! mosquitto (`loadtest`, `attack`): the broker, the built binary, process
+//! usage from /proc, percentiles. Everything started is stopped on drop.
+
+#![allow(dead_code)] // each example uses a different part of this module
+
+use std::net::{TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Kills the child when dropped, so nothing outlives the run.
+pub struct Guard(pub Child);
+
+impl Drop for Guard {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+pub fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// The release binary next to the running example.
+pub fn gangway() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    // target/release/examples/<example> → target/release/gangway
+    let bin = exe.parent().unwrap().parent().unwrap().join("gangway");
+    assert!(
+        bin.exists(),
+        "build the gateway first: cargo build --release"
+    );
+    bin
+}
+
+/// Starts mosquitto (Debian package `mosquitto`) on a free loopback port with
+/// its files in `dir` and `extra` configuration lines; returns it and its port
+/// once it listens.
+pub fn mosquitto(dir: &Path, extra: &str) -> (Guard, u16) {
+    let port = free_port();
+    let user = Command::new("id").arg("-un").output().unwrap().stdout;
+    let conf = dir.join("mosquitto.conf");
+    std::fs::write(
+        &conf,
+        format!(
+            "listener {port} 127.0.0.1\nallow_anonymous true\nuser {}\nmax_queued_messages 100000\nset_tcp_nodelay true\nlog_dest none\n{extra}",
+            String::from_utf8_lossy(&user).trim()
+        ),
+    )
+    .unwrap();
+    let broker = Guard(
+        Command::new("mosquitto")
+            .arg("-c")
+            .arg(&conf)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("mosquitto (apt-get install mosquitto)"),
+    );
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(Instant::now() < deadline, "mosquitto did not start");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    (broker, port)
+}
+
+/// (CPU seconds, RSS now and at its peak in KiB) of a process, from /proc.
+pub fn usage(pid: u32) -> (f64, u64, u64) {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+    let fields: Vec<&str> = stat
+        .rsplit(')')
+        .next()
+        .unwrap_or("")
+        .split_whitespace()
+        .collect();
+    let ticks: f64 = fields.get(11..13).map_or(0.0, |f| {
+        f.iter().filter_map(|v| v.parse::<f64>().ok()).sum()
+    });
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
+    let kib = |key: &str| {
+        status
+            .lines()
+            .find(|l| l.starts_with(key))
+            .and_then(|l| l.split_whitespace().nth(1))
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0)
+    };
+    (ticks / 100.0, kib("VmRSS:"), kib("VmHWM:")) // USER_HZ is 100 on Linux
+}
+
+pub fn percentile(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    sorted[((sorted.len() as f64 * p).ceil() as usize).clamp(1, sorted.len()) - 1]
+}
