@@ -216,7 +216,13 @@ impl Config {
         let mut config: Config = toml::from_str(&text).map_err(|e| toml_error(path, &text, &e))?;
         let base = path.parent().unwrap_or(Path::new("."));
         config.site = base.join(&config.site);
-        if let Some(survey) = &mut config.localizer.knn.survey {
+        for survey in [
+            &mut config.localizer.knn.survey,
+            &mut config.localizer.radiomap.survey,
+        ]
+        .into_iter()
+        .flatten()
+        {
             *survey = base.join(&*survey);
         }
         config.localizer.onnx.model = base.join(&config.localizer.onnx.model);
