@@ -254,8 +254,7 @@ impl Daemon {
         let pipeline = &mut self.state.pipeline;
         match self.inbox.read(topic, payload, now()) {
             Ok(Inbound::Route(request)) => {
-                let reply = pipeline.route(&request);
-                self.out.push(self.topics.encode_route(&reply));
+                pipeline.handle(&Event::Request(request), &mut self.out);
             }
             Ok(Inbound::BadRoute {
                 device,
