@@ -220,3 +220,180 @@ impl Guide {
         Some(session.end(device, t, SessionState::Cancelled))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    /// An open 25 × 20 floor with a desk at the corner of an L-shaped route
+    /// and an exit at its end.
+    fn site() -> Site {
+        let row = "#".repeat(25);
+        let map = vec![row; 20].join("\n");
+        let text = format!(
+            "name = \"t\"\ncell_m = 1.0\nmap = '''\n{map}\n'''\n[places]\ndesk = [20, 0]\nexit = [20, 15]\n"
+        );
+        Site::parse(&text, Path::new("t.toml")).unwrap()
+    }
+
+    /// East along the top row to the desk, then south to the exit: 35 m.
+    fn route() -> Route {
+        let east = (0..=20).map(|x| Cell::new(x, 0));
+        let south = (1..=15).map(|y| Cell::new(20, y));
+        Route {
+            cells: east.chain(south).collect(),
+        }
+    }
+
+    fn start(guide: &mut Guide, site: &Site, device: &str, t: f64) -> Guidance {
+        guide.start(
+            site,
+            device,
+            Some("r1".into()),
+            Profile::Default,
+            &route(),
+            t,
+            false,
+        )
+    }
+
+    #[test]
+    fn a_walk_along_the_route_is_announced_reassured_and_arrives() {
+        let site = site();
+        let mut guide = Guide::new(GuidanceConfig::default());
+        let first = start(&mut guide, &site, "p", 0.0);
+        assert_eq!(first.event, Some(GuidanceEvent::Depart));
+        assert_eq!(
+            first.text.as_deref(),
+            Some("Walk 20 metres, then turn right at desk.")
+        );
+        assert_eq!(first.remaining_m, 35.0);
+        assert!((first.eta_s - 35.0 / 1.2).abs() < 1e-9);
+        let mut events = Vec::new();
+        for (i, &cell) in route().cells.iter().enumerate().skip(1) {
+            let m = guide.update(&site, "p", Some(cell), i as f64).unwrap();
+            if let Some(e) = m.event {
+                events.push((i, e, m.text.clone().unwrap()));
+            }
+            if m.state == SessionState::Arrived {
+                break;
+            }
+        }
+        let got: Vec<(usize, GuidanceEvent)> = events.iter().map(|e| (e.0, e.1)).collect();
+        assert_eq!(
+            got,
+            [
+                (10, GuidanceEvent::Reassure),
+                (14, GuidanceEvent::Announce),
+                (24, GuidanceEvent::Reassure),
+                (29, GuidanceEvent::Announce),
+                (33, GuidanceEvent::Arrived),
+            ],
+            "{events:?}"
+        );
+        assert_eq!(events[1].2, "Walk 6 metres, then turn right at desk.");
+        assert_eq!(events[3].2, "Walk 6 metres; you have arrived at exit.");
+        assert_eq!(events[4].2, "You have arrived at exit.");
+        assert!(guide.is_empty(), "an arrived session ends");
+    }
+
+    #[test]
+    fn leaving_the_route_takes_consecutive_known_fixes() {
+        let site = site();
+        let mut guide = Guide::new(GuidanceConfig::default());
+        start(&mut guide, &site, "p", 0.0);
+        let on = Some(Cell::new(5, 1));
+        let off = Some(Cell::new(5, 8));
+        let state = |m: Option<Guidance>| m.map(|m| (m.state, m.event, m.off_route_fixes));
+        // One stray fix, then back: noise, not a wrong turn.
+        assert_eq!(
+            state(guide.update(&site, "p", off, 1.0)),
+            Some((SessionState::Active, None, 1))
+        );
+        assert_eq!(
+            state(guide.update(&site, "p", on, 2.0)),
+            Some((SessionState::Active, None, 0))
+        );
+        // Unknown fixes between stray ones neither count nor reset.
+        guide.update(&site, "p", off, 3.0);
+        assert_eq!(guide.update(&site, "p", None, 4.0), None);
+        assert_eq!(
+            state(guide.update(&site, "p", off, 5.0)),
+            Some((SessionState::OffRoute, Some(GuidanceEvent::OffRoute), 2))
+        );
+        // Said once, not on every fix off the route.
+        assert_eq!(
+            state(guide.update(&site, "p", off, 6.0)),
+            Some((SessionState::OffRoute, None, 3))
+        );
+        // A re-planned route keeps the count of re-routes.
+        let detour = Route {
+            cells: (8..=15).map(|y| Cell::new(5, y)).collect(),
+        };
+        let first = guide.start(&site, "p", None, Profile::Default, &detour, 7.0, true);
+        assert_eq!(
+            (first.state, first.event, first.reroutes),
+            (SessionState::Rerouted, Some(GuidanceEvent::Rerouted), 1)
+        );
+    }
+
+    #[test]
+    fn sessions_are_bounded_in_number_and_time() {
+        let site = site();
+        let mut guide = Guide::new(GuidanceConfig {
+            max_sessions: 2,
+            expire_after_s: 60.0,
+            ..GuidanceConfig::default()
+        });
+        start(&mut guide, &site, "a", 0.0);
+        start(&mut guide, &site, "b", 1.0);
+        guide.update(&site, "a", Some(Cell::new(1, 0)), 2.0);
+        // Full: the least recently updated ("b") makes room.
+        start(&mut guide, &site, "c", 3.0);
+        assert_eq!(guide.len(), 2);
+        assert!(guide.session("b").is_none() && guide.session("a").is_some());
+        // A new request replaces a device's session.
+        start(&mut guide, &site, "c", 4.0);
+        assert_eq!(guide.len(), 2);
+        // Not located for longer than expire_after_s: the session ends.
+        let last = guide
+            .update(&site, "a", Some(Cell::new(2, 0)), 100.0)
+            .unwrap();
+        assert_eq!(
+            (last.state, last.event, last.next),
+            (SessionState::Expired, Some(GuidanceEvent::Expired), None)
+        );
+        assert!(guide.session("a").is_none());
+        // Idle sessions are also swept when another starts.
+        start(&mut guide, &site, "d", 200.0);
+        assert_eq!(guide.len(), 1);
+        let cancelled = guide.cancel("d", 201.0).unwrap();
+        assert_eq!(cancelled.state, SessionState::Cancelled);
+        assert!(guide.is_empty() && guide.cancel("d", 202.0).is_none());
+    }
+
+    #[test]
+    fn a_session_stays_under_a_kilobyte() {
+        let site = site();
+        let mut guide = Guide::new(GuidanceConfig::default());
+        start(&mut guide, &site, "p", 0.0);
+        let bytes = guide.session("p").unwrap().state_bytes();
+        assert!(bytes < 1024, "{bytes} bytes for a 35 m route");
+    }
+
+    #[test]
+    fn bad_settings_are_named() {
+        let bad = GuidanceConfig {
+            corridor_m: 0.0,
+            ..GuidanceConfig::default()
+        };
+        assert!(bad.validate().unwrap_err().contains("`corridor_m`"));
+        let none = GuidanceConfig {
+            off_route_fixes: 0,
+            ..GuidanceConfig::default()
+        };
+        assert!(none.validate().is_err());
+        assert!(GuidanceConfig::default().validate().is_ok());
+    }
+}

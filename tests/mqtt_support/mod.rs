@@ -450,6 +450,7 @@ pub fn schema_of(topic: &str) -> Option<&'static str> {
     Some(match last {
         "location" => "location",
         "path" => "path",
+        "guidance" => "guidance",
         "stats" => "stats",
         _ if topic.contains("/sightings/") => "sightings",
         _ => return None,
