@@ -14,12 +14,14 @@
 //! Thresholds follow the Wayfindr open standard (ITU-T F.921): a decision
 //! point is announced about 6 m ahead, reassurance about every 10 m.
 
+mod line;
 mod session;
 
 use std::collections::HashMap;
 
 use serde::{Deserialize, Serialize};
 
+pub use line::RouteLine;
 pub use session::Session;
 
 use crate::plan::{Profile, Route};

@@ -3,10 +3,11 @@
 //! route or arrived.
 //!
 //! Progress is the projection of each fix onto the route's polyline of cell
-//! centres, in metres from the start. The state kept is the route (cells and
-//! cumulative metres, 8 bytes a cell), its maneuvers and a few numbers, so a
-//! session of a 100 m route stays under 1 KB besides place names.
+//! centres ([`RouteLine`]), in metres from the start. The state kept is the
+//! route (8 bytes a cell), its maneuvers and a few numbers: well under 1 KB
+//! for the routes of a floor.
 
+use super::RouteLine;
 use super::{GuidanceConfig, GuidanceEvent, SessionState};
 use crate::plan::instructions::{Maneuver, maneuvers};
 use crate::plan::{Profile, Route};
@@ -17,9 +18,7 @@ use crate::site::{Cell, Site};
 pub struct Session {
     request_id: Option<String>,
     profile: Profile,
-    cells: Vec<Cell>,
-    /// Metres from the start to each cell.
-    along: Vec<f32>,
+    line: RouteLine,
     maneuvers: Vec<Maneuver>,
     /// Index in `maneuvers` of the next decision point.
     next: usize,
@@ -46,19 +45,10 @@ impl Session {
         t: f64,
         reroutes: u32,
     ) -> Session {
-        let mut along = Vec::with_capacity(route.cells.len());
-        let mut metres = 0.0;
-        for (i, &c) in route.cells.iter().enumerate() {
-            if i > 0 {
-                metres += route.cells[i - 1].distance(c) * site.cell_m;
-            }
-            along.push(metres as f32);
-        }
         Session {
             request_id,
             profile,
-            cells: route.cells.clone(),
-            along,
+            line: RouteLine::new(site, route),
             maneuvers: maneuvers(site, route),
             next: 1,
             announced: 1,
@@ -94,7 +84,7 @@ impl Session {
 
     /// The cell the route ends at.
     pub fn destination(&self) -> Cell {
-        *self.cells.last().expect("a route has cells")
+        self.line.destination()
     }
 
     pub fn reroutes(&self) -> u32 {
@@ -108,8 +98,7 @@ impl Session {
     /// Bytes this session holds, itself and on the heap.
     pub fn state_bytes(&self) -> usize {
         std::mem::size_of::<Session>()
-            + self.cells.capacity() * std::mem::size_of::<Cell>()
-            + self.along.capacity() * std::mem::size_of::<f32>()
+            + self.line.heap_bytes()
             + self.maneuvers.capacity() * std::mem::size_of::<Maneuver>()
             + self
                 .maneuvers
@@ -117,10 +106,6 @@ impl Session {
                 .filter_map(|m| m.place.as_ref().map(String::capacity))
                 .sum::<usize>()
             + self.request_id.as_ref().map_or(0, String::capacity)
-    }
-
-    fn length_m(&self) -> f64 {
-        self.along.last().map_or(0.0, |&m| f64::from(m))
     }
 
     /// The first message: the first step of the route.
@@ -160,7 +145,9 @@ impl Session {
         self.last_t = t;
         let cell = cell?;
         let (x, y) = site.metres(cell);
-        let (off_m, along_m) = self.project(site, x, y, config.corridor_m);
+        let (off_m, along_m) = self
+            .line
+            .project(site, (x, y), self.progress_m, config.corridor_m);
         let mut event = None;
         let mut text = None;
         if off_m > config.corridor_m {
@@ -190,7 +177,7 @@ impl Session {
             }
             self.announced = self.announced.max(self.next);
             let to_destination = site.metres(self.destination());
-            let remaining = self.length_m() - self.progress_m;
+            let remaining = self.line.length_m() - self.progress_m;
             if (to_destination.0 - x).hypot(to_destination.1 - y) <= config.arrive_m
                 || remaining <= config.arrive_m
             {
@@ -223,37 +210,6 @@ impl Session {
         Some(self.message(device, t, event, text))
     }
 
-    /// Distance from the point (metres) to the route, and the progress it
-    /// stands for: its projection on the nearest segment not behind the
-    /// current progress by more than `back_m` (so a route passing near
-    /// itself does not pull the walker back to its start).
-    fn project(&self, site: &Site, x: f64, y: f64, back_m: f64) -> (f64, f64) {
-        let centre = |i: usize| site.metres(self.cells[i]);
-        if self.cells.len() == 1 {
-            let (cx, cy) = centre(0);
-            return ((cx - x).hypot(cy - y), 0.0);
-        }
-        let mut nearest = f64::INFINITY;
-        let mut progress = (f64::INFINITY, self.progress_m);
-        for i in 0..self.cells.len() - 1 {
-            let ((ax, ay), (bx, by)) = (centre(i), centre(i + 1));
-            let (dx, dy) = (bx - ax, by - ay);
-            let len2 = dx * dx + dy * dy;
-            let f = if len2 > 0.0 {
-                (((x - ax) * dx + (y - ay) * dy) / len2).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let d = (ax + f * dx - x).hypot(ay + f * dy - y);
-            nearest = nearest.min(d);
-            let (a0, a1) = (f64::from(self.along[i]), f64::from(self.along[i + 1]));
-            if a1 >= self.progress_m - back_m && d < progress.0 {
-                progress = (d, a0 + f * (a1 - a0));
-            }
-        }
-        (nearest, progress.1)
-    }
-
     /// The sentence for the walk to the next decision point.
     fn next_sentence(&self) -> Option<String> {
         self.maneuvers
@@ -268,7 +224,7 @@ impl Session {
         event: Option<GuidanceEvent>,
         text: Option<String>,
     ) -> Guidance {
-        let remaining_m = (self.length_m() - self.progress_m).max(0.0);
+        let remaining_m = (self.line.length_m() - self.progress_m).max(0.0);
         Guidance {
             schema: GUIDANCE_SCHEMA,
             device: device.to_owned(),
