@@ -29,6 +29,10 @@ impl RouteLine {
         }
     }
 
+    pub fn cells(&self) -> &[Cell] {
+        &self.cells
+    }
+
     pub fn length_m(&self) -> f64 {
         self.along.last().map_or(0.0, |&m| f64::from(m))
     }
