@@ -283,7 +283,6 @@ impl Pipeline {
             started.elapsed().as_micros() as u64,
         );
         body.reason = Some("off_route");
-        self.stats.routes += 1;
         let reply = RouteReply {
             schema: PATH_SCHEMA,
             device: device.to_owned(),

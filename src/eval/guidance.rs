@@ -256,6 +256,8 @@ pub fn evaluate(
             straying = Some((stray, None::<usize>));
         }
         let (mut fixes, mut reach_fix, mut arrived_fix) = (0usize, None, None);
+        // Whether a strayed walker has turned back towards the route.
+        let mut returning = false;
         let mut end_t = None;
         let started = t;
         while t - started < 900.0 && end_t.is_none_or(|e| t < e) {
@@ -296,7 +298,10 @@ pub fn evaluate(
                             *first_out = Some(fixes);
                         }
                         if cell == *stray {
-                            // Reached the stray cell unnoticed.
+                            returning = true;
+                        }
+                        if returning && off_m <= guidance.corridor_m {
+                            // Strayed and came back unnoticed.
                             report.wrong_turns_undetected += 1;
                             straying = None;
                         }
