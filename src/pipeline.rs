@@ -122,7 +122,7 @@ impl Pipeline {
             localizer,
             tracker: Tracker::new(config.tracker.clone(), site.clone()),
             planner,
-            guide: Guide::new(config.guidance.clone()),
+            guide: Guide::new(config.guidance.clone(), config.window.length_s / 2.0),
             topics: Topics::new(config.topic_prefix()),
             log_likelihood: vec![0.0; site.open_cells().len()],
             site,

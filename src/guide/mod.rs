@@ -127,13 +127,19 @@ pub enum GuidanceEvent {
 /// The sessions of all devices, bounded in number and time.
 pub struct Guide {
     config: GuidanceConfig,
+    fix_age_s: f64,
     sessions: HashMap<String, Session>,
 }
 
 impl Guide {
-    pub fn new(config: GuidanceConfig) -> Guide {
+    /// `fix_age_s`: how long ago, on average, the walker was where a fix
+    /// places them (half a fingerprint window): announcements lead by the
+    /// walk in that time, so they are heard at `announce_m` from where the
+    /// walker really is.
+    pub fn new(config: GuidanceConfig, fix_age_s: f64) -> Guide {
         Guide {
             config,
+            fix_age_s,
             sessions: HashMap::new(),
         }
     }
@@ -209,7 +215,7 @@ impl Guide {
             self.sessions.remove(device);
             return Some(last);
         }
-        let message = session.update(site, &self.config, device, cell, t)?;
+        let message = session.update(site, &self.config, self.fix_age_s, device, cell, t)?;
         if message.state == SessionState::Arrived {
             self.sessions.remove(device);
         }
@@ -263,7 +269,7 @@ mod tests {
     #[test]
     fn a_walk_along_the_route_is_announced_reassured_and_arrives() {
         let site = site();
-        let mut guide = Guide::new(GuidanceConfig::default());
+        let mut guide = Guide::new(GuidanceConfig::default(), 0.0);
         let first = start(&mut guide, &site, "p", 0.0);
         assert_eq!(first.event, Some(GuidanceEvent::Depart));
         assert_eq!(
@@ -303,7 +309,7 @@ mod tests {
     #[test]
     fn leaving_the_route_takes_consecutive_known_fixes() {
         let site = site();
-        let mut guide = Guide::new(GuidanceConfig::default());
+        let mut guide = Guide::new(GuidanceConfig::default(), 0.0);
         start(&mut guide, &site, "p", 0.0);
         let on = Some(Cell::new(5, 1));
         let off = Some(Cell::new(5, 8));
@@ -343,11 +349,14 @@ mod tests {
     #[test]
     fn sessions_are_bounded_in_number_and_time() {
         let site = site();
-        let mut guide = Guide::new(GuidanceConfig {
-            max_sessions: 2,
-            expire_after_s: 60.0,
-            ..GuidanceConfig::default()
-        });
+        let mut guide = Guide::new(
+            GuidanceConfig {
+                max_sessions: 2,
+                expire_after_s: 60.0,
+                ..GuidanceConfig::default()
+            },
+            0.0,
+        );
         start(&mut guide, &site, "a", 0.0);
         start(&mut guide, &site, "b", 1.0);
         guide.update(&site, "a", Some(Cell::new(1, 0)), 2.0);
@@ -378,7 +387,7 @@ mod tests {
     #[test]
     fn a_session_stays_under_a_kilobyte() {
         let site = site();
-        let mut guide = Guide::new(GuidanceConfig::default());
+        let mut guide = Guide::new(GuidanceConfig::default(), 0.0);
         start(&mut guide, &site, "p", 0.0);
         let bytes = guide.session("p").unwrap().state_bytes();
         assert!(bytes < 1024, "{bytes} bytes for a 35 m route");

@@ -137,6 +137,7 @@ impl Session {
         &mut self,
         site: &Site,
         config: &GuidanceConfig,
+        fix_age_s: f64,
         device: &str,
         cell: Option<Cell>,
         t: f64,
@@ -190,9 +191,11 @@ impl Session {
                     None => "You have arrived.".to_owned(),
                 });
             } else if let Some(m) = self.maneuvers.get(self.next) {
-                // Announce at the fix nearest the announce distance: up to
-                // half a fix's walk early.
-                let lead = self.profile.walking_speed_mps() * self.fix_interval_s.max(0.0) / 2.0;
+                // Announce at the fix nearest the announce distance (up to
+                // half a fix's walk early), from where the walker is now
+                // rather than where the fix saw them.
+                let lead = self.profile.walking_speed_mps()
+                    * (fix_age_s + self.fix_interval_s.max(0.0) / 2.0);
                 let ahead = m.along_m - self.progress_m;
                 if self.announced <= self.next && ahead <= config.announce_m + lead {
                     self.announced = self.next + 1;
