@@ -327,10 +327,9 @@ pub fn evaluate(
                             }
                             None => report.false_off_route += 1,
                         },
-                        Some("arrived") => {
-                            arrived_fix = Some(fixes);
-                            end_t.get_or_insert(t);
-                        }
+                        // The walk goes on to the destination: an arrival
+                        // told early is scored as such.
+                        Some("arrived") => arrived_fix = Some(fixes),
                         _ => {}
                     }
                     if let Some(s) = pipeline.guide().session(&device) {

@@ -177,10 +177,12 @@ impl Session {
                 self.next += 1;
             }
             self.announced = self.announced.max(self.next);
+            // How far the walker got since the middle of the fix's window.
+            let walked_since_m = self.profile.walking_speed_mps() * fix_age_s;
             let to_destination = site.metres(self.destination());
             let remaining = self.line.length_m() - self.progress_m;
             if (to_destination.0 - x).hypot(to_destination.1 - y) <= config.arrive_m
-                || remaining <= config.arrive_m
+                || remaining <= config.arrive_m + walked_since_m
             {
                 self.state = SessionState::Arrived;
                 self.next = self.maneuvers.len();
@@ -194,8 +196,8 @@ impl Session {
                 // Announce at the fix nearest the announce distance (up to
                 // half a fix's walk early), from where the walker is now
                 // rather than where the fix saw them.
-                let lead = self.profile.walking_speed_mps()
-                    * (fix_age_s + self.fix_interval_s.max(0.0) / 2.0);
+                let lead = walked_since_m
+                    + self.profile.walking_speed_mps() * self.fix_interval_s.max(0.0) / 2.0;
                 let ahead = m.along_m - self.progress_m;
                 if self.announced <= self.next && ahead <= config.announce_m + lead {
                     self.announced = self.next + 1;
