@@ -4,9 +4,11 @@
 //! the pipeline's guidance is scored against where they really were:
 //!
 //! - false off-route per km: off-route while the walker was following;
-//! - wrong turns: with a given probability a walker strays at a turn to a
-//!   cell well outside the corridor; counted are the fixes from the first
-//!   fix of the walker truly outside the corridor to the off-route message;
+//! - wrong turns: with a given probability a walker misses a turn and walks
+//!   on to a cell well outside the corridor, where they wait to be told;
+//!   counted are the fixes from the first fix of the walker truly outside
+//!   the corridor to the off-route message (undetected after a minute
+//!   waiting: never);
 //! - arrival: detected within one fix of the fix where the walker reached
 //!   the destination;
 //! - announcements: how far (truly, along the route) each decision point
@@ -233,7 +235,7 @@ pub fn evaluate(
         let destination = served.line.destination();
         walker = follow(&site, walker.at().0, &served);
         // A wrong turn: at the first turn, off to a cell well outside the
-        // corridor, then on to the destination.
+        // corridor, there to wait until told.
         let mut straying = None;
         if rng.random_bool(setup.wrong_turn_probability)
             && let Some(&(turn, _)) = served
@@ -243,21 +245,15 @@ pub fn evaluate(
             && let Some(stray) =
                 stray_target(&site, &served, turn, guidance.corridor_m + 3.0, &mut rng)
             && let Some(i) = walker.plan.iter().position(|&c| c == turn)
-            && let (Ok(away), Ok(back)) = (
-                astar::search(&site, Connectivity::Eight, turn, stray, |_| 1.0),
-                astar::search(&site, Connectivity::Eight, stray, destination, |_| 1.0),
-            )
+            && let Ok(away) = astar::search(&site, Connectivity::Eight, turn, stray, |_| 1.0)
         {
             let mut plan = walker.plan[..=i].to_vec();
             plan.extend_from_slice(&away.cells[1..]);
-            plan.extend_from_slice(&back.cells[1..]);
             walker = Walker::new(&site, plan);
             report.wrong_turns += 1;
             straying = Some((stray, None::<usize>));
         }
         let (mut fixes, mut reach_fix, mut arrived_fix) = (0usize, None, None);
-        // Whether a strayed walker has turned back towards the route.
-        let mut returning = false;
         let mut end_t = None;
         let started = t;
         while t - started < 900.0 && end_t.is_none_or(|e| t < e) {
@@ -267,7 +263,8 @@ pub fn evaluate(
             report.km +=
                 (walker.walked_m.min(*walker.along.last().unwrap()) - before).max(0.0) / 1000.0;
             if walker.done() && end_t.is_none() {
-                end_t = Some(t + 10.0);
+                // At the destination, or lost and waiting to be told.
+                end_t = Some(t + if straying.is_some() { 60.0 } else { 10.0 });
             }
             scan(
                 &mut pipeline,
@@ -293,17 +290,9 @@ pub fn evaluate(
                             served.passed[k] |= d.1 <= progress + 0.5;
                         }
                     }
-                    if let Some((stray, first_out)) = &mut straying {
+                    if let Some((_, first_out)) = &mut straying {
                         if first_out.is_none() && off_m > guidance.corridor_m {
                             *first_out = Some(fixes);
-                        }
-                        if cell == *stray {
-                            returning = true;
-                        }
-                        if returning && off_m <= guidance.corridor_m {
-                            // Strayed and came back unnoticed.
-                            report.wrong_turns_undetected += 1;
-                            straying = None;
                         }
                     }
                     if cell == destination && reach_fix.is_none() {
@@ -393,8 +382,8 @@ fn follow(site: &Site, from: Cell, served: &Served) -> Walker {
     Walker::new(site, plan)
 }
 
-/// A walkable cell at least `min_m` from every cell of the route and at
-/// most 12 m from `turn`, where a walker who missed the turn ends up.
+/// A walkable cell at least `min_m` from every cell of the route and
+/// 8–20 m from `turn`, where a walker who missed the turn ends up.
 fn stray_target(
     site: &Site,
     served: &Served,
@@ -408,7 +397,7 @@ fn stray_target(
         .iter()
         .copied()
         .filter(|&c| {
-            c.distance(turn) * site.cell_m <= 12.0
+            (8.0..=20.0).contains(&(c.distance(turn) * site.cell_m))
                 && cells.iter().all(|&r| r.distance(c) * site.cell_m >= min_m)
         })
         .collect();
