@@ -202,7 +202,8 @@ impl Session {
                 if self.announced <= self.next && ahead <= config.announce_m + lead {
                     self.announced = self.next + 1;
                     event = Some(GuidanceEvent::Announce);
-                    text = Some(m.sentence(ahead));
+                    // Told from where the walker is by now.
+                    text = Some(m.sentence((ahead - walked_since_m).max(0.0)));
                 } else if self.progress_m - self.spoken_at_m >= config.reassure_m {
                     event = Some(GuidanceEvent::Reassure);
                     text = Some(format!("You are on the route. {}", m.sentence(ahead)));
