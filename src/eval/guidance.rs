@@ -290,10 +290,10 @@ pub fn evaluate(
                             served.passed[k] |= d.1 <= progress + 0.5;
                         }
                     }
-                    if let Some((_, first_out)) = &mut straying {
-                        if first_out.is_none() && off_m > guidance.corridor_m {
-                            *first_out = Some(fixes);
-                        }
+                    if let Some((_, first_out @ None)) = &mut straying
+                        && off_m > guidance.corridor_m
+                    {
+                        *first_out = Some(fixes);
                     }
                     if cell == destination && reach_fix.is_none() {
                         reach_fix = Some(fixes);
