@@ -236,7 +236,9 @@ pub fn evaluate(
         walker = follow(&site, walker.at().0, &served);
         // A wrong turn: at the first turn, off to a cell well outside the
         // corridor, there to wait until told.
-        let mut straying = None;
+        // While a wrong turn is undetected: the fix at which the walker was
+        // first truly outside the corridor, once they are.
+        let mut straying: Option<Option<usize>> = None;
         if rng.random_bool(setup.wrong_turn_probability)
             && let Some(&(turn, _)) = served
                 .decisions
@@ -251,7 +253,7 @@ pub fn evaluate(
             plan.extend_from_slice(&away.cells[1..]);
             walker = Walker::new(&site, plan);
             report.wrong_turns += 1;
-            straying = Some((stray, None::<usize>));
+            straying = Some(None);
         }
         let (mut fixes, mut reach_fix, mut arrived_fix) = (0usize, None, None);
         let mut end_t = None;
@@ -290,7 +292,7 @@ pub fn evaluate(
                             served.passed[k] |= d.1 <= progress + 0.5;
                         }
                     }
-                    if let Some((_, first_out @ None)) = &mut straying
+                    if let Some(first_out @ None) = &mut straying
                         && off_m > guidance.corridor_m
                     {
                         *first_out = Some(fixes);
@@ -309,7 +311,7 @@ pub fn evaluate(
                             }
                         }
                         Some("off_route") => match straying.take() {
-                            Some((_, first_out)) => {
+                            Some(first_out) => {
                                 detect.push(
                                     fixes.saturating_sub(first_out.unwrap_or(fixes)) as f64 + 1.0,
                                 );
