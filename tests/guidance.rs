@@ -77,3 +77,28 @@ fn served_routes_are_guided_and_walkers_who_leave_them_are_re_routed() {
     );
     assert!(off_route > 0 && rerouted_paths > 0 && rerouted_paths <= off_route);
 }
+
+#[test]
+fn eval_guidance_reports_every_figure() {
+    let stdout = gangway_ok(&["eval", "guidance", "--trips", "12", "--seed", "3", "--json"]);
+    let report: Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
+    assert_eq!(report["trips"], 12, "{report}");
+    assert!(report["km"].as_f64().unwrap() > 0.1, "{report}");
+    for share in ["arrival_detected_share", "announced_in_window_share"] {
+        let v = report[share].as_f64().unwrap();
+        assert!((0.0..=1.0).contains(&v), "{share}: {report}");
+    }
+    for key in [
+        "false_off_route_per_km",
+        "reroutes_per_trip",
+        "wrong_turn_detect_fixes_p90",
+        "max_session_bytes",
+    ] {
+        assert!(report.get(key).is_some(), "{key}: {report}");
+    }
+    // Reproducible: same seed, same figures.
+    assert_eq!(
+        stdout,
+        gangway_ok(&["eval", "guidance", "--trips", "12", "--seed", "3", "--json"])
+    );
+}
