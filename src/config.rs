@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use crate::guide::GuidanceConfig;
 use crate::locate::LocalizerConfig;
 use crate::locate::tracker::TrackerConfig;
 use crate::locate::window::WindowConfig;
@@ -35,6 +36,8 @@ pub struct Config {
     pub tracker: TrackerConfig,
     #[serde(default)]
     pub planner: PlannerConfig,
+    #[serde(default)]
+    pub guidance: GuidanceConfig,
     #[serde(default)]
     pub mqtt: MqttConfig,
     /// `[store]`: the crowd-sourced learning store.
@@ -265,6 +268,7 @@ impl Config {
             .pathloss
             .validate()
             .map_err(|e| format!("[localizer.pathloss] {e}"))?;
+        self.guidance.validate()?;
         self.ble.validate()?;
         self.mqtt.validate().map_err(|e| e.to_string())?;
         self.store.validate()?;

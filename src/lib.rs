@@ -20,6 +20,7 @@ pub mod cli;
 pub mod config;
 pub mod daemon;
 pub mod eval;
+pub mod guide;
 pub mod locate;
 pub mod model;
 pub mod mqtt;

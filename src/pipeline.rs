@@ -1,5 +1,8 @@
 //! The pipeline every mode runs: events → fingerprint windows → localizer →
-//! tracker → planner → outgoing messages.
+//! tracker → planner → outgoing messages, and guidance along the routes it
+//! served (a session per device, see [`crate::guide`]): on each fix of a
+//! guided device a guidance message, and a route re-planned from where the
+//! device is when it has left its route.
 //!
 //! It does no I/O and keeps no clock of its own: the daemon, `replay` and the
 //! tests feed it [`Event`]s and send on the [`Message`]s it returns. That keeps
@@ -10,15 +13,16 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use crate::config::Config;
+use crate::guide::{GuidanceEvent, Guide};
 use crate::locate::tracker::Tracker;
 use crate::locate::window::{Fingerprint, Orientation, Windows};
 use crate::locate::{self, Localizer};
-use crate::plan::{self, Planner, Profile};
+use crate::plan::{self, Planner, Profile, Route};
 use crate::publish::{
     ErrorBody, LOCATION_SCHEMA, Location, Message, PATH_SCHEMA, RouteBody, RouteOutcome,
     RouteReply, Topics, valid_device_id,
 };
-use crate::site::Site;
+use crate::site::{Cell, Site};
 use crate::source::{Event, RouteRequest};
 
 /// Counters a gateway reports about its pipeline.
@@ -39,6 +43,7 @@ pub struct Pipeline {
     localizer: Box<dyn Localizer>,
     tracker: Tracker,
     planner: Box<dyn Planner>,
+    guide: Guide,
     topics: Topics,
     log_likelihood: Vec<f32>,
     /// Published confidence under which a fix is published as unknown.
@@ -119,6 +124,7 @@ impl Pipeline {
             tracker: Tracker::new(config.tracker.clone(), site.clone())
                 .bound(config.limits.max_devices, config.limits.device_idle_s),
             planner,
+            guide: Guide::new(config.guidance.clone(), config.window.length_s / 2.0),
             topics: Topics::new(config.topic_prefix()),
             log_likelihood: vec![0.0; site.open_cells().len()],
             site,
@@ -143,6 +149,11 @@ impl Pipeline {
     /// Sightings of anchors the site does not know.
     pub fn unknown_anchor_sightings(&self) -> u64 {
         self.windows.unknown_anchor_count()
+    }
+
+    /// The guidance sessions.
+    pub fn guide(&self) -> &Guide {
+        &self.guide
     }
 
     /// Number of entities with a track.
@@ -178,6 +189,9 @@ impl Pipeline {
             Event::Request(request) => {
                 let reply = self.route(request);
                 out.push(self.topics.encode_route(&reply));
+                if let RouteOutcome::Route(body) = &reply.outcome {
+                    self.guide_along(&reply, body, false, out);
+                }
             }
             // Ground truth is for scoring a replay, not for the pipeline.
             Event::Truth(_) => {}
@@ -222,6 +236,82 @@ impl Pipeline {
             anchors_heard: fp.heard_count(),
         };
         out.push(self.topics.encode_location(&location));
+        let Some(guidance) = self.guide.update(&self.site, &fp.entity, cell, fp.t) else {
+            return;
+        };
+        out.push(self.topics.encode_guidance(&guidance));
+        if guidance.event == Some(GuidanceEvent::OffRoute) {
+            self.reroute(&fp.entity, fix.cell, fp.t, out);
+        }
+    }
+
+    /// Starts guiding a device along a route just published.
+    fn guide_along(
+        &mut self,
+        reply: &RouteReply,
+        body: &RouteBody,
+        rerouted: bool,
+        out: &mut Vec<Message>,
+    ) {
+        let route = Route {
+            cells: body.waypoints.iter().map(|w| w.cell).collect(),
+        };
+        let profile = Profile::parse(body.profile).unwrap_or_default();
+        let first = self.guide.start(
+            &self.site,
+            &reply.device,
+            reply.request_id.clone(),
+            profile,
+            &route,
+            reply.t,
+            rerouted,
+        );
+        out.push(self.topics.encode_guidance(&first));
+    }
+
+    /// Re-plans the route of a device that left it, from its tracked `cell`
+    /// to the same destination, and publishes it with reason `off_route`.
+    /// When no route can be planned the session stays off route (and the
+    /// device is told so by its guidance) until it walks back or asks again.
+    fn reroute(&mut self, device: &str, cell: Cell, t: f64, out: &mut Vec<Message>) {
+        let Some(session) = self.guide.session(device) else {
+            return;
+        };
+        let (to, profile) = (session.destination(), session.profile());
+        let request_id = session.request_id().map(str::to_owned);
+        let started = Instant::now();
+        let planned = match self.planner.plan(cell, to, profile) {
+            Ok(planned) => planned,
+            Err(e) => {
+                tracing::warn!(
+                    device,
+                    code = e.code(),
+                    "cannot re-plan a route off which the device walked: {e}"
+                );
+                return;
+            }
+        };
+        let mut body = RouteBody::new(
+            &self.site,
+            &*self.planner,
+            profile,
+            cell,
+            to,
+            &planned,
+            started.elapsed().as_micros() as u64,
+        );
+        body.reason = Some("off_route");
+        let reply = RouteReply {
+            schema: PATH_SCHEMA,
+            device: device.to_owned(),
+            request_id,
+            t,
+            outcome: RouteOutcome::Route(body),
+        };
+        out.push(self.topics.encode_route(&reply));
+        if let RouteOutcome::Route(body) = &reply.outcome {
+            self.guide_along(&reply, body, true, out);
+        }
     }
 
     /// Plans a route from the device's tracked cell; every failure becomes an

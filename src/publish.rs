@@ -4,7 +4,10 @@
 //!
 //! Topics under the prefix (default `gangway/<gateway id>`):
 //! - `<prefix>/devices/<device>/location`: a [`Location`] per fix;
-//! - `<prefix>/devices/<device>/path`: a [`RouteReply`] per route request;
+//! - `<prefix>/devices/<device>/path`: a [`RouteReply`] per route request,
+//!   and one per route re-planned when a walker left theirs;
+//! - `<prefix>/devices/<device>/guidance`: a [`Guidance`] per fix of a device
+//!   being guided along a route (see `guide`);
 //! - `<prefix>/devices/<device>/presence`: Home Assistant's tracker state
 //!   (`mqtt::discovery`);
 //! - `<prefix>/occupancy`: devices per named place (`mqtt::occupancy`);
@@ -18,6 +21,7 @@ use crate::site::Cell;
 /// Payload schema versions, sent in every payload's `schema` field.
 pub const LOCATION_SCHEMA: &str = "gangway.location/1";
 pub const PATH_SCHEMA: &str = "gangway.path/1";
+pub const GUIDANCE_SCHEMA: &str = "gangway.guidance/1";
 
 /// One outgoing message.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -87,6 +91,13 @@ pub struct RouteBody {
     pub length_m: f64,
     /// Turn-by-turn, for people and screen readers.
     pub instructions: Vec<crate::plan::instructions::Instruction>,
+    /// The same turns structured (depart, turns, arrive), for clients that
+    /// render or speak them themselves.
+    pub maneuvers: Vec<crate::plan::instructions::Maneuver>,
+    /// Why a route was sent without a request: `off_route` for a route
+    /// re-planned after the walker left theirs. Absent on replies.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reason: Option<&'static str>,
     /// Time from request to route, microseconds.
     pub latency_us: u64,
 }
@@ -112,9 +123,52 @@ impl RouteBody {
             waypoints: planned.route.waypoints(site),
             length_m: planned.route.length_m(site),
             instructions: crate::plan::instructions::instructions(site, &planned.route),
+            maneuvers: crate::plan::instructions::maneuvers(site, &planned.route),
+            reason: None,
             latency_us,
         }
     }
+}
+
+/// Where a guided device stands on its route, after a fix or a change of
+/// session. Every key is always present (`null` when it does not apply), so
+/// Home Assistant templates can read any of them.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Guidance {
+    pub schema: &'static str,
+    pub device: String,
+    pub t: f64,
+    /// The request the route answered.
+    pub request_id: Option<String>,
+    pub state: crate::guide::SessionState,
+    /// What this message announces; `null` for a plain progress update.
+    pub event: Option<crate::guide::GuidanceEvent>,
+    /// The sentence to speak with `event`.
+    pub text: Option<String>,
+    /// The next decision point (turn or arrival); `null` once the session is over.
+    pub next: Option<NextManeuver>,
+    /// Metres walked along the route.
+    pub progress_m: f64,
+    /// Metres left to the destination.
+    pub remaining_m: f64,
+    /// Seconds left at the profile's walking speed.
+    pub eta_s: f64,
+    /// Consecutive fixes outside the corridor around the route.
+    pub off_route_fixes: u32,
+    /// Routes re-planned in this session after leaving the route.
+    pub reroutes: u32,
+}
+
+/// The next maneuver of a guided walk and how far it is.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct NextManeuver {
+    #[serde(rename = "type")]
+    pub kind: crate::plan::instructions::ManeuverType,
+    pub modifier: Option<crate::plan::instructions::Modifier>,
+    /// Metres along the route from the device to the maneuver.
+    pub distance_m: f64,
+    pub at: Cell,
+    pub place: Option<String>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -171,6 +225,11 @@ impl Topics {
         format!("{}/stats", self.prefix)
     }
 
+    /// Guidance for a device walking a route.
+    pub fn guidance(&self, device: &str) -> String {
+        format!("{}/devices/{device}/guidance", self.prefix)
+    }
+
     /// Route requests for a device.
     pub fn route_set(&self, device: &str) -> String {
         format!("{}/devices/{device}/route/set", self.prefix)
@@ -190,6 +249,14 @@ impl Topics {
         Message {
             topic: self.location(&location.device),
             payload: serde_json::to_value(location).expect("plain data serializes"),
+            retain: false,
+        }
+    }
+
+    pub fn encode_guidance(&self, guidance: &Guidance) -> Message {
+        Message {
+            topic: self.guidance(&guidance.device),
+            payload: serde_json::to_value(guidance).expect("plain data serializes"),
             retain: false,
         }
     }

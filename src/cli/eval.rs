@@ -29,6 +29,28 @@ enum What {
     Localization(LocalizationArgs),
     /// Every planner mode on place pairs and random open-cell pairs.
     Planning(PlanningArgs),
+    /// Simulated walkers guided along their routes, some taking a wrong turn.
+    Guidance(GuidanceArgs),
+}
+
+#[derive(clap::Args)]
+struct GuidanceArgs {
+    #[arg(long, default_value_os_t = super::default_config())]
+    config: PathBuf,
+    /// A labelled survey (CSV): phones hear real readings resampled in the
+    /// walker's cell instead of the path-loss model.
+    #[arg(long)]
+    survey: Option<PathBuf>,
+    #[arg(long, default_value_t = 100)]
+    trips: usize,
+    /// Chance that a walker strays at a turn.
+    #[arg(long, default_value_t = 0.3)]
+    wrong_turn_probability: f64,
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Print one JSON object.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(clap::Args)]
@@ -127,7 +149,39 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     match args.what {
         What::Localization(args) => localization(args),
         What::Planning(args) => planning(args),
+        What::Guidance(args) => guidance(args),
     }
+}
+
+fn guidance(args: GuidanceArgs) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(
+        (0.0..=1.0).contains(&args.wrong_turn_probability),
+        "--wrong-turn-probability must be between 0 and 1"
+    );
+    let config = Config::load(&args.config)?;
+    let site = Arc::new(Site::load(&config.site)?);
+    let survey = match &args.survey {
+        Some(path) => Some(Survey::load(
+            path,
+            &site,
+            &anchor_ids(&site, config.window.orientation),
+            config.localizer.knn.not_heard,
+        )?),
+        None => None,
+    };
+    let setup = crate::eval::guidance::Setup {
+        trips: args.trips,
+        seed: args.seed,
+        wrong_turn_probability: args.wrong_turn_probability,
+        ..Default::default()
+    };
+    let report = crate::eval::guidance::evaluate(&config, site, survey.as_ref(), &setup)?;
+    if args.json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    }
+    Ok(ExitCode::SUCCESS)
 }
 
 fn planning(args: PlanningArgs) -> anyhow::Result<ExitCode> {

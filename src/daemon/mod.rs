@@ -426,8 +426,11 @@ impl Daemon {
     fn serve_next(&mut self) {
         match self.requests.take_next() {
             Some(Admit::Serve(request)) => {
-                let reply = self.state.pipeline.route(&request);
-                self.out.push(self.topics.encode_route(&reply));
+                // Through the pipeline's event path, so a served route also
+                // starts the device's guidance session.
+                self.state
+                    .pipeline
+                    .handle(&Event::Request(request), &mut self.out);
             }
             Some(Admit::Overloaded(request, why)) => self.refuse_route(&request, "overloaded", why),
             None => return,

@@ -2,6 +2,8 @@
 //! same way every time so that figures in notes and CI can be rerun.
 //!
 //! - [`localization`]: `gangway eval localization` on a labelled survey;
+//! - [`guidance`]: `gangway eval guidance`, simulated walkers guided along
+//!   their routes, some taking a wrong turn;
 //! - [`planning`]: `gangway eval planning`, every planner mode on place pairs,
 //!   random pairs and held-out walks;
 //! - [`similarity`]: cell-set IoU and nearest-training-frame distance;
@@ -9,6 +11,7 @@
 //!   over training checkpoints); `plot` draws the line charts.
 
 pub mod figures;
+pub mod guidance;
 pub mod localization;
 pub mod planning;
 mod plot;

@@ -57,6 +57,17 @@ impl Profile {
         }
     }
 
+    /// Typical walking speed, m/s, for the arrival times guidance gives:
+    /// 1.2 m/s is a common indoor pedestrian design speed; wheelchair users
+    /// and people walking with a cane or a guide dog indoors are often slower.
+    pub fn walking_speed_mps(self) -> f64 {
+        match self {
+            Profile::Default => 1.2,
+            Profile::Wheelchair => 1.0,
+            Profile::LowVision => 0.9,
+        }
+    }
+
     /// Extra cost of changing direction (in cell lengths): a low-vision walker
     /// would rather walk a little further than turn often, since every turn is
     /// one more instruction to follow without seeing the next landmark.

@@ -101,7 +101,7 @@ fn centre(c: Cell) -> (f64, f64) {
 pub fn simulate(site: &Arc<Site>, config: &SimConfig, survey: Option<&Survey>) -> Vec<Event> {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(config.seed);
     let places: Vec<(&String, Cell)> = site.places().iter().map(|(n, &c)| (n, c)).collect();
-    let shadowing = Normal::new(0.0, config.pathloss.shadowing_db).expect("finite shadowing");
+    let phone = Phone::new(site, config, survey);
     let mut events = Vec::new();
     for w in 0..config.walkers {
         let name: Arc<str> = format!("walker-{:02}", w + 1).into();
@@ -111,19 +111,7 @@ pub fn simulate(site: &Arc<Site>, config: &SimConfig, survey: Option<&Survey>) -
         while t < config.duration_s {
             let (cell, pos) = timeline.at(t);
             let at = config.start_t + round_ms(t);
-            match survey {
-                Some(survey) => hear_survey(site, survey, cell, at, &name, &mut rng, &mut events),
-                None => hear_model(
-                    site,
-                    config,
-                    pos,
-                    at,
-                    &name,
-                    &shadowing,
-                    &mut rng,
-                    &mut events,
-                ),
-            }
+            phone.scan(cell, pos, at, &name, &mut rng, &mut events);
             t += 1.0 / config.scan_hz;
         }
         for s in 0..config.duration_s.floor() as u64 {
@@ -153,6 +141,52 @@ pub fn simulate(site: &Arc<Site>, config: &SimConfig, survey: Option<&Survey>) -
     // reproducible.
     events.sort_by(|a, b| a.t().total_cmp(&b.t()));
     events
+}
+
+/// What a simulated phone hears in one scan: beacons by the path-loss
+/// model, or with a survey a real reading taken in (or nearest to) its cell.
+pub struct Phone<'a> {
+    site: &'a Site,
+    config: &'a SimConfig,
+    survey: Option<&'a Survey>,
+    shadowing: Normal<f64>,
+}
+
+impl<'a> Phone<'a> {
+    pub fn new(site: &'a Site, config: &'a SimConfig, survey: Option<&'a Survey>) -> Self {
+        Phone {
+            site,
+            config,
+            survey,
+            shadowing: Normal::new(0.0, config.pathloss.shadowing_db).expect("finite shadowing"),
+        }
+    }
+
+    /// One scan at `t` by `observer` in `cell`, at `pos` (in cells, from the
+    /// map's corner): appends the adverts heard to `events`.
+    pub fn scan(
+        &self,
+        cell: Cell,
+        pos: (f64, f64),
+        t: f64,
+        observer: &Arc<str>,
+        rng: &mut Xoshiro256PlusPlus,
+        events: &mut Vec<Event>,
+    ) {
+        match self.survey {
+            Some(survey) => hear_survey(self.site, survey, cell, t, observer, rng, events),
+            None => hear_model(
+                self.site,
+                self.config,
+                pos,
+                t,
+                observer,
+                &self.shadowing,
+                rng,
+                events,
+            ),
+        }
+    }
 }
 
 fn round_ms(t: f64) -> f64 {

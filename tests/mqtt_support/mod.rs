@@ -466,6 +466,7 @@ pub fn schema_of(topic: &str) -> Option<&'static str> {
     Some(match last {
         "location" => "location",
         "path" => "path",
+        "guidance" => "guidance",
         "stats" => "stats",
         "occupancy" => "occupancy",
         "error" if topic.ends_with("/feedback/error") => "feedback-error",

@@ -1,0 +1,50 @@
+//! One guidance update per fix: a walker's fix projected on its route, the
+//! next maneuver, announcements and the message built and encoded as JSON
+//! (the work the
+//! pipeline adds per fix of a guided device). The walker walks a route
+//! across the waldo floor over and over; a new session starts each time
+//! round (1 update in ~40), as a route request would.
+//! Run: `cargo bench --bench guidance`.
+
+use std::hint::black_box;
+use std::path::Path;
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use gangway::guide::{GuidanceConfig, Guide};
+use gangway::plan::{Connectivity, Profile, astar};
+use gangway::publish::Topics;
+use gangway::site::Site;
+
+fn guidance(c: &mut Criterion) {
+    let site =
+        Site::load(Path::new("config/sites/waldo.toml")).expect("run from the repository root");
+    let (from, to) = (
+        site.place("west entrance").unwrap(),
+        site.place("group rooms").unwrap(),
+    );
+    let route = astar::search(&site, Connectivity::Eight, from, to, |_| 1.0).unwrap();
+    // Stop short of the destination: arriving would end the session.
+    let walk = &route.cells[..route.cells.len() - 3];
+    let mut guide = Guide::new(GuidanceConfig::default(), 2.0);
+    let topics = Topics::new("gangway/gw-lobby");
+    let (mut i, mut t) = (0, 0.0);
+    c.bench_function("guidance_update", |b| {
+        b.iter(|| {
+            if i == 0 {
+                guide.start(&site, "phone", None, Profile::Default, &route, t, false);
+            }
+            t += 2.0;
+            let message = guide.update(&site, "phone", Some(walk[i]), t);
+            i = (i + 1) % walk.len();
+            black_box(message.map(|m| topics.encode_guidance(&m)))
+        })
+    });
+    println!(
+        "route of {} cells, {:.0} m",
+        route.cells.len(),
+        route.length_m(&site)
+    );
+}
+
+criterion_group!(benches, guidance);
+criterion_main!(benches);

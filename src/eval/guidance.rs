@@ -1,0 +1,442 @@
+//! `gangway eval guidance`: simulated walkers ask the pipeline for a route
+//! between two places, then walk it while their phones scan (the path-loss
+//! model, or with a survey real readings resampled in the walker's cell), and
+//! the pipeline's guidance is scored against where they really were:
+//!
+//! - false off-route per km: off-route while the walker was following;
+//! - wrong turns: with a given probability a walker misses a turn and walks
+//!   on to a cell well outside the corridor, where they wait to be told;
+//!   counted are the fixes from the first fix of the walker truly outside
+//!   the corridor to the off-route message (undetected after a minute
+//!   waiting: never);
+//! - arrival: detected within one fix of the fix where the walker reached
+//!   the destination;
+//! - announcements: how far (truly, along the route) each decision point
+//!   was when announced; in the window when within 2 m of `announce_m`.
+//!
+//! A walker told of a re-planned route walks that one.
+
+use std::sync::Arc;
+
+use rand::rngs::Xoshiro256PlusPlus;
+use rand::{RngExt, SeedableRng};
+use serde::Serialize;
+use serde_json::Value;
+
+use crate::config::Config;
+use crate::eval::planning::percentile;
+use crate::guide::RouteLine;
+use crate::locate::survey::Survey;
+use crate::pipeline::Pipeline;
+use crate::plan::{Connectivity, Destination, Route, astar};
+use crate::publish::Message;
+use crate::site::{Cell, Site};
+use crate::source::simulate::{Phone, SimConfig};
+use crate::source::{Event, RouteRequest};
+
+/// What to simulate.
+#[derive(Clone, Debug)]
+pub struct Setup {
+    pub trips: usize,
+    pub seed: u64,
+    /// Chance that a walker strays at a turn.
+    pub wrong_turn_probability: f64,
+    /// Mean walking speed; each trip draws its own around it.
+    pub speed_mps: f64,
+}
+
+impl Default for Setup {
+    fn default() -> Self {
+        Setup {
+            trips: 100,
+            seed: 1,
+            wrong_turn_probability: 0.3,
+            speed_mps: 1.1,
+        }
+    }
+}
+
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Report {
+    pub trips: usize,
+    /// Trips whose request got an error instead of a route.
+    pub refused_trips: usize,
+    pub km: f64,
+    pub fixes: usize,
+    pub false_off_route: usize,
+    pub false_off_route_per_km: f64,
+    pub wrong_turns: usize,
+    pub wrong_turns_undetected: usize,
+    /// `null` when more than a tenth of the wrong turns went undetected.
+    pub wrong_turn_detect_fixes_p90: Option<f64>,
+    pub wrong_turn_detect_fixes_p50: Option<f64>,
+    /// Trips that reached their destination.
+    pub reached: usize,
+    pub arrival_detected_share: f64,
+    pub decision_points: usize,
+    pub announced_in_window_share: f64,
+    pub announced_m_p50: Option<f64>,
+    pub reroutes_per_trip: f64,
+    /// Largest state of one session seen, bytes.
+    pub max_session_bytes: usize,
+}
+
+/// The route a walker is following, as served.
+struct Served {
+    line: RouteLine,
+    /// Decision points: where, and metres from the route's start.
+    decisions: Vec<(Cell, f64)>,
+    /// Decision points the walker truly passed, and how far ahead each was
+    /// announced.
+    passed: Vec<bool>,
+    announced: Vec<Option<f64>>,
+    /// The walker's true progress along it.
+    truth_m: f64,
+}
+
+impl Served {
+    fn read(site: &Site, body: &Value) -> Option<Served> {
+        let cells: Vec<Cell> = body["waypoints"]
+            .as_array()?
+            .iter()
+            .map(|w| serde_json::from_value(w["cell"].clone()).ok())
+            .collect::<Option<_>>()?;
+        let decisions: Vec<(Cell, f64)> = body["maneuvers"]
+            .as_array()?
+            .iter()
+            .filter(|m| m["type"] != "depart")
+            .map(|m| {
+                Some((
+                    serde_json::from_value(m["at"].clone()).ok()?,
+                    m["along_m"].as_f64()?,
+                ))
+            })
+            .collect::<Option<_>>()?;
+        Some(Served {
+            line: RouteLine::new(site, &Route { cells }),
+            passed: vec![false; decisions.len()],
+            announced: vec![None; decisions.len()],
+            decisions,
+            truth_m: 0.0,
+        })
+    }
+}
+
+/// Where a walker is: metres along its planned cells.
+struct Walker {
+    plan: Vec<Cell>,
+    along: Vec<f64>,
+    walked_m: f64,
+}
+
+impl Walker {
+    fn new(site: &Site, plan: Vec<Cell>) -> Walker {
+        let mut along = vec![0.0];
+        for w in plan.windows(2) {
+            along.push(along.last().unwrap() + w[0].distance(w[1]) * site.cell_m);
+        }
+        Walker {
+            plan,
+            along,
+            walked_m: 0.0,
+        }
+    }
+
+    fn done(&self) -> bool {
+        self.walked_m >= *self.along.last().unwrap()
+    }
+
+    /// The cell the walker is in and its position in cells.
+    fn at(&self) -> (Cell, (f64, f64)) {
+        let i = self.along.partition_point(|&a| a <= self.walked_m);
+        let centre = |c: Cell| (f64::from(c.x) + 0.5, f64::from(c.y) + 0.5);
+        if i >= self.plan.len() {
+            let c = *self.plan.last().unwrap();
+            return (c, centre(c));
+        }
+        let (a, b) = (self.plan[i - 1], self.plan[i]);
+        let f = (self.walked_m - self.along[i - 1]) / (self.along[i] - self.along[i - 1]);
+        let ((ax, ay), (bx, by)) = (centre(a), centre(b));
+        (
+            if f < 0.5 { a } else { b },
+            (ax + (bx - ax) * f, ay + (by - ay) * f),
+        )
+    }
+}
+
+/// Runs the trips of `setup` through a pipeline built from `config`.
+pub fn evaluate(
+    config: &Config,
+    site: Arc<Site>,
+    survey: Option<&Survey>,
+    setup: &Setup,
+) -> anyhow::Result<Report> {
+    let mut pipeline = Pipeline::new(config, site.clone())?;
+    let sim = SimConfig {
+        pathloss: config.localizer.pathloss.clone(),
+        ..SimConfig::default()
+    };
+    let phone = Phone::new(&site, &sim, survey);
+    let guidance = config.guidance.clone();
+    let places: Vec<(&String, Cell)> = site.places().iter().map(|(n, &c)| (n, c)).collect();
+    anyhow::ensure!(
+        places.len() >= 2,
+        "the site needs at least two named places"
+    );
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(setup.seed);
+    let mut report = Report::default();
+    let (mut detect, mut announced_m, mut arrivals_ok, mut reroutes) =
+        (Vec::new(), Vec::new(), 0, 0);
+    for trip in 0..setup.trips {
+        let device: Arc<str> = format!("trip-{trip:04}").into();
+        let (from, to) = loop {
+            let a = places[rng.random_range(0..places.len())];
+            let b = places[rng.random_range(0..places.len())];
+            if a.1.distance(b.1) * site.cell_m >= 10.0 {
+                break (a.1, b.0.clone());
+            }
+        };
+        let speed = setup.speed_mps * rng.random_range(0.85..1.15);
+        let mut t = sim.start_t + trip as f64 * 10_000.0;
+        let mut walker = Walker::new(&site, vec![from]);
+        let mut out = Vec::new();
+        // Stand at the start until located, then ask.
+        for _ in 0..8 {
+            scan(
+                &mut pipeline,
+                &phone,
+                &walker,
+                &device,
+                t,
+                &mut rng,
+                &mut out,
+            );
+            t += 1.0;
+        }
+        out.clear();
+        let request = RouteRequest {
+            t,
+            device: device.to_string(),
+            to: Destination::Place(to),
+            profile: None,
+            request_id: Some(format!("{device}-r")),
+        };
+        pipeline.handle(&Event::Request(request), &mut out);
+        let Some(mut served) = out
+            .iter()
+            .find(|m| m.topic.ends_with("/path"))
+            .and_then(|m| Served::read(&site, &m.payload))
+        else {
+            report.refused_trips += 1;
+            continue;
+        };
+        report.trips += 1;
+        out.clear();
+        let destination = served.line.destination();
+        walker = follow(&site, walker.at().0, &served);
+        // A wrong turn: at the first turn, off to a cell well outside the
+        // corridor, there to wait until told.
+        // While a wrong turn is undetected: the fix at which the walker was
+        // first truly outside the corridor, once they are.
+        let mut straying: Option<Option<usize>> = None;
+        if rng.random_bool(setup.wrong_turn_probability)
+            && let Some(&(turn, _)) = served
+                .decisions
+                .iter()
+                .find(|d| d.0 != destination && d.1 >= 5.0)
+            && let Some(stray) =
+                stray_target(&site, &served, turn, guidance.corridor_m + 3.0, &mut rng)
+            && let Some(i) = walker.plan.iter().position(|&c| c == turn)
+            && let Ok(away) = astar::search(&site, Connectivity::Eight, turn, stray, |_| 1.0)
+        {
+            let mut plan = walker.plan[..=i].to_vec();
+            plan.extend_from_slice(&away.cells[1..]);
+            walker = Walker::new(&site, plan);
+            report.wrong_turns += 1;
+            straying = Some(None);
+        }
+        let (mut fixes, mut reach_fix, mut arrived_fix) = (0usize, None, None);
+        let mut end_t = None;
+        let started = t;
+        while t - started < 900.0 && end_t.is_none_or(|e| t < e) {
+            t += 1.0;
+            let before = walker.walked_m;
+            walker.walked_m += speed;
+            report.km +=
+                (walker.walked_m.min(*walker.along.last().unwrap()) - before).max(0.0) / 1000.0;
+            if walker.done() && end_t.is_none() {
+                // At the destination, or lost and waiting to be told.
+                end_t = Some(t + if straying.is_some() { 60.0 } else { 10.0 });
+            }
+            scan(
+                &mut pipeline,
+                &phone,
+                &walker,
+                &device,
+                t,
+                &mut rng,
+                &mut out,
+            );
+            let (cell, pos) = walker.at();
+            let metres = (pos.0 * site.cell_m, pos.1 * site.cell_m);
+            for m in out.drain(..) {
+                if m.topic.ends_with("/location") {
+                    fixes += 1;
+                    let (off_m, progress) =
+                        served
+                            .line
+                            .project(&site, metres, served.truth_m, guidance.corridor_m);
+                    if off_m <= guidance.corridor_m {
+                        served.truth_m = progress;
+                        for (k, d) in served.decisions.iter().enumerate() {
+                            served.passed[k] |= d.1 <= progress + 0.5;
+                        }
+                    }
+                    if let Some(first_out @ None) = &mut straying
+                        && off_m > guidance.corridor_m
+                    {
+                        *first_out = Some(fixes);
+                    }
+                    if cell == destination && reach_fix.is_none() {
+                        reach_fix = Some(fixes);
+                    }
+                } else if m.topic.ends_with("/guidance") {
+                    match m.payload["event"].as_str() {
+                        Some("announce") => {
+                            let at: Option<Cell> =
+                                serde_json::from_value(m.payload["next"]["at"].clone()).ok();
+                            if let Some(k) = served.decisions.iter().position(|d| Some(d.0) == at) {
+                                served.announced[k]
+                                    .get_or_insert(served.decisions[k].1 - served.truth_m);
+                            }
+                        }
+                        Some("off_route") => match straying.take() {
+                            Some(first_out) => {
+                                detect.push(
+                                    fixes.saturating_sub(first_out.unwrap_or(fixes)) as f64 + 1.0,
+                                );
+                            }
+                            None => report.false_off_route += 1,
+                        },
+                        // The walk goes on to the destination: an arrival
+                        // told early is scored as such.
+                        Some("arrived") => arrived_fix = Some(fixes),
+                        _ => {}
+                    }
+                    if let Some(s) = pipeline.guide().session(&device) {
+                        report.max_session_bytes = report.max_session_bytes.max(s.state_bytes());
+                    }
+                } else if m.topic.ends_with("/path") && m.payload["reason"] == "off_route" {
+                    reroutes += 1;
+                    score_announcements(
+                        &served,
+                        guidance.announce_m,
+                        &mut announced_m,
+                        &mut report,
+                    );
+                    if let Some(next) = Served::read(&site, &m.payload) {
+                        served = next;
+                        walker = follow(&site, cell, &served);
+                        end_t = None;
+                    }
+                }
+            }
+        }
+        report.fixes += fixes;
+        score_announcements(&served, guidance.announce_m, &mut announced_m, &mut report);
+        if let Some(reached) = reach_fix {
+            report.reached += 1;
+            if arrived_fix.is_some_and(|a| a.abs_diff(reached) <= 1) {
+                arrivals_ok += 1;
+            }
+        }
+        if straying.is_some() {
+            report.wrong_turns_undetected += 1;
+        }
+    }
+    let in_window = announced_m
+        .iter()
+        .filter(|&&m: &&f64| (m - guidance.announce_m).abs() <= 2.0)
+        .count();
+    report.false_off_route_per_km = report.false_off_route as f64 / report.km.max(f64::EPSILON);
+    let mut all_detect = detect.clone();
+    all_detect.extend(std::iter::repeat_n(
+        f64::INFINITY,
+        report.wrong_turns_undetected,
+    ));
+    report.wrong_turn_detect_fixes_p90 = percentile(&mut all_detect, 0.9).filter(|p| p.is_finite());
+    report.wrong_turn_detect_fixes_p50 = percentile(&mut all_detect, 0.5).filter(|p| p.is_finite());
+    report.arrival_detected_share = arrivals_ok as f64 / report.reached.max(1) as f64;
+    report.announced_in_window_share = in_window as f64 / report.decision_points.max(1) as f64;
+    report.announced_m_p50 = percentile(&mut announced_m, 0.5);
+    report.reroutes_per_trip = reroutes as f64 / report.trips.max(1) as f64;
+    Ok(report)
+}
+
+/// A walker at `from` setting off along `served`: to its first cell, then
+/// along it.
+fn follow(site: &Site, from: Cell, served: &Served) -> Walker {
+    let cells = served.line.cells();
+    let mut plan = astar::search(site, Connectivity::Eight, from, cells[0], |_| 1.0)
+        .map(|r| r.cells)
+        .unwrap_or_else(|_| vec![from]);
+    plan.extend_from_slice(&cells[1..]);
+    Walker::new(site, plan)
+}
+
+/// A walkable cell at least `min_m` from every cell of the route and
+/// 8–20 m from `turn`, where a walker who missed the turn ends up.
+fn stray_target(
+    site: &Site,
+    served: &Served,
+    turn: Cell,
+    min_m: f64,
+    rng: &mut Xoshiro256PlusPlus,
+) -> Option<Cell> {
+    let cells = served.line.cells();
+    let candidates: Vec<Cell> = site
+        .open_cells()
+        .iter()
+        .copied()
+        .filter(|&c| {
+            (8.0..=20.0).contains(&(c.distance(turn) * site.cell_m))
+                && cells.iter().all(|&r| r.distance(c) * site.cell_m >= min_m)
+        })
+        .collect();
+    (!candidates.is_empty()).then(|| candidates[rng.random_range(0..candidates.len())])
+}
+
+/// Adds the decision points of `served` the walker truly passed (those far
+/// enough from the start to be announced in time) and how far ahead each
+/// was announced; one never announced counts as out of the window.
+fn score_announcements(
+    served: &Served,
+    announce_m: f64,
+    announced_m: &mut Vec<f64>,
+    report: &mut Report,
+) {
+    for (k, &(_, along)) in served.decisions.iter().enumerate() {
+        if served.passed[k] && along >= announce_m + 2.0 {
+            report.decision_points += 1;
+            announced_m.extend(served.announced[k]);
+        }
+    }
+}
+
+/// One scan of the walker's phone, through the pipeline.
+fn scan(
+    pipeline: &mut Pipeline,
+    phone: &Phone,
+    walker: &Walker,
+    device: &Arc<str>,
+    t: f64,
+    rng: &mut Xoshiro256PlusPlus,
+    out: &mut Vec<Message>,
+) {
+    let (cell, pos) = walker.at();
+    let mut events = Vec::new();
+    phone.scan(cell, pos, t, device, rng, &mut events);
+    for e in &events {
+        pipeline.handle(e, out);
+    }
+}

@@ -1,0 +1,410 @@
+//! Guidance while walking: once a route is served, a navigation session per
+//! device follows each fix along it, tells the walker the next maneuver and
+//! how far it is, announces decision points a set distance ahead, reassures
+//! at intervals, notices when the walker has left the route (so the pipeline
+//! can re-plan) and when they have arrived.
+//!
+//! Owns the sessions ([`Guide`], bounded in number and in idle time, since
+//! devices come from the air) and the state machine of one ([`Session`]).
+//! It does no I/O and keeps no clock: the pipeline feeds it fixes and sends
+//! the [`crate::publish::Guidance`] messages it returns. The maneuvers are
+//! the route's own ([`crate::plan::instructions::maneuvers`]), so what is
+//! announced is what the route reply listed.
+//!
+//! Thresholds follow the Wayfindr open standard (ITU-T F.921): a decision
+//! point is announced about 6 m ahead, reassurance about every 10 m.
+
+mod line;
+mod session;
+
+use std::collections::HashMap;
+
+use serde::{Deserialize, Serialize};
+
+pub use line::RouteLine;
+pub use session::Session;
+
+use crate::plan::{Profile, Route};
+use crate::publish::Guidance;
+use crate::site::{Cell, Site};
+
+/// `[guidance]` in the config file.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GuidanceConfig {
+    /// Announce a decision point when the walker is this far from it, metres.
+    pub announce_m: f64,
+    /// Reassure the walker after this much progress without a message, metres.
+    pub reassure_m: f64,
+    /// Half-width of the corridor around the route, metres: a fix farther
+    /// than this from the route counts towards leaving it.
+    pub corridor_m: f64,
+    /// Consecutive fixes outside the corridor before the walker is off the
+    /// route (hysteresis against localization noise). Unknown fixes neither
+    /// count nor reset the count.
+    pub off_route_fixes: u32,
+    /// The walker has arrived within this distance of the destination, metres.
+    pub arrive_m: f64,
+    /// Most sessions kept at once; starting one more ends the least
+    /// recently updated.
+    pub max_sessions: usize,
+    /// A session whose device has not been located for this long expires,
+    /// seconds.
+    pub expire_after_s: f64,
+}
+
+impl Default for GuidanceConfig {
+    fn default() -> Self {
+        GuidanceConfig {
+            announce_m: 6.0,
+            reassure_m: 10.0,
+            corridor_m: 3.0,
+            off_route_fixes: 2,
+            arrive_m: 2.0,
+            max_sessions: 1024,
+            expire_after_s: 600.0,
+        }
+    }
+}
+
+impl GuidanceConfig {
+    pub fn validate(&self) -> Result<(), String> {
+        let positive = [
+            ("announce_m", self.announce_m),
+            ("reassure_m", self.reassure_m),
+            ("corridor_m", self.corridor_m),
+            ("arrive_m", self.arrive_m),
+            ("expire_after_s", self.expire_after_s),
+        ];
+        if let Some((name, _)) = positive.iter().find(|(_, v)| !(*v > 0.0 && v.is_finite())) {
+            return Err(format!("[guidance] `{name}` must be a positive number"));
+        }
+        if self.off_route_fixes == 0 || self.max_sessions == 0 {
+            return Err(
+                "[guidance] `off_route_fixes` and `max_sessions` must be at least 1".into(),
+            );
+        }
+        Ok(())
+    }
+}
+
+/// Where a session stands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SessionState {
+    /// Following the route as served.
+    Active,
+    /// Left the corridor for `off_route_fixes` fixes; a new plan is due.
+    OffRoute,
+    /// Following a route re-planned after leaving the first one.
+    Rerouted,
+    /// At the destination; the session is over.
+    Arrived,
+    /// Ended by the device or replaced by a new request.
+    Cancelled,
+    /// Not located for `expire_after_s`; the session is over.
+    Expired,
+}
+
+/// What a guidance message says beyond the progress every one carries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GuidanceEvent {
+    /// A route was served: the first step.
+    Depart,
+    /// A re-planned route was served after leaving the route.
+    Rerouted,
+    /// The next decision point is about `announce_m` ahead.
+    Announce,
+    /// Still on the route, `reassure_m` after the last message.
+    Reassure,
+    OffRoute,
+    Arrived,
+    Cancelled,
+    Expired,
+}
+
+/// The sessions of all devices, bounded in number and time.
+pub struct Guide {
+    config: GuidanceConfig,
+    fix_age_s: f64,
+    sessions: HashMap<String, Session>,
+}
+
+impl Guide {
+    /// `fix_age_s`: how long ago, on average, the walker was where a fix
+    /// places them (half a fingerprint window): announcements lead by the
+    /// walk in that time, so they are heard at `announce_m` from where the
+    /// walker really is.
+    pub fn new(config: GuidanceConfig, fix_age_s: f64) -> Guide {
+        Guide {
+            config,
+            fix_age_s,
+            sessions: HashMap::new(),
+        }
+    }
+
+    pub fn config(&self) -> &GuidanceConfig {
+        &self.config
+    }
+
+    /// Active sessions.
+    pub fn len(&self) -> usize {
+        self.sessions.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.sessions.is_empty()
+    }
+
+    pub fn session(&self, device: &str) -> Option<&Session> {
+        self.sessions.get(device)
+    }
+
+    /// Starts guiding `device` along `route` (replacing any session it had),
+    /// and returns the first message. `rerouted` marks a route re-planned
+    /// after the walker left the previous one. Sessions idle past
+    /// `expire_after_s` are dropped, and when the table is full the least
+    /// recently updated session makes room.
+    #[allow(clippy::too_many_arguments)]
+    pub fn start(
+        &mut self,
+        site: &Site,
+        device: &str,
+        request_id: Option<String>,
+        profile: Profile,
+        route: &Route,
+        t: f64,
+        rerouted: bool,
+    ) -> Guidance {
+        let expire = self.config.expire_after_s;
+        self.sessions.retain(|_, s| t - s.last_t() <= expire);
+        let reroutes = match self.sessions.remove(device) {
+            Some(old) if rerouted => old.reroutes() + 1,
+            _ => 0,
+        };
+        if self.sessions.len() >= self.config.max_sessions
+            && let Some(oldest) = self
+                .sessions
+                .iter()
+                .min_by(|a, b| a.1.last_t().total_cmp(&b.1.last_t()))
+                .map(|(d, _)| d.clone())
+        {
+            self.sessions.remove(&oldest);
+        }
+        let session = Session::new(site, request_id, profile, route, t, reroutes);
+        let first = session.depart(device, t);
+        self.sessions.insert(device.to_owned(), session);
+        first
+    }
+
+    /// Follows one fix of `device` (`None`: location unknown). Returns a
+    /// message when the device has a session and the fix was known, or
+    /// when the session just expired; a session that arrived or expired
+    /// ends with its message.
+    pub fn update(
+        &mut self,
+        site: &Site,
+        device: &str,
+        cell: Option<Cell>,
+        t: f64,
+    ) -> Option<Guidance> {
+        let session = self.sessions.get_mut(device)?;
+        if t - session.last_t() > self.config.expire_after_s {
+            let last = session.end(device, t, SessionState::Expired);
+            self.sessions.remove(device);
+            return Some(last);
+        }
+        let message = session.update(site, &self.config, self.fix_age_s, device, cell, t)?;
+        if message.state == SessionState::Arrived {
+            self.sessions.remove(device);
+        }
+        Some(message)
+    }
+
+    /// Ends the session of `device`, if it has one.
+    pub fn cancel(&mut self, device: &str, t: f64) -> Option<Guidance> {
+        let session = self.sessions.remove(device)?;
+        Some(session.end(device, t, SessionState::Cancelled))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    /// An open 25 × 20 floor with a desk at the corner of an L-shaped route
+    /// and an exit at its end.
+    fn site() -> Site {
+        let row = "#".repeat(25);
+        let map = vec![row; 20].join("\n");
+        let text = format!(
+            "name = \"t\"\ncell_m = 1.0\nmap = '''\n{map}\n'''\n[places]\ndesk = [20, 0]\nexit = [20, 15]\n"
+        );
+        Site::parse(&text, Path::new("t.toml")).unwrap()
+    }
+
+    /// East along the top row to the desk, then south to the exit: 35 m.
+    fn route() -> Route {
+        let east = (0..=20).map(|x| Cell::new(x, 0));
+        let south = (1..=15).map(|y| Cell::new(20, y));
+        Route {
+            cells: east.chain(south).collect(),
+        }
+    }
+
+    fn start(guide: &mut Guide, site: &Site, device: &str, t: f64) -> Guidance {
+        guide.start(
+            site,
+            device,
+            Some("r1".into()),
+            Profile::Default,
+            &route(),
+            t,
+            false,
+        )
+    }
+
+    #[test]
+    fn a_walk_along_the_route_is_announced_reassured_and_arrives() {
+        let site = site();
+        let mut guide = Guide::new(GuidanceConfig::default(), 0.0);
+        let first = start(&mut guide, &site, "p", 0.0);
+        assert_eq!(first.event, Some(GuidanceEvent::Depart));
+        assert_eq!(
+            first.text.as_deref(),
+            Some("Walk 20 metres, then turn right at desk.")
+        );
+        assert_eq!(first.remaining_m, 35.0);
+        assert!((first.eta_s - 35.0 / 1.2).abs() < 1e-9);
+        let mut events = Vec::new();
+        for (i, &cell) in route().cells.iter().enumerate().skip(1) {
+            let m = guide.update(&site, "p", Some(cell), i as f64).unwrap();
+            if let Some(e) = m.event {
+                events.push((i, e, m.text.clone().unwrap()));
+            }
+            if m.state == SessionState::Arrived {
+                break;
+            }
+        }
+        let got: Vec<(usize, GuidanceEvent)> = events.iter().map(|e| (e.0, e.1)).collect();
+        assert_eq!(
+            got,
+            [
+                (10, GuidanceEvent::Reassure),
+                (14, GuidanceEvent::Announce),
+                (24, GuidanceEvent::Reassure),
+                (29, GuidanceEvent::Announce),
+                (33, GuidanceEvent::Arrived),
+            ],
+            "{events:?}"
+        );
+        assert_eq!(events[1].2, "Walk 6 metres, then turn right at desk.");
+        assert_eq!(events[3].2, "Walk 6 metres; you have arrived at exit.");
+        assert_eq!(events[4].2, "You have arrived at exit.");
+        assert!(guide.is_empty(), "an arrived session ends");
+    }
+
+    #[test]
+    fn leaving_the_route_takes_consecutive_known_fixes() {
+        let site = site();
+        let mut guide = Guide::new(GuidanceConfig::default(), 0.0);
+        start(&mut guide, &site, "p", 0.0);
+        let on = Some(Cell::new(5, 1));
+        let off = Some(Cell::new(5, 8));
+        let state = |m: Option<Guidance>| m.map(|m| (m.state, m.event, m.off_route_fixes));
+        // One stray fix, then back: noise, not a wrong turn.
+        assert_eq!(
+            state(guide.update(&site, "p", off, 1.0)),
+            Some((SessionState::Active, None, 1))
+        );
+        assert_eq!(
+            state(guide.update(&site, "p", on, 2.0)),
+            Some((SessionState::Active, None, 0))
+        );
+        // Unknown fixes between stray ones neither count nor reset.
+        guide.update(&site, "p", off, 3.0);
+        assert_eq!(guide.update(&site, "p", None, 4.0), None);
+        assert_eq!(
+            state(guide.update(&site, "p", off, 5.0)),
+            Some((SessionState::OffRoute, Some(GuidanceEvent::OffRoute), 2))
+        );
+        // Said once, not on every fix off the route.
+        assert_eq!(
+            state(guide.update(&site, "p", off, 6.0)),
+            Some((SessionState::OffRoute, None, 3))
+        );
+        // A re-planned route keeps the count of re-routes.
+        let detour = Route {
+            cells: (8..=15).map(|y| Cell::new(5, y)).collect(),
+        };
+        let first = guide.start(&site, "p", None, Profile::Default, &detour, 7.0, true);
+        assert_eq!(
+            (first.state, first.event, first.reroutes),
+            (SessionState::Rerouted, Some(GuidanceEvent::Rerouted), 1)
+        );
+    }
+
+    #[test]
+    fn sessions_are_bounded_in_number_and_time() {
+        let site = site();
+        let mut guide = Guide::new(
+            GuidanceConfig {
+                max_sessions: 2,
+                expire_after_s: 60.0,
+                ..GuidanceConfig::default()
+            },
+            0.0,
+        );
+        start(&mut guide, &site, "a", 0.0);
+        start(&mut guide, &site, "b", 1.0);
+        guide.update(&site, "a", Some(Cell::new(1, 0)), 2.0);
+        // Full: the least recently updated ("b") makes room.
+        start(&mut guide, &site, "c", 3.0);
+        assert_eq!(guide.len(), 2);
+        assert!(guide.session("b").is_none() && guide.session("a").is_some());
+        // A new request replaces a device's session.
+        start(&mut guide, &site, "c", 4.0);
+        assert_eq!(guide.len(), 2);
+        // Not located for longer than expire_after_s: the session ends.
+        let last = guide
+            .update(&site, "a", Some(Cell::new(2, 0)), 100.0)
+            .unwrap();
+        assert_eq!(
+            (last.state, last.event, last.next),
+            (SessionState::Expired, Some(GuidanceEvent::Expired), None)
+        );
+        assert!(guide.session("a").is_none());
+        // Idle sessions are also swept when another starts.
+        start(&mut guide, &site, "d", 200.0);
+        assert_eq!(guide.len(), 1);
+        let cancelled = guide.cancel("d", 201.0).unwrap();
+        assert_eq!(cancelled.state, SessionState::Cancelled);
+        assert!(guide.is_empty() && guide.cancel("d", 202.0).is_none());
+    }
+
+    #[test]
+    fn a_session_stays_under_a_kilobyte() {
+        let site = site();
+        let mut guide = Guide::new(GuidanceConfig::default(), 0.0);
+        start(&mut guide, &site, "p", 0.0);
+        let bytes = guide.session("p").unwrap().state_bytes();
+        assert!(bytes < 1024, "{bytes} bytes for a 35 m route");
+    }
+
+    #[test]
+    fn bad_settings_are_named() {
+        let bad = GuidanceConfig {
+            corridor_m: 0.0,
+            ..GuidanceConfig::default()
+        };
+        assert!(bad.validate().unwrap_err().contains("`corridor_m`"));
+        let none = GuidanceConfig {
+            off_route_fixes: 0,
+            ..GuidanceConfig::default()
+        };
+        assert!(none.validate().is_err());
+        assert!(GuidanceConfig::default().validate().is_ok());
+    }
+}

@@ -1,0 +1,256 @@
+//! One device's navigation session: where along its route it is, which
+//! maneuver comes next, what has been announced, and whether it has left the
+//! route or arrived.
+//!
+//! Progress is the projection of each fix onto the route's polyline of cell
+//! centres ([`RouteLine`]), in metres from the start. The state kept is the
+//! route (8 bytes a cell), its maneuvers and a few numbers: well under 1 KB
+//! for the routes of a floor.
+
+use super::RouteLine;
+use super::{GuidanceConfig, GuidanceEvent, SessionState};
+use crate::plan::instructions::{Maneuver, maneuvers};
+use crate::plan::{Profile, Route};
+use crate::publish::{GUIDANCE_SCHEMA, Guidance, NextManeuver};
+use crate::site::{Cell, Site};
+
+#[derive(Clone, Debug)]
+pub struct Session {
+    request_id: Option<String>,
+    profile: Profile,
+    line: RouteLine,
+    maneuvers: Vec<Maneuver>,
+    /// Index in `maneuvers` of the next decision point.
+    next: usize,
+    /// Maneuvers before this index have been announced.
+    announced: usize,
+    state: SessionState,
+    progress_m: f64,
+    /// Progress at the last spoken message, for reassurance.
+    spoken_at_m: f64,
+    off_route_fixes: u32,
+    /// Time of the last fix, known or not.
+    last_t: f64,
+    /// Time between the last two fixes, for how far the walker gets per fix.
+    fix_interval_s: f64,
+    reroutes: u32,
+}
+
+impl Session {
+    pub(super) fn new(
+        site: &Site,
+        request_id: Option<String>,
+        profile: Profile,
+        route: &Route,
+        t: f64,
+        reroutes: u32,
+    ) -> Session {
+        Session {
+            request_id,
+            profile,
+            line: RouteLine::new(site, route),
+            maneuvers: maneuvers(site, route),
+            next: 1,
+            announced: 1,
+            state: if reroutes > 0 {
+                SessionState::Rerouted
+            } else {
+                SessionState::Active
+            },
+            progress_m: 0.0,
+            spoken_at_m: 0.0,
+            off_route_fixes: 0,
+            last_t: t,
+            fix_interval_s: 0.0,
+            reroutes,
+        }
+    }
+
+    pub fn state(&self) -> SessionState {
+        self.state
+    }
+
+    pub fn progress_m(&self) -> f64 {
+        self.progress_m
+    }
+
+    pub fn profile(&self) -> Profile {
+        self.profile
+    }
+
+    pub fn request_id(&self) -> Option<&str> {
+        self.request_id.as_deref()
+    }
+
+    /// The cell the route ends at.
+    pub fn destination(&self) -> Cell {
+        self.line.destination()
+    }
+
+    pub fn reroutes(&self) -> u32 {
+        self.reroutes
+    }
+
+    pub(super) fn last_t(&self) -> f64 {
+        self.last_t
+    }
+
+    /// Bytes this session holds, itself and on the heap.
+    pub fn state_bytes(&self) -> usize {
+        std::mem::size_of::<Session>()
+            + self.line.heap_bytes()
+            + self.maneuvers.capacity() * std::mem::size_of::<Maneuver>()
+            + self
+                .maneuvers
+                .iter()
+                .filter_map(|m| m.place.as_ref().map(String::capacity))
+                .sum::<usize>()
+            + self.request_id.as_ref().map_or(0, String::capacity)
+    }
+
+    /// The first message: the first step of the route.
+    pub(super) fn depart(&self, device: &str, t: f64) -> Guidance {
+        let event = if self.reroutes > 0 {
+            GuidanceEvent::Rerouted
+        } else {
+            GuidanceEvent::Depart
+        };
+        let text = self.next_sentence();
+        self.message(device, t, Some(event), text)
+    }
+
+    /// The last message of a session ended from outside.
+    pub(super) fn end(&self, device: &str, t: f64, state: SessionState) -> Guidance {
+        let (event, text) = match state {
+            SessionState::Expired => (GuidanceEvent::Expired, "Guidance has ended."),
+            _ => (GuidanceEvent::Cancelled, "Guidance cancelled."),
+        };
+        let mut message = self.message(device, t, Some(event), Some(text.into()));
+        message.state = state;
+        message.next = None;
+        message
+    }
+
+    /// Follows one fix; `None` for an unknown fix (nothing is concluded
+    /// from it, least of all that the walker left the route).
+    pub(super) fn update(
+        &mut self,
+        site: &Site,
+        config: &GuidanceConfig,
+        fix_age_s: f64,
+        device: &str,
+        cell: Option<Cell>,
+        t: f64,
+    ) -> Option<Guidance> {
+        self.fix_interval_s = t - self.last_t;
+        self.last_t = t;
+        let cell = cell?;
+        let (x, y) = site.metres(cell);
+        let (off_m, along_m) = self
+            .line
+            .project(site, (x, y), self.progress_m, config.corridor_m);
+        let mut event = None;
+        let mut text = None;
+        if off_m > config.corridor_m {
+            self.off_route_fixes += 1;
+            if self.off_route_fixes >= config.off_route_fixes
+                && self.state != SessionState::OffRoute
+            {
+                self.state = SessionState::OffRoute;
+                event = Some(GuidanceEvent::OffRoute);
+                text = Some("You have left the route; finding a new one.".to_owned());
+            }
+        } else {
+            self.off_route_fixes = 0;
+            if self.state == SessionState::OffRoute {
+                self.state = if self.reroutes > 0 {
+                    SessionState::Rerouted
+                } else {
+                    SessionState::Active
+                };
+            }
+            self.progress_m = along_m;
+            while self.next < self.maneuvers.len()
+                // Progress is summed in f32: a millimetre short is there.
+                && self.maneuvers[self.next].along_m <= self.progress_m + 1e-3
+            {
+                self.next += 1;
+            }
+            self.announced = self.announced.max(self.next);
+            // How far the walker got since the middle of the fix's window.
+            let walked_since_m = self.profile.walking_speed_mps() * fix_age_s;
+            let to_destination = site.metres(self.destination());
+            let remaining = self.line.length_m() - self.progress_m;
+            if (to_destination.0 - x).hypot(to_destination.1 - y) <= config.arrive_m
+                || remaining <= config.arrive_m + walked_since_m
+            {
+                self.state = SessionState::Arrived;
+                self.next = self.maneuvers.len();
+                event = Some(GuidanceEvent::Arrived);
+                let place = self.maneuvers.last().and_then(|m| m.place.as_ref());
+                text = Some(match place {
+                    Some(p) => format!("You have arrived at {p}."),
+                    None => "You have arrived.".to_owned(),
+                });
+            } else if let Some(m) = self.maneuvers.get(self.next) {
+                // Announce at the fix nearest the announce distance (up to
+                // half a fix's walk early), from where the walker is now
+                // rather than where the fix saw them.
+                let lead = walked_since_m
+                    + self.profile.walking_speed_mps() * self.fix_interval_s.max(0.0) / 2.0;
+                let ahead = m.along_m - self.progress_m;
+                if self.announced <= self.next && ahead <= config.announce_m + lead {
+                    self.announced = self.next + 1;
+                    event = Some(GuidanceEvent::Announce);
+                    // Told from where the walker is by now.
+                    text = Some(m.sentence((ahead - walked_since_m).max(0.0)));
+                } else if self.progress_m - self.spoken_at_m >= config.reassure_m {
+                    event = Some(GuidanceEvent::Reassure);
+                    text = Some(format!("You are on the route. {}", m.sentence(ahead)));
+                }
+            }
+            if event.is_some() {
+                self.spoken_at_m = self.progress_m;
+            }
+        }
+        Some(self.message(device, t, event, text))
+    }
+
+    /// The sentence for the walk to the next decision point.
+    fn next_sentence(&self) -> Option<String> {
+        self.maneuvers
+            .get(self.next)
+            .map(|m| m.sentence(m.along_m - self.progress_m))
+    }
+
+    fn message(
+        &self,
+        device: &str,
+        t: f64,
+        event: Option<GuidanceEvent>,
+        text: Option<String>,
+    ) -> Guidance {
+        let remaining_m = (self.line.length_m() - self.progress_m).max(0.0);
+        Guidance {
+            schema: GUIDANCE_SCHEMA,
+            device: device.to_owned(),
+            t,
+            request_id: self.request_id.clone(),
+            state: self.state,
+            event,
+            text,
+            next: self.maneuvers.get(self.next).map(|m| NextManeuver {
+                kind: m.kind,
+                modifier: m.modifier,
+                distance_m: (m.along_m - self.progress_m).max(0.0),
+                at: m.at,
+                place: m.place.clone(),
+            }),
+            progress_m: self.progress_m,
+            remaining_m,
+            eta_s: remaining_m / self.profile.walking_speed_mps(),
+            off_route_fixes: self.off_route_fixes,
+            reroutes: self.reroutes,
+        }
+    }
+}
