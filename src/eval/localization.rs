@@ -23,7 +23,7 @@ use crate::locate::knn::Knn;
 use crate::locate::onnx::Onnx;
 use crate::locate::pathloss::PathLoss;
 use crate::locate::radiomap::RadioMap;
-use crate::locate::survey::{Sample, Survey};
+use crate::locate::survey::{Sample, Survey, sessions};
 use crate::locate::tracker::TrackerConfig;
 use crate::locate::tracker::{Tracker, TrackerKind};
 use crate::locate::window::WindowConfig;
@@ -32,9 +32,7 @@ use crate::score::ErrorSummary;
 use crate::site::Site;
 use crate::train::job::{Options, Progress, train_cells};
 
-/// A gap longer than this (seconds) between survey rows starts a new session,
-/// unless `--session-gap` says otherwise.
-pub const SESSION_GAP_S: f64 = 20.0;
+pub use crate::locate::survey::SESSION_GAP_S;
 
 /// Share of rows (random) or sessions (session) held out for testing.
 const TEST_SHARE: f64 = 0.3;
@@ -360,12 +358,7 @@ struct Sessions {
 
 impl Sessions {
     fn of(times: &[f64], gap_s: f64) -> Sessions {
-        let mut order: Vec<usize> = (0..times.len()).collect();
-        order.sort_by(|&a, &b| times[a].total_cmp(&times[b]));
-        let mut session = vec![0usize; times.len()];
-        for w in order.windows(2) {
-            session[w[1]] = session[w[0]] + usize::from(times[w[1]] - times[w[0]] > gap_s);
-        }
+        let (order, session) = sessions(times, gap_s);
         let count = order.last().map_or(0, |&i| session[i] + 1);
         Sessions {
             order,

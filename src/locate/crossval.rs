@@ -11,15 +11,13 @@
 use std::sync::Arc;
 
 use super::reliability::ConfidenceMap;
-use super::survey::Sample;
+use super::survey::{SESSION_GAP_S, Sample, sessions};
 use super::tracker::{Tracker, TrackerConfig};
 use super::{Localizer, LocalizerError};
 use crate::site::Site;
 
 /// Folds of the cross-validation.
 const FOLDS: usize = 3;
-/// A gap longer than this (seconds) between survey rows starts a new session.
-const SESSION_GAP_S: f64 = 20.0;
 
 /// The chosen candidate, its mean held-out error (cells) and the confidence
 /// map of its held-out fixes.
@@ -69,15 +67,8 @@ fn folds(samples: &[&Sample]) -> Vec<usize> {
     let Some(times) = times else {
         return (0..samples.len()).map(|i| i % FOLDS).collect();
     };
-    let mut order: Vec<usize> = (0..samples.len()).collect();
-    order.sort_by(|&a, &b| times[a].total_cmp(&times[b]));
-    let mut fold = vec![0usize; samples.len()];
-    let mut session = 0usize;
-    for w in order.windows(2) {
-        session += usize::from(times[w[1]] - times[w[0]] > SESSION_GAP_S);
-        fold[w[1]] = session % FOLDS;
-    }
-    fold
+    let (_, session) = sessions(&times, SESSION_GAP_S);
+    session.into_iter().map(|s| s % FOLDS).collect()
 }
 
 /// (raw confidence, error in cells) of one held-out row.

@@ -23,6 +23,22 @@ use std::path::{Path, PathBuf};
 
 use crate::site::{Cell, Site};
 
+/// A gap longer than this (seconds) between survey rows starts a new walking
+/// session, unless the caller says otherwise.
+pub const SESSION_GAP_S: f64 = 20.0;
+
+/// Rows in time order and the walking session of each (numbered from 0 in
+/// time order): a gap over `gap_s` seconds starts a new one.
+pub fn sessions(times: &[f64], gap_s: f64) -> (Vec<usize>, Vec<usize>) {
+    let mut order: Vec<usize> = (0..times.len()).collect();
+    order.sort_by(|&a, &b| times[a].total_cmp(&times[b]));
+    let mut session = vec![0usize; times.len()];
+    for w in order.windows(2) {
+        session[w[1]] = session[w[0]] + usize::from(times[w[1]] - times[w[0]] > gap_s);
+    }
+    (order, session)
+}
+
 /// The weakest RSSI a BLE controller can report.
 const MIN_RSSI_DBM: i16 = -127;
 
