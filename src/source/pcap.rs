@@ -555,7 +555,7 @@ impl<R: Read> PcapReader<R> {
 
     /// Refuses a block length no pcapng writer produces.
     fn check_frame(&self, start: u64, total: u32, min: u32) -> Result<(), PcapError> {
-        if total < min || total % 4 != 0 {
+        if total < min || !total.is_multiple_of(4) {
             return Err(self.corrupt(
                 start,
                 format!("claims a length of {total} bytes, not a multiple of 4 of at least {min}"),
