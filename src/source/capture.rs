@@ -324,10 +324,28 @@ mod tests {
         std::fs::write(&jsonl, "").unwrap();
         assert_eq!(Format::detect(&jsonl).unwrap(), Format::Jsonl);
         assert!(Format::detect(&dir.path().join("absent")).is_err());
+        // pcap and pcapng by their magic numbers whatever the name, and by name.
+        for magic in [
+            [0x0A, 0x0D, 0x0D, 0x0A],
+            [0xD4, 0xC3, 0xB2, 0xA1],
+            [0xA1, 0xB2, 0x3C, 0x4D],
+        ] {
+            let sniffed = dir.path().join("sniffer.log");
+            std::fs::write(&sniffed, magic).unwrap();
+            assert_eq!(
+                Format::detect(&sniffed).unwrap(),
+                Format::Pcap,
+                "{magic:x?}"
+            );
+        }
+        let damaged = dir.path().join("walk.PCAPNG");
+        std::fs::write(&damaged, "{}").unwrap();
+        assert_eq!(Format::detect(&damaged).unwrap(), Format::Pcap);
 
         assert_eq!(Format::for_output(Path::new("a.btsnoop")), Format::Btsnoop);
         assert_eq!(Format::for_output(Path::new("a.jsonl")), Format::Jsonl);
         assert_eq!(Format::for_output(Path::new("a")), Format::Jsonl);
+        assert_eq!(Format::for_output(Path::new("a.pcapng")), Format::Pcap);
     }
 
     #[test]
@@ -364,6 +382,11 @@ mod tests {
             .unwrap()
             .to_string();
         assert!(err.contains("cannot record CSV"), "{err}");
+        let err = CaptureWriter::create(&dir.path().join("x.pcapng"), None)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(err.contains("cannot record pcap"), "{err}");
         let mut w =
             CaptureWriter::create(&dir.path().join("x.bin"), Some(Format::Btsnoop)).unwrap();
         let truth = Event::Truth(Truth {

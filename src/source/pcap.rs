@@ -325,17 +325,15 @@ impl<R: Read> PcapReader<R> {
             })?;
             return Ok(reader);
         }
-        let order = match u32::from_be_bytes(magic) {
-            _ if got < magic.len() || !is_magic(magic) => {
-                return Err(header(format!(
-                    "it starts with {}, neither pcapng's 0a0d0d0a nor pcap's a1b2c3d4 or \
-                     a1b23c4d in either byte order; save captures from Wireshark as pcapng or \
-                     pcap",
-                    hex(&magic[..got])
-                )));
-            }
-            PCAP_MAGIC_US | PCAP_MAGIC_NS => ByteOrder { big: true },
-            _ => ByteOrder { big: false },
+        if got < magic.len() || !is_magic(magic) {
+            return Err(header(format!(
+                "it starts with {}, neither pcapng's 0a0d0d0a nor pcap's a1b2c3d4 or a1b23c4d \
+                 in either byte order; save captures from Wireshark as pcapng or pcap",
+                hex(&magic[..got])
+            )));
+        }
+        let order = ByteOrder {
+            big: matches!(u32::from_be_bytes(magic), PCAP_MAGIC_US | PCAP_MAGIC_NS),
         };
         let resolution = if order.u32(magic) == PCAP_MAGIC_NS {
             Resolution::Decimal(9)
