@@ -21,9 +21,9 @@
 //! record's timestamp and the report's RSSI ([`super::adverts`], shared with
 //! the pcap reader). Everything else (commands, ACL, other events, other
 //! adverts) is skipped and counted by [`SkipReason`]; a malformed packet never
-//! stops the reader. Only a broken
-//! record frame (a truncated last record, an impossible length) ends the file,
-//! with an error naming the record number and byte offset.
+//! stops the reader. Only a broken record frame (a truncated last record, an
+//! impossible length) ends the file, with an error naming the record number
+//! and byte offset.
 //!
 //! Hand-written rather than built on a crate: the btsnoop crates on crates.io
 //! (`btsnoop`, `btsnoop_parser`) parse a whole file held in memory and fail it
@@ -40,8 +40,9 @@ use std::io::{self, BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-pub use super::adverts::SkipReason;
-use super::adverts::{Adverts, HCI_EVENT_LE_META, LE_ADVERTISING_REPORT, RSSI_UNAVAILABLE};
+use super::adverts::{
+    Adverts, HCI_EVENT_LE_META, LE_ADVERTISING_REPORT, RSSI_UNAVAILABLE, SkipReason,
+};
 use super::ibeacon::{self, AD_MANUFACTURER_SPECIFIC, IBeacon};
 use crate::sighting::{BeaconId, Sighting};
 
