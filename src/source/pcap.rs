@@ -24,20 +24,21 @@
 //! repeats its leading one) but whose body does not (a packet longer than the
 //! block, an unknown interface, options running past the block, a packet over
 //! 1 MiB) is skipped, counted `corrupt_block` and logged with its block number
-//! and byte offset (the first ten). A broken frame (a length under the
-//! minimum, not a multiple of four, or whose trailing copy disagrees; a pcap
-//! record over 1 MiB) ends the file with an error naming the block or record
-//! and byte offset, since nothing after it can be found; a block or record cut
-//! short at the end is the same error, or with `skip_bad` counted
-//! `truncated_record`. At most [`MAX_INTERFACES`] interfaces per section are
-//! kept.
+//! and byte offset (up to ten warnings per file). A broken frame (a length
+//! under the minimum, not a multiple of four, or whose trailing copy
+//! disagrees; a pcap record over 1 MiB) ends the file with an error naming the
+//! block or record and byte offset, since nothing after it can be found; a
+//! block or record cut short at the end is the same error, or with `skip_bad`
+//! counted `truncated_record`. At most [`MAX_INTERFACES`] interfaces per
+//! section are kept.
 //!
-//! Hand-written rather than built on `pcap-file`: its released version (2.0)
-//! reads Enhanced Packet timestamps as nanoseconds whatever if_tsresol says
-//! (microsecond captures come out 1000× off), the fix is only in 3.0 release
-//! candidates that keep an 8 MB buffer per reader, and neither can skip a
-//! corrupt block and go on or name its offset. The framing is a few fixed
-//! headers; the BLE linktypes, which no crate decodes, are in [`pcap_link`](super::pcap_link).
+//! Hand-written rather than built on the `pcap-file` crate: its released
+//! version (2.0) reads Enhanced Packet timestamps as nanoseconds whatever
+//! if_tsresol says (microsecond captures, the default, come out 1000× off);
+//! if_tsresol is honoured only in 3.0 release candidates, which hold an 8 MB
+//! read buffer per reader and extend borrows with `unsafe` transmutes. The
+//! framing is a few fixed headers; the BLE linktypes are decoded in
+//! [`pcap_link`](super::pcap_link).
 
 use std::fs::File;
 use std::io::{self, BufReader, Read};
@@ -77,8 +78,9 @@ const OPT_IF_TSOFFSET: u16 = 14;
 const MAX_PACKET_LEN: u32 = 1 << 20;
 /// Interfaces kept per pcapng section; a capture has a handful.
 pub const MAX_INTERFACES: usize = 1024;
-/// Corrupt blocks logged one by one; later ones are only counted.
-const CORRUPT_BLOCKS_LOGGED: u64 = 10;
+/// Warnings (corrupt blocks, interfaces of other linktypes) logged one by
+/// one; later ones are only counted, so a hostile file cannot flood the log.
+const WARNINGS_LOGGED: u64 = 10;
 
 /// Whether a file starting with `magic` is a pcap or pcapng capture.
 pub fn is_magic(magic: [u8; 4]) -> bool {
@@ -269,6 +271,8 @@ pub struct PcapReader<R> {
     offset: u64,
     buf: Vec<u8>,
     adverts: Adverts,
+    /// Warnings logged so far.
+    warnings: u64,
     done: bool,
 }
 
@@ -310,6 +314,7 @@ impl<R: Read> PcapReader<R> {
             offset: 0,
             buf: Vec::new(),
             adverts: Adverts::new(observer),
+            warnings: 0,
             done: false,
         };
         let mut magic = [0u8; 4];
@@ -656,21 +661,23 @@ impl<R: Read> PcapReader<R> {
 
     fn corrupt_block(&mut self, start: u64, reason: String) {
         self.adverts.skip(SkipReason::CorruptBlock);
-        let count = self
-            .skipped()
-            .find(|(r, _)| *r == SkipReason::CorruptBlock)
-            .map_or(0, |(_, n)| n);
-        if count <= CORRUPT_BLOCKS_LOGGED {
-            tracing::warn!(
-                "{}: block {} at byte {start} {reason}; skipped{}",
-                self.path.display(),
-                self.number,
-                if count == CORRUPT_BLOCKS_LOGGED {
-                    " (further corrupt blocks are only counted)"
-                } else {
-                    ""
-                }
-            );
+        self.warn(format!(
+            "block {} at byte {start} {reason}; skipped",
+            self.number
+        ));
+    }
+
+    /// Logs a warning about the file, up to [`WARNINGS_LOGGED`] of them.
+    fn warn(&mut self, message: String) {
+        self.warnings += 1;
+        if self.warnings <= WARNINGS_LOGGED {
+            let more = if self.warnings == WARNINGS_LOGGED {
+                " (further warnings about this file are not logged; the skip counts \
+                 at the end of the replay count them)"
+            } else {
+                ""
+            };
+            tracing::warn!("{}: {message}{more}", self.path.display());
         }
     }
 
@@ -683,12 +690,12 @@ impl<R: Read> PcapReader<R> {
         };
         let id = self.push_interface(interface)?;
         if let Err(SkipReason::OtherLinktype) = interface.linktype {
-            tracing::warn!(
-                "{}: interface {id} is not Bluetooth LE; its packets are skipped (gangway reads \
-                 linktypes {})",
-                self.path.display(),
+            self.warn(format!(
+                "interface {id} (block {}) is not Bluetooth LE; its packets are skipped \
+                 (gangway reads linktypes {})",
+                self.number,
                 Linktype::SUPPORTED
-            );
+            ));
         }
         outcome
     }
