@@ -2,11 +2,11 @@
 //! and pcap readers share.
 //!
 //! Both readers hand each record's adverts (an RSSI if the capture has one, and
-//! the AD structures) to [`Adverts`], which keeps the sightings found and counts
+//! the AD structures) to `Adverts`, which keeps the sightings found and counts
 //! everything else by [`SkipReason`], so a capture's closing `skipped=…` line
 //! reads the same whatever the format. HCI LE (Extended) Advertising Report
 //! events, which btsnoop captures and pcap's H4 linktype both carry, are
-//! decoded here too ([`Adverts::hci_event`]).
+//! decoded here too (`Adverts::hci_event`).
 
 use std::collections::VecDeque;
 use std::fmt;

@@ -8,7 +8,7 @@
 //! | 256      | `BLUETOOTH_LE_LL_WITH_PHDR`   | Ubertooth, Sniffle, other SDR sniffers      | the signal power, when flagged valid |
 //! | 272      | `NORDIC_BLE`                  | nRF Sniffer for Bluetooth LE (Wireshark)    | the Nordic header's RSSI sample   |
 //!
-//! HCI packets go to [`Adverts::hci_event`] (LE Advertising Report and LE
+//! HCI packets go to `Adverts::hci_event` (LE Advertising Report and LE
 //! Extended Advertising Report events). Link-layer packets are decoded here:
 //! an advertising physical channel PDU (access address 0x8E89BED6) of type
 //! ADV_IND, ADV_NONCONN_IND, ADV_SCAN_IND or SCAN_RSP carries its AdvData after
