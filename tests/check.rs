@@ -55,6 +55,29 @@ fn the_shipped_config_is_valid() {
 }
 
 #[test]
+fn the_metric_sample_site_is_valid() {
+    let site = std::fs::read_to_string(common::root().join("config/sites/depot.toml")).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "site.toml", &site);
+    let config = write(dir.path(), "gangway.toml", CONFIG);
+    let out = gangway(&["check", "--config", config.to_str().unwrap()]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("16×10 cells, 144 walkable, 6 beacons")
+            && stdout.contains(
+                "frame: 0.9 m cells, origin [250, 120] m, y up; extent x 250 to 264.4 m, y 111 \
+                 to 120 m; 1 obstacles and 1 walls blocked 16 cells"
+            ),
+        "{stdout}"
+    );
+}
+
+#[test]
 fn prints_the_frame_of_a_site_in_metres() {
     let site = r#"name = "m"
 cell_m = 0.5

@@ -385,66 +385,7 @@ fn another_site_with_other_anchors_and_size_works_from_its_own_files() {
 /// floor with a shelf block (obstacle polygon) and a partition (thin wall)
 /// drawn on it, beacons placed by `pos` on the shelf, on the partition and on
 /// the outer walls, some with a mounting height.
-const METRIC_SITE: &str = r#"
-name = "depot"
-cell_m = 0.9
-origin_m = [250.0, 120.0]
-y_axis = "up"
-width_m = 14.4
-height_m = 9.0
-
-[[obstacles]]
-polygon = [[254.5, 117.3], [259.0, 117.3], [259.0, 115.5], [254.5, 115.5]]
-
-[[walls]]
-line = [[261.0, 120.0], [261.0, 114.6]]
-
-[[beacon]]
-id = "door"
-uuid = "4f6a1c2e-0b7d-4e21-9a35-7c1d2e3f4a5b"
-major = 3
-minor = 1
-pos = [250.0, 120.0]
-height_m = 2.5
-
-[[beacon]]
-id = "shelf"
-uuid = "4f6a1c2e-0b7d-4e21-9a35-7c1d2e3f4a5b"
-major = 3
-minor = 2
-pos = [256.7, 116.4]
-height_m = 1.8
-
-[[beacon]]
-id = "partition"
-uuid = "4f6a1c2e-0b7d-4e21-9a35-7c1d2e3f4a5b"
-major = 3
-minor = 3
-pos = [261.0, 118.0]
-
-[[beacon]]
-id = "far-corner"
-uuid = "4f6a1c2e-0b7d-4e21-9a35-7c1d2e3f4a5b"
-major = 3
-minor = 4
-pos = [264.4, 111.0]
-height_m = 2.5
-
-[[beacon]]
-id = "west"
-uuid = "4f6a1c2e-0b7d-4e21-9a35-7c1d2e3f4a5b"
-major = 3
-minor = 5
-pos = [250.0, 113.5]
-
-[[beacon]]
-id = "south"
-uuid = "4f6a1c2e-0b7d-4e21-9a35-7c1d2e3f4a5b"
-major = 3
-minor = 6
-pos = [258.0, 111.0]
-height_m = 2.5
-"#;
+const METRIC_SITE: &str = include_str!("../config/sites/depot.toml");
 
 /// Where a world point falls on `METRIC_SITE`'s grid (cell column, row), and
 /// the centre of a cell in world metres: the frame written out independently
@@ -611,4 +552,64 @@ fn the_radio_map_beats_a_plain_knn_regressor_on_a_metric_site() {
         "radio map {map_error:.3} m against a plain kNN regressor {knn_error:.3} m"
     );
     eprintln!("radio map {map_error:.3} m, plain kNN regressor {knn_error:.3} m");
+}
+
+/// The whole pipeline on the metric site: walkers simulated with the beacons'
+/// metric mounts, located by the survey-free model, published in the site's
+/// world metres (the centre of the fix's cell in the plan's coordinates).
+#[test]
+fn a_metric_site_publishes_world_coordinates() {
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "depot.toml", METRIC_SITE);
+    let log = dir.path().join("walk.jsonl");
+    gangway_ok(&[
+        "simulate",
+        "--site",
+        dir.path().join("depot.toml").to_str().unwrap(),
+        "--out",
+        log.to_str().unwrap(),
+        "--walkers",
+        "2",
+        "--duration",
+        "60",
+    ]);
+    let config = write(
+        dir.path(),
+        "gangway.toml",
+        "gateway_id = \"gw-d\"\nsite = \"depot.toml\"\n",
+    );
+    let out = gangway_ok(&[
+        "replay",
+        log.to_str().unwrap(),
+        "--config",
+        config.to_str().unwrap(),
+        "--print",
+    ]);
+    let mut known = 0;
+    for m in out
+        .lines()
+        .map(|l| serde_json::from_str::<Value>(l).unwrap())
+        .filter(|m| m["topic"].as_str().unwrap().ends_with("/location"))
+    {
+        let p = &m["payload"];
+        if p["cell"].is_null() {
+            continue;
+        }
+        known += 1;
+        let cell = (
+            p["cell"][0].as_i64().unwrap(),
+            p["cell"][1].as_i64().unwrap(),
+        );
+        let (x, y) = depot_centre(cell.0, cell.1);
+        let (x_m, y_m) = (p["x_m"].as_f64().unwrap(), p["y_m"].as_f64().unwrap());
+        assert!(
+            (x_m - x).abs() < 1e-9 && (y_m - y).abs() < 1e-9,
+            "{p}: the centre of {cell:?} is ({x}, {y})"
+        );
+        assert!(
+            (250.0..264.4).contains(&x_m) && (111.0..120.0).contains(&y_m),
+            "{p}"
+        );
+    }
+    assert!(known > 10, "only {known} located fixes:\n{out}");
 }
