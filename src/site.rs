@@ -13,9 +13,17 @@
 //! ([`Site::world_of_grid`], [`Site::world_of_cell`], [`Site::cell_of_world`]);
 //! every metric position the gateway computes or publishes goes through it.
 //!
+//! The grid is a character `map`, or an open floor of `width_m` × `height_m`;
+//! obstacle polygons and walls given in world metres are rasterised onto it at
+//! load (the rules are on `Raster`), so the rest of the gateway only ever sees
+//! walkable and blocked cells. Anchors have a metric [`Mount`] (a `pos`
+//! anywhere near the grid, or the centre of a `cell`), which every distance
+//! model uses.
+//!
 //! Validation happens once, at load, so every later stage may assume a consistent
-//! site: places and anchors sit on walkable cells, ids are unique, the grid is
-//! rectangular. Errors name the file, the TOML line and what to change.
+//! site: places and anchors given by cell sit on walkable cells, anchors given
+//! by `pos` lie near the grid, ids are unique, the grid is rectangular and
+//! bounded. Errors name the file, the TOML line and what to change.
 
 use std::collections::{BTreeMap, HashMap};
 use std::fmt;
@@ -486,7 +494,7 @@ impl Site {
                             height_m: Option<&Spanned<f64>>,
                             problems: &mut Vec<String>|
          -> (Option<Cell>, Option<Mount>) {
-            let mounted_at = height_m.and_then(|h| {
+            let mount_height = height_m.and_then(|h| {
                 let v = *h.get_ref();
                 if (0.0..=MAX_HEIGHT_M).contains(&v) {
                     Some(v)
@@ -516,19 +524,19 @@ impl Site {
                         Some(cell),
                         Some(Mount {
                             at,
-                            height_m: mounted_at,
+                            height_m: mount_height,
                         }),
                     )
                 }
                 (None, Some(pos)) => {
+                    if tiles.is_empty() || !cell_m_ok {
+                        return (None, None); // no grid to place it on; already reported
+                    }
                     let at = *pos.get_ref();
                     let [gx, gy] = frame.grid_of_world(at);
                     let near = |g: f64, cells: u16| {
                         (-margin_cells..=f64::from(cells) + margin_cells).contains(&g)
                     };
-                    if tiles.is_empty() {
-                        return (None, None);
-                    }
                     if !(near(gx, width) && near(gy, height)) {
                         let (lo, hi) = frame.extent_m(width, height);
                         problems.push(format!(
@@ -551,7 +559,7 @@ impl Site {
                         cell,
                         Some(Mount {
                             at,
-                            height_m: mounted_at,
+                            height_m: mount_height,
                         }),
                     )
                 }
@@ -946,16 +954,14 @@ fn grid(
                 }
                 // Less a hair, so 10 m of 0.1 m cells is 100 cells, not 101.
                 let count = (m / file.cell_m - 1e-9).ceil().max(1.0);
-                *n = u16::try_from(count as u64)
-                    .ok()
-                    .filter(|_| count <= f64::from(u16::MAX))
-                    .ok_or_else(|| {
-                        format!(
-                            "line {line}: `{key}` is {count} cells of {} m, more than 65535; use \
+                // `as` saturates, so an absurd count fails the conversion too.
+                *n = u16::try_from(count as u64).map_err(|_| {
+                    format!(
+                        "line {line}: `{key}` is {count} cells of {} m, more than 65535; use \
                              larger cells",
-                            file.cell_m
-                        )
-                    })?;
+                        file.cell_m
+                    )
+                })?;
             }
             let [width, height] = cells;
             check_size(width, height)?;
