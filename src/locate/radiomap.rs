@@ -67,6 +67,10 @@ const SPREADS_DB: [f64; 4] = [3.0, 4.0, 6.0, 8.0];
 pub struct RadioMap {
     tables: PathLoss,
     confidence: ConfidenceMap,
+    /// Mean held-out error (cells) of the chosen settings.
+    cv_error_cells: f64,
+    /// The kernel width (m) and RSSI spread (dB) it was built with.
+    settings: (f64, f64),
 }
 
 /// Per survey cell: where its readings were taken, readings, hits and RSSI
@@ -145,7 +149,20 @@ impl RadioMap {
         Ok(RadioMap {
             tables: build(site, &prior, samples, bandwidth_m, shadowing_db)?,
             confidence: chosen.confidence,
+            cv_error_cells: chosen.error_cells,
+            settings: chosen.candidate,
         })
+    }
+
+    /// The kernel width (m) and RSSI spread (dB) it was built with.
+    pub fn settings(&self) -> (f64, f64) {
+        self.settings
+    }
+
+    /// Mean held-out error (cells) of the chosen settings over the survey's
+    /// sessions.
+    pub fn cv_error_cells(&self) -> f64 {
+        self.cv_error_cells
     }
 }
 
