@@ -123,7 +123,8 @@ impl Method {
 pub enum LocalizerError {
     #[error(
         "the pathloss localizer needs anchor positions, and no anchor of the site has a \
-         `cell`; add `cell = [x, y]` to the site's beacons or gateways"
+         `cell` or `pos`; add `cell = [x, y]` or `pos = [x_m, y_m]` to the site's beacons or \
+         gateways"
     )]
     NoAnchorPositions,
     #[error(

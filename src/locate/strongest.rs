@@ -13,13 +13,13 @@ use std::sync::Arc;
 
 use super::window::Orientation;
 use super::{Localizer, LocalizerError, pathloss};
-use crate::site::Site;
+use crate::site::{Mount, Site};
 
 pub struct Strongest {
-    /// Each walkable cell's centre, metres.
-    cells_m: Vec<(f64, f64)>,
-    /// Each anchor's position in metres, in the orientation's anchor order.
-    anchors_m: Vec<Option<(f64, f64)>>,
+    /// Each walkable cell's centre, world metres.
+    cells_m: Vec<[f64; 2]>,
+    /// Where each anchor is mounted, in the orientation's anchor order.
+    anchors: Vec<Option<Mount>>,
     cell_m: f64,
 }
 
@@ -30,16 +30,20 @@ impl Strongest {
         orientation: Orientation,
     ) -> Result<Self, LocalizerError> {
         // Positions only: the radio models that come with them are unused.
-        let anchors_m: Vec<Option<(f64, f64)>> = pathloss::anchors(site, orientation, config, None)
+        let anchors: Vec<Option<Mount>> = pathloss::anchors(site, orientation, config, None)
             .into_iter()
-            .map(|a| a.map(|(at, _)| at))
+            .map(|a| a.map(|(mount, _)| mount))
             .collect();
-        if anchors_m.iter().all(Option::is_none) {
+        if anchors.iter().all(Option::is_none) {
             return Err(LocalizerError::NoAnchorPositions);
         }
         Ok(Strongest {
-            cells_m: site.open_cells().iter().map(|&c| site.metres(c)).collect(),
-            anchors_m,
+            cells_m: site
+                .open_cells()
+                .iter()
+                .map(|&c| site.world_of_cell(c))
+                .collect(),
+            anchors,
             cell_m: site.cell_m,
         })
     }
@@ -53,14 +57,14 @@ impl Localizer for Strongest {
     fn log_likelihood(&mut self, rssi: &[f32], heard: &[bool], out: &mut [f32]) {
         let loudest = (0..rssi.len())
             .filter(|&a| heard[a])
-            .filter_map(|a| self.anchors_m[a].map(|at| (rssi[a], at)))
+            .filter_map(|a| self.anchors[a].map(|mount| (rssi[a], mount)))
             .max_by(|a, b| a.0.total_cmp(&b.0));
         match loudest {
             // Nothing placed was heard: no evidence either way.
             None => out.fill(0.0),
-            Some((_, at)) => {
-                for (slot, here) in out.iter_mut().zip(&self.cells_m) {
-                    let d = (here.0 - at.0).hypot(here.1 - at.1) / self.cell_m;
+            Some((_, mount)) => {
+                for (slot, &here) in out.iter_mut().zip(&self.cells_m) {
+                    let d = mount.distance_m(here) / self.cell_m;
                     *slot = (-0.5 * d * d) as f32;
                 }
             }

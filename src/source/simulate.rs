@@ -162,8 +162,9 @@ impl<'a> Phone<'a> {
         }
     }
 
-    /// One scan at `t` by `observer` in `cell`, at `pos` (in cells, from the
-    /// map's corner): appends the adverts heard to `events`.
+    /// One scan at `t` by `observer` in `cell`, at `pos` (in grid units, from
+    /// the map's corner: see [`Site::world_of_grid`]): appends the adverts
+    /// heard to `events`.
     pub fn scan(
         &self,
         cell: Cell,
@@ -232,17 +233,17 @@ fn walk(
 fn hear_model(
     site: &Site,
     config: &SimConfig,
-    (px, py): (f64, f64),
+    (gx, gy): (f64, f64),
     t: f64,
     observer: &Arc<str>,
     shadowing: &Normal<f64>,
     rng: &mut Xoshiro256PlusPlus,
     events: &mut Vec<Event>,
 ) {
+    let here = site.world_of_grid([gx, gy]);
     for beacon in &site.beacons {
-        let Some(cell) = beacon.cell else { continue };
-        let (bx, by) = centre(cell);
-        let distance_m = (px - bx).hypot(py - by) * site.cell_m;
+        let Some(mount) = beacon.mount else { continue };
+        let distance_m = mount.distance_m(here);
         let tx = beacon
             .tx_power
             .map_or(config.pathloss.tx_power_dbm, f64::from);
