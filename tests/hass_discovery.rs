@@ -76,7 +76,13 @@ async fn occupancy_follows_the_locations_and_a_reload_replaces_the_place_sensors
             presence.topic,
             format!("{PREFIX}/devices/{device}/presence")
         );
-        let expected = location["place"].as_str().unwrap_or("home");
+        // An unknown location (no cell) is away; a located one is at its
+        // place, else at home.
+        let expected = match location["place"].as_str() {
+            Some(place) => place,
+            None if location["cell"].is_null() => "not_home",
+            None => "home",
+        };
         assert_eq!(presence.text(), expected, "{location}");
         places.insert(
             device.to_owned(),
