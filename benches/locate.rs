@@ -10,7 +10,7 @@ use std::sync::Arc;
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use gangway::locate::Localizer;
+use gangway::locate::{Localizer, LocalizerConfig};
 use gangway::locate::knn::{Knn, KnnConfig};
 use gangway::locate::pathloss::{PathLoss, PathLossConfig};
 use gangway::locate::radiomap::{RadioMap, RadioMapConfig};
@@ -27,9 +27,10 @@ fn site() -> Arc<Site> {
     )
 }
 
+const SURVEY: &str = "../shared/data/uci-ble-rssi/iBeacon_RSSI_Labeled.csv";
+
 fn survey(site: &Site) -> Survey {
-    let path = Path::new("../shared/data/uci-ble-rssi/iBeacon_RSSI_Labeled.csv");
-    Survey::load(path, site, &anchor_ids(site, Orientation::Observer), -200)
+    Survey::load(Path::new(SURVEY), site, &anchor_ids(site, Orientation::Observer), -200)
         .expect("the kNN benches need the survey at ../shared/data/uci-ble-rssi")
 }
 
@@ -132,17 +133,38 @@ fn benches(c: &mut Criterion) {
             black_box(tracker.update(&device, step as f64 * 2.0, &ll))
         })
     });
-    let mut tracker = Tracker::new(TrackerConfig::default(), site.clone());
-    let mut k = 0;
-    c.bench_function("fix_knn_hmm", |b| {
-        b.iter(|| {
-            let (rssi, heard, t) = &fingerprints[order[k % order.len()]];
-            let lap = (k / order.len()) as f64 * 1e6; // keep time moving forward
-            k += 1;
-            knn.log_likelihood(rssi, heard, &mut ll);
-            black_box(tracker.update(&device, t + lap, &ll))
-        })
-    });
+    // The default method with this survey configured: the k-NN vote and the
+    // radio map blended in the share cross-validation picks.
+    let auto_config = LocalizerConfig {
+        knn: KnnConfig {
+            survey: Some(SURVEY.into()),
+            ..KnnConfig::default()
+        },
+        ..LocalizerConfig::default()
+    };
+    let mut auto = gangway::locate::build(
+        &auto_config,
+        &site,
+        &WindowConfig::default(),
+        &tracker_config,
+    )
+    .unwrap();
+    for (name, localizer) in [
+        ("fix_knn_hmm", &mut knn as &mut dyn Localizer),
+        ("fix_auto_hmm", auto.as_mut()),
+    ] {
+        let mut tracker = Tracker::new(TrackerConfig::default(), site.clone());
+        let mut k = 0;
+        c.bench_function(name, |b| {
+            b.iter(|| {
+                let (rssi, heard, t) = &fingerprints[order[k % order.len()]];
+                let lap = (k / order.len()) as f64 * 1e6; // keep time moving forward
+                k += 1;
+                localizer.log_likelihood(rssi, heard, &mut ll);
+                black_box(tracker.update(&device, t + lap, &ll))
+            })
+        });
+    }
 }
 
 criterion_group!(locate, benches);
