@@ -124,7 +124,10 @@ impl Pipeline {
             tracker: Tracker::new(config.tracker.clone(), site.clone())
                 .bound(config.limits.max_devices, config.limits.device_idle_s),
             planner,
-            guide: Guide::new(config.guidance.clone(), config.window.length_s / 2.0),
+            guide: Guide::new(
+                config.guidance.clone(),
+                config.guidance.fix_lag_s(&config.window),
+            ),
             topics: Topics::new(config.topic_prefix()),
             log_likelihood: vec![0.0; site.open_cells().len()],
             site,

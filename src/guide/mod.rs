@@ -15,6 +15,7 @@
 //! point is announced about 6 m ahead, reassurance about every 10 m.
 
 mod line;
+mod progress;
 mod session;
 
 use std::collections::HashMap;
@@ -22,6 +23,7 @@ use std::collections::HashMap;
 use serde::{Deserialize, Serialize};
 
 pub use line::RouteLine;
+pub use progress::Progress;
 pub use session::Session;
 
 use crate::plan::{Profile, Route};
@@ -45,6 +47,21 @@ pub struct GuidanceConfig {
     pub off_route_fixes: u32,
     /// The walker has arrived within this distance of the destination, metres.
     pub arrive_m: f64,
+    /// A fix near the destination means arrival only once the walker has
+    /// come this share of the route (a route that starts or passes near
+    /// its destination is not over at once).
+    pub arrive_progress_share: f64,
+    /// How far, one standard deviation, a fix's progress along the route
+    /// strays from the walker's, metres: how much the progress filter
+    /// trusts one fix.
+    pub fix_spread_m: f64,
+    /// How long ago the walker was where a fix places them, seconds: the
+    /// progress is predicted forward by this at the walker's speed. Default:
+    /// half of `[window] length_s` (a fix stands for the middle of its
+    /// window) plus half of `[window] stride_s` (the tracker settles about
+    /// half a step behind). `gangway eval guidance` reports the lag it
+    /// measured (`fix_lag_s_p50`).
+    pub fix_lag_s: Option<f64>,
     /// Most sessions kept at once; starting one more ends the least
     /// recently updated.
     pub max_sessions: usize,
@@ -61,6 +78,9 @@ impl Default for GuidanceConfig {
             corridor_m: 3.0,
             off_route_fixes: 2,
             arrive_m: 2.0,
+            arrive_progress_share: 0.5,
+            fix_spread_m: 1.0,
+            fix_lag_s: None,
             max_sessions: 1024,
             expire_after_s: 600.0,
         }
@@ -68,16 +88,32 @@ impl Default for GuidanceConfig {
 }
 
 impl GuidanceConfig {
+    /// `fix_lag_s`, or its default for fixes from `window`.
+    pub fn fix_lag_s(&self, window: &crate::locate::window::WindowConfig) -> f64 {
+        self.fix_lag_s
+            .unwrap_or((window.length_s + window.stride_s) / 2.0)
+    }
+
     pub fn validate(&self) -> Result<(), String> {
         let positive = [
             ("announce_m", self.announce_m),
             ("reassure_m", self.reassure_m),
             ("corridor_m", self.corridor_m),
             ("arrive_m", self.arrive_m),
+            ("fix_spread_m", self.fix_spread_m),
             ("expire_after_s", self.expire_after_s),
         ];
         if let Some((name, _)) = positive.iter().find(|(_, v)| !(*v > 0.0 && v.is_finite())) {
             return Err(format!("[guidance] `{name}` must be a positive number"));
+        }
+        if !(0.0..=1.0).contains(&self.arrive_progress_share) {
+            return Err("[guidance] `arrive_progress_share` must be between 0 and 1".into());
+        }
+        if self
+            .fix_lag_s
+            .is_some_and(|lag| !(lag >= 0.0 && lag.is_finite()))
+        {
+            return Err("[guidance] `fix_lag_s` must be a number of seconds, 0 or more".into());
         }
         if self.off_route_fixes == 0 || self.max_sessions == 0 {
             return Err(
@@ -127,19 +163,17 @@ pub enum GuidanceEvent {
 /// The sessions of all devices, bounded in number and time.
 pub struct Guide {
     config: GuidanceConfig,
-    fix_age_s: f64,
+    fix_lag_s: f64,
     sessions: HashMap<String, Session>,
 }
 
 impl Guide {
-    /// `fix_age_s`: how long ago, on average, the walker was where a fix
-    /// places them (half a fingerprint window): announcements lead by the
-    /// walk in that time, so they are heard at `announce_m` from where the
-    /// walker really is.
-    pub fn new(config: GuidanceConfig, fix_age_s: f64) -> Guide {
+    /// `fix_lag_s`: how long ago the walker was where a fix places them
+    /// ([`GuidanceConfig::fix_lag_s`]).
+    pub fn new(config: GuidanceConfig, fix_lag_s: f64) -> Guide {
         Guide {
             config,
-            fix_age_s,
+            fix_lag_s,
             sessions: HashMap::new(),
         }
     }
@@ -192,7 +226,15 @@ impl Guide {
         {
             self.sessions.remove(&oldest);
         }
-        let session = Session::new(site, request_id, profile, route, t, reroutes);
+        let session = Session::new(
+            site,
+            &self.config,
+            request_id,
+            profile,
+            route,
+            t,
+            reroutes,
+        );
         let first = session.depart(device, t);
         self.sessions.insert(device.to_owned(), session);
         first
@@ -215,7 +257,7 @@ impl Guide {
             self.sessions.remove(device);
             return Some(last);
         }
-        let message = session.update(site, &self.config, self.fix_age_s, device, cell, t)?;
+        let message = session.update(site, &self.config, self.fix_lag_s, device, cell, t)?;
         if message.state == SessionState::Arrived {
             self.sessions.remove(device);
         }

@@ -2,12 +2,16 @@
 //! maneuver comes next, what has been announced, and whether it has left the
 //! route or arrived.
 //!
-//! Progress is the projection of each fix onto the route's polyline of cell
-//! centres ([`RouteLine`]), in metres from the start. The state kept is the
+//! Progress is where the walker is by now along the route's polyline of cell
+//! centres ([`RouteLine`]), in metres from the start: each fix's projection
+//! on it, filtered and predicted forward by the fix's lag ([`Progress`]).
+//! Decision points are announced from that, once, at the fix nearest to
+//! `announce_m` before them; a decision point too close after the previous
+//! one to be announced on its own is told with it. The state kept is the
 //! route (8 bytes a cell), its maneuvers and a few numbers: well under 1 KB
 //! for the routes of a floor.
 
-use super::RouteLine;
+use super::{Progress, RouteLine};
 use super::{GuidanceConfig, GuidanceEvent, SessionState};
 use crate::plan::instructions::{Maneuver, maneuvers};
 use crate::plan::{Profile, Route};
@@ -25,7 +29,10 @@ pub struct Session {
     /// Maneuvers before this index have been announced.
     announced: usize,
     state: SessionState,
+    /// Where the walker is by now, metres along the route.
     progress_m: f64,
+    /// The filter behind `progress_m`.
+    track: Progress,
     /// Progress at the last spoken message, for reassurance.
     spoken_at_m: f64,
     off_route_fixes: u32,
@@ -39,6 +46,7 @@ pub struct Session {
 impl Session {
     pub(super) fn new(
         site: &Site,
+        config: &GuidanceConfig,
         request_id: Option<String>,
         profile: Profile,
         route: &Route,
@@ -58,6 +66,7 @@ impl Session {
                 SessionState::Active
             },
             progress_m: 0.0,
+            track: Progress::new(t, profile.walking_speed_mps(), config.fix_spread_m),
             spoken_at_m: 0.0,
             off_route_fixes: 0,
             last_t: t,
@@ -137,7 +146,7 @@ impl Session {
         &mut self,
         site: &Site,
         config: &GuidanceConfig,
-        fix_age_s: f64,
+        fix_lag_s: f64,
         device: &str,
         cell: Option<Cell>,
         t: f64,
@@ -146,11 +155,12 @@ impl Session {
         self.last_t = t;
         let cell = cell?;
         let (x, y) = site.metres(cell);
-        let (off_m, along_m) = self
-            .line
-            .project(site, (x, y), self.progress_m, config.corridor_m);
+        let (off_m, along_m) =
+            self.line
+                .project(site, (x, y), self.track.at(t), config.corridor_m);
         let mut event = None;
         let mut text = None;
+        let speed = self.profile.walking_speed_mps();
         if off_m > config.corridor_m {
             self.off_route_fixes += 1;
             if self.off_route_fixes >= config.off_route_fixes
@@ -169,7 +179,20 @@ impl Session {
                     SessionState::Active
                 };
             }
-            self.progress_m = along_m;
+            self.track
+                .update(t, along_m, config.fix_spread_m, 2.0 * speed);
+        }
+        // A stray fix, not yet enough to leave the route, says nothing of
+        // the progress, but the walker still walks on: guided by the
+        // progress predicted at their pace.
+        if self.state != SessionState::OffRoute {
+            let length_m = self.line.length_m();
+            // Predicted forward by the fix's lag at the profile's pace once
+            // the walker is walking (the filtered speed is too noisy to lead
+            // by); not at all while they stand.
+            let pace = self.track.speed_mps();
+            let lead_m = if pace >= speed / 4.0 { speed } else { pace } * fix_lag_s;
+            self.progress_m = (self.track.at(t) + lead_m).clamp(0.0, length_m);
             while self.next < self.maneuvers.len()
                 // Progress is summed in f32: a millimetre short is there.
                 && self.maneuvers[self.next].along_m <= self.progress_m + 1e-3
@@ -177,12 +200,13 @@ impl Session {
                 self.next += 1;
             }
             self.announced = self.announced.max(self.next);
-            // How far the walker got since the middle of the fix's window.
-            let walked_since_m = self.profile.walking_speed_mps() * fix_age_s;
+            // Half the walk until the next fix: the fix nearest a distance
+            // is the one that says so.
+            let half_step_m = self.track.speed_mps() * self.fix_interval_s.max(0.0) / 2.0;
             let to_destination = site.metres(self.destination());
-            let remaining = self.line.length_m() - self.progress_m;
-            if (to_destination.0 - x).hypot(to_destination.1 - y) <= config.arrive_m
-                || remaining <= config.arrive_m + walked_since_m
+            if length_m - self.progress_m <= config.arrive_m.min(half_step_m)
+                || ((to_destination.0 - x).hypot(to_destination.1 - y) <= config.arrive_m
+                    && self.progress_m >= config.arrive_progress_share * length_m)
             {
                 self.state = SessionState::Arrived;
                 self.next = self.maneuvers.len();
@@ -193,17 +217,10 @@ impl Session {
                     None => "You have arrived.".to_owned(),
                 });
             } else if let Some(m) = self.maneuvers.get(self.next) {
-                // Announce at the fix nearest the announce distance (up to
-                // half a fix's walk early), from where the walker is now
-                // rather than where the fix saw them.
-                let lead = walked_since_m
-                    + self.profile.walking_speed_mps() * self.fix_interval_s.max(0.0) / 2.0;
                 let ahead = m.along_m - self.progress_m;
-                if self.announced <= self.next && ahead <= config.announce_m + lead {
-                    self.announced = self.next + 1;
+                if self.announced <= self.next && ahead <= config.announce_m + half_step_m {
                     event = Some(GuidanceEvent::Announce);
-                    // Told from where the walker is by now.
-                    text = Some(m.sentence((ahead - walked_since_m).max(0.0)));
+                    text = Some(self.announcement(config.announce_m));
                 } else if self.progress_m - self.spoken_at_m >= config.reassure_m {
                     event = Some(GuidanceEvent::Reassure);
                     text = Some(format!("You are on the route. {}", m.sentence(ahead)));
@@ -214,6 +231,26 @@ impl Session {
             }
         }
         Some(self.message(device, t, event, text))
+    }
+
+    /// Announces the next decision point, and with it those following it
+    /// closer than `announce_m` (there is no room to announce them on their
+    /// own after it), marking them all announced.
+    fn announcement(&mut self, announce_m: f64) -> String {
+        let first = &self.maneuvers[self.next];
+        let mut text = first.sentence(first.along_m - self.progress_m);
+        let mut k = self.next + 1;
+        while let Some(m) = self.maneuvers.get(k)
+            && m.distance_m < announce_m
+        {
+            // "Walk 4 metres, …" goes on as "After that, walk 4 metres, …".
+            let then = m.sentence(m.distance_m);
+            text.push_str(" After that, w");
+            text.push_str(then.strip_prefix('W').unwrap_or(&then));
+            k += 1;
+        }
+        self.announced = k;
+        text
     }
 
     /// The sentence for the walk to the next decision point.
