@@ -181,11 +181,6 @@ impl Session {
             }
             self.track
                 .update(t, along_m, config.fix_spread_m, 2.0 * speed);
-        }
-        // A stray fix, not yet enough to leave the route, says nothing of
-        // the progress, but the walker still walks on: guided by the
-        // progress predicted at their pace.
-        if self.state != SessionState::OffRoute {
             let length_m = self.line.length_m();
             // Predicted forward by the fix's lag at the profile's pace once
             // the walker is walking (the filtered speed is too noisy to lead
