@@ -201,6 +201,14 @@ impl Pipeline {
         }
     }
 
+    /// Ends the guidance session of `device` at its request, publishing its
+    /// last message (`cancelled`); nothing when it has none.
+    pub fn cancel(&mut self, device: &str, t: f64, out: &mut Vec<Message>) {
+        if let Some(last) = self.guide.cancel(device, t) {
+            out.push(self.topics.encode_guidance(&last));
+        }
+    }
+
     /// Closes all open windows (end of a replay).
     pub fn finish(&mut self, out: &mut Vec<Message>) {
         for fp in self.windows.flush() {

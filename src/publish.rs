@@ -235,6 +235,11 @@ impl Topics {
         format!("{}/devices/{device}/route/set", self.prefix)
     }
 
+    /// A device's request to end its guidance session.
+    pub fn route_cancel(&self, device: &str) -> String {
+        format!("{}/devices/{device}/route/cancel", self.prefix)
+    }
+
     /// Feedback on a route.
     pub fn feedback(&self, device: &str) -> String {
         format!("{}/devices/{device}/feedback", self.prefix)

@@ -374,6 +374,9 @@ impl Daemon {
                     .reject(&device, request_id, now, code, message);
                 self.out.push(self.topics.encode_route(&reply));
             }
+            Ok(Inbound::Cancel { device, t }) => {
+                self.state.pipeline.cancel(&device, t, &mut self.out);
+            }
             Ok(Inbound::Feedback(feedback)) => self.feedback(feedback),
             Ok(Inbound::Scan(scan)) => {
                 let pipeline = &mut self.state.pipeline;
