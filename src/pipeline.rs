@@ -201,6 +201,12 @@ impl Pipeline {
         }
     }
 
+    /// The adherence of the guidance sessions finished since the last call
+    /// (implicit feedback for the learning store).
+    pub fn take_adherence(&mut self) -> Vec<crate::guide::Adherence> {
+        self.guide.take_finished()
+    }
+
     /// Ends the guidance session of `device` at its request, publishing its
     /// last message (`cancelled`); nothing when it has none.
     pub fn cancel(&mut self, device: &str, t: f64, out: &mut Vec<Message>) {

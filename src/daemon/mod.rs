@@ -534,6 +534,11 @@ impl Daemon {
         for device in self.state.pipeline.take_evicted() {
             self.withdraw(&device);
         }
+        for adherence in self.state.pipeline.take_adherence() {
+            if let Some(recorder) = &mut self.recorder {
+                recorder.push(Record::Adherence(adherence));
+            }
+        }
         let mut out = std::mem::take(&mut self.out);
         for message in out.drain(..) {
             let schema = &message.payload["schema"];

@@ -11,12 +11,25 @@
 //! route (8 bytes a cell), its maneuvers and a few numbers: well under 1 KB
 //! for the routes of a floor.
 
-use super::{Progress, RouteLine};
-use super::{GuidanceConfig, GuidanceEvent, SessionState};
+use super::{Adherence, Ending, GuidanceConfig, GuidanceEvent, Progress, RouteLine, SessionState};
 use crate::plan::instructions::{Maneuver, maneuvers};
 use crate::plan::{Profile, Route};
 use crate::publish::{GUIDANCE_SCHEMA, Guidance, NextManeuver};
 use crate::site::{Cell, Site};
+
+/// What a session has seen of the walk, carried across re-routes: what its
+/// adherence is made of.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Walked {
+    started_t: f64,
+    /// The first route's length at the profile's pace, seconds.
+    expected_s: f64,
+    located_fixes: u32,
+    in_corridor_fixes: u32,
+    /// Times the walker left the route.
+    detours: u32,
+    reroutes: u32,
+}
 
 #[derive(Clone, Debug)]
 pub struct Session {
@@ -40,7 +53,7 @@ pub struct Session {
     last_t: f64,
     /// Time between the last two fixes, for how far the walker gets per fix.
     fix_interval_s: f64,
-    reroutes: u32,
+    walked: Walked,
 }
 
 impl Session {
@@ -51,12 +64,28 @@ impl Session {
         profile: Profile,
         route: &Route,
         t: f64,
-        reroutes: u32,
+        rerouted_from: Option<Walked>,
     ) -> Session {
+        let line = RouteLine::new(site, route);
+        let walked = match rerouted_from {
+            Some(before) => Walked {
+                reroutes: before.reroutes + 1,
+                ..before
+            },
+            None => Walked {
+                started_t: t,
+                expected_s: line.length_m() / profile.walking_speed_mps(),
+                located_fixes: 0,
+                in_corridor_fixes: 0,
+                detours: 0,
+                reroutes: 0,
+            },
+        };
+        let reroutes = walked.reroutes;
         Session {
             request_id,
             profile,
-            line: RouteLine::new(site, route),
+            line,
             maneuvers: maneuvers(site, route),
             next: 1,
             announced: 1,
@@ -71,7 +100,7 @@ impl Session {
             off_route_fixes: 0,
             last_t: t,
             fix_interval_s: 0.0,
-            reroutes,
+            walked,
         }
     }
 
@@ -97,7 +126,29 @@ impl Session {
     }
 
     pub fn reroutes(&self) -> u32 {
-        self.reroutes
+        self.walked.reroutes
+    }
+
+    pub(super) fn walked(&self) -> Walked {
+        self.walked
+    }
+
+    /// How the walk followed the route, for a session ending at `t`; `None`
+    /// when it was never located (nothing was walked to judge).
+    pub(super) fn adherence(&self, device: &str, t: f64, ending: Ending) -> Option<Adherence> {
+        let w = &self.walked;
+        (w.located_fixes > 0).then(|| Adherence {
+            device: device.to_owned(),
+            request_id: self.request_id.clone(),
+            started_t: w.started_t,
+            t,
+            ending,
+            in_corridor_share: f64::from(w.in_corridor_fixes) / f64::from(w.located_fixes),
+            detours: w.detours,
+            arrived: ending == Ending::Arrived,
+            expected_s: w.expected_s,
+            taken_s: (t - w.started_t).max(0.0),
+        })
     }
 
     pub(super) fn last_t(&self) -> f64 {
@@ -119,7 +170,7 @@ impl Session {
 
     /// The first message: the first step of the route.
     pub(super) fn depart(&self, device: &str, t: f64) -> Guidance {
-        let event = if self.reroutes > 0 {
+        let event = if self.walked.reroutes > 0 {
             GuidanceEvent::Rerouted
         } else {
             GuidanceEvent::Depart
@@ -161,19 +212,22 @@ impl Session {
         let mut event = None;
         let mut text = None;
         let speed = self.profile.walking_speed_mps();
+        self.walked.located_fixes += 1;
         if off_m > config.corridor_m {
             self.off_route_fixes += 1;
             if self.off_route_fixes >= config.off_route_fixes
                 && self.state != SessionState::OffRoute
             {
                 self.state = SessionState::OffRoute;
+                self.walked.detours += 1;
                 event = Some(GuidanceEvent::OffRoute);
                 text = Some("You have left the route; finding a new one.".to_owned());
             }
         } else {
+            self.walked.in_corridor_fixes += 1;
             self.off_route_fixes = 0;
             if self.state == SessionState::OffRoute {
-                self.state = if self.reroutes > 0 {
+                self.state = if self.walked.reroutes > 0 {
                     SessionState::Rerouted
                 } else {
                     SessionState::Active
@@ -282,7 +336,7 @@ impl Session {
             remaining_m,
             eta_s: remaining_m / self.profile.walking_speed_mps(),
             off_route_fixes: self.off_route_fixes,
-            reroutes: self.reroutes,
+            reroutes: self.walked.reroutes,
         }
     }
 }
