@@ -122,8 +122,8 @@ impl RouteBody {
             profile: profile.name(),
             waypoints: planned.route.waypoints(site),
             length_m: planned.route.length_m(site),
-            instructions: crate::plan::instructions::instructions(site, &planned.route),
-            maneuvers: crate::plan::instructions::maneuvers(site, &planned.route),
+            instructions: crate::plan::instructions::instructions(site, &planned.route, profile),
+            maneuvers: crate::plan::instructions::maneuvers(site, &planned.route, profile),
             reason: None,
             latency_us,
         }

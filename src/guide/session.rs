@@ -12,7 +12,7 @@
 //! for the routes of a floor.
 
 use super::{Adherence, Ending, GuidanceConfig, GuidanceEvent, Progress, RouteLine, SessionState};
-use crate::plan::instructions::{Maneuver, maneuvers};
+use crate::plan::instructions::{Maneuver, first_sentence, maneuvers};
 use crate::plan::{Profile, Route};
 use crate::publish::{GUIDANCE_SCHEMA, Guidance, NextManeuver};
 use crate::site::{Cell, Site};
@@ -86,7 +86,7 @@ impl Session {
             request_id,
             profile,
             line,
-            maneuvers: maneuvers(site, route),
+            maneuvers: maneuvers(site, route, profile),
             next: 1,
             announced: 1,
             state: if reroutes > 0 {
@@ -175,7 +175,7 @@ impl Session {
         } else {
             GuidanceEvent::Depart
         };
-        let text = self.next_sentence();
+        let text = first_sentence(&self.maneuvers);
         self.message(device, t, Some(event), text)
     }
 
@@ -292,21 +292,13 @@ impl Session {
         while let Some(m) = self.maneuvers.get(k)
             && m.distance_m < announce_m
         {
-            // "Walk 4 metres, …" goes on as "After that, walk 4 metres, …".
-            let then = m.sentence(m.distance_m);
-            text.push_str(" After that, w");
-            text.push_str(then.strip_prefix('W').unwrap_or(&then));
+            text.push_str(" After that, ");
+            text.push_str(&m.clause(m.distance_m));
+            text.push('.');
             k += 1;
         }
         self.announced = k;
         text
-    }
-
-    /// The sentence for the walk to the next decision point.
-    fn next_sentence(&self) -> Option<String> {
-        self.maneuvers
-            .get(self.next)
-            .map(|m| m.sentence(m.along_m - self.progress_m))
     }
 
     fn message(
