@@ -342,7 +342,7 @@ impl Guide {
             t,
             rerouted_from,
         );
-        let first = session.depart(device, t);
+        let first = session.depart(site, device, t);
         self.sessions.insert(device.to_owned(), session);
         first
     }

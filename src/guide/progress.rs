@@ -16,16 +16,16 @@
 const PACE_CHANGE_MPS2: f64 = 0.5;
 
 /// The filter's state: progress and speed along the route with their
-/// covariance.
+/// covariance (kept in f32, computed in f64: every guided session holds one).
 #[derive(Clone, Copy, Debug)]
 pub struct Progress {
     /// Filtered progress at `t`, metres from the route's start.
-    m: f64,
+    m: f32,
     /// Walking speed along the route, m/s (never negative: walking back
     /// along the route shows as leaving it, not as progress).
-    v: f64,
+    v: f32,
     /// Covariance of (m, v): [mm, mv, vv].
-    p: [f64; 3],
+    p: [f32; 3],
     /// Time of the last fix folded in.
     t: f64,
 }
@@ -38,19 +38,19 @@ impl Progress {
         Progress {
             m: 0.0,
             v: 0.0,
-            p: [spread_m * spread_m, 0.0, speed_mps * speed_mps],
+            p: [(spread_m * spread_m) as f32, 0.0, (speed_mps * speed_mps) as f32],
             t,
         }
     }
 
     /// Filtered progress predicted to time `t` at the filtered speed.
     pub fn at(&self, t: f64) -> f64 {
-        self.m + self.v * (t - self.t).max(0.0)
+        f64::from(self.m) + f64::from(self.v) * (t - self.t).max(0.0)
     }
 
     /// Filtered speed along the route, m/s.
     pub fn speed_mps(&self) -> f64 {
-        self.v
+        f64::from(self.v)
     }
 
     /// Folds in the progress `z` (metres along the route) of a fix at `t`,
@@ -61,18 +61,18 @@ impl Progress {
         // Predict: progress moves on at the speed; both grow uncertain by
         // how much the pace may have changed.
         let q = PACE_CHANGE_MPS2 * PACE_CHANGE_MPS2;
-        let [mm, mv, vv] = self.p;
-        self.m += self.v * dt;
+        let [mm, mv, vv] = self.p.map(f64::from);
+        let (m, v) = (f64::from(self.m) + f64::from(self.v) * dt, f64::from(self.v));
         let mm = mm + 2.0 * dt * mv + dt * dt * vv + q * dt.powi(4) / 4.0;
         let mv = mv + dt * vv + q * dt.powi(3) / 2.0;
         let vv = vv + q * dt * dt;
         // Correct by the fix.
         let s = mm + spread_m * spread_m;
         let (gain_m, gain_v) = (mm / s, mv / s);
-        let residual = z - self.m;
-        self.m += gain_m * residual;
-        self.v = (self.v + gain_v * residual).clamp(0.0, max_mps);
-        self.p = [(1.0 - gain_m) * mm, (1.0 - gain_m) * mv, vv - gain_v * mv];
+        let residual = z - m;
+        self.m = (m + gain_m * residual) as f32;
+        self.v = (v + gain_v * residual).clamp(0.0, max_mps) as f32;
+        self.p = [(1.0 - gain_m) * mm, (1.0 - gain_m) * mv, vv - gain_v * mv].map(|x| x as f32);
     }
 }
 

@@ -169,13 +169,13 @@ impl Session {
     }
 
     /// The first message: the first step of the route.
-    pub(super) fn depart(&self, device: &str, t: f64) -> Guidance {
+    pub(super) fn depart(&self, site: &Site, device: &str, t: f64) -> Guidance {
         let event = if self.walked.reroutes > 0 {
             GuidanceEvent::Rerouted
         } else {
             GuidanceEvent::Depart
         };
-        let text = first_sentence(&self.maneuvers);
+        let text = first_sentence(site, self.line.cells(), &self.maneuvers);
         self.message(device, t, Some(event), text)
     }
 

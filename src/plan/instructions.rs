@@ -138,13 +138,10 @@ pub struct Maneuver {
     /// the module).
     pub place: Option<String>,
     /// The first stairs, door or lift on the walk to this maneuver, and
-    /// metres from the route's start to it (spoken, not published).
+    /// metres from the route's start to it (spoken, not published; f32:
+    /// guidance keeps the maneuvers of every session).
     #[serde(skip)]
-    pub on_the_way: Option<(Feature, f64)>,
-    /// For the depart maneuver: how to set off without a compass, "With
-    /// help desk behind you" (spoken, not published).
-    #[serde(skip)]
-    pub setting_off: Option<String>,
+    pub on_the_way: Option<(Feature, f32)>,
 }
 
 impl Maneuver {
@@ -172,10 +169,10 @@ impl Maneuver {
         let mut walk = format!("walk {}", metres(distance_m));
         let from_m = self.along_m - distance_m;
         if let Some((feature, at_m)) = self.on_the_way
-            && at_m >= from_m - 0.5
+            && f64::from(at_m) >= from_m - 0.5
         {
             walk.push_str(", with ");
-            walk.push_str(&feature.warning(at_m - from_m));
+            walk.push_str(&feature.warning(f64::from(at_m) - from_m));
         }
         match (self.kind, self.modifier) {
             (ManeuverType::Arrive, _) => format!("{walk}; you have arrived{named}"),
@@ -185,12 +182,12 @@ impl Maneuver {
     }
 }
 
-/// The sentence a walker sets off with: how to orient without a compass,
-/// then the walk to the first decision point.
-pub fn first_sentence(maneuvers: &[Maneuver]) -> Option<String> {
+/// The sentence a walker sets off along `route` with: how to orient without
+/// a compass, then the walk to the first decision point of its `maneuvers`.
+pub fn first_sentence(site: &Site, route: &[Cell], maneuvers: &[Maneuver]) -> Option<String> {
     let first = maneuvers.get(1)?;
     let walk = first.clause(first.distance_m);
-    Some(match maneuvers[0].setting_off.as_deref() {
+    Some(match setting_off(site, route) {
         Some(setting_off) => format!("{setting_off}, {walk}."),
         None => capitalised(&walk) + ".",
     })
@@ -235,7 +232,6 @@ pub fn maneuvers(site: &Site, route: &Route, profile: Profile) -> Vec<Maneuver> 
         at: cells[0],
         place: place(cells[0]),
         on_the_way: None,
-        setting_off: setting_off(site, cells),
     }];
     // Metres from the start to each cell, and the first feature since the
     // last maneuver.
@@ -248,7 +244,7 @@ pub fn maneuvers(site: &Site, route: &Route, profile: Profile) -> Vec<Maneuver> 
             walked += step;
             along += step;
             if on_the_way.is_none() {
-                on_the_way = Feature::of(site.tile(cells[i])).map(|f| (f, along));
+                on_the_way = Feature::of(site.tile(cells[i])).map(|f| (f, along as f32));
             }
         }
         let at = cells[b];
@@ -267,7 +263,6 @@ pub fn maneuvers(site: &Site, route: &Route, profile: Profile) -> Vec<Maneuver> 
             at,
             place: place(at),
             on_the_way: on_the_way.take(),
-            setting_off: None,
         });
         walked = 0.0;
     }
@@ -290,7 +285,7 @@ fn landmark(site: &Site, cell: Cell) -> Option<String> {
 /// at it): "With help desk behind you", "With help desk on your left",
 /// "Facing help desk"; `None` when no place is near.
 fn setting_off(site: &Site, cells: &[Cell]) -> Option<String> {
-    let start = cells[0];
+    let start = *cells.first()?;
     let (name, place) = site
         .places()
         .iter()
@@ -320,7 +315,7 @@ pub fn instructions(site: &Site, route: &Route, profile: Profile) -> Vec<Instruc
         .filter(|(_, m)| m.is_decision())
         .map(|(i, m)| Instruction {
             text: if i == 1 {
-                first_sentence(&maneuvers).expect("a first decision")
+                first_sentence(site, &route.cells, &maneuvers).expect("a first decision")
             } else {
                 m.sentence(m.distance_m)
             },
