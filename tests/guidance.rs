@@ -129,6 +129,12 @@ fn eval_guidance_runs_on_a_second_site_in_two_metre_cells() {
     // Walks of the office's 10-40 m routes, guided and announced.
     assert!(report["km"].as_f64().unwrap() > 0.3, "{report}");
     assert!(report["decision_points"].as_u64().unwrap() > 0, "{report}");
-    assert!(report["announced_in_window_share"].as_f64().unwrap() > 0.0, "{report}");
-    assert!(report["max_session_bytes"].as_u64().unwrap() < 1024, "{report}");
+    assert!(
+        report["announced_in_window_share"].as_f64().unwrap() > 0.0,
+        "{report}"
+    );
+    assert!(
+        report["max_session_bytes"].as_u64().unwrap() < 1024,
+        "{report}"
+    );
 }

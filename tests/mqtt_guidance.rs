@@ -63,8 +63,16 @@ async fn guidance_follows_a_replayed_walk_and_a_cancel_ends_it() {
         .await
         .json();
     assert_eq!(
-        (&cancelled["event"], &cancelled["next"], &cancelled["request_id"]),
-        (&"cancelled".into(), &serde_json::Value::Null, &"guide-1".into()),
+        (
+            &cancelled["event"],
+            &cancelled["next"],
+            &cancelled["request_id"]
+        ),
+        (
+            &"cancelled".into(),
+            &serde_json::Value::Null,
+            &"guide-1".into()
+        ),
         "{cancelled}"
     );
     // Later fixes of the device are published, but guide nobody (unless

@@ -300,7 +300,8 @@ pub fn evaluate(
                     if off_m <= guidance.corridor_m {
                         served.truth_m = progress;
                         if straying.is_none()
-                            && let Ok(fix) = serde_json::from_value::<Cell>(m.payload["cell"].clone())
+                            && let Ok(fix) =
+                                serde_json::from_value::<Cell>(m.payload["cell"].clone())
                         {
                             let (fix_off, fix_m) = served.line.project(
                                 &site,

@@ -569,7 +569,10 @@ mod tests {
         assert!(guide.take_finished().is_empty(), "a re-route goes on");
         guide.cancel("q", 110.0);
         let a = &guide.take_finished()[0];
-        assert_eq!((a.ending, a.arrived, a.detours), (Ending::Cancelled, false, 1));
+        assert_eq!(
+            (a.ending, a.arrived, a.detours),
+            (Ending::Cancelled, false, 1)
+        );
         assert!((a.in_corridor_share - 0.25).abs() < 1e-9, "{a:?}");
         assert_eq!((a.started_t, a.t), (100.0, 110.0));
         assert!(a.score() < 0.1, "{a:?}");

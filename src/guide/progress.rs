@@ -38,7 +38,11 @@ impl Progress {
         Progress {
             m: 0.0,
             v: 0.0,
-            p: [(spread_m * spread_m) as f32, 0.0, (speed_mps * speed_mps) as f32],
+            p: [
+                (spread_m * spread_m) as f32,
+                0.0,
+                (speed_mps * speed_mps) as f32,
+            ],
             t,
         }
     }
@@ -62,7 +66,10 @@ impl Progress {
         // how much the pace may have changed.
         let q = PACE_CHANGE_MPS2 * PACE_CHANGE_MPS2;
         let [mm, mv, vv] = self.p.map(f64::from);
-        let (m, v) = (f64::from(self.m) + f64::from(self.v) * dt, f64::from(self.v));
+        let (m, v) = (
+            f64::from(self.m) + f64::from(self.v) * dt,
+            f64::from(self.v),
+        );
         let mm = mm + 2.0 * dt * mv + dt * dt * vv + q * dt.powi(4) / 4.0;
         let mv = mv + dt * vv + q * dt.powi(3) / 2.0;
         let vv = vv + q * dt * dt;

@@ -206,9 +206,9 @@ impl Session {
         self.last_t = t;
         let cell = cell?;
         let (x, y) = site.metres(cell);
-        let (off_m, along_m) =
-            self.line
-                .project(site, (x, y), self.track.at(t), config.corridor_m);
+        let (off_m, along_m) = self
+            .line
+            .project(site, (x, y), self.track.at(t), config.corridor_m);
         let mut event = None;
         let mut text = None;
         let speed = self.profile.walking_speed_mps();

@@ -34,7 +34,10 @@ pub enum Inbound {
         message: String,
     },
     /// End the guidance session of `device` (received at `t`).
-    Cancel { device: String, t: f64 },
+    Cancel {
+        device: String,
+        t: f64,
+    },
     Feedback(Feedback),
     /// A phone's scan: sightings with the phone as observer.
     Scan(Vec<Sighting>),
@@ -430,7 +433,10 @@ mod tests {
                 })
             );
         }
-        assert!(i.subscriptions().contains(&"gangway/gw/devices/+/route/cancel".to_owned()));
+        assert!(
+            i.subscriptions()
+                .contains(&"gangway/gw/devices/+/route/cancel".to_owned())
+        );
         assert!(matches!(
             i.read(t, &vec![b' '; 1001], 0.0),
             Err(Rejected::TooLarge { .. })

@@ -290,7 +290,7 @@ fn setting_off(site: &Site, cells: &[Cell]) -> Option<String> {
         .places()
         .iter()
         .map(|(n, &c)| (n, c, c.distance(start)))
-        .filter(|&(_, _, d)| d >= 0.5 && d <= START_PLACE_RADIUS_CELLS)
+        .filter(|&(_, _, d)| (0.5..=START_PLACE_RADIUS_CELLS).contains(&d))
         .min_by(|a, b| a.2.total_cmp(&b.2))
         .map(|(n, c, _)| (n, c))?;
     // The first few cells give the direction of walking off.
@@ -430,12 +430,24 @@ mod tests {
 
     #[test]
     fn left_is_left_on_the_map() {
-        assert_eq!(turn(0.0, -90.0, 30.0), Some(Modifier::Left), "east, then north");
-        assert_eq!(turn(90.0, 0.0, 30.0), Some(Modifier::Left), "south, then east");
+        assert_eq!(
+            turn(0.0, -90.0, 30.0),
+            Some(Modifier::Left),
+            "east, then north"
+        );
+        assert_eq!(
+            turn(90.0, 0.0, 30.0),
+            Some(Modifier::Left),
+            "south, then east"
+        );
         assert_eq!(turn(0.0, 45.0, 30.0), Some(Modifier::SlightRight));
         assert_eq!(turn(170.0, -170.0, 30.0), None, "west stays west");
         assert_eq!(turn(0.0, 20.0, 30.0), None);
-        assert_eq!(turn(0.0, 45.0, 60.0), None, "walked on by a low-vision walker");
+        assert_eq!(
+            turn(0.0, 45.0, 60.0),
+            None,
+            "walked on by a low-vision walker"
+        );
     }
 
     #[test]
@@ -497,7 +509,10 @@ mod tests {
             "Walk 6 metres, with a door after 2 metres, then turn right at desk."
         );
         // Past the door, it is not mentioned again.
-        assert_eq!(turn.sentence(3.0), "Walk 3 metres, then turn right at desk.");
+        assert_eq!(
+            turn.sentence(3.0),
+            "Walk 3 metres, then turn right at desk."
+        );
     }
 
     #[test]
@@ -516,7 +531,10 @@ mod tests {
         let walking = walk(Profile::Default);
         assert!(walking.iter().any(|t| t.contains("stairs")), "{walking:?}");
         let rolling = walk(Profile::Wheelchair);
-        assert!(rolling.iter().any(|t| t.contains("the lift")), "{rolling:?}");
+        assert!(
+            rolling.iter().any(|t| t.contains("the lift")),
+            "{rolling:?}"
+        );
         assert!(rolling.iter().all(|t| !t.contains("stairs")), "{rolling:?}");
         assert_followable(&walking);
         assert_followable(&rolling);
@@ -548,7 +566,10 @@ mod tests {
         };
         let seeing = turns(Profile::Default);
         let low_vision = turns(Profile::LowVision);
-        assert!(low_vision.len() < seeing.len(), "{seeing:?} / {low_vision:?}");
+        assert!(
+            low_vision.len() < seeing.len(),
+            "{seeing:?} / {low_vision:?}"
+        );
         assert!(!low_vision.is_empty());
         for m in &low_vision {
             assert_eq!(m.place.as_deref(), Some("help desk"), "{m:?}");

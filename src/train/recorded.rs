@@ -156,7 +156,11 @@ mod tests {
             request_id: Some(id.into()),
             started_t: t0,
             t: t1,
-            ending: if followed { Ending::Arrived } else { Ending::Cancelled },
+            ending: if followed {
+                Ending::Arrived
+            } else {
+                Ending::Cancelled
+            },
             in_corridor_share: if followed { 1.0 } else { 0.4 },
             detours: if followed { 0 } else { 2 },
             arrived: followed,
@@ -229,7 +233,10 @@ mod tests {
                 .filter(|w| w.device == device)
                 .count()
         };
-        assert_eq!((copies("kept"), copies("strayed"), copies("unguided")), (4, 0, 1));
+        assert_eq!(
+            (copies("kept"), copies("strayed"), copies("unguided")),
+            (4, 0, 1)
+        );
     }
 
     #[test]
