@@ -24,7 +24,7 @@ fn guidance(c: &mut Criterion) {
     );
     let route = astar::search(&site, Connectivity::Eight, from, to, |_| 1.0).unwrap();
     // Stop short of the destination: arriving would end the session.
-    let walk = &route.cells[..route.cells.len() - 3];
+    let walk = &route.cells[..route.cells.len() - 6];
     let mut guide = Guide::new(GuidanceConfig::default(), 2.0);
     let topics = Topics::new("gangway/gw-lobby");
     let (mut i, mut t) = (0, 0.0);

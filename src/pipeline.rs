@@ -124,7 +124,10 @@ impl Pipeline {
             tracker: Tracker::new(config.tracker.clone(), site.clone())
                 .bound(config.limits.max_devices, config.limits.device_idle_s),
             planner,
-            guide: Guide::new(config.guidance.clone(), config.window.length_s / 2.0),
+            guide: Guide::new(
+                config.guidance.clone(),
+                config.guidance.fix_lag_s(&config.window),
+            ),
             topics: Topics::new(config.topic_prefix()),
             log_likelihood: vec![0.0; site.open_cells().len()],
             site,
@@ -195,6 +198,20 @@ impl Pipeline {
             }
             // Ground truth is for scoring a replay, not for the pipeline.
             Event::Truth(_) => {}
+        }
+    }
+
+    /// The adherence of the guidance sessions finished since the last call
+    /// (implicit feedback for the learning store).
+    pub fn take_adherence(&mut self) -> Vec<crate::guide::Adherence> {
+        self.guide.take_finished()
+    }
+
+    /// Ends the guidance session of `device` at its request, publishing its
+    /// last message (`cancelled`); nothing when it has none.
+    pub fn cancel(&mut self, device: &str, t: f64, out: &mut Vec<Message>) {
+        if let Some(last) = self.guide.cancel(device, t) {
+            out.push(self.topics.encode_guidance(&last));
         }
     }
 

@@ -124,8 +124,8 @@ impl RouteBody {
             profile: profile.name(),
             waypoints: planned.route.waypoints(site),
             length_m: planned.route.length_m(site),
-            instructions: crate::plan::instructions::instructions(site, &planned.route),
-            maneuvers: crate::plan::instructions::maneuvers(site, &planned.route),
+            instructions: crate::plan::instructions::instructions(site, &planned.route, profile),
+            maneuvers: crate::plan::instructions::maneuvers(site, &planned.route, profile),
             reason: None,
             latency_us,
         }
@@ -233,6 +233,11 @@ impl Topics {
     /// Route requests for a device.
     pub fn route_set(&self, device: &str) -> String {
         format!("{}/devices/{device}/route/set", self.prefix)
+    }
+
+    /// A device's request to end its guidance session.
+    pub fn route_cancel(&self, device: &str) -> String {
+        format!("{}/devices/{device}/route/cancel", self.prefix)
     }
 
     /// Feedback on a route.

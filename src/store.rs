@@ -1,6 +1,8 @@
 //! The crowd-sourced learning store: what the gateway saw people walk (each
-//! device's smoothed trajectory, i.e. the tracker's fixes), the routes it gave
-//! and the feedback on them, in an embedded SQLite file (rusqlite, bundled, so
+//! device's smoothed trajectory, i.e. the tracker's fixes), the routes it gave,
+//! the feedback on them and how guided walks followed them (adherence, the
+//! implicit feedback of [`crate::guide`]; the walk is the device's fixes over
+//! the session's time, the route the one of its request), in an embedded SQLite file (rusqlite, bundled, so
 //! nothing is installed) in the state directory, with bounded retention.
 //!
 //! The daemon writes through [`Store::write`]; training reads through
@@ -17,6 +19,7 @@ use std::path::{Path, PathBuf};
 use rusqlite::{Connection, OpenFlags, params};
 use serde::Deserialize;
 
+use crate::guide::{Adherence, Ending};
 use crate::site::Cell;
 
 /// Bumped when the tables change; a file of another version is refused.
@@ -130,6 +133,7 @@ pub enum Record {
         t: f64,
         score: u8,
     },
+    Adherence(Adherence),
 }
 
 /// A device's walk: fixes in time order, without a gap longer than asked for.
@@ -148,6 +152,9 @@ pub struct RecordedRoute {
     pub planner: String,
     pub cells: Vec<Cell>,
     pub score: Option<f64>,
+    /// Mean adherence score ([`Adherence::score`]) of the sessions that
+    /// followed it.
+    pub adherence: Option<f64>,
 }
 
 pub struct Store {
@@ -156,7 +163,7 @@ pub struct Store {
 }
 
 /// The tables, each with its time column `t` and `device`.
-const TABLES: [&str; 3] = ["fixes", "routes", "feedback"];
+const TABLES: [&str; 4] = ["fixes", "routes", "feedback", "adherence"];
 
 impl Store {
     /// Opens (creating if needed, readable by its owner only) a store for
@@ -249,7 +256,13 @@ impl Store {
                  CREATE INDEX IF NOT EXISTS routes_by_request ON routes (device, request_id);
                  CREATE TABLE IF NOT EXISTS feedback (
                      device TEXT NOT NULL, request_id TEXT NOT NULL, t REAL NOT NULL,
-                     score INTEGER NOT NULL);",
+                     score INTEGER NOT NULL);
+                 CREATE TABLE IF NOT EXISTS adherence (
+                     device TEXT NOT NULL, request_id TEXT, started_t REAL NOT NULL,
+                     t REAL NOT NULL, ending TEXT NOT NULL, in_corridor_share REAL NOT NULL,
+                     detours INTEGER NOT NULL, arrived INTEGER NOT NULL,
+                     expected_s REAL NOT NULL, taken_s REAL NOT NULL);
+                 CREATE INDEX IF NOT EXISTS adherence_by_device ON adherence (device, t);",
             )
             .map_err(|e| sql(&self.path, e))?;
         let version: i64 = self
@@ -318,6 +331,23 @@ impl Store {
                     "INSERT INTO feedback (device, request_id, t, score) VALUES (?1, ?2, ?3, ?4)",
                     params![device, request_id, t, score],
                 ),
+                Record::Adherence(a) => tx.execute(
+                    "INSERT INTO adherence (device, request_id, started_t, t, ending, \
+                     in_corridor_share, detours, arrived, expected_s, taken_s) \
+                     VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
+                    params![
+                        a.device,
+                        a.request_id,
+                        a.started_t,
+                        a.t,
+                        a.ending.name(),
+                        a.in_corridor_share,
+                        a.detours,
+                        a.arrived,
+                        a.expected_s,
+                        a.taken_s
+                    ],
+                ),
             };
             done.map_err(|e| sql(&path, e))?;
         }
@@ -334,7 +364,7 @@ impl Store {
     ) -> Result<usize, StoreError> {
         let cutoff = now - retention_s;
         let mut deleted = 0;
-        for table in ["fixes", "routes", "feedback"] {
+        for table in TABLES {
             deleted += self
                 .conn
                 .execute(&format!("DELETE FROM {table} WHERE t < ?1"), [cutoff])
@@ -410,7 +440,7 @@ impl Store {
                 .map_err(err)?;
             let over_rows = u64::try_from(rows).unwrap_or(0) > config.max_rows;
             let over_bytes = u64::try_from(used * page).unwrap_or(0) > config.max_bytes;
-            let (largest, table) = counts.into_iter().max().expect("three tables");
+            let (largest, table) = counts.into_iter().max().expect("four tables");
             if !(over_rows || over_bytes) || largest == 0 {
                 break;
             }
@@ -491,10 +521,22 @@ impl Store {
                 ))
             })
             .map_err(|e| sql(&self.path, e))?;
+        let mut followed: std::collections::HashMap<(String, String), (f64, f64)> =
+            std::collections::HashMap::new();
+        for a in self.adherence()? {
+            if let Some(id) = a.request_id.clone() {
+                let entry = followed.entry((a.device.clone(), id)).or_default();
+                *entry = (entry.0 + a.score(), entry.1 + 1.0);
+            }
+        }
         let mut out = Vec::new();
         for row in rows {
             let (device, request_id, t, planner, cells, score) =
                 row.map_err(|e| sql(&self.path, e))?;
+            let adherence = request_id
+                .as_ref()
+                .and_then(|id| followed.get(&(device.clone(), id.clone())))
+                .map(|&(sum, n)| sum / n);
             // Written by `write` from `Vec<Cell>`; a row that does not parse
             // was edited by hand and is skipped rather than failing training.
             let Ok(cells) = serde_json::from_str::<Vec<Cell>>(&cells) else {
@@ -508,7 +550,52 @@ impl Store {
                 planner,
                 cells,
                 score,
+                adherence,
             });
+        }
+        Ok(out)
+    }
+
+    /// Every guided walk's adherence, oldest first.
+    pub fn adherence(&self) -> Result<Vec<Adherence>, StoreError> {
+        let mut stmt = self
+            .conn
+            .prepare(
+                "SELECT device, request_id, started_t, t, ending, in_corridor_share, detours,
+                        arrived, expected_s, taken_s
+                   FROM adherence ORDER BY t",
+            )
+            .map_err(|e| sql(&self.path, e))?;
+        let rows = stmt
+            .query_map([], |r| {
+                Ok((
+                    Adherence {
+                        device: r.get(0)?,
+                        request_id: r.get(1)?,
+                        started_t: r.get(2)?,
+                        t: r.get(3)?,
+                        ending: Ending::Cancelled,
+                        in_corridor_share: r.get(5)?,
+                        detours: r.get(6)?,
+                        arrived: r.get(7)?,
+                        expected_s: r.get(8)?,
+                        taken_s: r.get(9)?,
+                    },
+                    r.get::<_, String>(4)?,
+                ))
+            })
+            .map_err(|e| sql(&self.path, e))?;
+        let mut out = Vec::new();
+        for row in rows {
+            let (mut adherence, ending) = row.map_err(|e| sql(&self.path, e))?;
+            // Written by `write`; a row edited by hand into something else
+            // is skipped rather than failing training.
+            let Some(ending) = Ending::parse(&ending) else {
+                tracing::warn!(device = %adherence.device, "{}: an adherence row ending {ending:?}, skipped", self.path.display());
+                continue;
+            };
+            adherence.ending = ending;
+            out.push(adherence);
         }
         Ok(out)
     }
@@ -584,6 +671,18 @@ mod tests {
                     t: 9.5,
                     score: 2,
                 },
+                Record::Adherence(Adherence {
+                    device: "a".into(),
+                    request_id: Some("r1".into()),
+                    started_t: 3.5,
+                    t: 20.0,
+                    ending: Ending::Expired,
+                    in_corridor_share: 1.0,
+                    detours: 0,
+                    arrived: false,
+                    expected_s: 20.0,
+                    taken_s: 16.5,
+                }),
             ])
             .unwrap();
         let reader = Store::open_read_only(&path).unwrap();
@@ -596,6 +695,10 @@ mod tests {
         let routes = reader.routes().unwrap();
         assert_eq!(routes.len(), 1);
         assert_eq!(routes[0].score, Some(3.0));
+        assert_eq!(routes[0].adherence, Some(0.5));
+        let followed = reader.adherence().unwrap();
+        assert_eq!(followed.len(), 1);
+        assert_eq!(followed[0].ending, Ending::Expired);
         assert_eq!(routes[0].cells.len(), 2);
     }
 

@@ -108,3 +108,39 @@ fn eval_guidance_reports_every_figure() {
         gangway_ok(&["eval", "guidance", "--trips", "12", "--seed", "3", "--json"])
     );
 }
+
+#[test]
+fn eval_guidance_runs_on_a_second_site_in_two_metre_cells() {
+    let dir = tempfile::tempdir().unwrap();
+    let site = common::root().join("fixtures/sites/office.toml");
+    let config = common::write(
+        dir.path(),
+        "office.toml",
+        &format!(
+            "gateway_id = \"gw-office\"\nsite = \"{}\"\n[planner]\nmode = \"astar\"\n",
+            site.display()
+        ),
+    );
+    let stdout = gangway_ok(&[
+        "eval",
+        "guidance",
+        "--config",
+        config.to_str().unwrap(),
+        "--trips",
+        "20",
+        "--json",
+    ]);
+    let report: Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
+    assert_eq!(report["trips"], 20, "{report}");
+    // Walks of the office's 10-40 m routes, guided and announced.
+    assert!(report["km"].as_f64().unwrap() > 0.3, "{report}");
+    assert!(report["decision_points"].as_u64().unwrap() > 0, "{report}");
+    assert!(
+        report["announced_in_window_share"].as_f64().unwrap() > 0.0,
+        "{report}"
+    );
+    assert!(
+        report["max_session_bytes"].as_u64().unwrap() < 1024,
+        "{report}"
+    );
+}

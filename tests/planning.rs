@@ -126,7 +126,7 @@ fn instructions_name_the_destination() {
         .plan(from, to, Profile::Default)
         .unwrap()
         .route;
-    let steps = instructions(&site, &route);
+    let steps = instructions(&site, &route, Profile::Default);
     let last = steps.last().unwrap();
     assert_eq!(last.at, to);
     assert!(

@@ -375,6 +375,9 @@ impl Daemon {
                     .reject(&device, request_id, now, code, message);
                 self.out.push(self.topics.encode_route(&reply));
             }
+            Ok(Inbound::Cancel { device, t }) => {
+                self.state.pipeline.cancel(&device, t, &mut self.out);
+            }
             Ok(Inbound::Feedback(feedback)) => self.feedback(feedback),
             Ok(Inbound::Scan(scan)) => {
                 let pipeline = &mut self.state.pipeline;
@@ -533,6 +536,11 @@ impl Daemon {
     fn send(&mut self) {
         for device in self.state.pipeline.take_evicted() {
             self.withdraw(&device);
+        }
+        for adherence in self.state.pipeline.take_adherence() {
+            if let Some(recorder) = &mut self.recorder {
+                recorder.push(Record::Adherence(adherence));
+            }
         }
         let mut out = std::mem::take(&mut self.out);
         for message in out.drain(..) {

@@ -73,10 +73,20 @@ pub struct Report {
     /// Trips that reached their destination.
     pub reached: usize,
     pub arrival_detected_share: f64,
+    /// Decision points passed with room to announce them on their own
+    /// (at least `announce_m` after the previous maneuver): the
+    /// announcements scored.
     pub decision_points: usize,
+    /// Decision points passed closer than that: told with the one before.
+    pub decision_points_told_with_previous: usize,
     pub announced_in_window_share: f64,
     pub announced_m_p50: Option<f64>,
     pub reroutes_per_trip: f64,
+    /// How far, along the route, the walker truly was ahead of the located
+    /// fix while following (metres, median), and that in seconds of their
+    /// walk: the lag guidance predicts forward by (`[guidance] fix_lag_s`).
+    pub fix_lag_m_p50: Option<f64>,
+    pub fix_lag_s_p50: Option<f64>,
     /// Largest state of one session seen, bytes.
     pub max_session_bytes: usize,
 }
@@ -184,6 +194,7 @@ pub fn evaluate(
     let mut report = Report::default();
     let (mut detect, mut announced_m, mut arrivals_ok, mut reroutes) =
         (Vec::new(), Vec::new(), 0, 0);
+    let (mut lag_m, mut lag_s) = (Vec::new(), Vec::new());
     for trip in 0..setup.trips {
         let device: Arc<str> = format!("trip-{trip:04}").into();
         let (from, to) = loop {
@@ -286,6 +297,21 @@ pub fn evaluate(
                             .project(&site, metres, served.truth_m, guidance.corridor_m);
                     if off_m <= guidance.corridor_m {
                         served.truth_m = progress;
+                        if straying.is_none()
+                            && let Ok(fix) =
+                                serde_json::from_value::<Cell>(m.payload["cell"].clone())
+                        {
+                            let (fix_off, fix_m) = served.line.project(
+                                &site,
+                                site.metres(fix),
+                                progress,
+                                guidance.corridor_m,
+                            );
+                            if fix_off <= guidance.corridor_m && !walker.done() {
+                                lag_m.push(progress - fix_m);
+                                lag_s.push((progress - fix_m) / speed);
+                            }
+                        }
                         for (k, d) in served.decisions.iter().enumerate() {
                             served.passed[k] |= d.1 <= progress + 0.5;
                         }
@@ -367,6 +393,8 @@ pub fn evaluate(
     report.arrival_detected_share = arrivals_ok as f64 / report.reached.max(1) as f64;
     report.announced_in_window_share = in_window as f64 / report.decision_points.max(1) as f64;
     report.announced_m_p50 = percentile(&mut announced_m, 0.5);
+    report.fix_lag_m_p50 = percentile(&mut lag_m, 0.5);
+    report.fix_lag_s_p50 = percentile(&mut lag_s, 0.5);
     report.reroutes_per_trip = reroutes as f64 / report.trips.max(1) as f64;
     Ok(report)
 }
@@ -404,19 +432,28 @@ fn stray_target(
     (!candidates.is_empty()).then(|| candidates[rng.random_range(0..candidates.len())])
 }
 
-/// Adds the decision points of `served` the walker truly passed (those far
-/// enough from the start to be announced in time) and how far ahead each
-/// was announced; one never announced counts as out of the window.
+/// Adds the decision points of `served` the walker truly passed and how far
+/// ahead each was announced; one never announced counts as out of the
+/// window. Those less than `announce_m` after the previous maneuver (or the
+/// start) cannot be announced on their own at `announce_m`: guidance tells
+/// them with the previous one, and they are only counted.
 fn score_announcements(
     served: &Served,
     announce_m: f64,
     announced_m: &mut Vec<f64>,
     report: &mut Report,
 ) {
+    let mut previous_m = 0.0;
     for (k, &(_, along)) in served.decisions.iter().enumerate() {
-        if served.passed[k] && along >= announce_m + 2.0 {
+        let leg_m = along - std::mem::replace(&mut previous_m, along);
+        if !served.passed[k] {
+            continue;
+        }
+        if leg_m >= announce_m {
             report.decision_points += 1;
             announced_m.extend(served.announced[k]);
+        } else {
+            report.decision_points_told_with_previous += 1;
         }
     }
 }

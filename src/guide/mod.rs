@@ -11,17 +11,24 @@
 //! the route's own ([`crate::plan::instructions::maneuvers`]), so what is
 //! announced is what the route reply listed.
 //!
+//! Each finished session (arrived, cancelled, expired or replaced by a new
+//! request) leaves an [`Adherence`]: how well the walk followed the route,
+//! the implicit feedback the learning store keeps and training weighs walks
+//! and routes by (`gangway train --from-store`).
+//!
 //! Thresholds follow the Wayfindr open standard (ITU-T F.921): a decision
 //! point is announced about 6 m ahead, reassurance about every 10 m.
 
 mod line;
+mod progress;
 mod session;
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 
 use serde::{Deserialize, Serialize};
 
 pub use line::RouteLine;
+pub use progress::Progress;
 pub use session::Session;
 
 use crate::plan::{Profile, Route};
@@ -45,6 +52,21 @@ pub struct GuidanceConfig {
     pub off_route_fixes: u32,
     /// The walker has arrived within this distance of the destination, metres.
     pub arrive_m: f64,
+    /// A fix near the destination means arrival only once the walker has
+    /// come this share of the route (a route that starts or passes near
+    /// its destination is not over at once).
+    pub arrive_progress_share: f64,
+    /// How far, one standard deviation, a fix's progress along the route
+    /// strays from the walker's, metres: how much the progress filter
+    /// trusts one fix.
+    pub fix_spread_m: f64,
+    /// How long ago the walker was where a fix places them, seconds: the
+    /// progress is predicted forward by this at the walker's speed. Default:
+    /// half of `[window] length_s` (a fix stands for the middle of its
+    /// window) plus half of `[window] stride_s` (the tracker settles about
+    /// half a step behind). `gangway eval guidance` reports the lag it
+    /// measured (`fix_lag_s_p50`).
+    pub fix_lag_s: Option<f64>,
     /// Most sessions kept at once; starting one more ends the least
     /// recently updated.
     pub max_sessions: usize,
@@ -61,6 +83,9 @@ impl Default for GuidanceConfig {
             corridor_m: 3.0,
             off_route_fixes: 2,
             arrive_m: 2.0,
+            arrive_progress_share: 0.5,
+            fix_spread_m: 1.0,
+            fix_lag_s: None,
             max_sessions: 1024,
             expire_after_s: 600.0,
         }
@@ -68,16 +93,32 @@ impl Default for GuidanceConfig {
 }
 
 impl GuidanceConfig {
+    /// `fix_lag_s`, or its default for fixes from `window`.
+    pub fn fix_lag_s(&self, window: &crate::locate::window::WindowConfig) -> f64 {
+        self.fix_lag_s
+            .unwrap_or((window.length_s + window.stride_s) / 2.0)
+    }
+
     pub fn validate(&self) -> Result<(), String> {
         let positive = [
             ("announce_m", self.announce_m),
             ("reassure_m", self.reassure_m),
             ("corridor_m", self.corridor_m),
             ("arrive_m", self.arrive_m),
+            ("fix_spread_m", self.fix_spread_m),
             ("expire_after_s", self.expire_after_s),
         ];
         if let Some((name, _)) = positive.iter().find(|(_, v)| !(*v > 0.0 && v.is_finite())) {
             return Err(format!("[guidance] `{name}` must be a positive number"));
+        }
+        if !(0.0..=1.0).contains(&self.arrive_progress_share) {
+            return Err("[guidance] `arrive_progress_share` must be between 0 and 1".into());
+        }
+        if self
+            .fix_lag_s
+            .is_some_and(|lag| !(lag >= 0.0 && lag.is_finite()))
+        {
+            return Err("[guidance] `fix_lag_s` must be a number of seconds, 0 or more".into());
         }
         if self.off_route_fixes == 0 || self.max_sessions == 0 {
             return Err(
@@ -124,23 +165,112 @@ pub enum GuidanceEvent {
     Expired,
 }
 
+/// How a session ended, for its adherence.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Ending {
+    Arrived,
+    Cancelled,
+    Expired,
+    /// A new request of the device replaced it (or, the table being full,
+    /// another device's session needed its room).
+    Replaced,
+}
+
+impl Ending {
+    pub fn name(self) -> &'static str {
+        match self {
+            Ending::Arrived => "arrived",
+            Ending::Cancelled => "cancelled",
+            Ending::Expired => "expired",
+            Ending::Replaced => "replaced",
+        }
+    }
+
+    pub fn parse(name: &str) -> Option<Ending> {
+        [
+            Ending::Arrived,
+            Ending::Cancelled,
+            Ending::Expired,
+            Ending::Replaced,
+        ]
+        .into_iter()
+        .find(|e| e.name() == name)
+    }
+}
+
+/// How a finished session's walk followed its route (re-routes included):
+/// the implicit feedback of someone who was guided.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Adherence {
+    pub device: String,
+    /// The request whose route was followed.
+    pub request_id: Option<String>,
+    pub started_t: f64,
+    /// When the session ended.
+    pub t: f64,
+    pub ending: Ending,
+    /// Share of the located fixes within the corridor around the route.
+    pub in_corridor_share: f64,
+    /// Times the walker left the route.
+    pub detours: u32,
+    pub arrived: bool,
+    /// The route's length at the profile's walking speed, seconds.
+    pub expected_s: f64,
+    /// Time from the route being served to the session's end, seconds.
+    pub taken_s: f64,
+}
+
+impl Adherence {
+    /// The walk's adherence as feedback in [0, 1]: the share walked within
+    /// the corridor, times the pace against the expected time (at most 1),
+    /// divided by one more than the detours, halved when the walker never
+    /// arrived. A route followed to its end at the expected pace scores 1;
+    /// one left twice and abandoned scores little.
+    pub fn score(&self) -> f64 {
+        let pace = if self.taken_s > 0.0 {
+            (self.expected_s / self.taken_s).min(1.0)
+        } else {
+            1.0
+        };
+        let arrived = if self.arrived { 1.0 } else { 0.5 };
+        (self.in_corridor_share * pace * arrived / (1.0 + f64::from(self.detours))).clamp(0.0, 1.0)
+    }
+}
+
 /// The sessions of all devices, bounded in number and time.
 pub struct Guide {
     config: GuidanceConfig,
-    fix_age_s: f64,
+    fix_lag_s: f64,
     sessions: HashMap<String, Session>,
+    /// Adherence of finished sessions not yet taken (at most
+    /// `max_sessions`: the oldest go when nobody takes them).
+    finished: VecDeque<Adherence>,
 }
 
 impl Guide {
-    /// `fix_age_s`: how long ago, on average, the walker was where a fix
-    /// places them (half a fingerprint window): announcements lead by the
-    /// walk in that time, so they are heard at `announce_m` from where the
-    /// walker really is.
-    pub fn new(config: GuidanceConfig, fix_age_s: f64) -> Guide {
+    /// `fix_lag_s`: how long ago the walker was where a fix places them
+    /// ([`GuidanceConfig::fix_lag_s`]).
+    pub fn new(config: GuidanceConfig, fix_lag_s: f64) -> Guide {
         Guide {
             config,
-            fix_age_s,
+            fix_lag_s,
             sessions: HashMap::new(),
+            finished: VecDeque::new(),
+        }
+    }
+
+    /// The adherence of the sessions finished since the last call.
+    pub fn take_finished(&mut self) -> Vec<Adherence> {
+        self.finished.drain(..).collect()
+    }
+
+    /// Keeps the adherence of `session` of `device`, ending at `t`.
+    fn finish(&mut self, device: &str, session: &Session, t: f64, ending: Ending) {
+        if let Some(adherence) = session.adherence(device, t, ending) {
+            if self.finished.len() >= self.config.max_sessions {
+                self.finished.pop_front();
+            }
+            self.finished.push_back(adherence);
         }
     }
 
@@ -178,10 +308,20 @@ impl Guide {
         rerouted: bool,
     ) -> Guidance {
         let expire = self.config.expire_after_s;
-        self.sessions.retain(|_, s| t - s.last_t() <= expire);
-        let reroutes = match self.sessions.remove(device) {
-            Some(old) if rerouted => old.reroutes() + 1,
-            _ => 0,
+        let idle: Vec<(String, Session)> = self
+            .sessions
+            .extract_if(|_, s| t - s.last_t() > expire)
+            .collect();
+        for (d, s) in idle {
+            self.finish(&d, &s, t, Ending::Expired);
+        }
+        let rerouted_from = match self.sessions.remove(device) {
+            Some(old) if rerouted => Some(old.walked()),
+            Some(old) => {
+                self.finish(device, &old, t, Ending::Replaced);
+                None
+            }
+            None => None,
         };
         if self.sessions.len() >= self.config.max_sessions
             && let Some(oldest) = self
@@ -189,11 +329,20 @@ impl Guide {
                 .iter()
                 .min_by(|a, b| a.1.last_t().total_cmp(&b.1.last_t()))
                 .map(|(d, _)| d.clone())
+            && let Some(old) = self.sessions.remove(&oldest)
         {
-            self.sessions.remove(&oldest);
+            self.finish(&oldest, &old, t, Ending::Replaced);
         }
-        let session = Session::new(site, request_id, profile, route, t, reroutes);
-        let first = session.depart(device, t);
+        let session = Session::new(
+            site,
+            &self.config,
+            request_id,
+            profile,
+            route,
+            t,
+            rerouted_from,
+        );
+        let first = session.depart(site, device, t);
         self.sessions.insert(device.to_owned(), session);
         first
     }
@@ -212,12 +361,15 @@ impl Guide {
         let session = self.sessions.get_mut(device)?;
         if t - session.last_t() > self.config.expire_after_s {
             let last = session.end(device, t, SessionState::Expired);
-            self.sessions.remove(device);
+            let session = self.sessions.remove(device)?;
+            self.finish(device, &session, t, Ending::Expired);
             return Some(last);
         }
-        let message = session.update(site, &self.config, self.fix_age_s, device, cell, t)?;
-        if message.state == SessionState::Arrived {
-            self.sessions.remove(device);
+        let message = session.update(site, &self.config, self.fix_lag_s, device, cell, t)?;
+        if message.state == SessionState::Arrived
+            && let Some(session) = self.sessions.remove(device)
+        {
+            self.finish(device, &session, t, Ending::Arrived);
         }
         Some(message)
     }
@@ -225,6 +377,7 @@ impl Guide {
     /// Ends the session of `device`, if it has one.
     pub fn cancel(&mut self, device: &str, t: f64) -> Option<Guidance> {
         let session = self.sessions.remove(device)?;
+        self.finish(device, &session, t, Ending::Cancelled);
         Some(session.end(device, t, SessionState::Cancelled))
     }
 }
@@ -382,6 +535,55 @@ mod tests {
         let cancelled = guide.cancel("d", 201.0).unwrap();
         assert_eq!(cancelled.state, SessionState::Cancelled);
         assert!(guide.is_empty() && guide.cancel("d", 202.0).is_none());
+    }
+
+    #[test]
+    fn every_finished_session_leaves_its_adherence() {
+        let site = site();
+        let mut guide = Guide::new(GuidanceConfig::default(), 0.0);
+        // Followed to the end at the expected pace (1.2 m/s): adherence 1.
+        start(&mut guide, &site, "p", 0.0);
+        for (i, &cell) in route().cells.iter().enumerate().skip(1) {
+            let t = i as f64 / 1.2;
+            if guide.update(&site, "p", Some(cell), t).unwrap().state == SessionState::Arrived {
+                break;
+            }
+        }
+        let done = guide.take_finished();
+        assert_eq!(done.len(), 1);
+        let a = &done[0];
+        assert_eq!((a.ending, a.arrived, a.detours), (Ending::Arrived, true, 0));
+        assert_eq!(a.request_id.as_deref(), Some("r1"));
+        assert!(a.score() > 0.95, "{a:?}");
+        // Strayed off the route, re-routed, then cancelled: detours count,
+        // the re-route belongs to the same walk, and the score is low.
+        start(&mut guide, &site, "q", 100.0);
+        guide.update(&site, "q", Some(Cell::new(3, 0)), 102.0);
+        for k in 0..3 {
+            guide.update(&site, "q", Some(Cell::new(3, 10)), 104.0 + f64::from(k));
+        }
+        let detour = Route {
+            cells: (0..=10).map(|y| Cell::new(3, 10 - y)).collect(),
+        };
+        guide.start(&site, "q", None, Profile::Default, &detour, 107.0, true);
+        assert!(guide.take_finished().is_empty(), "a re-route goes on");
+        guide.cancel("q", 110.0);
+        let a = &guide.take_finished()[0];
+        assert_eq!(
+            (a.ending, a.arrived, a.detours),
+            (Ending::Cancelled, false, 1)
+        );
+        assert!((a.in_corridor_share - 0.25).abs() < 1e-9, "{a:?}");
+        assert_eq!((a.started_t, a.t), (100.0, 110.0));
+        assert!(a.score() < 0.1, "{a:?}");
+        // Replaced by a new request, or never located: only the first counts.
+        start(&mut guide, &site, "r", 200.0);
+        guide.update(&site, "r", Some(Cell::new(1, 0)), 201.0);
+        start(&mut guide, &site, "r", 202.0);
+        start(&mut guide, &site, "s", 203.0);
+        guide.cancel("s", 204.0);
+        let endings: Vec<Ending> = guide.take_finished().iter().map(|a| a.ending).collect();
+        assert_eq!(endings, [Ending::Replaced]);
     }
 
     #[test]

@@ -4,6 +4,8 @@
 //!
 //! - `<prefix>/devices/<device>/route/set`: `{"to": place | [x, y], "profile"?, "request_id"?}`;
 //!   a request that cannot be read still becomes a reply ([`Inbound::BadRoute`]);
+//! - `<prefix>/devices/<device>/route/cancel`: any payload (empty, `{}`);
+//!   ends the device's guidance session;
 //! - `<prefix>/devices/<device>/feedback`: `{"request_id": "...", "score": 1..5}`;
 //! - `<prefix>/scans/<device>`: `[{"uuid", "major", "minor", "rssi", "tx_power"?}]`,
 //!   a phone's own scan, localized with the phone as observer;
@@ -30,6 +32,11 @@ pub enum Inbound {
         request_id: Option<String>,
         code: RouteErrorCode,
         message: String,
+    },
+    /// End the guidance session of `device` (received at `t`).
+    Cancel {
+        device: String,
+        t: f64,
     },
     Feedback(Feedback),
     /// A phone's scan: sightings with the phone as observer.
@@ -136,6 +143,7 @@ impl Inbox {
     pub fn subscriptions(&self) -> Vec<String> {
         let mut filters = vec![
             self.topics.route_set("+"),
+            self.topics.route_cancel("+"),
             self.topics.feedback("+"),
             self.topics.scans("+"),
         ];
@@ -179,6 +187,11 @@ impl Inbox {
                 topic: topic.to_owned(),
                 size,
                 max: self.max_payload,
+            }),
+            // What a cancel says is all in its topic.
+            Kind::RouteCancel => Ok(Inbound::Cancel {
+                device: id.to_owned(),
+                t: now,
             }),
             Kind::Feedback => {
                 let body: FeedbackBody = serde_json::from_slice(payload).map_err(|e| {
@@ -298,6 +311,9 @@ impl Inbox {
             if let Some(device) = rest.strip_suffix("/route/set") {
                 return Some((Kind::RouteSet, device));
             }
+            if let Some(device) = rest.strip_suffix("/route/cancel") {
+                return Some((Kind::RouteCancel, device));
+            }
             if let Some(device) = rest.strip_suffix("/feedback") {
                 return Some((Kind::Feedback, device));
             }
@@ -320,6 +336,7 @@ fn valid_request_id(id: &str) -> bool {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Kind {
     RouteSet,
+    RouteCancel,
     Feedback,
     Scan,
     Sightings,
@@ -403,6 +420,29 @@ mod tests {
             code(i.read(t, long_id.as_bytes(), 0.0).unwrap()),
             (RouteErrorCode::InvalidRequest, None)
         );
+    }
+
+    #[test]
+    fn a_cancel_is_read_from_its_topic_whatever_its_payload() {
+        let i = inbox();
+        let t = "gangway/gw/devices/phone-1/route/cancel";
+        for payload in [&b""[..], b"{}", b"please stop"] {
+            assert_eq!(
+                i.read(t, payload, 5.0),
+                Ok(Inbound::Cancel {
+                    device: "phone-1".into(),
+                    t: 5.0
+                })
+            );
+        }
+        assert!(
+            i.subscriptions()
+                .contains(&"gangway/gw/devices/+/route/cancel".to_owned())
+        );
+        assert!(matches!(
+            i.read(t, &vec![b' '; 1001], 0.0),
+            Err(Rejected::TooLarge { .. })
+        ));
     }
 
     #[test]

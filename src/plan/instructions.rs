@@ -11,14 +11,64 @@
 //! turn, under 175° "sharp", beyond that a U-turn. A maneuver within
 //! [`PLACE_RADIUS_CELLS`] of a named place is named after it. Guidance
 //! (`crate::guide`) announces these same maneuvers while the route is walked.
+//!
+//! The English follows Wayfindr's guidance (ITU-T F.921) for people using a
+//! screen reader: landmarks rather than compass bearings, nothing that needs
+//! sight ("look", "see"), a way to set off without a compass ("With the help
+//! desk behind you, walk …" when a place is next to the start), and a warning
+//! before stairs, doors and lifts on the way. Profiles shape them: a
+//! wheelchair user is told of lifts (their routes never take stairs); a
+//! low-vision walker is told fewer turns (a bend under 60° is walked on, not
+//! announced) and a landmark at every decision point (the nearest place
+//! within [`LOW_VISION_PLACE_RADIUS_CELLS`], or a door or lift there).
 
 use serde::Serialize;
 
-use super::Route;
-use crate::site::{Cell, Site};
+use super::{Profile, Route};
+use crate::site::{Cell, Site, Tile};
 
 /// How near (in cells) a named place must be to name a turn after it.
 pub const PLACE_RADIUS_CELLS: f64 = 1.5;
+
+/// How near (in cells) a named place may be to serve a low-vision walker as
+/// the landmark of a decision point.
+pub const LOW_VISION_PLACE_RADIUS_CELLS: f64 = 4.0;
+
+/// How near (in cells) a named place must be to the start to set off by it.
+pub const START_PLACE_RADIUS_CELLS: f64 = 3.0;
+
+/// Something on the walk to a maneuver worth a warning before it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Feature {
+    Stairs,
+    Door,
+    Lift,
+}
+
+impl Feature {
+    fn of(tile: Option<Tile>) -> Option<Feature> {
+        match tile? {
+            Tile::Stairs => Some(Feature::Stairs),
+            Tile::Door => Some(Feature::Door),
+            Tile::Elevator => Some(Feature::Lift),
+            _ => None,
+        }
+    }
+
+    /// The warning, as a clause: "…, with a door after 4 metres, …".
+    fn warning(self, after_m: f64) -> String {
+        let what = match self {
+            Feature::Stairs => "stairs",
+            Feature::Door => "a door",
+            Feature::Lift => "the lift",
+        };
+        if after_m < 1.0 {
+            format!("{what} straight ahead")
+        } else {
+            format!("{what} after {}", metres(after_m))
+        }
+    }
+}
 
 /// One spoken step.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -84,8 +134,14 @@ pub struct Maneuver {
     pub along_m: f64,
     pub at: Cell,
     /// The named place at the maneuver, if one is within
-    /// [`PLACE_RADIUS_CELLS`].
+    /// [`PLACE_RADIUS_CELLS`] (for a low-vision walker, the landmark: see
+    /// the module).
     pub place: Option<String>,
+    /// The first stairs, door or lift on the walk to this maneuver, and
+    /// metres from the route's start to it (spoken, not published; f32:
+    /// guidance keeps the maneuvers of every session).
+    #[serde(skip)]
+    pub on_the_way: Option<(Feature, f32)>,
 }
 
 impl Maneuver {
@@ -95,30 +151,62 @@ impl Maneuver {
     }
 
     /// The English sentence for the walk up to this maneuver and the
-    /// maneuver itself, as a screen reader speaks it.
+    /// maneuver itself, as a screen reader speaks it, from `distance_m`
+    /// before it: "Walk 12 metres, with a door after 4 metres, then turn
+    /// left at help desk."
     pub fn sentence(&self, distance_m: f64) -> String {
+        capitalised(&self.clause(distance_m)) + "."
+    }
+
+    /// [`Maneuver::sentence`] without its capital and full stop, to be
+    /// joined to another.
+    pub fn clause(&self, distance_m: f64) -> String {
         let named = self
             .place
             .as_ref()
             .map(|p| format!(" at {p}"))
             .unwrap_or_default();
+        let mut walk = format!("walk {}", metres(distance_m));
+        let from_m = self.along_m - distance_m;
+        if let Some((feature, at_m)) = self.on_the_way
+            && f64::from(at_m) >= from_m - 0.5
+        {
+            walk.push_str(", with ");
+            walk.push_str(&feature.warning(f64::from(at_m) - from_m));
+        }
         match (self.kind, self.modifier) {
-            (ManeuverType::Arrive, _) => {
-                format!("Walk {}; you have arrived{named}.", metres(distance_m))
-            }
-            (_, Some(m)) => format!("Walk {}, then {}{named}.", metres(distance_m), m.words()),
-            (_, None) => format!("Walk {}{named}.", metres(distance_m)),
+            (ManeuverType::Arrive, _) => format!("{walk}; you have arrived{named}"),
+            (_, Some(m)) => format!("{walk}, then {}{named}", m.words()),
+            (_, None) => format!("{walk}{named}"),
         }
     }
+}
+
+/// The sentence a walker sets off along `route` with: how to orient without
+/// a compass, then the walk to the first decision point of its `maneuvers`.
+pub fn first_sentence(site: &Site, route: &[Cell], maneuvers: &[Maneuver]) -> Option<String> {
+    let first = maneuvers.get(1)?;
+    let walk = first.clause(first.distance_m);
+    Some(match setting_off(site, route) {
+        Some(setting_off) => format!("{setting_off}, {walk}."),
+        None => capitalised(&walk) + ".",
+    })
+}
+
+fn capitalised(clause: &str) -> String {
+    let mut chars = clause.chars();
+    chars.next().map_or_else(String::new, |c| {
+        c.to_uppercase().chain(chars).collect::<String>()
+    })
 }
 
 /// How far (in cells) a route may stray from the straight line between two
 /// kept corners before the cell between them becomes a corner too.
 pub const CORNER_TOLERANCE_CELLS: f64 = 1.0;
 
-/// The maneuvers of `route` on `site`: depart, a turn per corner, arrive;
-/// empty for a route of one cell.
-pub fn maneuvers(site: &Site, route: &Route) -> Vec<Maneuver> {
+/// The maneuvers of `route` on `site` for a walker with `profile`: depart,
+/// a turn per corner, arrive; empty for a route of one cell.
+pub fn maneuvers(site: &Site, route: &Route, profile: Profile) -> Vec<Maneuver> {
     let cells = &route.cells;
     if cells.len() < 2 {
         return Vec::new();
@@ -128,7 +216,14 @@ pub fn maneuvers(site: &Site, route: &Route) -> Vec<Maneuver> {
     keep[cells.len() - 1] = true;
     simplify(cells, 0, cells.len() - 1, &mut keep);
     let corners: Vec<usize> = (0..cells.len()).filter(|&i| keep[i]).collect();
-    let place = |c: Cell| site.nearest_place(c, PLACE_RADIUS_CELLS).map(str::to_owned);
+    let low_vision = profile == Profile::LowVision;
+    let place = |c: Cell| {
+        site.nearest_place(c, PLACE_RADIUS_CELLS)
+            .map(str::to_owned)
+            .or_else(|| low_vision.then(|| landmark(site, c)).flatten())
+    };
+    // A bend under this is walked on rather than announced.
+    let least_turn_deg = if low_vision { 60.0 } else { 30.0 };
     let mut out = vec![Maneuver {
         kind: ManeuverType::Depart,
         modifier: None,
@@ -136,21 +231,26 @@ pub fn maneuvers(site: &Site, route: &Route) -> Vec<Maneuver> {
         along_m: 0.0,
         at: cells[0],
         place: place(cells[0]),
+        on_the_way: None,
     }];
+    // Metres from the start to each cell, and the first feature since the
+    // last maneuver.
     let (mut walked, mut along) = (0.0, 0.0);
+    let mut on_the_way = None;
     for k in 1..corners.len() {
         let (a, b) = (corners[k - 1], corners[k]);
-        let leg = cells[a..=b]
-            .windows(2)
-            .map(|w| w[0].distance(w[1]))
-            .sum::<f64>()
-            * site.cell_m;
-        walked += leg;
-        along += leg;
+        for i in a + 1..=b {
+            let step = cells[i - 1].distance(cells[i]) * site.cell_m;
+            walked += step;
+            along += step;
+            if on_the_way.is_none() {
+                on_the_way = Feature::of(site.tile(cells[i])).map(|f| (f, along as f32));
+            }
+        }
         let at = cells[b];
         let (kind, modifier) = match corners.get(k + 1) {
             None => (ManeuverType::Arrive, None),
-            Some(&c) => match turn(bearing(cells[a], at), bearing(at, cells[c])) {
+            Some(&c) => match turn(bearing(cells[a], at), bearing(at, cells[c]), least_turn_deg) {
                 None => continue,
                 some => (ManeuverType::Turn, some),
             },
@@ -162,20 +262,63 @@ pub fn maneuvers(site: &Site, route: &Route) -> Vec<Maneuver> {
             along_m: along,
             at,
             place: place(at),
+            on_the_way: on_the_way.take(),
         });
         walked = 0.0;
     }
     out
 }
 
-/// The instructions for `route` on `site`: a sentence per turn and one for
-/// arriving; empty for a route of one cell.
-pub fn instructions(site: &Site, route: &Route) -> Vec<Instruction> {
-    maneuvers(site, route)
+/// A low-vision walker's landmark at `cell` when no place is at it: the
+/// nearest place a little further off, or a door or lift there.
+fn landmark(site: &Site, cell: Cell) -> Option<String> {
+    site.nearest_place(cell, LOW_VISION_PLACE_RADIUS_CELLS)
+        .map(str::to_owned)
+        .or_else(|| match Feature::of(site.tile(cell)) {
+            Some(Feature::Door) => Some("the door".to_owned()),
+            Some(Feature::Lift) => Some("the lift".to_owned()),
+            _ => None,
+        })
+}
+
+/// How to set off along `cells` by the nearest place next to the start (not
+/// at it): "With help desk behind you", "With help desk on your left",
+/// "Facing help desk"; `None` when no place is near.
+fn setting_off(site: &Site, cells: &[Cell]) -> Option<String> {
+    let start = *cells.first()?;
+    let (name, place) = site
+        .places()
         .iter()
-        .filter(|m| m.is_decision())
-        .map(|m| Instruction {
-            text: m.sentence(m.distance_m),
+        .map(|(n, &c)| (n, c, c.distance(start)))
+        .filter(|&(_, _, d)| (0.5..=START_PLACE_RADIUS_CELLS).contains(&d))
+        .min_by(|a, b| a.2.total_cmp(&b.2))
+        .map(|(n, c, _)| (n, c))?;
+    // The first few cells give the direction of walking off.
+    let ahead = cells[cells.len().min(4) - 1];
+    let side = (bearing(start, place) - bearing(start, ahead) + 540.0).rem_euclid(360.0) - 180.0;
+    Some(match side.abs() {
+        x if x >= 120.0 => format!("With {name} behind you"),
+        x if x <= 45.0 => format!("Facing {name}"),
+        _ if side > 0.0 => format!("With {name} on your right"),
+        _ => format!("With {name} on your left"),
+    })
+}
+
+/// The instructions for `route` on `site` for a walker with `profile`: a
+/// sentence per turn (the first saying how to set off) and one for
+/// arriving; empty for a route of one cell.
+pub fn instructions(site: &Site, route: &Route, profile: Profile) -> Vec<Instruction> {
+    let maneuvers = maneuvers(site, route, profile);
+    maneuvers
+        .iter()
+        .enumerate()
+        .filter(|(_, m)| m.is_decision())
+        .map(|(i, m)| Instruction {
+            text: if i == 1 {
+                first_sentence(site, &route.cells, &maneuvers).expect("a first decision")
+            } else {
+                m.sentence(m.distance_m)
+            },
             distance_m: m.distance_m,
             at: m.at,
         })
@@ -213,14 +356,14 @@ fn bearing(a: Cell, b: Cell) -> f64 {
     dy.atan2(dx).to_degrees()
 }
 
-/// The turn from bearing `a` to `b`, or `None` when about straight on.
-/// Clockwise is to the right.
-fn turn(a: f64, b: f64) -> Option<Modifier> {
+/// The turn from bearing `a` to `b`, or `None` when about straight on (a
+/// bend under `least_deg`). Clockwise is to the right.
+fn turn(a: f64, b: f64, least_deg: f64) -> Option<Modifier> {
     let d = (b - a + 540.0).rem_euclid(360.0) - 180.0;
     let right = d > 0.0;
     let side = |r: Modifier, l: Modifier| if right { r } else { l };
     Some(match d.abs() {
-        x if x < 30.0 => return None,
+        x if x < least_deg => return None,
         x if x < 60.0 => side(Modifier::SlightRight, Modifier::SlightLeft),
         x if x < 135.0 => side(Modifier::Right, Modifier::Left),
         x if x < 175.0 => side(Modifier::SharpRight, Modifier::SharpLeft),
@@ -241,7 +384,9 @@ fn metres(m: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::plan::Planner;
     use std::path::Path;
+    use std::sync::Arc;
 
     #[test]
     fn names_turns_distances_and_places() {
@@ -253,7 +398,7 @@ mod tests {
                 .map(|(x, y)| Cell::new(x, y))
                 .to_vec(),
         };
-        let steps = instructions(&site, &route);
+        let steps = instructions(&site, &route, Profile::Default);
         let texts: Vec<&str> = steps.iter().map(|s| s.text.as_str()).collect();
         assert_eq!(
             texts,
@@ -264,7 +409,7 @@ mod tests {
         );
         assert_eq!(steps[0].at, Cell::new(4, 0));
         assert_eq!(steps[1].distance_m, 4.0);
-        let kinds: Vec<_> = maneuvers(&site, &route)
+        let kinds: Vec<_> = maneuvers(&site, &route, Profile::Default)
             .into_iter()
             .map(|m| (m.kind, m.modifier, m.along_m, m.place))
             .collect();
@@ -285,11 +430,24 @@ mod tests {
 
     #[test]
     fn left_is_left_on_the_map() {
-        assert_eq!(turn(0.0, -90.0), Some(Modifier::Left), "east, then north");
-        assert_eq!(turn(90.0, 0.0), Some(Modifier::Left), "south, then east");
-        assert_eq!(turn(0.0, 45.0), Some(Modifier::SlightRight));
-        assert_eq!(turn(170.0, -170.0), None, "west stays west");
-        assert_eq!(turn(0.0, 20.0), None);
+        assert_eq!(
+            turn(0.0, -90.0, 30.0),
+            Some(Modifier::Left),
+            "east, then north"
+        );
+        assert_eq!(
+            turn(90.0, 0.0, 30.0),
+            Some(Modifier::Left),
+            "south, then east"
+        );
+        assert_eq!(turn(0.0, 45.0, 30.0), Some(Modifier::SlightRight));
+        assert_eq!(turn(170.0, -170.0, 30.0), None, "west stays west");
+        assert_eq!(turn(0.0, 20.0, 30.0), None);
+        assert_eq!(
+            turn(0.0, 45.0, 60.0),
+            None,
+            "walked on by a low-vision walker"
+        );
     }
 
     #[test]
@@ -301,8 +459,122 @@ mod tests {
                 .map(|(x, y)| Cell::new(x, y))
                 .to_vec(),
         };
-        let steps = instructions(&site, &route);
+        let steps = instructions(&site, &route, Profile::Default);
         assert_eq!(steps.len(), 1, "{steps:?}");
         assert_eq!(steps[0].text, "Walk 6 metres; you have arrived.");
+    }
+
+    /// Words a screen-reader instruction must not use: sight, and compass
+    /// bearings a blind walker cannot take.
+    fn assert_followable(texts: &[String]) {
+        for text in texts {
+            let lower = text.to_lowercase();
+            for word in ["look", "see ", "north", "south", "east", "west"] {
+                assert!(!lower.contains(word), "{word:?} in {text:?}");
+            }
+        }
+    }
+
+    fn texts(site: &Site, route: &Route, profile: Profile) -> Vec<String> {
+        instructions(site, route, profile)
+            .into_iter()
+            .map(|s| s.text)
+            .collect()
+    }
+
+    #[test]
+    fn sets_off_by_a_place_and_warns_of_a_door() {
+        let text = "name = \"t\"\ncell_m = 1.0\nmap = '''\n#####d####\n#........#\n#........#\n'''\n\
+                    [places]\nentrance = [0, 1]\ndesk = [9, 0]\nexit = [9, 2]\n";
+        let site = Site::parse(text, Path::new("t.toml")).unwrap();
+        let route = Route {
+            cells: (1..=9)
+                .map(|x| Cell::new(x, 0))
+                .chain([Cell::new(9, 1), Cell::new(9, 2)])
+                .collect(),
+        };
+        let said = texts(&site, &route, Profile::Default);
+        assert_eq!(
+            said,
+            [
+                "With entrance behind you, walk 8 metres, with a door after 4 metres, then turn right at desk.",
+                "Walk 2 metres; you have arrived at exit.",
+            ]
+        );
+        assert_followable(&said);
+        // Announced 6 m before the turn, the door is 2 m ahead.
+        let turn = &maneuvers(&site, &route, Profile::Default)[1];
+        assert_eq!(
+            turn.sentence(6.0),
+            "Walk 6 metres, with a door after 2 metres, then turn right at desk."
+        );
+        // Past the door, it is not mentioned again.
+        assert_eq!(
+            turn.sentence(3.0),
+            "Walk 3 metres, then turn right at desk."
+        );
+    }
+
+    #[test]
+    fn wheelchair_users_are_told_of_lifts_and_never_of_stairs() {
+        // Stairs straight across, a lift round the side.
+        let text = "name = \"t\"\ncell_m = 1.0\nmap = '''\n###s###\n#.....#\n###e###\n'''\n\
+                    [places]\nlibrary = [0, 0]\ncafe = [6, 0]\n";
+        let site = Arc::new(Site::parse(text, Path::new("t.toml")).unwrap());
+        let planner =
+            crate::plan::astar::AStar::new(site.clone(), crate::plan::Connectivity::Eight);
+        let (from, to) = (Cell::new(0, 0), Cell::new(6, 0));
+        let walk = |profile| {
+            let route = planner.plan(from, to, profile).unwrap().route;
+            texts(&site, &route, profile)
+        };
+        let walking = walk(Profile::Default);
+        assert!(walking.iter().any(|t| t.contains("stairs")), "{walking:?}");
+        let rolling = walk(Profile::Wheelchair);
+        assert!(
+            rolling.iter().any(|t| t.contains("the lift")),
+            "{rolling:?}"
+        );
+        assert!(rolling.iter().all(|t| !t.contains("stairs")), "{rolling:?}");
+        assert_followable(&walking);
+        assert_followable(&rolling);
+    }
+
+    #[test]
+    fn low_vision_walkers_get_fewer_turns_and_a_landmark_at_each() {
+        // Bearing right at (4, 0) and left at (7, 3), then a right turn at
+        // (9, 3), with the only place a few cells from that turn.
+        let row = "#".repeat(10);
+        let map = vec![row; 8].join("\n");
+        let text = format!(
+            "name = \"t\"\ncell_m = 1.0\nmap = '''\n{map}\n'''\n[places]\n\"help desk\" = [6, 5]\n"
+        );
+        let site = Site::parse(&text, Path::new("t.toml")).unwrap();
+        let route = Route {
+            cells: (0..=4)
+                .map(|x| Cell::new(x, 0))
+                .chain((1..=3).map(|d| Cell::new(4 + d, d)))
+                .chain([Cell::new(8, 3), Cell::new(9, 3)])
+                .chain((4..=7).map(|y| Cell::new(9, y)))
+                .collect(),
+        };
+        let turns = |profile| {
+            maneuvers(&site, &route, profile)
+                .into_iter()
+                .filter(|m| m.kind == ManeuverType::Turn)
+                .collect::<Vec<_>>()
+        };
+        let seeing = turns(Profile::Default);
+        let low_vision = turns(Profile::LowVision);
+        assert!(
+            low_vision.len() < seeing.len(),
+            "{seeing:?} / {low_vision:?}"
+        );
+        assert!(!low_vision.is_empty());
+        for m in &low_vision {
+            assert_eq!(m.place.as_deref(), Some("help desk"), "{m:?}");
+        }
+        assert!(seeing.iter().any(|m| m.place.is_none()));
+        assert_followable(&texts(&site, &route, Profile::LowVision));
     }
 }
