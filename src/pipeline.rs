@@ -220,15 +220,15 @@ impl Pipeline {
         let confidence = self.localizer.confidence(fix.confidence);
         let known = confidence >= self.min_confidence;
         let cell = known.then_some(fix.cell);
-        let metres = cell.map(|c| self.site.metres(c));
+        let world = cell.map(|c| self.site.world_of_cell(c));
         let location = Location {
             schema: LOCATION_SCHEMA,
             device: fp.entity.to_string(),
             t: fp.t,
             cell,
             label: cell.and_then(|c| self.site.label(c)),
-            x_m: metres.map(|m| m.0),
-            y_m: metres.map(|m| m.1),
+            x_m: world.map(|[x, _]| x),
+            y_m: world.map(|[_, y]| y),
             place: cell
                 .and_then(|c| self.site.nearest_place(c, 2.0))
                 .map(str::to_owned),

@@ -46,6 +46,7 @@ pub struct Location {
     pub cell: Option<Cell>,
     /// The cell's survey label (`O02`) when the site has a label scheme.
     pub label: Option<String>,
+    /// Centre of the cell in the site's world frame ([`crate::site::Site::world_of_cell`]).
     pub x_m: Option<f64>,
     pub y_m: Option<f64>,
     /// The nearest named place within two cells.

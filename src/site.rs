@@ -2,9 +2,15 @@
 //! and which places have names. Everything site-specific comes from a site file
 //! (TOML); nothing in the code knows about any particular building.
 //!
-//! Coordinates: `x` is the column index from 0 (left), `y` the row index from 0
-//! (top row of `map`). A cell is `cell_m` metres square; its centre is at
-//! `((x + 0.5) * cell_m, (y + 0.5) * cell_m)`.
+//! Coordinates: a cell `[x, y]` is column `x` from 0 (left) and row `y` from 0
+//! (top row of `map`). A cell is `cell_m` metres square. The site's metric
+//! frame places the grid in the building's own coordinates ("world" metres):
+//! `origin_m` is where the outer top-left corner of cell `[0, 0]` is, and
+//! `y_axis` says whether world y grows with the row index (`down`, the
+//! default) or shrinks with it (`up`, as on survey drawings). With the defaults
+//! a cell's centre is at `((x + 0.5) * cell_m, (y + 0.5) * cell_m)`.
+//! [`Site::world_of_grid`] is the one place that transform is written; every
+//! metric position the gateway computes or publishes goes through it.
 //!
 //! Validation happens once, at load, so every later stage may assume a consistent
 //! site: places and anchors sit on walkable cells, ids are unique, the grid is
@@ -147,12 +153,37 @@ pub struct LabelScheme {
     pub first_row: u16,
 }
 
+/// Which way world y runs against the grid's rows.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum YAxis {
+    /// World y grows with the row index (row 0 is the smallest y): screen
+    /// coordinates, and what sites without a frame mean.
+    #[default]
+    Down,
+    /// World y shrinks as the row index grows (row 0 is the largest y): survey
+    /// drawings and most pedestrian datasets.
+    Up,
+}
+
+impl fmt::Display for YAxis {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            YAxis::Down => "down",
+            YAxis::Up => "up",
+        })
+    }
+}
+
 /// A loaded, validated site.
 #[derive(Clone, Debug)]
 pub struct Site {
     pub name: String,
     /// Metres per cell side.
     pub cell_m: f64,
+    /// World coordinates (metres) of the outer top-left corner of cell [0, 0].
+    origin_m: [f64; 2],
+    y_axis: YAxis,
     width: u16,
     height: u16,
     tiles: Vec<Tile>,
@@ -196,6 +227,10 @@ pub enum SiteError {
 struct SiteFile {
     name: String,
     cell_m: f64,
+    #[serde(default)]
+    origin_m: Option<Spanned<[f64; 2]>>,
+    #[serde(default)]
+    y_axis: YAxis,
     map: Spanned<String>,
     #[serde(default)]
     labels: Option<LabelScheme>,
@@ -250,6 +285,19 @@ impl Site {
                 file.cell_m
             ));
         }
+        let origin_m = match &file.origin_m {
+            None => [0.0, 0.0],
+            Some(origin) => {
+                let [x, y] = *origin.get_ref();
+                if !(x.is_finite() && y.is_finite()) {
+                    problems.push(format!(
+                        "line {}: `origin_m` is [{x}, {y}]; it must be two finite numbers of metres",
+                        line_of(origin.span())
+                    ));
+                }
+                [x, y]
+            }
+        };
 
         let map_line = line_of(file.map.span());
         let (width, height, tiles) = match parse_map(file.map.get_ref()) {
@@ -372,6 +420,8 @@ impl Site {
         Ok(Site {
             name: file.name,
             cell_m: file.cell_m,
+            origin_m,
+            y_axis: file.y_axis,
             width,
             height,
             tiles,
@@ -435,12 +485,65 @@ impl Site {
         }
     }
 
-    /// Centre of a cell in metres from the top-left corner of the grid.
+    /// World coordinates (metres) of the outer top-left corner of cell [0, 0].
+    pub fn origin_m(&self) -> [f64; 2] {
+        self.origin_m
+    }
+
+    /// Which way world y runs against the rows.
+    pub fn y_axis(&self) -> YAxis {
+        self.y_axis
+    }
+
+    /// World coordinates (metres) of a point given in grid units: `[gx, gy]`
+    /// cells right of and below the outer top-left corner of cell [0, 0]
+    /// (so `[x + 0.5, y + 0.5]` is the centre of cell `[x, y]`). The only
+    /// place the site's frame is applied; [`Site::grid_of_world`] inverts it.
+    pub fn world_of_grid(&self, [gx, gy]: [f64; 2]) -> [f64; 2] {
+        let [ox, oy] = self.origin_m;
+        let y = match self.y_axis {
+            YAxis::Down => oy + gy * self.cell_m,
+            YAxis::Up => oy - gy * self.cell_m,
+        };
+        [ox + gx * self.cell_m, y]
+    }
+
+    /// Grid units (see [`Site::world_of_grid`]) of a point in world metres.
+    pub fn grid_of_world(&self, [x, y]: [f64; 2]) -> [f64; 2] {
+        let [ox, oy] = self.origin_m;
+        let gy = match self.y_axis {
+            YAxis::Down => (y - oy) / self.cell_m,
+            YAxis::Up => (oy - y) / self.cell_m,
+        };
+        [(x - ox) / self.cell_m, gy]
+    }
+
+    /// Centre of a cell in world metres.
+    pub fn world_of_cell(&self, cell: Cell) -> [f64; 2] {
+        self.world_of_grid([f64::from(cell.x) + 0.5, f64::from(cell.y) + 0.5])
+    }
+
+    /// The cell containing a point in world metres; `None` outside the grid
+    /// (or for a non-finite point). A point on the edge between two cells
+    /// belongs to the one right of it and, in grid rows, below it.
+    pub fn cell_of_world(&self, world: [f64; 2]) -> Option<Cell> {
+        let [gx, gy] = self.grid_of_world(world);
+        let inside = |g: f64, cells: u16| (0.0..f64::from(cells)).contains(&g);
+        (inside(gx, self.width) && inside(gy, self.height))
+            .then(|| Cell::new(gx.floor() as u16, gy.floor() as u16))
+    }
+
+    /// The grid's extent in world metres: the smallest and largest x and y.
+    pub fn extent_m(&self) -> ([f64; 2], [f64; 2]) {
+        let a = self.world_of_grid([0.0, 0.0]);
+        let b = self.world_of_grid([f64::from(self.width), f64::from(self.height)]);
+        ([a[0].min(b[0]), a[1].min(b[1])], [a[0].max(b[0]), a[1].max(b[1])])
+    }
+
+    /// [`Site::world_of_cell`] as a pair, for callers that destructure it.
     pub fn metres(&self, cell: Cell) -> (f64, f64) {
-        (
-            (f64::from(cell.x) + 0.5) * self.cell_m,
-            (f64::from(cell.y) + 0.5) * self.cell_m,
-        )
+        let [x, y] = self.world_of_cell(cell);
+        (x, y)
     }
 
     pub fn places(&self) -> &BTreeMap<String, Cell> {
@@ -673,6 +776,50 @@ door = [2, 1]
 
         let unknown_key = SMALL.replace("cell_m = 2.0", "cell_m = 2.0\ncolour = 1");
         assert!(problems(&unknown_key).contains("colour"));
+    }
+
+    #[test]
+    fn the_default_frame_is_the_grid_in_metres() {
+        let site = parse(SMALL).unwrap();
+        assert_eq!((site.origin_m(), site.y_axis()), ([0.0, 0.0], YAxis::Down));
+        assert_eq!(site.world_of_cell(Cell::new(1, 0)), [3.0, 1.0]);
+        assert_eq!(site.metres(Cell::new(2, 1)), (5.0, 3.0));
+        assert_eq!(site.cell_of_world([5.9, 3.9]), Some(Cell::new(2, 1)));
+        assert_eq!(site.cell_of_world([6.0, 1.0]), None, "right of the grid");
+        assert_eq!(site.cell_of_world([-0.1, 1.0]), None);
+        assert_eq!(site.cell_of_world([f64::NAN, 1.0]), None);
+        assert_eq!(site.extent_m(), ([0.0, 0.0], [6.0, 4.0]));
+    }
+
+    #[test]
+    fn an_origin_and_y_up_place_the_grid_in_the_world() {
+        let text = SMALL.replace(
+            "cell_m = 2.0",
+            "cell_m = 0.5\norigin_m = [10.0, 20.0]\ny_axis = \"up\"",
+        );
+        let site = parse(&text).unwrap();
+        assert_eq!(site.y_axis(), YAxis::Up);
+        // Row 0 is the top: the largest y, just under the origin's.
+        assert_eq!(site.world_of_cell(Cell::new(0, 0)), [10.25, 19.75]);
+        assert_eq!(site.world_of_cell(Cell::new(2, 1)), [11.25, 19.25]);
+        assert_eq!(site.extent_m(), ([10.0, 19.0], [11.5, 20.0]));
+        for &cell in site.open_cells() {
+            assert_eq!(site.cell_of_world(site.world_of_cell(cell)), Some(cell));
+        }
+        assert_eq!(site.cell_of_world([10.1, 19.1]), Some(Cell::new(0, 1)));
+        assert_eq!(site.cell_of_world([10.1, 20.1]), None, "above row 0");
+        assert_eq!(site.cell_of_world([10.1, 18.9]), None, "below the last row");
+        let [gx, gy] = site.grid_of_world([11.0, 19.5]);
+        assert!((gx - 2.0).abs() < 1e-12 && (gy - 1.0).abs() < 1e-12);
+
+        let bad = SMALL.replace("cell_m = 2.0", "cell_m = 2.0\norigin_m = [1.0, nan]");
+        assert!(
+            problems(&bad).contains("line 4: `origin_m` is [1, NaN]"),
+            "{}",
+            problems(&bad)
+        );
+        let axis = SMALL.replace("cell_m = 2.0", "cell_m = 2.0\ny_axis = \"north\"");
+        assert!(problems(&axis).contains("y_axis"), "{}", problems(&axis));
     }
 
     #[test]

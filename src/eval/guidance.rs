@@ -278,7 +278,8 @@ pub fn evaluate(
                 &mut out,
             );
             let (cell, pos) = walker.at();
-            let metres = (pos.0 * site.cell_m, pos.1 * site.cell_m);
+            let [x_m, y_m] = site.world_of_grid([pos.0, pos.1]);
+            let metres = (x_m, y_m);
             for m in out.drain(..) {
                 if m.topic.ends_with("/location") {
                     fixes += 1;
