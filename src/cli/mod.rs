@@ -11,6 +11,7 @@ mod replay;
 mod run;
 mod simulate;
 mod train;
+mod walks;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -46,6 +47,8 @@ enum Command {
     Train(train::Args),
     /// Evaluate localization on a labelled survey.
     Eval(eval::Args),
+    /// Real walks in: import recorded tracks onto a site, build a scene's site.
+    Walks(walks::Args),
 }
 
 /// Where `--config` points when it is not given.
@@ -65,6 +68,7 @@ impl Cli {
             Command::Plan(args) => plan::run(args),
             Command::Train(args) => train::run(args),
             Command::Eval(args) => eval::run(args),
+            Command::Walks(args) => walks::run(args),
         }
     }
 }

@@ -120,11 +120,8 @@ pub fn clear(site: &Site, a: Cell, b: Cell, passable: impl Fn(Cell) -> bool) -> 
 }
 
 /// The 8-connected cells a walker crosses along the segment `a → b` (cell
-/// units), first cell included: the supercover's cells, with each corner
-/// taken diagonally where the step may cut it and through the open side cell
-/// where it may not, and each L-shaped pair of steps that a diagonal step
-/// could replace replaced by it (so a slanted line is a thin staircase, as
-/// routes are). `None` when the segment leaves the grid or crosses a cell
+/// units), first cell included: the supercover's cells made a walk by
+/// [`extend_walk`]. `None` when the segment leaves the grid or crosses a cell
 /// `passable` refuses.
 pub fn segment_cells(
     site: &Site,
@@ -133,31 +130,53 @@ pub fn segment_cells(
     passable: impl Fn(Cell) -> bool,
 ) -> Option<Vec<Cell>> {
     let ok = |c: Cell| site.walkable(c) && passable(c);
-    let mut out: Vec<Cell> = Vec::new();
+    let mut out: Vec<(Cell, f64)> = Vec::new();
     for raw in traverse(a, b).cells {
         let cell = on_grid(site, raw).filter(|&c| ok(c))?;
-        if let Some(&last) = out.last()
-            && last.x != cell.x
-            && last.y != cell.y
-            && !Connectivity::Eight.step_ok_by(last, cell, ok)
-        {
-            // A corner crossed exactly, with a side closed: go round by the
-            // open side, if there is one.
-            let side = [Cell::new(cell.x, last.y), Cell::new(last.x, cell.y)]
-                .into_iter()
-                .find(|&c| ok(c))?;
-            out.push(side);
+        if !extend_walk(&mut out, cell, 0.0, ok) {
+            return None;
         }
-        // Replace an L of two steps by its diagonal where that step is allowed.
-        if out.len() >= 2 {
-            let before = out[out.len() - 2];
-            if before.chebyshev(cell) == 1 && Connectivity::Eight.step_ok_by(before, cell, ok) {
-                out.pop();
-            }
-        }
-        out.push(cell);
     }
-    Some(out)
+    Some(out.into_iter().map(|(c, _)| c).collect())
+}
+
+/// Appends `cell`, reached at time `t`, to an 8-connected walk along a
+/// supercover (`cell` is the same cell as the last, a 4-neighbour, or a
+/// diagonal neighbour across a corner crossed exactly). A repeat of the last
+/// cell is dropped; a corner is taken diagonally where the step may cut it
+/// and through the open side cell (`ok`) where it may not; an L of two steps
+/// that one allowed diagonal step could replace is replaced by it, so a
+/// slanted line is a thin staircase, as routes are. `false` when the corner
+/// has no open side: the walk cannot go on.
+pub fn extend_walk(
+    out: &mut Vec<(Cell, f64)>,
+    cell: Cell,
+    t: f64,
+    ok: impl Fn(Cell) -> bool,
+) -> bool {
+    if let Some(&(last, t_last)) = out.last() {
+        if last == cell {
+            return true;
+        }
+        if last.x != cell.x && last.y != cell.y && !Connectivity::Eight.step_ok_by(last, cell, &ok)
+        {
+            let Some(side) = [Cell::new(cell.x, last.y), Cell::new(last.x, cell.y)]
+                .into_iter()
+                .find(|&c| ok(c))
+            else {
+                return false;
+            };
+            out.push((side, (t_last + t) / 2.0));
+        }
+    }
+    if out.len() >= 2 {
+        let before = out[out.len() - 2].0;
+        if before.chebyshev(cell) == 1 && Connectivity::Eight.step_ok_by(before, cell, &ok) {
+            out.pop();
+        }
+    }
+    out.push((cell, t));
+    true
 }
 
 /// The cells of a polyline through cell centres or any points (cell units),
@@ -181,22 +200,23 @@ pub fn polyline_cells(
                 .and_then(|&p| on_grid(site, [p[0].floor() as i64, p[1].floor() as i64])),
         );
     }
-    Some(without_loops(cells))
+    Some(without_loops(cells, |&c| c))
 }
 
-/// Cuts every loop out of a walk: from a cell's first visit straight to its
-/// last.
-pub fn without_loops(cells: Vec<Cell>) -> Vec<Cell> {
-    let mut out: Vec<Cell> = Vec::with_capacity(cells.len());
+/// Cuts every loop out of a walk of items at cells (`cell_of`): from a
+/// cell's first visit straight on from its last.
+pub fn without_loops<T>(items: Vec<T>, cell_of: impl Fn(&T) -> Cell) -> Vec<T> {
+    let mut out: Vec<T> = Vec::with_capacity(items.len());
     let mut at: std::collections::HashMap<Cell, usize> = Default::default();
-    for c in cells {
+    for item in items {
+        let c = cell_of(&item);
         if let Some(&i) = at.get(&c) {
             for dropped in out.drain(i + 1..) {
-                at.remove(&dropped);
+                at.remove(&cell_of(&dropped));
             }
         } else {
             at.insert(c, out.len());
-            out.push(c);
+            out.push(item);
         }
     }
     out
@@ -521,6 +541,6 @@ mod tests {
     fn loops_are_cut() {
         let c = |x, y| Cell::new(x, y);
         let walk = vec![c(0, 0), c(1, 0), c(1, 1), c(0, 1), c(1, 0), c(2, 0)];
-        assert_eq!(without_loops(walk), vec![c(0, 0), c(1, 0), c(2, 0)]);
+        assert_eq!(without_loops(walk, |&c| c), vec![c(0, 0), c(1, 0), c(2, 0)]);
     }
 }
