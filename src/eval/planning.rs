@@ -26,7 +26,8 @@
 //! Fair judges on the held-out walks (`baselines`, and `heldout` in each
 //! mode): beside A*, the any-angle route ([`plan::anyangle`], Theta*) and the
 //! straight line where the profile may walk it. Every judge's route and each
-//! walk are compared in metres ([`shape`]: DTW and discrete Fréchet on both
+//! walk (its recorded positions when it has them, else its cells' centres)
+//! are compared in metres ([`shape`]: DTW and discrete Fréchet on both
 //! resampled every half cell), by cell IoU and by length ratio (route over
 //! walk). `closer_than` gives, per baseline, how often the mode's route is
 //! closer to the walk by DTW than the baseline's (wins, losses, ties: within
@@ -208,9 +209,14 @@ fn walk_profile(w: &Trajectory) -> Profile {
         .unwrap_or(Profile::Default)
 }
 
-/// A route (its cells, and the line it walks in metres) scored against a walk.
+/// A route (its cells, and the line it walks in metres) scored against a
+/// walk: against its recorded positions when it has them, else its cells'
+/// centres.
 fn score(site: &Site, walk: &Trajectory, cells: &[Cell], line: &Polyline) -> Option<Score> {
-    let walked = Polyline::of_cells(site, &walk.cells);
+    let walked = match &walk.positions_m {
+        Some(points) => Polyline(points.clone()),
+        None => Polyline::of_cells(site, &walk.cells),
+    };
     let s = shape(line, &walked, site.cell_m / 2.0)?;
     let walk_m = walked.length_m();
     Some(Score {

@@ -67,6 +67,7 @@ pub fn walks_from_store(path: &Path, site: &Site) -> anyhow::Result<Vec<Trajecto
                 times,
                 profile: None,
                 feedback: None,
+                positions_m: None,
             });
         }
     }
@@ -83,6 +84,7 @@ pub fn walks_from_store(path: &Path, site: &Site) -> anyhow::Result<Vec<Trajecto
             times,
             profile: None,
             feedback: Some(((score - 1.0) / 4.0).clamp(0.0, 1.0)),
+            positions_m: None,
         });
     }
     Ok(walks)
@@ -114,6 +116,7 @@ mod tests {
             times: vec![0.0, 1.0],
             profile: None,
             feedback,
+            positions_m: None,
         }
     }
 

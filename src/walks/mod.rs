@@ -406,6 +406,7 @@ pub fn rasterise(
     stats.points += track.points.len();
     let ok = |c: Cell| site.walkable(c);
     let mut pieces: Vec<Vec<(Cell, f64)>> = vec![Vec::new()];
+
     let mut previous: Option<(f64, [f64; 2])> = None;
     for &(t, world) in &track.points {
         let g = site.grid_of_world(world);
@@ -458,6 +459,13 @@ pub fn rasterise(
             0 => track.id.clone(),
             n => format!("{}#{}", track.id, n + 1),
         };
+        let (start, end) = (piece[0].1, piece[piece.len() - 1].1);
+        let positions: Vec<[f64; 2]> = track
+            .points
+            .iter()
+            .filter(|&&(t, p)| (start..=end).contains(&t) && site.cell_of_world(p).is_some())
+            .map(|&(_, p)| p)
+            .collect();
         walks.push(Trajectory {
             site: site.name.clone(),
             device,
@@ -465,6 +473,7 @@ pub fn rasterise(
             times: piece.iter().map(|&(_, t)| t).collect(),
             profile: None,
             feedback: None,
+            positions_m: (positions.len() >= 2).then_some(positions),
         });
     }
     stats.walks += walks.len();
@@ -648,6 +657,7 @@ mod tests {
         w.check(&s).unwrap();
         assert_eq!(w.source(), Cell::new(0, 0));
         assert_eq!(w.destination(), Cell::new(3, 3));
+        assert_eq!(w.positions_m.as_ref().map(Vec::len), Some(3));
         assert!(
             w.cells
                 .windows(2)
