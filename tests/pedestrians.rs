@@ -177,8 +177,10 @@ fn real_walks_are_imported_and_judged_and_a_trained_directory_is_served() {
         "100",
         "--min-class-walks",
         "2",
+        "--accept-failed",
         "--json",
     ]);
+    assert!(models.join("MODEL_CARD.md").is_file());
     let report: Value = serde_json::from_str(&gangway_ok(&[
         "eval",
         "planning",
@@ -215,7 +217,7 @@ fn real_walks_are_imported_and_judged_and_a_trained_directory_is_served() {
 }
 
 #[test]
-fn bad_walk_files_name_the_line_and_a_directory_without_models_says_so() {
+fn bad_walk_files_failed_training_and_missing_models_say_so() {
     let dir = tempfile::tempdir().unwrap();
     let site = write(
         dir.path(),
@@ -258,6 +260,53 @@ fn bad_walk_files_name_the_line_and_a_directory_without_models_says_so() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(err.contains("conditional_generator.onnx"), "{err}");
+    // Training that fails its checks says so, exits non-zero, and leaves
+    // nothing servable where planners load models.
+    let places = write(
+        dir.path(),
+        "p.toml",
+        "name = \"p\"\ncell_m = 1.0\nmap = '''\n#######\n###.###\n#######\n'''\n\
+         [places]\nwest = [0, 1]\neast = [6, 1]\nnorth = [3, 0]\n",
+    );
+    let walks = dir.path().join("walks.jsonl");
+    gangway_ok(&[
+        "simulate",
+        "--trajectories",
+        "--site",
+        text(&places),
+        "--out",
+        text(&walks),
+        "--walks-per-pair",
+        "10",
+        "--random-walks",
+        "0",
+    ]);
+    let models = dir.path().join("models");
+    let out = gangway(&[
+        "train",
+        "--site",
+        text(&places),
+        "--trajectories",
+        text(&walks),
+        "--out",
+        text(&models),
+        "--iterations",
+        "3",
+        "--classifier-iterations",
+        "10",
+        "--conditional",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("conditional_generator failed its checks"),
+        "{err}"
+    );
+    assert!(err.contains("endpoint_hit_share"), "{err}");
+    assert!(!models.join("conditional_generator.onnx").exists());
+    assert!(models.join("failed/conditional_generator.onnx").is_file());
+    let card = std::fs::read_to_string(models.join("MODEL_CARD.md")).unwrap();
+    assert!(card.contains("FAIL endpoint_hit_share"), "{card}");
     // Without models A* serves from the site alone.
     let route = gangway_ok(&[
         "plan",
