@@ -36,8 +36,9 @@ impl Planner for AStar {
 }
 
 /// The profile's cheapest route, each cell's cost also scaled by `extra`
-/// (≥ 1). Shared by every planner: the baseline, and the repair of learned
-/// frames.
+/// (≥ 1), equally cheap routes broken towards the straight line
+/// ([`Costs::hug_line`]). Shared by every planner: the baseline, and the
+/// repair of learned frames.
 pub fn profile_search(
     site: &Site,
     connectivity: Connectivity,
@@ -55,29 +56,33 @@ pub fn profile_search(
             passable: |c| profile.passable(site, c),
             cell_cost: |c| profile.cell_cost(site, c) * extra(c),
             turn_cost: profile.turn_cost(),
+            hug_line: true,
         },
     )
 }
 
 #[derive(PartialEq, Eq)]
 struct Entry {
-    /// f in millionths of a cell: equal-cost routes summed in different
-    /// orders differ in the last bits of a float, and must tie.
+    /// f as ordered by the search: with [`Costs::hug_line`] in millionths of
+    /// a cell (equal-cost routes summed in different orders differ in the
+    /// last bits of a float, and must tie), else the float's bits (which
+    /// order like the values, f being ≥ 0).
     f: i64,
-    /// Twice the area between the cell and the straight line from source to
-    /// destination: among equal f the cell nearest the line is expanded
-    /// first, so of the many equally short routes the one hugging the line
-    /// wins, interleaving straight and diagonal steps as a person would,
-    /// instead of all straight steps then all diagonals.
+    /// With `hug_line`, twice the area between the cell and the straight line
+    /// from source to destination (else 0): among equal f the cell nearest
+    /// the line is expanded first.
     off_line: u64,
     open: u32,
 }
 
 impl Entry {
-    fn new(f: f64, off_line: u64, open: u32) -> Entry {
+    fn new(f: f64, off_line: Option<u64>, open: u32) -> Entry {
         Entry {
-            f: (f * 1e6).round() as i64,
-            off_line,
+            f: match off_line {
+                Some(_) => (f * 1e6).round() as i64,
+                None => f.to_bits() as i64,
+            },
+            off_line: off_line.unwrap_or(0),
             open,
         }
     }
@@ -112,7 +117,9 @@ fn off_line(from: Cell, to: Cell, c: Cell) -> u64 {
 /// A* from `from` to `to` over walkable cells. Entering a cell costs the step
 /// length (1 or √2) times `cell_cost(cell)`; pass factors ≥ 1 so the octile
 /// heuristic stays admissible. The default profile's search: every walkable
-/// cell passable, no cost of its own, no turn cost.
+/// cell passable, no cost of its own, no turn cost; equally cheap routes are
+/// broken by cell index, not towards the line (the simulator's walkers and
+/// the fixtures they recorded keep their routes).
 pub fn search(
     site: &Site,
     connectivity: Connectivity,
@@ -120,7 +127,18 @@ pub fn search(
     to: Cell,
     cell_cost: impl Fn(Cell) -> f64,
 ) -> Result<Route, PlanError> {
-    profile_search(site, connectivity, from, to, Profile::Default, cell_cost)
+    search_with(
+        site,
+        connectivity,
+        from,
+        to,
+        &Costs {
+            passable: |c| Profile::Default.passable(site, c),
+            cell_cost,
+            turn_cost: 0.0,
+            hug_line: false,
+        },
+    )
 }
 
 /// What a search may use and what it pays.
@@ -131,6 +149,11 @@ pub struct Costs<P, C> {
     pub cell_cost: C,
     /// Added for every change of direction, in cell lengths (≥ 0).
     pub turn_cost: f64,
+    /// Break ties between equally cheap routes towards the straight line
+    /// from source to destination, so the route interleaves straight and
+    /// diagonal steps as a person would instead of taking all straight steps
+    /// then all diagonals (served routes); else by cell index.
+    pub hug_line: bool,
 }
 
 /// A* as [`search`], over the cells `costs.passable` allows (corners too:
@@ -163,7 +186,15 @@ pub fn search_with(
     let mut closed = vec![false; n];
     let mut heap = BinaryHeap::new();
     g[start as usize] = 0.0;
-    heap.push(Entry::new(heuristic(from, to, connectivity), 0, start));
+    let line = |c: Cell| costs.hug_line.then(|| off_line(from, to, c));
+    // With hug_line, a route only float rounding makes cheaper is a tie: the
+    // first found, nearer the line, keeps the cell.
+    let slack = if costs.hug_line { 1e-9 } else { 0.0 };
+    heap.push(Entry::new(
+        heuristic(from, to, connectivity),
+        line(from),
+        start,
+    ));
     while let Some(Entry { open: s, .. }) = heap.pop() {
         let (open, heading) = (s as usize / headings, s as usize % headings);
         if open == goal_open {
@@ -202,14 +233,12 @@ pub fn search_with(
             };
             let t = state(j, k);
             let cand = g[s as usize] + step * (costs.cell_cost)(next) + turn;
-            // A route only float rounding makes cheaper is a tie: the first
-            // found, nearer the line, keeps the cell.
-            if cand < g[t] - 1e-9 {
+            if cand < g[t] - slack {
                 g[t] = cand;
                 came_from[t] = s;
                 heap.push(Entry::new(
                     cand + heuristic(next, to, connectivity),
-                    off_line(from, to, next),
+                    line(next),
                     t as u32,
                 ));
             }
