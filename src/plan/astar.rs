@@ -47,18 +47,25 @@ pub fn profile_search(
     profile: Profile,
     extra: impl Fn(Cell) -> f64,
 ) -> Result<Route, PlanError> {
-    search_with(
-        site,
-        connectivity,
-        from,
-        to,
-        &Costs {
-            passable: |c| profile.passable(site, c),
-            cell_cost: |c| profile.cell_cost(site, c) * extra(c),
-            turn_cost: profile.turn_cost(),
-            hug_line: true,
-        },
-    )
+    search_for(site, connectivity, [from, to], profile, extra, true)
+}
+
+/// [`search_with`] the costs of `profile`, scaled by `extra`.
+fn search_for(
+    site: &Site,
+    connectivity: Connectivity,
+    [from, to]: [Cell; 2],
+    profile: Profile,
+    extra: impl Fn(Cell) -> f64,
+    hug_line: bool,
+) -> Result<Route, PlanError> {
+    let costs = Costs {
+        passable: |c| profile.passable(site, c),
+        cell_cost: |c| profile.cell_cost(site, c) * extra(c),
+        turn_cost: profile.turn_cost(),
+        hug_line,
+    };
+    search_with(site, connectivity, from, to, &costs)
 }
 
 #[derive(PartialEq, Eq)]
@@ -127,17 +134,13 @@ pub fn search(
     to: Cell,
     cell_cost: impl Fn(Cell) -> f64,
 ) -> Result<Route, PlanError> {
-    search_with(
+    search_for(
         site,
         connectivity,
-        from,
-        to,
-        &Costs {
-            passable: |c| Profile::Default.passable(site, c),
-            cell_cost,
-            turn_cost: 0.0,
-            hug_line: false,
-        },
+        [from, to],
+        Profile::Default,
+        cell_cost,
+        false,
     )
 }
 
