@@ -537,10 +537,7 @@ impl Site {
     pub fn extent_m(&self) -> ([f64; 2], [f64; 2]) {
         let a = self.world_of_grid([0.0, 0.0]);
         let b = self.world_of_grid([f64::from(self.width), f64::from(self.height)]);
-        (
-            [a[0].min(b[0]), a[1].min(b[1])],
-            [a[0].max(b[0]), a[1].max(b[1])],
-        )
+        ([a[0].min(b[0]), a[1].min(b[1])], [a[0].max(b[0]), a[1].max(b[1])])
     }
 
     /// [`Site::world_of_cell`] as a pair, for callers that destructure it.
