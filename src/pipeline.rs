@@ -17,7 +17,7 @@ use crate::guide::{GuidanceEvent, Guide};
 use crate::locate::tracker::Tracker;
 use crate::locate::window::{Fingerprint, Orientation, Windows};
 use crate::locate::{self, Localizer};
-use crate::plan::{self, Planner, Profile, Route};
+use crate::plan::{self, Planner, Profile, Route, RouteErrorCode};
 use crate::publish::{
     ErrorBody, LOCATION_SCHEMA, Location, Message, PATH_SCHEMA, RouteBody, RouteOutcome,
     RouteReply, Topics, valid_device_id,
@@ -285,7 +285,7 @@ impl Pipeline {
             Err(e) => {
                 tracing::warn!(
                     device,
-                    code = e.code(),
+                    code = e.code().as_str(),
                     "cannot re-plan a route off which the device walked: {e}"
                 );
                 return;
@@ -340,7 +340,7 @@ impl Pipeline {
         device: &str,
         request_id: Option<String>,
         t: f64,
-        code: &'static str,
+        code: RouteErrorCode,
         message: String,
     ) -> RouteReply {
         self.stats.requests += 1;
@@ -362,19 +362,24 @@ impl Pipeline {
     }
 
     fn plan_request(&self, request: &RouteRequest, started: Instant) -> RouteOutcome {
-        let error = |code: &'static str, message: String| RouteOutcome::Error {
+        let error = |code: RouteErrorCode, message: String| RouteOutcome::Error {
             error: ErrorBody { code, message },
         };
         let profile = match request.profile.as_deref() {
             None => Profile::Default,
             Some(name) => match Profile::parse(name) {
                 Some(p) => p,
-                None => return error("unknown_profile", plan::unknown_profile_message(name)),
+                None => {
+                    return error(
+                        RouteErrorCode::UnknownProfile,
+                        plan::unknown_profile_message(name),
+                    );
+                }
             },
         };
         let Some(fix) = self.tracker.last_fix(&request.device) else {
             return error(
-                "unknown_device",
+                RouteErrorCode::UnknownDevice,
                 format!(
                     "device `{}` has no location yet; a device must be heard before it can ask for a route",
                     request.device

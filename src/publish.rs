@@ -16,6 +16,7 @@
 
 use serde::Serialize;
 
+use crate::plan::RouteErrorCode;
 use crate::site::Cell;
 
 /// Payload schema versions, sent in every payload's `schema` field.
@@ -174,10 +175,8 @@ pub struct NextManeuver {
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct ErrorBody {
-    /// Stable code: `unknown_place`, `off_map`, `blocked_cell`, `unreachable`,
-    /// `unknown_device`, `unknown_profile`, `model_failed`, `invalid_route`; for requests over MQTT also
-    /// `invalid_json`, `invalid_request`, `payload_too_large`.
-    pub code: &'static str,
+    /// Stable code, sent as its string (`unknown_place`, `off_map`, …).
+    pub code: RouteErrorCode,
     pub message: String,
 }
 
@@ -305,7 +304,7 @@ mod tests {
             t: 1.0,
             outcome: RouteOutcome::Error {
                 error: ErrorBody {
-                    code: "unknown_place",
+                    code: RouteErrorCode::UnknownPlace,
                     message: "unknown place `x`".into(),
                 },
             },

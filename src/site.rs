@@ -9,12 +9,21 @@
 //! `y_axis` says whether world y grows with the row index (`down`, the
 //! default) or shrinks with it (`up`, as on survey drawings). With the defaults
 //! a cell's centre is at `((x + 0.5) * cell_m, (y + 0.5) * cell_m)`.
-//! [`Site::world_of_grid`] is the one place that transform is written; every
-//! metric position the gateway computes or publishes goes through it.
+//! The private `Frame` is the one place that transform is written
+//! ([`Site::world_of_grid`], [`Site::world_of_cell`], [`Site::cell_of_world`]);
+//! every metric position the gateway computes or publishes goes through it.
+//!
+//! The grid is a character `map`, or an open floor of `width_m` × `height_m`;
+//! obstacle polygons and walls given in world metres are rasterised onto it at
+//! load (the rules are on `Raster`), so the rest of the gateway only ever sees
+//! walkable and blocked cells. Anchors have a metric [`Mount`] (a `pos`
+//! anywhere near the grid, or the centre of a `cell`), which every distance
+//! model uses.
 //!
 //! Validation happens once, at load, so every later stage may assume a consistent
-//! site: places and anchors sit on walkable cells, ids are unique, the grid is
-//! rectangular. Errors name the file, the TOML line and what to change.
+//! site: places and anchors given by cell sit on walkable cells, anchors given
+//! by `pos` lie near the grid, ids are unique, the grid is rectangular and
+//! bounded. Errors name the file, the TOML line and what to change.
 
 use std::collections::{BTreeMap, HashMap};
 use std::fmt;
@@ -131,9 +140,12 @@ pub struct Beacon {
     /// The anchor id used in surveys and logs (for example a CSV column name).
     pub id: String,
     pub beacon: BeaconId,
-    /// Where the beacon is mounted, when known. The path-loss localizer and the
-    /// simulator need it; survey-based localizers do not.
+    /// The grid cell the beacon is in, when it is on the grid.
     pub cell: Option<Cell>,
+    /// Where the beacon is mounted, when known (`cell` or `pos`). The
+    /// path-loss localizer, the radio map's prior, calibration and the
+    /// simulator need it; survey-based localizers do not.
+    pub mount: Option<Mount>,
     /// Calibrated RSSI at 1 m in dBm, overriding what the frame advertises.
     pub tx_power: Option<i8>,
 }
@@ -142,7 +154,36 @@ pub struct Beacon {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Gateway {
     pub id: String,
+    /// The grid cell the gateway is in, when it is on the grid.
     pub cell: Option<Cell>,
+    /// Where the gateway is mounted, when known.
+    pub mount: Option<Mount>,
+}
+
+/// Height above the floor at which a person carries a phone, metres: the
+/// other end of an anchor's distance when its mounting height is known.
+pub const DEVICE_HEIGHT_M: f64 = 1.2;
+
+/// Where an anchor is mounted.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Mount {
+    /// World metres: `pos` as given, or the centre of the given `cell`.
+    pub at: [f64; 2],
+    /// Mounting height above the floor, when the site file gives one.
+    pub height_m: Option<f64>,
+}
+
+impl Mount {
+    /// Metres from the anchor to a device at `here` (world metres): in 3-D to
+    /// a phone held at [`DEVICE_HEIGHT_M`] when the mounting height is known,
+    /// else along the floor plan.
+    pub fn distance_m(&self, here: [f64; 2]) -> f64 {
+        let flat = (here[0] - self.at[0]).hypot(here[1] - self.at[1]);
+        match self.height_m {
+            Some(h) => flat.hypot(h - DEVICE_HEIGHT_M),
+            None => flat,
+        }
+    }
 }
 
 /// How survey labels such as `O02` name cells: a column letter (`A` is x = 0)
@@ -181,9 +222,7 @@ pub struct Site {
     pub name: String,
     /// Metres per cell side.
     pub cell_m: f64,
-    /// World coordinates (metres) of the outer top-left corner of cell [0, 0].
-    origin_m: [f64; 2],
-    y_axis: YAxis,
+    frame: Frame,
     width: u16,
     height: u16,
     tiles: Vec<Tile>,
@@ -199,6 +238,16 @@ pub struct Site {
     places: BTreeMap<String, Cell>,
     labels: Option<LabelScheme>,
     map_hash: String,
+    shapes: Shapes,
+}
+
+/// What a site's `obstacles` and `walls` drew onto its grid.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Shapes {
+    pub obstacles: usize,
+    pub walls: usize,
+    /// Cells the map (or the open floor) left walkable that they blocked.
+    pub cells_blocked: usize,
 }
 
 /// Why a site file was refused.
@@ -231,7 +280,16 @@ struct SiteFile {
     origin_m: Option<Spanned<[f64; 2]>>,
     #[serde(default)]
     y_axis: YAxis,
-    map: Spanned<String>,
+    #[serde(default)]
+    map: Option<Spanned<String>>,
+    #[serde(default)]
+    width_m: Option<Spanned<f64>>,
+    #[serde(default)]
+    height_m: Option<Spanned<f64>>,
+    #[serde(default)]
+    obstacles: Vec<Spanned<ObstacleEntry>>,
+    #[serde(default)]
+    walls: Vec<Spanned<WallEntry>>,
     #[serde(default)]
     labels: Option<LabelScheme>,
     #[serde(default, rename = "beacon")]
@@ -250,6 +308,8 @@ struct BeaconEntry {
     major: u16,
     minor: u16,
     cell: Option<Cell>,
+    pos: Option<Spanned<[f64; 2]>>,
+    height_m: Option<Spanned<f64>>,
     tx_power: Option<i8>,
 }
 
@@ -258,7 +318,35 @@ struct BeaconEntry {
 struct GatewayEntry {
     id: String,
     cell: Option<Cell>,
+    pos: Option<Spanned<[f64; 2]>>,
+    height_m: Option<Spanned<f64>>,
 }
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ObstacleEntry {
+    polygon: Spanned<Vec<[f64; 2]>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct WallEntry {
+    line: Spanned<Vec<[f64; 2]>>,
+    #[serde(default)]
+    thickness_m: Option<Spanned<f64>>,
+}
+
+/// The most cells a site may have: 2000 × 2000, a 500 m square floor at
+/// 0.25 m. Posteriors and likelihood tables are per cell, so a typo such as
+/// `cell_m = 0.001` must be refused, not allocated.
+const MAX_CELLS: usize = 4_000_000;
+/// How far outside the grid an anchor placed by `pos` may be, in cells (or
+/// [`ANCHOR_MARGIN_MIN_M`], whichever is more): on the outer wall, not in
+/// the car park.
+const ANCHOR_MARGIN_CELLS: f64 = 3.0;
+const ANCHOR_MARGIN_MIN_M: f64 = 1.0;
+/// The highest mounting height taken as metres; more is probably centimetres.
+const MAX_HEIGHT_M: f64 = 50.0;
 
 impl Site {
     /// Loads and validates a site file.
@@ -279,7 +367,8 @@ impl Site {
         let line_of = |span: std::ops::Range<usize>| line_at(text, span.start);
         let mut problems = Vec::new();
 
-        if !(file.cell_m.is_finite() && file.cell_m > 0.0) {
+        let cell_m_ok = file.cell_m.is_finite() && file.cell_m > 0.0;
+        if !cell_m_ok {
             problems.push(format!(
                 "`cell_m` is {}; it must be a positive number of metres per cell",
                 file.cell_m
@@ -298,33 +387,191 @@ impl Site {
                 [x, y]
             }
         };
-
-        let map_line = line_of(file.map.span());
-        let (width, height, tiles) = match parse_map(file.map.get_ref()) {
-            Ok(grid) => grid,
-            Err(msg) => {
-                problems.push(format!("line {map_line}: `map`: {msg}"));
-                (0, 0, Vec::new())
-            }
+        let frame = Frame {
+            cell_m: file.cell_m,
+            origin_m,
+            y_axis: file.y_axis,
         };
+
+        let (width, height, mut tiles) =
+            match grid(&file, cell_m_ok, &line_of).and_then(|(w, h, tiles)| {
+                let cells = usize::from(w) * usize::from(h);
+                if cells > MAX_CELLS {
+                    Err(format!(
+                        "the grid is {w}×{h} = {cells} cells, more than the {MAX_CELLS} a site \
+                         may have; use larger cells (`cell_m`)"
+                    ))
+                } else {
+                    Ok((w, h, tiles))
+                }
+            }) {
+                Ok(grid) => grid,
+                Err(msg) => {
+                    problems.push(msg);
+                    (0, 0, Vec::new())
+                }
+            };
+
+        // Obstacles and walls, once the grid and its frame are sound.
+        let walkable_before = tiles.iter().filter(|t| t.walkable()).count();
+        if !tiles.is_empty() && problems.is_empty() {
+            let raster = Raster {
+                frame: &frame,
+                width,
+                height,
+            };
+            for entry in &file.obstacles {
+                let polygon = &entry.get_ref().polygon;
+                let line = line_of(polygon.span());
+                match raster.polygon(polygon.get_ref()) {
+                    Ok(cells) => block(&mut tiles, width, cells),
+                    Err(msg) => problems.push(format!("line {line}: obstacle `polygon`: {msg}")),
+                }
+            }
+            for entry in &file.walls {
+                let wall = entry.get_ref();
+                let line = line_of(wall.line.span());
+                let thickness_m = match &wall.thickness_m {
+                    None => 0.0,
+                    Some(t) if t.get_ref().is_finite() && *t.get_ref() >= 0.0 => *t.get_ref(),
+                    Some(t) => {
+                        problems.push(format!(
+                            "line {}: wall `thickness_m` is {}; it must be zero or more metres",
+                            line_of(t.span()),
+                            t.get_ref()
+                        ));
+                        continue;
+                    }
+                };
+                match raster.wall(wall.line.get_ref(), thickness_m) {
+                    Ok(cells) => block(&mut tiles, width, cells),
+                    Err(msg) => problems.push(format!("line {line}: wall `line`: {msg}")),
+                }
+            }
+            if problems.is_empty() && !tiles.iter().any(|t| t.walkable()) {
+                problems.push(
+                    "no cell is walkable once obstacles and walls are drawn; check their \
+                     coordinates against `origin_m` and `y_axis`"
+                        .into(),
+                );
+            }
+        }
+        let shapes = Shapes {
+            obstacles: file.obstacles.len(),
+            walls: file.walls.len(),
+            cells_blocked: walkable_before - tiles.iter().filter(|t| t.walkable()).count(),
+        };
+
         let tile_at = |c: Cell| -> Option<Tile> {
             (c.x < width && c.y < height)
                 .then(|| tiles[usize::from(c.y) * usize::from(width) + usize::from(c.x)])
         };
-        let check_cell = |what: String, line: usize, cell: Cell, problems: &mut Vec<String>| {
-            if tiles.is_empty() {
-                return; // the map itself is broken; already reported
-            }
-            match tile_at(cell) {
-                None => problems.push(format!(
-                    "line {line}: {what} is at {cell}, off the {width}×{height} grid \
+        // `or` is the other fix offered for a blocked cell.
+        let check_cell =
+            |what: &str, line: usize, cell: Cell, or: &str, problems: &mut Vec<String>| {
+                if tiles.is_empty() {
+                    return; // the grid itself is broken; already reported
+                }
+                match tile_at(cell) {
+                    None => problems.push(format!(
+                        "line {line}: {what} is at {cell}, off the {width}×{height} grid \
                      (x must be below {width}, y below {height})"
-                )),
-                Some(Tile::Blocked) => problems.push(format!(
-                    "line {line}: {what} is at {cell}, a blocked cell ('.'); \
-                     move it to a walkable cell or open that cell in `map`"
-                )),
-                Some(_) => {}
+                    )),
+                    Some(Tile::Blocked) => problems.push(format!(
+                        "line {line}: {what} is at {cell}, a blocked cell ('.', an obstacle or a \
+                     wall); move it to a walkable cell or open that cell in `map`{or}"
+                    )),
+                    Some(_) => {}
+                }
+            };
+        // Where an anchor is: a walkable `cell`, or `pos` in metres anywhere
+        // near the grid (walls, shelves and blocked cells included).
+        let margin_cells = ANCHOR_MARGIN_CELLS.max(ANCHOR_MARGIN_MIN_M / file.cell_m);
+        let place_anchor = |what: &str,
+                            line: usize,
+                            cell: Option<Cell>,
+                            pos: Option<&Spanned<[f64; 2]>>,
+                            height_m: Option<&Spanned<f64>>,
+                            problems: &mut Vec<String>|
+         -> (Option<Cell>, Option<Mount>) {
+            let mount_height = height_m.and_then(|h| {
+                let v = *h.get_ref();
+                if (0.0..=MAX_HEIGHT_M).contains(&v) {
+                    Some(v)
+                } else {
+                    problems.push(format!(
+                        "line {}: {what}: `height_m` is {v}; it must be metres above the floor, \
+                         0 to {MAX_HEIGHT_M}",
+                        line_of(h.span())
+                    ));
+                    None
+                }
+            });
+            match (cell, pos) {
+                (Some(_), Some(pos)) => {
+                    problems.push(format!(
+                        "line {}: {what} has both `cell` and `pos`; give one",
+                        line_of(pos.span())
+                    ));
+                    (None, None)
+                }
+                (Some(cell), None) => {
+                    let or = ", or give its position in metres with `pos = [x, y]`, which may \
+                              be on a blocked cell";
+                    check_cell(what, line, cell, or, problems);
+                    let at = frame.world_of_cell(cell);
+                    (
+                        Some(cell),
+                        Some(Mount {
+                            at,
+                            height_m: mount_height,
+                        }),
+                    )
+                }
+                (None, Some(pos)) => {
+                    if tiles.is_empty() || !cell_m_ok {
+                        return (None, None); // no grid to place it on; already reported
+                    }
+                    let at = *pos.get_ref();
+                    let [gx, gy] = frame.grid_of_world(at);
+                    let near = |g: f64, cells: u16| {
+                        (-margin_cells..=f64::from(cells) + margin_cells).contains(&g)
+                    };
+                    if !(near(gx, width) && near(gy, height)) {
+                        let (lo, hi) = frame.extent_m(width, height);
+                        problems.push(format!(
+                            "line {}: {what} is at `pos` = [{}, {}], outside the site (x {} to \
+                             {} m, y {} to {} m, give or take {:.1} m); check it against \
+                             `origin_m` and `y_axis`",
+                            line_of(pos.span()),
+                            at[0],
+                            at[1],
+                            lo[0],
+                            hi[0],
+                            lo[1],
+                            hi[1],
+                            margin_cells * file.cell_m
+                        ));
+                        return (None, None);
+                    }
+                    let cell = frame.cell_of_world(at, width, height);
+                    (
+                        cell,
+                        Some(Mount {
+                            at,
+                            height_m: mount_height,
+                        }),
+                    )
+                }
+                (None, None) => {
+                    if let Some(h) = height_m {
+                        problems.push(format!(
+                            "line {}: {what} has `height_m` but no `cell` or `pos`",
+                            line_of(h.span())
+                        ));
+                    }
+                    (None, None)
+                }
             }
         };
 
@@ -352,13 +599,19 @@ impl Site {
                     b.id
                 ));
             }
-            if let Some(cell) = b.cell {
-                check_cell(format!("beacon `{}`", b.id), line, cell, &mut problems);
-            }
+            let (cell, mount) = place_anchor(
+                &format!("beacon `{}`", b.id),
+                line,
+                b.cell,
+                b.pos.as_ref(),
+                b.height_m.as_ref(),
+                &mut problems,
+            );
             beacons.push(Beacon {
                 id: b.id.clone(),
                 beacon,
-                cell: b.cell,
+                cell,
+                mount,
                 tx_power: b.tx_power,
             });
         }
@@ -373,12 +626,18 @@ impl Site {
                     g.id
                 ));
             }
-            if let Some(cell) = g.cell {
-                check_cell(format!("gateway `{}`", g.id), line, cell, &mut problems);
-            }
+            let (cell, mount) = place_anchor(
+                &format!("gateway `{}`", g.id),
+                line,
+                g.cell,
+                g.pos.as_ref(),
+                g.height_m.as_ref(),
+                &mut problems,
+            );
             gateways.push(Gateway {
                 id: g.id.clone(),
-                cell: g.cell,
+                cell,
+                mount,
             });
         }
 
@@ -389,9 +648,10 @@ impl Site {
                 problems.push(format!("line {line}: a place needs a non-empty name"));
             }
             check_cell(
-                format!("place `{name}`"),
+                &format!("place `{name}`"),
                 line,
                 *cell.get_ref(),
+                "",
                 &mut problems,
             );
             places.insert(name.clone(), *cell.get_ref());
@@ -420,8 +680,7 @@ impl Site {
         Ok(Site {
             name: file.name,
             cell_m: file.cell_m,
-            origin_m,
-            y_axis: file.y_axis,
+            frame,
             width,
             height,
             tiles,
@@ -433,6 +692,7 @@ impl Site {
             places,
             labels: file.labels,
             map_hash,
+            shapes,
         })
     }
 
@@ -487,57 +747,47 @@ impl Site {
 
     /// World coordinates (metres) of the outer top-left corner of cell [0, 0].
     pub fn origin_m(&self) -> [f64; 2] {
-        self.origin_m
+        self.frame.origin_m
     }
 
     /// Which way world y runs against the rows.
     pub fn y_axis(&self) -> YAxis {
-        self.y_axis
+        self.frame.y_axis
     }
 
     /// World coordinates (metres) of a point given in grid units: `[gx, gy]`
     /// cells right of and below the outer top-left corner of cell [0, 0]
-    /// (so `[x + 0.5, y + 0.5]` is the centre of cell `[x, y]`). The only
-    /// place the site's frame is applied; [`Site::grid_of_world`] inverts it.
-    pub fn world_of_grid(&self, [gx, gy]: [f64; 2]) -> [f64; 2] {
-        let [ox, oy] = self.origin_m;
-        let y = match self.y_axis {
-            YAxis::Down => oy + gy * self.cell_m,
-            YAxis::Up => oy - gy * self.cell_m,
-        };
-        [ox + gx * self.cell_m, y]
+    /// (so `[x + 0.5, y + 0.5]` is the centre of cell `[x, y]`).
+    /// [`Site::grid_of_world`] inverts it.
+    pub fn world_of_grid(&self, grid: [f64; 2]) -> [f64; 2] {
+        self.frame.world_of_grid(grid)
     }
 
     /// Grid units (see [`Site::world_of_grid`]) of a point in world metres.
-    pub fn grid_of_world(&self, [x, y]: [f64; 2]) -> [f64; 2] {
-        let [ox, oy] = self.origin_m;
-        let gy = match self.y_axis {
-            YAxis::Down => (y - oy) / self.cell_m,
-            YAxis::Up => (oy - y) / self.cell_m,
-        };
-        [(x - ox) / self.cell_m, gy]
+    pub fn grid_of_world(&self, world: [f64; 2]) -> [f64; 2] {
+        self.frame.grid_of_world(world)
     }
 
     /// Centre of a cell in world metres.
     pub fn world_of_cell(&self, cell: Cell) -> [f64; 2] {
-        self.world_of_grid([f64::from(cell.x) + 0.5, f64::from(cell.y) + 0.5])
+        self.frame.world_of_cell(cell)
     }
 
     /// The cell containing a point in world metres; `None` outside the grid
     /// (or for a non-finite point). A point on the edge between two cells
     /// belongs to the one right of it and, in grid rows, below it.
     pub fn cell_of_world(&self, world: [f64; 2]) -> Option<Cell> {
-        let [gx, gy] = self.grid_of_world(world);
-        let inside = |g: f64, cells: u16| (0.0..f64::from(cells)).contains(&g);
-        (inside(gx, self.width) && inside(gy, self.height))
-            .then(|| Cell::new(gx.floor() as u16, gy.floor() as u16))
+        self.frame.cell_of_world(world, self.width, self.height)
     }
 
     /// The grid's extent in world metres: the smallest and largest x and y.
     pub fn extent_m(&self) -> ([f64; 2], [f64; 2]) {
-        let a = self.world_of_grid([0.0, 0.0]);
-        let b = self.world_of_grid([f64::from(self.width), f64::from(self.height)]);
-        ([a[0].min(b[0]), a[1].min(b[1])], [a[0].max(b[0]), a[1].max(b[1])])
+        self.frame.extent_m(self.width, self.height)
+    }
+
+    /// What the site's obstacles and walls drew onto the grid.
+    pub fn shapes(&self) -> Shapes {
+        self.shapes
     }
 
     /// [`Site::world_of_cell`] as a pair, for callers that destructure it.
@@ -628,6 +878,335 @@ impl Site {
     }
 }
 
+/// The site's metric frame: the one place grid units and world metres meet.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Frame {
+    cell_m: f64,
+    origin_m: [f64; 2],
+    y_axis: YAxis,
+}
+
+impl Frame {
+    fn world_of_grid(&self, [gx, gy]: [f64; 2]) -> [f64; 2] {
+        let [ox, oy] = self.origin_m;
+        let y = match self.y_axis {
+            YAxis::Down => oy + gy * self.cell_m,
+            YAxis::Up => oy - gy * self.cell_m,
+        };
+        [ox + gx * self.cell_m, y]
+    }
+
+    fn grid_of_world(&self, [x, y]: [f64; 2]) -> [f64; 2] {
+        let [ox, oy] = self.origin_m;
+        let gy = match self.y_axis {
+            YAxis::Down => (y - oy) / self.cell_m,
+            YAxis::Up => (oy - y) / self.cell_m,
+        };
+        [(x - ox) / self.cell_m, gy]
+    }
+
+    fn world_of_cell(&self, cell: Cell) -> [f64; 2] {
+        self.world_of_grid([f64::from(cell.x) + 0.5, f64::from(cell.y) + 0.5])
+    }
+
+    /// The cell of a `width` × `height` grid containing `world`.
+    fn cell_of_world(&self, world: [f64; 2], width: u16, height: u16) -> Option<Cell> {
+        let [gx, gy] = self.grid_of_world(world);
+        let inside = |g: f64, cells: u16| (0.0..f64::from(cells)).contains(&g);
+        (inside(gx, width) && inside(gy, height))
+            .then(|| Cell::new(gx.floor() as u16, gy.floor() as u16))
+    }
+
+    /// The smallest and largest world x and y of a `width` × `height` grid.
+    fn extent_m(&self, width: u16, height: u16) -> ([f64; 2], [f64; 2]) {
+        let a = self.world_of_grid([0.0, 0.0]);
+        let b = self.world_of_grid([f64::from(width), f64::from(height)]);
+        (
+            [a[0].min(b[0]), a[1].min(b[1])],
+            [a[0].max(b[0]), a[1].max(b[1])],
+        )
+    }
+}
+
+/// The grid before obstacles and walls: the `map`, or an open floor of
+/// `width_m` × `height_m` (partial cells at the right and bottom edges count
+/// as whole cells). An empty grid when `cell_m` is broken (already reported).
+fn grid(
+    file: &SiteFile,
+    cell_m_ok: bool,
+    line_of: &dyn Fn(std::ops::Range<usize>) -> usize,
+) -> Result<(u16, u16, Vec<Tile>), String> {
+    let (width, height, tiles) = match (&file.map, &file.width_m, &file.height_m) {
+        (Some(map), None, None) => parse_map(map.get_ref())
+            .map_err(|msg| format!("line {}: `map`: {msg}", line_of(map.span())))?,
+        (None, Some(w), Some(h)) => {
+            let mut cells = [0u16; 2];
+            for (n, (key, metres)) in cells.iter_mut().zip([("width_m", w), ("height_m", h)]) {
+                let m = *metres.get_ref();
+                let line = line_of(metres.span());
+                if !(m.is_finite() && m > 0.0) {
+                    return Err(format!(
+                        "line {line}: `{key}` is {m}; it must be a positive number of metres"
+                    ));
+                }
+                if !cell_m_ok {
+                    return Ok((0, 0, Vec::new()));
+                }
+                // Less a hair, so 10 m of 0.1 m cells is 100 cells, not 101.
+                let count = (m / file.cell_m - 1e-9).ceil().max(1.0);
+                // `as` saturates, so an absurd count fails the conversion too.
+                *n = u16::try_from(count as u64).map_err(|_| {
+                    format!(
+                        "line {line}: `{key}` is {count} cells of {} m, more than 65535; use \
+                             larger cells",
+                        file.cell_m
+                    )
+                })?;
+            }
+            let [width, height] = cells;
+            check_size(width, height)?;
+            let tiles = vec![Tile::Open; usize::from(width) * usize::from(height)];
+            (width, height, tiles)
+        }
+        (Some(_), w, h) => {
+            let line = line_of(w.as_ref().or(h.as_ref()).expect("one is given").span());
+            return Err(format!(
+                "line {line}: give either `map` or `width_m` and `height_m`, not both"
+            ));
+        }
+        (None, _, _) => {
+            return Err(
+                "the site needs a `map`, or `width_m` and `height_m` for an open floor \
+                 (with `obstacles` and `walls` drawn on it)"
+                    .into(),
+            );
+        }
+    };
+    Ok((width, height, tiles))
+}
+
+fn check_size(width: u16, height: u16) -> Result<(), String> {
+    let cells = usize::from(width) * usize::from(height);
+    if cells > MAX_CELLS {
+        return Err(format!(
+            "the grid is {width}×{height} = {cells} cells, more than the {MAX_CELLS} a site may \
+             have; use larger cells (`cell_m`)"
+        ));
+    }
+    Ok(())
+}
+
+/// Marks `cells` blocked.
+fn block(tiles: &mut [Tile], width: u16, cells: Vec<Cell>) {
+    for c in cells {
+        tiles[usize::from(c.y) * usize::from(width) + usize::from(c.x)] = Tile::Blocked;
+    }
+}
+
+/// Draws obstacles and walls, given in world metres, onto the grid. Geometry
+/// is done in grid units (cell `[x, y]` is the square `[x, x+1] × [y, y+1]`),
+/// where the frame's flip and offset no longer matter. Two small routines
+/// (even-odd point in polygon, Liang–Barsky clipping) rather than a geometry
+/// crate and its dependencies.
+struct Raster<'a> {
+    frame: &'a Frame,
+    width: u16,
+    height: u16,
+}
+
+impl Raster<'_> {
+    /// The cells whose centre is inside the polygon (even-odd rule: where an
+    /// outline crosses itself, the overlap counts as outside).
+    fn polygon(&self, polygon: &[[f64; 2]]) -> Result<Vec<Cell>, String> {
+        if polygon.len() < 3 {
+            return Err(format!(
+                "has {} corners; a polygon needs at least 3",
+                polygon.len()
+            ));
+        }
+        let corners = self.to_grid(polygon)?;
+        let (lo, hi) = self.bounds(&corners, 0.0)?;
+        Ok(self
+            .cells_in(lo, hi)
+            .filter(|c| inside(&corners, [f64::from(c.x) + 0.5, f64::from(c.y) + 0.5]))
+            .collect())
+    }
+
+    /// The cells a wall along the polyline `line` passes through. Each
+    /// segment of a wall `thickness_m` thick is a rectangle that wide, its
+    /// ends flush with the segment's points, and blocks every cell whose
+    /// square it overlaps by a non-zero area. A thin wall (no thickness)
+    /// blocks every cell its line runs through for a non-zero length: both
+    /// cells when it runs exactly along the edge between them, neither when it
+    /// only touches a corner, so a wall ending on a cell's edge leaves that
+    /// cell (a doorway) open. A wall crossing the grid diagonally blocks a
+    /// chain of cells that may touch only at corners; no move crosses it,
+    /// because routes and the tracker never cut a blocked corner.
+    fn wall(&self, line: &[[f64; 2]], thickness_m: f64) -> Result<Vec<Cell>, String> {
+        if line.len() < 2 {
+            return Err(format!(
+                "has {} points; a wall needs at least 2",
+                line.len()
+            ));
+        }
+        let points = self.to_grid(line)?;
+        if points.windows(2).all(|w| w[0] == w[1]) {
+            return Err("its points are all the same; a wall needs two distinct points".into());
+        }
+        let half = thickness_m / 2.0 / self.frame.cell_m;
+        self.bounds(&points, half)?;
+        let mut cells = Vec::new();
+        for w in points.windows(2) {
+            let (a, b) = (w[0], w[1]);
+            if a == b {
+                continue;
+            }
+            let (lo, hi) = corners_of(&[a, b], half);
+            cells.extend(self.cells_in(lo, hi).filter(|c| {
+                let lo = [f64::from(c.x), f64::from(c.y)];
+                let hi = [lo[0] + 1.0, lo[1] + 1.0];
+                if half > 0.0 {
+                    rectangle_overlaps(a, b, half, lo, hi)
+                } else {
+                    clipped_length(a, b, lo, hi) > OVERLAP_EPS
+                }
+            }));
+        }
+        Ok(cells)
+    }
+
+    /// `points` in grid units, refusing non-finite coordinates.
+    fn to_grid(&self, points: &[[f64; 2]]) -> Result<Vec<[f64; 2]>, String> {
+        points
+            .iter()
+            .enumerate()
+            .map(|(i, &[x, y])| {
+                if x.is_finite() && y.is_finite() {
+                    Ok(self.frame.grid_of_world([x, y]))
+                } else {
+                    Err(format!(
+                        "point {i} is [{x}, {y}], not two finite numbers of metres"
+                    ))
+                }
+            })
+            .collect()
+    }
+
+    /// The bounding box of `points` grown by `grow`, refused when it misses
+    /// the grid entirely (the usual sign of a wrong origin or y axis).
+    fn bounds(&self, points: &[[f64; 2]], grow: f64) -> Result<([f64; 2], [f64; 2]), String> {
+        let (lo, hi) = corners_of(points, grow);
+        let misses = hi[0] < 0.0
+            || hi[1] < 0.0
+            || lo[0] > f64::from(self.width)
+            || lo[1] > f64::from(self.height);
+        if misses {
+            let (wlo, whi) = self.frame.extent_m(self.width, self.height);
+            return Err(format!(
+                "lies outside the grid (x {} to {} m, y {} to {} m); check its coordinates \
+                 against `origin_m` and `y_axis`",
+                wlo[0], whi[0], wlo[1], whi[1]
+            ));
+        }
+        Ok((lo, hi))
+    }
+
+    /// The grid cells overlapping the box `lo`..`hi` (grid units), edges included.
+    fn cells_in(&self, lo: [f64; 2], hi: [f64; 2]) -> impl Iterator<Item = Cell> {
+        let range = |lo: f64, hi: f64, cells: u16| {
+            // Cell x spans [x, x + 1]: it touches the box when x + 1 >= lo.
+            let first = (lo - 1.0).ceil().clamp(0.0, f64::from(cells)) as u16;
+            let last = (hi.floor() + 1.0).clamp(0.0, f64::from(cells)) as u16;
+            first..last
+        };
+        let xs = range(lo[0], hi[0], self.width);
+        range(lo[1], hi[1], self.height).flat_map(move |y| xs.clone().map(move |x| Cell::new(x, y)))
+    }
+}
+
+/// The bounding box of `points`, grown by `grow` on every side.
+fn corners_of(points: &[[f64; 2]], grow: f64) -> ([f64; 2], [f64; 2]) {
+    let mut lo = [f64::INFINITY; 2];
+    let mut hi = [f64::NEG_INFINITY; 2];
+    for p in points {
+        for k in 0..2 {
+            lo[k] = lo[k].min(p[k] - grow);
+            hi[k] = hi[k].max(p[k] + grow);
+        }
+    }
+    (lo, hi)
+}
+
+/// Even-odd rule: a ray from `p` towards +x crosses the outline an odd
+/// number of times when `p` is inside.
+fn inside(corners: &[[f64; 2]], p: [f64; 2]) -> bool {
+    let mut odd = false;
+    let mut prev = corners[corners.len() - 1];
+    for &c in corners {
+        if (c[1] > p[1]) != (prev[1] > p[1]) {
+            let x = c[0] + (p[1] - c[1]) * (prev[0] - c[0]) / (prev[1] - c[1]);
+            if p[0] < x {
+                odd = !odd;
+            }
+        }
+        prev = c;
+    }
+    odd
+}
+
+/// Overlaps shorter than this (grid units) are touching, not crossing.
+const OVERLAP_EPS: f64 = 1e-9;
+
+/// Whether the rectangle `half` wide on each side of segment `a`–`b` (ends
+/// flush with `a` and `b`) and the box `lo`..`hi` overlap by a non-zero area:
+/// by the separating-axis test, their projections overlap by more than a
+/// touch on the box's two axes and the rectangle's two.
+fn rectangle_overlaps(a: [f64; 2], b: [f64; 2], half: f64, lo: [f64; 2], hi: [f64; 2]) -> bool {
+    let length = (b[0] - a[0]).hypot(b[1] - a[1]);
+    let along = [(b[0] - a[0]) / length, (b[1] - a[1]) / length];
+    let across = [-along[1], along[0]];
+    let dot = |p: [f64; 2], axis: [f64; 2]| p[0] * axis[0] + p[1] * axis[1];
+    let box_corners = [lo, [hi[0], lo[1]], hi, [lo[0], hi[1]]];
+    let rectangle_corners = [-half, half]
+        .map(|side| [a, b].map(|p| [p[0] + side * across[0], p[1] + side * across[1]]));
+    let rectangle_corners = rectangle_corners.as_flattened();
+    let overlap = |(lo1, hi1): (f64, f64), (lo2, hi2): (f64, f64)| hi1.min(hi2) - lo1.max(lo2);
+    let span = |points: &[[f64; 2]], axis: [f64; 2]| {
+        points
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &p| {
+                (lo.min(dot(p, axis)), hi.max(dot(p, axis)))
+            })
+    };
+    [[1.0, 0.0], [0.0, 1.0], along, across]
+        .into_iter()
+        .all(|axis| overlap(span(&box_corners, axis), span(rectangle_corners, axis)) > OVERLAP_EPS)
+}
+
+/// Length of the part of segment `a`–`b` inside the closed box `lo`..`hi`
+/// (Liang–Barsky); a segment lying on the box's edge is inside.
+fn clipped_length(a: [f64; 2], b: [f64; 2], lo: [f64; 2], hi: [f64; 2]) -> f64 {
+    let d = [b[0] - a[0], b[1] - a[1]];
+    let (mut t0, mut t1) = (0.0f64, 1.0f64);
+    for k in 0..2 {
+        for (p, q) in [(-d[k], a[k] - lo[k]), (d[k], hi[k] - a[k])] {
+            if p == 0.0 {
+                if q < 0.0 {
+                    return 0.0;
+                }
+            } else {
+                let t = q / p;
+                if p < 0.0 {
+                    t0 = t0.max(t);
+                } else {
+                    t1 = t1.min(t);
+                }
+            }
+        }
+    }
+    (t1 - t0).max(0.0) * d[0].hypot(d[1])
+}
+
 /// Parses the `map` string into (width, height, row-major tiles).
 fn parse_map(map: &str) -> Result<(u16, u16, Vec<Tile>), String> {
     let rows: Vec<&str> = map
@@ -660,6 +1239,7 @@ fn parse_map(map: &str) -> Result<(u16, u16, Vec<Tile>), String> {
     }
     let width = u16::try_from(width).map_err(|_| "the map is wider than 65535 cells")?;
     let height = u16::try_from(rows.len()).map_err(|_| "the map is taller than 65535 cells")?;
+    check_size(width, height)?;
     if !tiles.iter().any(|t| t.walkable()) {
         return Err("no cell is walkable; mark open cells with '#'".into());
     }
@@ -820,6 +1400,189 @@ door = [2, 1]
         );
         let axis = SMALL.replace("cell_m = 2.0", "cell_m = 2.0\ny_axis = \"north\"");
         assert!(problems(&axis).contains("y_axis"), "{}", problems(&axis));
+    }
+
+    /// A floor in metres: 10 × 6 cells of 0.5 m, y up, an obstacle, three
+    /// walls and anchors on blocked cells and just off the grid.
+    const METRIC: &str = r#"
+name = "metric"
+cell_m = 0.5
+origin_m = [100.0, 50.0]
+y_axis = "up"
+width_m = 5.0
+height_m = 3.0
+
+[[obstacles]]
+polygon = [[101.0, 49.0], [102.0, 49.0], [102.0, 48.0], [101.0, 48.0]]
+
+[[walls]]
+line = [[103.5, 50.0], [103.5, 48.5]]
+
+[[walls]]
+line = [[100.0, 47.25], [101.0, 47.25]]
+thickness_m = 0.1
+
+[[walls]]
+line = [[104.0, 50.0], [105.0, 49.0]]
+
+[[beacon]]
+id = "shelf"
+uuid = "b9407f30-f5f8-466e-aff9-25556b57fe6d"
+major = 1
+minor = 1
+pos = [101.5, 48.5]
+height_m = 2.0
+
+[[beacon]]
+id = "corner"
+uuid = "b9407f30-f5f8-466e-aff9-25556b57fe6d"
+major = 1
+minor = 2
+cell = [0, 0]
+
+[[gateway]]
+id = "porch"
+pos = [99.8, 47.2]
+"#;
+
+    #[test]
+    fn a_metric_site_rasterises_its_obstacles_and_walls() {
+        let site = parse(METRIC).unwrap();
+        assert_eq!((site.width(), site.height()), (10, 6));
+        assert_eq!(site.extent_m(), ([100.0, 47.0], [105.0, 50.0]));
+        let blocked: Vec<Cell> = (0..6)
+            .flat_map(|y| (0..10).map(move |x| Cell::new(x, y)))
+            .filter(|&c| !site.walkable(c))
+            .collect();
+        #[rustfmt::skip]
+        let expected = [
+            // The thin wall along the edge between columns 6 and 7 blocks
+            // both for rows 0-2; its end on the edge of row 3 leaves row 3
+            // open. The diagonal wall blocks (8, 0) and (9, 1), not (9, 0)
+            // or (8, 1) whose corners it only touches.
+            (6, 0), (7, 0), (8, 0),
+            (6, 1), (7, 1), (9, 1),
+            (2, 2), (3, 2), (6, 2), (7, 2),
+            // The obstacle: the cells whose centres are inside the square.
+            (2, 3), (3, 3),
+            // The 0.1 m wall through row 5's centres, its end flush at x = 101 m.
+            (0, 5), (1, 5),
+        ]
+        .map(|(x, y)| Cell::new(x, y));
+        assert_eq!(blocked, expected);
+        assert_eq!(
+            site.shapes(),
+            Shapes {
+                obstacles: 1,
+                walls: 3,
+                cells_blocked: 14
+            }
+        );
+
+        let shelf = &site.beacons[0];
+        assert_eq!(shelf.cell, Some(Cell::new(3, 3)), "on the obstacle");
+        let mount = shelf.mount.unwrap();
+        assert_eq!(
+            mount,
+            Mount {
+                at: [101.5, 48.5],
+                height_m: Some(2.0)
+            }
+        );
+        assert!((mount.distance_m([101.5, 48.5]) - (2.0 - DEVICE_HEIGHT_M)).abs() < 1e-12);
+        assert!((mount.distance_m([104.5, 44.5]) - 5.0f64.hypot(0.8)).abs() < 1e-12);
+        let corner = site.beacons[1].mount.unwrap();
+        assert_eq!(corner.at, site.world_of_cell(Cell::new(0, 0)));
+        assert_eq!(corner.at, [100.25, 49.75]);
+        assert_eq!(
+            corner.distance_m([100.25, 46.75]),
+            3.0,
+            "no height: on the plan"
+        );
+        let porch = &site.gateways[0];
+        assert_eq!(porch.cell, None, "just off the grid");
+        assert_eq!(porch.mount.unwrap().at, [99.8, 47.2]);
+    }
+
+    #[test]
+    fn a_map_takes_walls_too() {
+        // A thin wall on the edge between rows 0 and 1, across column 1.
+        let text = SMALL.replace(
+            "[labels]",
+            "[[walls]]\nline = [[2.0, 2.0], [4.0, 2.0]]\n[labels]",
+        );
+        let site = parse(&text).unwrap();
+        let open = [(0, 0), (0, 1), (2, 1)].map(|(x, y)| Cell::new(x, y));
+        assert_eq!(site.open_cells(), open);
+        assert_eq!(site.shapes().cells_blocked, 2);
+        assert_ne!(site.map_hash(), parse(SMALL).unwrap().map_hash());
+    }
+
+    #[test]
+    fn names_each_metric_problem() {
+        let cases = [
+            (
+                METRIC.replace("pos = [101.5, 48.5]", "pos = [90.0, 47.0]"),
+                "line 27: beacon `shelf` is at `pos` = [90, 47], outside the site (x 100 to 105 \
+                 m, y 47 to 50 m, give or take 1.5 m)",
+            ),
+            (
+                METRIC.replace("cell = [0, 0]", "cell = [0, 0]\npos = [101.0, 49.0]"),
+                "beacon `corner` has both `cell` and `pos`",
+            ),
+            (
+                METRIC.replace("height_m = 2.0", "height_m = 250.0"),
+                "line 28: beacon `shelf`: `height_m` is 250",
+            ),
+            (
+                METRIC.replace("cell = [0, 0]", "cell = [2, 2]"),
+                "beacon `corner` is at [2, 2], a blocked cell ('.', an obstacle or a wall); move \
+                 it to a walkable cell or open that cell in `map`, or give its position in \
+                 metres with `pos = [x, y]`",
+            ),
+            (
+                METRIC.replace(
+                    "polygon = [[101.0, 49.0], [102.0, 49.0], [102.0, 48.0], [101.0, 48.0]]",
+                    "polygon = [[101.0, 49.0], [102.0, 49.0]]",
+                ),
+                "line 10: obstacle `polygon`: has 2 corners; a polygon needs at least 3",
+            ),
+            (
+                METRIC
+                    .replace("[101.0, 49.0], [102.0, 49.0]", "[1.0, 49.0], [2.0, 49.0]")
+                    .replace("[102.0, 48.0], [101.0, 48.0]", "[2.0, 48.0], [1.0, 48.0]"),
+                "line 10: obstacle `polygon`: lies outside the grid (x 100 to 105 m, y 47 to 50 \
+                 m); check its coordinates against `origin_m` and `y_axis`",
+            ),
+            (
+                METRIC.replace("thickness_m = 0.1", "thickness_m = -1.0"),
+                "line 17: wall `thickness_m` is -1",
+            ),
+            (
+                METRIC.replace("[103.5, 48.5]]", "[103.5, nan]]"),
+                "line 13: wall `line`: point 1 is [103.5, NaN], not two finite numbers",
+            ),
+            (
+                METRIC.replace("height_m = 3.0", "height_m = 3.0\nmap = '''\n#\n'''"),
+                "give either `map` or `width_m` and `height_m`, not both",
+            ),
+            (
+                METRIC.replace("width_m = 5.0\n", ""),
+                "the site needs a `map`, or `width_m` and `height_m`",
+            ),
+            (
+                METRIC.replace("cell_m = 0.5", "cell_m = 0.00005"),
+                "line 6: `width_m` is 100000 cells of 0.00005 m, more than 65535",
+            ),
+            (
+                METRIC.replace("cell_m = 0.5", "cell_m = 0.001"),
+                "the grid is 5000×3000 = 15000000 cells, more than the 4000000",
+            ),
+        ];
+        for (text, expected) in cases {
+            let msg = problems(&text);
+            assert!(msg.contains(expected), "{msg}\nshould contain\n{expected}");
+        }
     }
 
     #[test]

@@ -3,8 +3,10 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use gangway::sighting::Sighting;
 use gangway::source::Event;
 use gangway::source::btsnoop::{BtsnoopWriter, Datalink};
+use gangway::source::ibeacon::{self, IBeacon};
 use gangway::source::log::{LogReader, LogWriter};
 use serde_json::Value;
 
@@ -98,14 +100,19 @@ fn score_counts_the_fixes_printed_and_the_truths_in_the_log() {
     assert!(strict["matched"].as_u64().unwrap() < locations, "{strict}");
 }
 
-#[test]
-fn a_btsnoop_capture_replays_like_the_log_it_was_written_from() {
-    // One walker's adverts, as one phone's HCI snoop log would hold them.
+/// One walker's adverts, as one phone's or sniffer's capture would hold them.
+fn walker_adverts() -> Vec<Event> {
     let adverts: Vec<Event> = fixture_events()
         .into_iter()
         .filter(|e| matches!(e, Event::Advert(s) if &*s.observer == "walker-02"))
         .collect();
     assert!(adverts.len() > 100);
+    adverts
+}
+
+#[test]
+fn a_btsnoop_capture_replays_like_the_log_it_was_written_from() {
+    let adverts = walker_adverts();
     let dir = tempfile::tempdir().unwrap();
     let jsonl = dir.path().join("walker.jsonl");
     let mut log = LogWriter::create(&jsonl).unwrap();
@@ -168,6 +175,105 @@ fn a_csv_scan_log_replays_and_scores_against_its_labels() {
     assert_eq!(s["truths"], 30);
     assert!(s["fixes"].as_u64().unwrap() > 0, "{s}");
     assert_eq!(s["matched"], s["fixes"], "{s}");
+}
+
+/// A pcapng block: type, total length, body padded to 4 bytes, total length
+/// (little-endian, as Wireshark writes on x86).
+fn pcapng_block(out: &mut Vec<u8>, kind: u32, body: &[u8]) {
+    let padded = body.len().next_multiple_of(4);
+    let total = ((12 + padded) as u32).to_le_bytes();
+    out.extend_from_slice(&kind.to_le_bytes());
+    out.extend_from_slice(&total);
+    out.extend_from_slice(body);
+    out.resize(out.len() + padded - body.len(), 0);
+    out.extend_from_slice(&total);
+}
+
+/// What the nRF Sniffer hands Wireshark for one iBeacon advert: the Nordic
+/// header (version 3, RSSI as a magnitude) and an ADV_NONCONN_IND on the
+/// advertising access address.
+fn nrf_sniffer_packet(s: &Sighting) -> Vec<u8> {
+    let frame = ibeacon::encode_manufacturer_data(&IBeacon {
+        id: s.advertiser,
+        measured_power: s.tx_power.unwrap(),
+    });
+    let mut pdu = vec![
+        0x42, 0, 0x11, 0x22, 0x33, 0x44, 0x55, 0xC6, 0x02, 0x01, 0x06,
+    ];
+    pdu.push(frame.len() as u8 + 1);
+    pdu.push(0xFF);
+    pdu.extend_from_slice(&frame);
+    pdu[1] = (pdu.len() - 2) as u8;
+    let mut ll = 0x8E89_BED6u32.to_le_bytes().to_vec();
+    ll.extend_from_slice(&pdu);
+    ll.extend_from_slice(&[0x12, 0x34, 0x56]); // CRC
+    let mut packet = vec![0x01];
+    packet.extend_from_slice(&((10 + ll.len()) as u16).to_le_bytes());
+    let rssi = u8::try_from(-s.rssi).unwrap();
+    packet.extend_from_slice(&[3, 0, 0, 0x02, 10, 0x01, 37, rssi, 0, 0, 0, 0, 0, 0]);
+    packet.extend_from_slice(&ll);
+    packet
+}
+
+#[test]
+fn an_nrf_sniffer_pcapng_replays_like_the_log_it_was_written_from() {
+    let adverts = walker_adverts();
+    let dir = tempfile::tempdir().unwrap();
+    let jsonl = dir.path().join("walker.jsonl");
+    let mut log = LogWriter::create(&jsonl).unwrap();
+    // Section header, one NORDIC_BLE interface (microseconds), a packet per advert.
+    let mut pcapng = Vec::new();
+    let mut shb = 0x1A2B_3C4Du32.to_le_bytes().to_vec();
+    shb.extend_from_slice(&[1, 0, 0, 0, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF]);
+    pcapng_block(&mut pcapng, 0x0A0D_0D0A, &shb);
+    pcapng_block(&mut pcapng, 1, &[0x10, 0x01, 0, 0, 0, 0, 0, 0]);
+    for e in &adverts {
+        let Event::Advert(s) = e else { unreachable!() };
+        log.write(e).unwrap();
+        let micros = (s.t * 1e6).round() as u64;
+        let mut epb = 0u32.to_le_bytes().to_vec();
+        epb.extend_from_slice(&((micros >> 32) as u32).to_le_bytes());
+        epb.extend_from_slice(&(micros as u32).to_le_bytes());
+        let packet = nrf_sniffer_packet(s);
+        epb.extend_from_slice(&(packet.len() as u32).to_le_bytes());
+        epb.extend_from_slice(&(packet.len() as u32).to_le_bytes());
+        epb.extend_from_slice(&packet);
+        pcapng_block(&mut pcapng, 6, &epb);
+    }
+    log.flush().unwrap();
+    // Any name: the magic number tells.
+    let capture = dir.path().join("walk-nrf-sniffer.cap");
+    std::fs::write(&capture, &pcapng).unwrap();
+
+    let from_log = gangway_ok(&["replay", path(&jsonl), "--print"]);
+    assert!(from_log.lines().count() > 10);
+    let from_capture = gangway_ok(&["replay", path(&capture), "--device", "walker-02", "--print"]);
+    assert_eq!(from_capture, from_log);
+    let named = gangway_ok(&[
+        "replay",
+        path(&capture),
+        "--format",
+        "pcapng",
+        "--device",
+        "walker-02",
+        "--print",
+    ]);
+    assert_eq!(named, from_log);
+
+    // A file named .pcapng that is not one is reported as such, not read as JSON Lines.
+    let fake = dir.path().join("fake.pcapng");
+    std::fs::write(&fake, "{}\n").unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_gangway"))
+        .args(["replay", path(&fake), "--print"])
+        .current_dir(root())
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("fake.pcapng: not a pcap or pcapng capture"),
+        "{err}"
+    );
 }
 
 /// The UCI survey as published, newest row first, replayed through the default

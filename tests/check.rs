@@ -55,6 +55,74 @@ fn the_shipped_config_is_valid() {
 }
 
 #[test]
+fn the_metric_sample_site_is_valid() {
+    let site = std::fs::read_to_string(common::root().join("config/sites/depot.toml")).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "site.toml", &site);
+    let config = write(dir.path(), "gangway.toml", CONFIG);
+    let out = gangway(&["check", "--config", config.to_str().unwrap()]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("16×10 cells, 144 walkable, 6 beacons")
+            && stdout.contains(
+                "frame: 0.9 m cells, origin [250, 120] m, y up; extent x 250 to 264.4 m, y 111 \
+                 to 120 m; 1 obstacles and 1 walls blocked 16 cells"
+            ),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn prints_the_frame_of_a_site_in_metres() {
+    let site = r#"name = "m"
+cell_m = 0.5
+origin_m = [-3.0, 8.0]
+y_axis = "up"
+width_m = 4.0
+height_m = 2.0
+[[obstacles]]
+polygon = [[-2.0, 7.0], [-1.0, 7.0], [-1.0, 6.5], [-2.0, 6.5]]
+[[walls]]
+line = [[0.0, 8.0], [0.0, 7.0]]
+[[beacon]]
+id = "b1"
+uuid = "5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84"
+major = 1
+minor = 1
+pos = [-1.5, 6.75]
+height_m = 2.4
+"#;
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "site.toml", site);
+    let config = write(dir.path(), "gangway.toml", CONFIG);
+    let out = gangway(&["check", "--config", config.to_str().unwrap()]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("8×4 cells, 26 walkable, 1 beacons"),
+        "{stdout}"
+    );
+    // The obstacle covers 2 × 1 cell centres; the wall runs along the edge
+    // between columns 5 and 6 for two rows: 4 cells.
+    assert!(
+        stdout.contains(
+            "frame: 0.5 m cells, origin [-3, 8] m, y up; extent x -3 to 1 m, y 6 to 8 m; \
+             1 obstacles and 1 walls blocked 6 cells"
+        ),
+        "{stdout}"
+    );
+}
+
+#[test]
 fn a_good_small_site_passes() {
     let (ok, stderr) = check(CONFIG, SITE);
     assert!(ok, "{stderr}");

@@ -380,50 +380,98 @@ fn another_site_with_other_anchors_and_size_works_from_its_own_files() {
     assert_eq!(located, ["walker-01", "walker-02"].map(String::from).into());
 }
 
-/// Nothing tuned to the sample floor: on another site (2 m cells, beacons in
-/// the corners), a survey simulated with drop-outs and shadowing, split by
-/// rows into fixed files, the radio map beats a plain kNN regressor (the
-/// scikit-learn default: 5 neighbours, Euclidean distance, mean position)
-/// computed here on the same split.
+/// A second site in metres, unlike the sample floor in every way the site
+/// file can say: 0.9 m cells, its grid at x 250 m, y 120 m with y up, an open
+/// floor with a shelf block (obstacle polygon) and a partition (thin wall)
+/// drawn on it, beacons placed by `pos` on the shelf, on the partition and on
+/// the outer walls, some with a mounting height.
+const METRIC_SITE: &str = include_str!("../config/sites/depot.toml");
+
+/// Where a world point falls on `METRIC_SITE`'s grid (cell column, row), and
+/// the centre of a cell in world metres: the frame written out independently
+/// of the code under test.
+const DEPOT_CELL_M: f64 = 0.9;
+fn depot_cell(x: f64, y: f64) -> (i64, i64) {
+    (
+        ((x - 250.0) / DEPOT_CELL_M).floor() as i64,
+        ((120.0 - y) / DEPOT_CELL_M).floor() as i64,
+    )
+}
+fn depot_centre(cx: i64, cy: i64) -> (f64, f64) {
+    (
+        250.0 + (cx as f64 + 0.5) * DEPOT_CELL_M,
+        120.0 - (cy as f64 + 0.5) * DEPOT_CELL_M,
+    )
+}
+
+/// Nothing tuned to the sample floor: on `METRIC_SITE`, a survey in metres
+/// (`x_m`,`y_m`, points anywhere on the walkable floor, not cell centres)
+/// simulated with drop-outs and shadowing, split by rows into fixed files,
+/// the radio map beats a plain kNN regressor computed here on the same split
+/// (the scikit-learn default: 5 neighbours, uniform weights, Euclidean
+/// distance on raw RSSI with "not heard" as a floor value, mean position).
+/// Both are scored in metres against where each row was really taken.
 #[test]
-fn the_radio_map_beats_a_plain_knn_regressor_on_another_site() {
+fn the_radio_map_beats_a_plain_knn_regressor_on_a_metric_site() {
     use rand::{RngExt, SeedableRng};
     let dir = tempfile::tempdir().unwrap();
-    let site = write(dir.path(), "workshop.toml", SMALL_SITE);
-    let beacons = [(0.0, 0.0), (7.0, 0.0), (0.0, 4.0), (7.0, 4.0)];
-    let map = ["########", "##....##", "########", "##....##", "########"];
-    let mut rng = rand::rngs::Xoshiro256PlusPlus::seed_from_u64(7);
-    let header = "x,y,t,north-west,north-east,south-west,south-east";
-    // (cell, readings with -200 for "not heard"), 8 per walkable cell.
+    let site_file = write(dir.path(), "depot.toml", METRIC_SITE);
+    let site = site_file.to_str().unwrap();
+    // Anchors as the radio sees them: (x, y, height above the phone).
+    let beacons = [
+        (250.0, 120.0, 1.3),
+        (256.7, 116.4, 0.6),
+        (261.0, 118.0, 0.0),
+        (264.4, 111.0, 1.3),
+        (250.0, 113.5, 0.0),
+        (258.0, 111.0, 1.3),
+    ];
+    // Blocked by the shelf (cell centres inside it) and the partition (the
+    // cells x = 261 m runs through, from the top down to y = 114.6 m, the
+    // edge between rows 5 and 6).
+    let blocked = |(cx, cy): (i64, i64)| {
+        let (x, y) = depot_centre(cx, cy);
+        let shelf = (254.5..259.0).contains(&x) && (115.5..117.3).contains(&y);
+        let partition = cx == depot_cell(261.0, 120.0).0 && cy <= 5;
+        shelf || partition
+    };
+    let mut rng = rand::rngs::Xoshiro256PlusPlus::seed_from_u64(11);
+    let header = "t,x_m,y_m,door,shelf,partition,far-corner,west,south";
+    // (true position, readings with -200 for "not heard").
     let mut rows: Vec<((f64, f64), Vec<i32>)> = Vec::new();
-    for (y, row) in map.iter().enumerate() {
-        for (x, c) in row.chars().enumerate() {
-            if c != '#' {
-                continue;
-            }
-            for _ in 0..8 {
-                let readings = beacons
-                    .iter()
-                    .map(|(bx, by)| {
-                        let d = 2.0 * ((x as f64 - bx).powi(2) + (y as f64 - by).powi(2)).sqrt();
-                        let heard = rng.random_bool((0.95 / (1.0 + (d / 8.0).powi(3))).min(1.0));
-                        let shadowing: f64 = rng.random_range(-6.0..6.0);
-                        if heard {
-                            (-62.0 - 20.0 * d.max(0.5).log10() + shadowing).round() as i32
-                        } else {
-                            -200
-                        }
-                    })
-                    .collect();
-                rows.push(((x as f64, y as f64), readings));
-            }
+    while rows.len() < 900 {
+        // To the millimetre, as written to the files.
+        let mm = |v: f64| (v * 1000.0).round() / 1000.0;
+        let (x, y) = (
+            mm(rng.random_range(250.0..264.4)),
+            mm(rng.random_range(111.0..120.0)),
+        );
+        if blocked(depot_cell(x, y)) {
+            continue;
         }
+        let readings = beacons
+            .iter()
+            .map(|&(bx, by, dh)| {
+                let d: f64 = ((x - bx) * (x - bx) + (y - by) * (y - by) + dh * dh).sqrt();
+                // Drop-outs rise with distance; shadowing of ±6 dB.
+                let heard = rng.random_bool(0.9 / (1.0 + (d / 7.0).powi(3)));
+                let shadowing: f64 = rng.random_range(-6.0..6.0);
+                if heard {
+                    (-60.0 - 22.0 * d.max(0.5).log10() + shadowing).round() as i32
+                } else {
+                    -200
+                }
+            })
+            .collect();
+        rows.push(((x, y), readings));
     }
-    let csv = |rows: &[((f64, f64), Vec<i32>)]| {
+    let csv = |rows: &[((f64, f64), Vec<i32>)], first_t: usize| {
         let mut out = format!("{header}\n");
         for (i, ((x, y), r)) in rows.iter().enumerate() {
             let r: Vec<String> = r.iter().map(i32::to_string).collect();
-            out.push_str(&format!("{x},{y},{},{}\n", i * 100, r.join(",")));
+            // A minute apart: every row its own walking session.
+            let t = (first_t + i) * 60;
+            out.push_str(&format!("{t},{x:.3},{y:.3},{}\n", r.join(",")));
         }
         out
     };
@@ -435,24 +483,47 @@ fn the_radio_map_beats_a_plain_knn_regressor_on_another_site() {
         .partition(|(i, _)| i % 3 == 0);
     let train: Vec<_> = train.into_iter().map(|(_, r)| r).collect();
     let test: Vec<_> = test.into_iter().map(|(_, r)| r).collect();
-    let train_file = write(dir.path(), "train.csv", &csv(&train));
-    let test_file = write(dir.path(), "test.csv", &csv(&test));
-    let map_error = figure(
-        &eval(&[
-            "--site",
-            site.to_str().unwrap(),
-            "--train",
-            train_file.to_str().unwrap(),
-            "--test",
-            test_file.to_str().unwrap(),
-            "--method",
-            "radiomap",
-            "--tracker",
-            "none",
-        ]),
-        "mean_error_cells",
-    );
-    // The plain regressor: "not heard" as -105 dBm, as a window reads it.
+    let train_file = write(dir.path(), "train.csv", &csv(&train, 0));
+    let test_file = write(dir.path(), "test.csv", &csv(&test, train.len()));
+    let per_row = dir.path().join("rows.csv");
+    eval(&[
+        "--site",
+        site,
+        "--train",
+        train_file.to_str().unwrap(),
+        "--test",
+        test_file.to_str().unwrap(),
+        "--method",
+        "radiomap",
+        "--tracker",
+        "none",
+        "--rows",
+        per_row.to_str().unwrap(),
+    ]);
+    // The radio map's fix is a cell: its centre in world metres against the
+    // row's true position.
+    let fixes = std::fs::read_to_string(&per_row).unwrap();
+    let mut lines = fixes.lines();
+    let columns: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |name: &str| columns.iter().position(|c| *c == name).unwrap();
+    let (row_col, x_col, y_col) = (col("row"), col("x"), col("y"));
+    let mut map_error = 0.0;
+    let mut fixed = 0;
+    for line in lines {
+        let f: Vec<&str> = line.split(',').collect();
+        // Rows count through the training file, then the test file.
+        let i = f[row_col].parse::<usize>().unwrap() - train.len();
+        let (tx, ty) = test[i].0;
+        let (cx, cy) = (f[x_col].parse().unwrap(), f[y_col].parse().unwrap());
+        assert!(!blocked((cx, cy)), "a fix on a blocked cell: {line}");
+        let (x, y) = depot_centre(cx, cy);
+        map_error += (x - tx).hypot(y - ty);
+        fixed += 1;
+    }
+    assert_eq!(fixed, test.len(), "one fix per held-out row");
+    map_error /= fixed as f64;
+
+    // The plain regressor on the same split.
     let value = |v: i32| if v == -200 { -105.0 } else { f64::from(v) };
     let mut knn_error = 0.0;
     for ((tx, ty), r) in &test {
@@ -473,12 +544,72 @@ fn the_radio_map_beats_a_plain_knn_regressor_on_another_site() {
             .fold((0.0, 0.0), |acc, (_, (x, y))| {
                 (acc.0 + x / 5.0, acc.1 + y / 5.0)
             });
-        knn_error += ((x - tx).powi(2) + (y - ty).powi(2)).sqrt();
+        knn_error += (x - tx).hypot(y - ty);
     }
     knn_error /= test.len() as f64;
     assert!(
         map_error < knn_error,
-        "radio map {map_error:.3} cells against a plain kNN regressor {knn_error:.3}"
+        "radio map {map_error:.3} m against a plain kNN regressor {knn_error:.3} m"
     );
-    eprintln!("radio map {map_error:.3} cells, plain kNN regressor {knn_error:.3}");
+    eprintln!("radio map {map_error:.3} m, plain kNN regressor {knn_error:.3} m");
+}
+
+/// The whole pipeline on the metric site: walkers simulated with the beacons'
+/// metric mounts, located by the survey-free model, published in the site's
+/// world metres (the centre of the fix's cell in the plan's coordinates).
+#[test]
+fn a_metric_site_publishes_world_coordinates() {
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "depot.toml", METRIC_SITE);
+    let log = dir.path().join("walk.jsonl");
+    gangway_ok(&[
+        "simulate",
+        "--site",
+        dir.path().join("depot.toml").to_str().unwrap(),
+        "--out",
+        log.to_str().unwrap(),
+        "--walkers",
+        "2",
+        "--duration",
+        "60",
+    ]);
+    let config = write(
+        dir.path(),
+        "gangway.toml",
+        "gateway_id = \"gw-d\"\nsite = \"depot.toml\"\n",
+    );
+    let out = gangway_ok(&[
+        "replay",
+        log.to_str().unwrap(),
+        "--config",
+        config.to_str().unwrap(),
+        "--print",
+    ]);
+    let mut known = 0;
+    for m in out
+        .lines()
+        .map(|l| serde_json::from_str::<Value>(l).unwrap())
+        .filter(|m| m["topic"].as_str().unwrap().ends_with("/location"))
+    {
+        let p = &m["payload"];
+        if p["cell"].is_null() {
+            continue;
+        }
+        known += 1;
+        let cell = (
+            p["cell"][0].as_i64().unwrap(),
+            p["cell"][1].as_i64().unwrap(),
+        );
+        let (x, y) = depot_centre(cell.0, cell.1);
+        let (x_m, y_m) = (p["x_m"].as_f64().unwrap(), p["y_m"].as_f64().unwrap());
+        assert!(
+            (x_m - x).abs() < 1e-9 && (y_m - y).abs() < 1e-9,
+            "{p}: the centre of {cell:?} is ({x}, {y})"
+        );
+        assert!(
+            (250.0..264.4).contains(&x_m) && (111.0..120.0).contains(&y_m),
+            "{p}"
+        );
+    }
+    assert!(known > 10, "only {known} located fixes:\n{out}");
 }

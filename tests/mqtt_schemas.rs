@@ -12,6 +12,7 @@ use gangway::config::Config;
 use gangway::mqtt::inbound::{Inbound, Inbox};
 use gangway::mqtt::sightings;
 use gangway::pipeline::Pipeline;
+use gangway::plan::RouteErrorCode;
 use gangway::publish::Topics;
 use gangway::site::Site;
 use gangway::source::Event;
@@ -44,7 +45,7 @@ fn replayed_locations_routes_and_errors_match_their_schemas() {
         "walker-01",
         Some("r".into()),
         1.0,
-        "invalid_json",
+        RouteErrorCode::InvalidJson,
         "bad".into(),
     );
     out.push(pipeline.topics().encode_route(&reject));

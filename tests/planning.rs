@@ -111,7 +111,7 @@ fn wheelchair_routes_avoid_stairs_and_low_vision_avoids_narrow_cells() {
     let err = AStar::new(stairs_only, Connectivity::Eight)
         .plan(Cell::new(0, 0), Cell::new(2, 0), Profile::Wheelchair)
         .unwrap_err();
-    assert_eq!(err.code(), "unreachable");
+    assert_eq!(err.code().as_str(), "unreachable");
 }
 
 #[test]

@@ -67,8 +67,14 @@ fn every_observer_is_located_near_its_truth() {
     );
 
     let mut errors = Vec::new();
+    let mut unknown = 0;
     for m in &locations {
         let p = &m["payload"];
+        // Too little heard for a cell: published as an unknown location.
+        if p["cell"].is_null() {
+            unknown += 1;
+            continue;
+        }
         assert_eq!(
             m["topic"],
             format!(
@@ -89,12 +95,18 @@ fn every_observer_is_located_near_its_truth() {
         }
     }
     assert!(
-        errors.len() >= locations.len() / 2,
+        unknown * 4 < locations.len(),
+        "{unknown} of {} locations unknown",
+        locations.len()
+    );
+    assert!(
+        errors.len() >= (locations.len() - unknown) / 2,
         "fixes line up with truth events"
     );
     let mean = errors.iter().sum::<f64>() / errors.len() as f64;
-    // A guard on what the path-loss localizer with tracking reaches on this
-    // fixture (about 2 cells), with room for noise; a broken pipeline is far off.
+    // A guard on what the calibrated path-loss localizer with tracking reaches
+    // on this fixture (about 2.5 cells: the real floor's beacons are heard
+    // sparsely), with room for noise; a broken pipeline is far off.
     assert!(mean < 3.5, "mean error {mean:.2} cells");
 }
 

@@ -20,7 +20,7 @@ pub struct Args {
     #[arg(long, default_value_os_t = super::default_config())]
     config: PathBuf,
     /// Captures heard on this site (any format `replay` reads: JSON Lines
-    /// advert logs, CSV scan logs with or without positions, btsnoop). Rows
+    /// advert logs, CSV scan logs with or without positions, btsnoop, pcap). Rows
     /// with a position (a few surveyed points) are used as such.
     #[arg(long, required = true, num_args = 1..)]
     from: Vec<PathBuf>,

@@ -38,6 +38,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                         site.gateways.len(),
                         site.places().len()
                     );
+                    println!("{}", frame(&site));
                 }
             }
         },
@@ -49,4 +50,25 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         eprintln!("error: {p}");
     }
     Ok(ExitCode::FAILURE)
+}
+
+/// The site's metric frame and what its obstacles and walls drew, so that a
+/// site drawn in metres can be checked against its plan.
+fn frame(site: &Site) -> String {
+    let (lo, hi) = site.extent_m();
+    let [ox, oy] = site.origin_m();
+    let shapes = site.shapes();
+    format!(
+        "frame: {} m cells, origin [{ox}, {oy}] m, y {}; extent x {} to {} m, y {} to {} m; \
+         {} obstacles and {} walls blocked {} cells",
+        site.cell_m,
+        site.y_axis(),
+        lo[0],
+        hi[0],
+        lo[1],
+        hi[1],
+        shapes.obstacles,
+        shapes.walls,
+        shapes.cells_blocked
+    )
 }

@@ -17,14 +17,16 @@ use crate::source::capture::{CaptureReader, Format, ReadOptions};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// The capture: a JSON Lines advert log, a CSV scan log or a btsnoop file.
+    /// The capture: a JSON Lines advert log, a CSV scan log, a btsnoop file or
+    /// a pcap/pcapng capture.
     log: PathBuf,
-    /// The capture's format; by default btsnoop files are recognised by their
-    /// first bytes, `*.csv` is a scan log and anything else JSON Lines.
+    /// The capture's format; by default btsnoop, pcap and pcapng files are
+    /// recognised by their first bytes, `*.csv` is a scan log and anything else
+    /// JSON Lines.
     #[arg(long, value_enum)]
     format: Option<Format>,
-    /// Device id of CSV and btsnoop captures, which do not name their observer
-    /// (default: `survey` for CSV, `capture` for btsnoop).
+    /// Device id of CSV, btsnoop and pcap captures, which do not name their
+    /// observer (default: `survey` for CSV, `capture` for btsnoop and pcap).
     #[arg(long)]
     device: Option<String>,
     /// RSSI value that means "not heard" in CSV scan logs.

@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use anyhow::Context;
 
-use crate::locate::pathloss::PathLossConfig;
+use crate::config::Config;
 use crate::locate::survey::Survey;
 use crate::site::Site;
 use crate::source::log::LogWriter;
@@ -55,6 +55,11 @@ pub struct Args {
     /// "Not heard" value in the survey.
     #[arg(long, default_value_t = -200, allow_negative_numbers = true)]
     not_heard: i16,
+    /// Phones hear the beacons as this gateway config's `[localizer.pathloss]`
+    /// radio model (and its calibration file) describes them, with its
+    /// `[window] length_s`; without it, the model's defaults.
+    #[arg(long)]
+    config: Option<PathBuf>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
@@ -81,6 +86,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         }
         None => None,
     };
+    let hearing = match &args.config {
+        Some(path) => SimConfig::hearing(&Config::load(path)?, &site)?,
+        None => SimConfig::default(),
+    };
     let config = SimConfig {
         walkers: args.walkers,
         duration_s: args.duration,
@@ -88,8 +97,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         scan_hz: args.scan_hz,
         dropout: args.dropout,
         requests_per_walker: args.requests,
-        pathloss: PathLossConfig::default(),
-        ..SimConfig::default()
+        ..hearing
     };
     let events = simulate(&site, &config, survey.as_ref());
     let mut writer = LogWriter::create(&args.out)

@@ -37,6 +37,7 @@ use crate::mqtt::occupancy::Occupancy;
 use crate::mqtt::stats::{BleStatus, STATS_SCHEMA, Stats};
 use crate::mqtt::{self, Link, Received, sightings};
 use crate::pipeline;
+use crate::plan::RouteErrorCode;
 use crate::publish::{LOCATION_SCHEMA, Message, PATH_SCHEMA, Topics};
 use crate::sighting::Sighting;
 use crate::source::{Event, RouteRequest};
@@ -351,9 +352,9 @@ impl Daemon {
                         "more than {} route requests per second from this device",
                         self.state.config.limits.requests_per_device_per_s
                     );
-                    self.refuse_route(&request, "rate_limited", why);
+                    self.refuse_route(&request, RouteErrorCode::RateLimited, why);
                 } else if let Some((request, why)) = self.requests.push(request) {
-                    self.refuse_route(&request, "overloaded", why);
+                    self.refuse_route(&request, RouteErrorCode::Overloaded, why);
                 }
             }
             Ok(Inbound::BadRoute {
@@ -363,9 +364,9 @@ impl Daemon {
                 message,
             }) => {
                 if let Some(more) = self.throttles.rejected.ready() {
-                    tracing::warn!(%topic, code, not_logged = more, "refused route request: {message}");
+                    tracing::warn!(%topic, code = code.as_str(), not_logged = more, "refused route request: {message}");
                 }
-                if code == "payload_too_large" {
+                if code == RouteErrorCode::PayloadTooLarge {
                     self.counters.oversized += 1;
                 }
                 let reply = self
@@ -432,7 +433,9 @@ impl Daemon {
                     .pipeline
                     .handle(&Event::Request(request), &mut self.out);
             }
-            Some(Admit::Overloaded(request, why)) => self.refuse_route(&request, "overloaded", why),
+            Some(Admit::Overloaded(request, why)) => {
+                self.refuse_route(&request, RouteErrorCode::Overloaded, why)
+            }
             None => return,
         }
         self.send();
@@ -440,8 +443,8 @@ impl Daemon {
 
     /// Answers a route request with an error that says when to try again,
     /// counts it, and logs it (at most once per [`WARN_EVERY`] per kind).
-    fn refuse_route(&mut self, request: &RouteRequest, code: &'static str, why: String) {
-        let (count, throttle) = if code == "overloaded" {
+    fn refuse_route(&mut self, request: &RouteRequest, code: RouteErrorCode, why: String) {
+        let (count, throttle) = if code == RouteErrorCode::Overloaded {
             (
                 &mut self.counters.overloaded,
                 &mut self.throttles.overloaded,
@@ -456,7 +459,7 @@ impl Daemon {
         if let Some(more) = throttle.ready() {
             tracing::warn!(
                 device = request.device,
-                code,
+                code = code.as_str(),
                 not_logged = more,
                 total = *count,
                 "route request refused: {why}"

@@ -172,10 +172,7 @@ pub fn evaluate(
     setup: &Setup,
 ) -> anyhow::Result<Report> {
     let mut pipeline = Pipeline::new(config, site.clone())?;
-    let sim = SimConfig {
-        pathloss: config.localizer.pathloss.clone(),
-        ..SimConfig::default()
-    };
+    let sim = SimConfig::hearing(config, &site)?;
     let phone = Phone::new(&site, &sim, survey);
     let guidance = config.guidance.clone();
     let places: Vec<(&String, Cell)> = site.places().iter().map(|(n, &c)| (n, c)).collect();

@@ -23,6 +23,7 @@ use crate::locate::knn::Knn;
 use crate::locate::onnx::Onnx;
 use crate::locate::pathloss::PathLoss;
 use crate::locate::radiomap::RadioMap;
+use crate::locate::strongest::Strongest;
 use crate::locate::survey::{Sample, Survey, sessions};
 use crate::locate::tracker::TrackerConfig;
 use crate::locate::tracker::{Tracker, TrackerKind};
@@ -273,6 +274,19 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
                 site,
                 &survey.subset(&train_rows),
                 seed,
+            )?),
+            Method::Auto => crate::locate::auto::surveyed(
+                &setup.localizer,
+                site,
+                &survey.anchors,
+                &setup.window,
+                &setup.tracker,
+                &train,
+            )?,
+            Method::Strongest => Box::new(Strongest::new(
+                &setup.localizer.pathloss,
+                site,
+                setup.window.orientation,
             )?),
             Method::Pathloss => match &calibrated {
                 Some(anchors) => Box::new(PathLoss::with_anchors(site, anchors)?),

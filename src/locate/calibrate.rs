@@ -151,10 +151,10 @@ pub fn fit(
     let distance: Vec<f64> = cells
         .iter()
         .flat_map(|&c| {
-            let here = site.metres(c);
+            let here = site.world_of_cell(c);
             anchors
                 .iter()
-                .map(move |a| a.map_or(f64::NAN, |(at, _)| (here.0 - at.0).hypot(here.1 - at.1)))
+                .map(move |a| a.map_or(f64::NAN, |(mount, _)| mount.distance_m(here)))
         })
         .collect();
     let n_anchors = anchors.len();
@@ -291,13 +291,11 @@ fn initialise(site: &Site, anchors: &mut [Anchor], trajectories: &[Vec<Window>])
         cells
             .iter()
             .map(|&c| {
-                let here = site.metres(c);
+                let here = site.world_of_cell(c);
                 anchors
                     .iter()
                     .flatten()
-                    .map(|(at, r)| {
-                        Radio { range_m, ..*r }.detection((here.0 - at.0).hypot(here.1 - at.1))
-                    })
+                    .map(|(mount, r)| Radio { range_m, ..*r }.detection(mount.distance_m(here)))
                     .sum::<f64>()
             })
             .sum::<f64>()

@@ -6,6 +6,7 @@
 //!   with motion);
 //! - [`tracker`] keeps a belief per entity that respects walls and walking speed.
 
+pub(crate) mod auto;
 pub mod bounds;
 pub mod calibrate;
 pub mod crossval;
@@ -14,6 +15,7 @@ pub mod onnx;
 pub mod pathloss;
 pub mod radiomap;
 pub mod reliability;
+pub mod strongest;
 pub mod survey;
 pub mod tracker;
 pub mod window;
@@ -87,8 +89,11 @@ fn default_min_confidence() -> f32 {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Method {
-    /// Log-distance path loss from the anchors' positions; needs no survey.
+    /// The surveyed method that cross-validates best when a survey is
+    /// configured, else `pathloss` (with its calibration file, if set).
     #[default]
+    Auto,
+    /// Log-distance path loss from the anchors' positions; needs no survey.
     Pathloss,
     /// Weighted k-nearest neighbours over a survey.
     Knn,
@@ -96,15 +101,19 @@ pub enum Method {
     Radiomap,
     /// The MLP cell classifier trained by `gangway train --survey`.
     Onnx,
+    /// The cell nearest the anchor heard loudest: the baseline rule.
+    Strongest,
 }
 
 impl Method {
     pub fn name(self) -> &'static str {
         match self {
+            Method::Auto => "auto",
             Method::Pathloss => "pathloss",
             Method::Knn => "knn",
             Method::Radiomap => "radiomap",
             Method::Onnx => "onnx",
+            Method::Strongest => "strongest",
         }
     }
 }
@@ -114,7 +123,8 @@ impl Method {
 pub enum LocalizerError {
     #[error(
         "the pathloss localizer needs anchor positions, and no anchor of the site has a \
-         `cell`; add `cell = [x, y]` to the site's beacons or gateways"
+         `cell` or `pos`; add `cell = [x, y]` or `pos = [x_m, y_m]` to the site's beacons or \
+         gateways"
     )]
     NoAnchorPositions,
     #[error(
@@ -122,6 +132,16 @@ pub enum LocalizerError {
          [localizer.radiomap]"
     )]
     NoSurvey,
+    #[error(
+        "[localizer.radiomap] and [localizer.knn] name different surveys ({} and {}); \
+         method = \"auto\" chooses between them on one survey: name the same file or one of them",
+        radiomap.display(),
+        knn.display()
+    )]
+    TwoSurveys {
+        radiomap: std::path::PathBuf,
+        knn: std::path::PathBuf,
+    },
     #[error("the survey has no rows to learn from")]
     EmptySurvey,
     #[error(
@@ -161,6 +181,7 @@ pub fn build(
     tracker: &tracker::TrackerConfig,
 ) -> Result<Box<dyn Localizer>, LocalizerError> {
     Ok(match config.method {
+        Method::Auto => auto::build(config, site, windows, tracker)?,
         Method::Pathloss => Box::new(pathloss::PathLoss::new(
             &config.pathloss,
             site,
@@ -180,5 +201,10 @@ pub fn build(
             tracker,
         )?),
         Method::Onnx => Box::new(onnx::Onnx::load(&config.onnx.model, site)?),
+        Method::Strongest => Box::new(strongest::Strongest::new(
+            &config.pathloss,
+            site,
+            windows.orientation,
+        )?),
     })
 }

@@ -25,7 +25,7 @@ use serde::{Deserialize, Serialize};
 
 use super::window::Orientation;
 use super::{Localizer, LocalizerError};
-use crate::site::{Cell, Site};
+use crate::site::{Mount, Site};
 
 /// `[localizer.pathloss]`: the radio model. The simulator reads the same keys
 /// so that simulated logs and the localizer agree on what "typical" means.
@@ -155,9 +155,10 @@ impl Radio {
 /// floor is still heard through a reflection.
 pub const DETECTION_BOUNDS: (f64, f64) = (1e-3, 0.98);
 
-/// An anchor's position (metres) and radio model, in the orientation's anchor
-/// order; `None` for an anchor without a known position.
-pub type Anchor = Option<((f64, f64), Radio)>;
+/// An anchor's mounting position (world metres, maybe a height) and radio
+/// model, in the orientation's anchor order; `None` for an anchor without a
+/// known position.
+pub type Anchor = Option<(Mount, Radio)>;
 
 /// The anchors of the site in the orientation's order, with the radio model
 /// each one gets: the calibration's entry, else the config's values with the
@@ -168,26 +169,26 @@ pub fn anchors(
     config: &PathLossConfig,
     calibration: Option<&super::calibrate::Calibration>,
 ) -> Vec<Anchor> {
-    let entries: Vec<(&str, Option<Cell>, Option<f64>)> = match orientation {
+    let entries: Vec<(&str, Option<Mount>, Option<f64>)> = match orientation {
         Orientation::Observer => site
             .beacons
             .iter()
-            .map(|b| (b.id.as_str(), b.cell, b.tx_power.map(f64::from)))
+            .map(|b| (b.id.as_str(), b.mount, b.tx_power.map(f64::from)))
             .collect(),
         Orientation::Advertiser => site
             .gateways
             .iter()
-            .map(|g| (g.id.as_str(), g.cell, None))
+            .map(|g| (g.id.as_str(), g.mount, None))
             .collect(),
     };
     entries
         .into_iter()
-        .map(|(id, cell, tx)| {
-            let cell = cell?;
+        .map(|(id, mount, tx)| {
+            let mount = mount?;
             let radio = calibration
                 .and_then(|c| c.radio(id))
                 .unwrap_or_else(|| config.radio(tx.unwrap_or(config.tx_power_dbm)));
-            Some((site.metres(cell), radio))
+            Some((mount, radio))
         })
         .collect()
 }
@@ -236,11 +237,11 @@ impl PathLoss {
             Vec::with_capacity(n),
         );
         for &cell in cells {
-            let here = site.metres(cell);
+            let here = site.world_of_cell(cell);
             for anchor in anchors {
                 match anchor {
-                    Some((at, radio)) => {
-                        let d = (here.0 - at.0).hypot(here.1 - at.1);
+                    Some((mount, radio)) => {
+                        let d = mount.distance_m(here);
                         let p = radio.detection(d);
                         expected.push(radio.expected_rssi(d) as f32);
                         log_hit.push(p.ln() as f32);
@@ -384,7 +385,7 @@ cell = [9, 0]
             &site,
             &[
                 Some((
-                    site.metres(Cell::new(0, 0)),
+                    site.beacons[0].mount.unwrap(),
                     PathLossConfig::default().radio(-59.0),
                 )),
                 None,

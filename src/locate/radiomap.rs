@@ -67,11 +67,20 @@ const SPREADS_DB: [f64; 4] = [3.0, 4.0, 6.0, 8.0];
 pub struct RadioMap {
     tables: PathLoss,
     confidence: ConfidenceMap,
+    /// Mean held-out error (cells) of the chosen settings.
+    cv_error_cells: f64,
+    /// The kernel width (m) and RSSI spread (dB) it was built with.
+    settings: (f64, f64),
 }
 
-/// Per survey cell: readings, hits and RSSI sums per anchor.
+/// Per survey cell: where its readings were taken, readings, hits and RSSI
+/// sums per anchor.
 struct CellReadings {
-    at: (f64, f64),
+    /// The mean true position of the readings (world metres): the cell's
+    /// centre for surveys by cell, where the walker stood for metric ones.
+    at: [f64; 2],
+    /// Sum of the readings' offsets from the cell's centre, metres.
+    offset_sum: [f64; 2],
     readings: f64,
     hits: Vec<f64>,
     rssi_sum: Vec<f64>,
@@ -140,7 +149,20 @@ impl RadioMap {
         Ok(RadioMap {
             tables: build(site, &prior, samples, bandwidth_m, shadowing_db)?,
             confidence: chosen.confidence,
+            cv_error_cells: chosen.error_cells,
+            settings: chosen.candidate,
         })
+    }
+
+    /// The kernel width (m) and RSSI spread (dB) it was built with.
+    pub fn settings(&self) -> (f64, f64) {
+        self.settings
+    }
+
+    /// Mean held-out error (cells) of the chosen settings over the survey's
+    /// sessions.
+    pub fn cv_error_cells(&self) -> f64 {
+        self.cv_error_cells
     }
 }
 
@@ -204,18 +226,29 @@ fn build(
         let i = site
             .open_index(s.cell)
             .ok_or(LocalizerError::SurveyOnBlockedCell(s.cell))?;
+        let centre = site.world_of_cell(s.cell);
         let cell = by_cell[i].get_or_insert_with(|| CellReadings {
-            at: site.metres(s.cell),
+            at: centre,
+            offset_sum: [0.0; 2],
             readings: 0.0,
             hits: vec![0.0; n_anchors],
             rssi_sum: vec![0.0; n_anchors],
         });
         cell.readings += 1.0;
+        cell.offset_sum[0] += s.at[0] - centre[0];
+        cell.offset_sum[1] += s.at[1] - centre[1];
         for (a, r) in s.rssi.iter().enumerate() {
             if let Some(r) = r {
                 cell.hits[a] += 1.0;
                 cell.rssi_sum[a] += f64::from(*r);
             }
+        }
+    }
+    // Offsets from the centre, not positions, are summed, so that readings
+    // taken at the centre (surveys by cell) sit exactly there.
+    for cell in by_cell.iter_mut().flatten() {
+        for k in 0..2 {
+            cell.at[k] += cell.offset_sum[k] / cell.readings;
         }
     }
     let surveyed: Vec<&CellReadings> = by_cell.iter().flatten().collect();
@@ -230,12 +263,12 @@ fn build(
     let mut hits = vec![0.0f64; n_anchors];
     let mut sums = vec![0.0f64; n_anchors];
     for &cell in site.open_cells() {
-        let here = site.metres(cell);
+        let here = site.world_of_cell(cell);
         hits.fill(0.0);
         sums.fill(0.0);
         let mut readings = 0.0;
         for s in &surveyed {
-            let d = (here.0 - s.at.0).hypot(here.1 - s.at.1);
+            let d = (here[0] - s.at[0]).hypot(here[1] - s.at[1]);
             if d > reach {
                 continue;
             }
@@ -247,13 +280,13 @@ fn build(
             }
         }
         for (a, anchor) in prior.iter().enumerate() {
-            let Some((at, radio)) = anchor else {
+            let Some((mount, radio)) = anchor else {
                 expected.push(f32::NAN);
                 log_hit.push(0.0);
                 log_miss.push(0.0);
                 continue;
             };
-            let d = (here.0 - at.0).hypot(here.1 - at.1);
+            let d = mount.distance_m(here);
             let p = (hits[a] + PRIOR_READINGS * radio.detection(d)) / (readings + PRIOR_READINGS);
             let p = p.clamp(DETECTION_BOUNDS.0, DETECTION_BOUNDS.1);
             let mu =

@@ -1,12 +1,21 @@
 //! Site surveys: RSSI readings labelled with the cell they were taken in, and
 //! the CSV row reader that surveys and CSV scan logs (`source::csvlog`) share.
 //!
-//! Two CSV layouts are read, both with one column per anchor named by the
+//! Three CSV layouts are read, all with one column per anchor named by the
 //! anchor's id in the site file:
 //! - the UCI BLE RSSI layout as published: `location` (a survey label such as
 //!   `O02`, read with the site's `[labels]` scheme), an optional `date`
 //!   (`MM-DD-YYYY HH:MM[:SS]`), then the anchors;
-//! - a generic layout: `x`, `y`, an optional `t` (seconds), then the anchors.
+//! - a metric layout: `x_m`, `y_m` (world metres in the site's frame, see
+//!   `crate::site`), an optional `t` (seconds), then the anchors. A row keeps
+//!   its true position ([`Sample::at`]) beside the cell it falls in; a
+//!   position off the grid or on a blocked cell refuses the file, naming the
+//!   row and column, since the walker cannot have stood there;
+//! - a generic layout: `x`, `y` (cell column and row), an optional `t`
+//!   (seconds), then the anchors.
+//!
+//! When a file has more than one kind of position column, `x_m`,`y_m` win,
+//! then `location`, then `x`,`y`.
 //!
 //! A reading equal to the "not heard" sentinel (default -200) means the anchor
 //! was not heard. Columns that name no anchor of the site are ignored (and
@@ -46,6 +55,9 @@ const MIN_RSSI_DBM: i16 = -127;
 #[derive(Clone, Debug, PartialEq)]
 pub struct Sample {
     pub cell: Cell,
+    /// Where it was taken, world metres: the row's `x_m`,`y_m`, else the
+    /// centre of `cell`.
+    pub at: [f64; 2],
     /// Seconds (Unix time for `date`), when the survey has a time column.
     pub t: Option<f64>,
     /// One entry per site anchor, in the site's anchor order.
@@ -87,6 +99,7 @@ pub enum SurveyError {
 enum Position {
     Label(usize),
     Xy(usize, usize),
+    Metres(usize, usize),
 }
 
 enum Clock {
@@ -96,7 +109,7 @@ enum Clock {
 }
 
 /// Columns with a meaning of their own; every other column should name an anchor.
-const KNOWN_COLUMNS: [&str; 5] = ["location", "x", "y", "date", "t"];
+const KNOWN_COLUMNS: [&str; 7] = ["location", "x", "y", "x_m", "y_m", "date", "t"];
 
 /// One row of a survey or scan log, its anchors in the caller's anchor order.
 #[derive(Clone, Debug, PartialEq)]
@@ -105,6 +118,8 @@ pub struct Row {
     pub line: u64,
     /// Where the row was taken, when the file has position columns.
     pub cell: Option<Cell>,
+    /// The same in world metres: `x_m`,`y_m` as given, else the cell's centre.
+    pub at: Option<[f64; 2]>,
     /// Seconds (Unix time for `date`), when the file has a time column.
     pub t: Option<f64>,
     /// One entry per anchor; `None` where the anchor was not heard or has no column.
@@ -156,8 +171,15 @@ impl<'a> SurveyRows<'a> {
             .map_err(|e| header_error(e.to_string()))?
             .clone();
         let find = |name: &str| headers.iter().position(|h| h.eq_ignore_ascii_case(name));
-        let position = match (find("location"), find("x"), find("y")) {
-            (Some(i), _, _) => {
+        let position = match (
+            find("x_m"),
+            find("y_m"),
+            find("location"),
+            find("x"),
+            find("y"),
+        ) {
+            (Some(x), Some(y), ..) => Some(Position::Metres(x, y)),
+            (_, _, Some(i), _, _) => {
                 if !site.has_labels() {
                     return Err(header_error(
                         "the file names cells by `location` label, but the site has no \
@@ -167,7 +189,7 @@ impl<'a> SurveyRows<'a> {
                 }
                 Some(Position::Label(i))
             }
-            (None, Some(x), Some(y)) => Some(Position::Xy(x, y)),
+            (_, _, None, Some(x), Some(y)) => Some(Position::Xy(x, y)),
             _ => None,
         };
         let clock = match (find("date"), find("t")) {
@@ -209,7 +231,8 @@ impl<'a> SurveyRows<'a> {
         })
     }
 
-    /// Whether rows say where they were taken (`location`, or `x` and `y`).
+    /// Whether rows say where they were taken (`x_m` and `y_m`, `location`,
+    /// or `x` and `y`).
     pub fn has_position(&self) -> bool {
         self.position.is_some()
     }
@@ -287,13 +310,45 @@ impl<'a> SurveyRows<'a> {
                 }
                 Some(cell)
             }
+            Some(Position::Metres(xi, yi)) => {
+                let metres = |i: usize| {
+                    let text = get(i)?;
+                    text.parse::<f64>()
+                        .ok()
+                        .filter(|v| v.is_finite())
+                        .ok_or_else(|| field(i, format!("{text:?} is not a number of metres")))
+                };
+                let at = [metres(xi)?, metres(yi)?];
+                let Some(cell) = self.site.cell_of_world(at) else {
+                    let (lo, hi) = self.site.extent_m();
+                    return Err(field(
+                        xi,
+                        format!(
+                            "[{}, {}] m is off the site's grid (x {} to {} m, y {} to {} m); \
+                             check the survey against the site's `origin_m` and `y_axis`",
+                            at[0], at[1], lo[0], hi[0], lo[1], hi[1]
+                        ),
+                    ));
+                };
+                if !self.site.walkable(cell) {
+                    return Err(field(
+                        xi,
+                        format!(
+                            "[{}, {}] m is in cell {cell}, which the site blocks ('.', an \
+                             obstacle or a wall); fix the position or open that part of the site",
+                            at[0], at[1]
+                        ),
+                    ));
+                }
+                return self.finish(line, Some((cell, at)));
+            }
         };
-        self.finish(line, cell)
+        self.finish(line, cell.map(|c| (c, self.site.world_of_cell(c))))
     }
 
-    /// Parses the time and readings of the row in `self.record`, whose
-    /// position is `cell`.
-    fn finish(&self, line: u64, cell: Option<Cell>) -> Result<Row, SurveyError> {
+    /// Parses the time and readings of the row in `self.record`, taken in
+    /// `position` (its cell and world metres).
+    fn finish(&self, line: u64, position: Option<(Cell, [f64; 2])>) -> Result<Row, SurveyError> {
         let field = |column: usize, reason: String| self.field_error(line, column, reason);
         let get = |i: usize| self.get(line, i);
         let t = match self.clock {
@@ -345,7 +400,8 @@ impl<'a> SurveyRows<'a> {
         }
         Ok(Row {
             line,
-            cell,
+            cell: position.map(|(c, _)| c),
+            at: position.map(|(_, at)| at),
             t,
             rssi,
         })
@@ -381,8 +437,8 @@ impl Survey {
         if !rows.has_position() {
             return Err(SurveyError::Header {
                 path: path.to_owned(),
-                reason: "no position columns; a survey needs `location` (a label such as O02) \
-                         or `x` and `y`"
+                reason: "no position columns; a survey needs `x_m` and `y_m` (metres), \
+                         `location` (a label such as O02) or `x` and `y` (cells)"
                     .into(),
             });
         }
@@ -391,16 +447,19 @@ impl Survey {
         let samples = rows
             .map(|row| {
                 let row = row?;
-                let cell = row.cell.ok_or_else(|| SurveyError::Field {
-                    path: path.to_owned(),
-                    line: row.line,
-                    column: "location".into(),
-                    reason: "no position (`?`): a survey needs every row's cell; give \
-                             unlabelled rows to `gangway calibrate` or `--calibrate` instead"
-                        .into(),
-                })?;
+                let (Some(cell), Some(at)) = (row.cell, row.at) else {
+                    return Err(SurveyError::Field {
+                        path: path.to_owned(),
+                        line: row.line,
+                        column: "location".into(),
+                        reason: "no position (`?`): a survey needs every row's cell; give \
+                                 unlabelled rows to `gangway calibrate` or `--calibrate` instead"
+                            .into(),
+                    });
+                };
                 Ok(Sample {
                     cell,
+                    at,
                     t: row.t,
                     rssi: row.rssi,
                 })
@@ -488,6 +547,56 @@ minor = 2
         assert_eq!(s.samples[0].cell, Cell::new(2, 0));
         assert_eq!(s.samples[0].rssi, vec![None, Some(-60)]);
         assert_eq!(s.present, vec![false, true]);
+    }
+
+    #[test]
+    fn reads_the_metric_layout_in_the_sites_frame() {
+        // The same grid placed at x 10 m, y 5 m with y up; cell [1, 1] blocked.
+        let site = SITE
+            .replace(
+                "cell_m = 1.0",
+                "cell_m = 1.0\norigin_m = [10.0, 5.0]\ny_axis = \"up\"",
+            )
+            .replace("###\n###", "###\n#.#");
+        let site = Site::parse(&site, Path::new("t.toml")).unwrap();
+        let load = |csv: &str| {
+            let mut f = tempfile::NamedTempFile::new().unwrap();
+            f.write_all(csv.as_bytes()).unwrap();
+            Survey::load(f.path(), &site, &["b1".into(), "b2".into()], -200)
+        };
+        let s = load("t,x_m,y_m,b1,b2,location\n0,12.25,4.5,-70,-200,A01\n").unwrap();
+        assert_eq!(
+            s.samples[0].cell,
+            Cell::new(2, 0),
+            "x_m,y_m win over location"
+        );
+        assert_eq!(s.samples[0].at, [12.25, 4.5], "the true position is kept");
+        let by_cell = load("x,y,b1\n2,0,-70\n").unwrap();
+        assert_eq!(by_cell.samples[0].at, [12.5, 4.5], "a cell's centre");
+
+        let err = load("x_m,y_m,b1\n12.5,4.5,-70\n11.2,3.4,-70\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains(
+                ":3: column `x_m`: [11.2, 3.4] m is in cell [1, 1], which the site blocks"
+            ),
+            "{err}"
+        );
+        let err = load("x_m,y_m,b1\n12.5,5.5,-70\n").unwrap_err().to_string();
+        assert!(
+            err.contains(
+                ":2: column `x_m`: [12.5, 5.5] m is off the site's grid (x 10 to 13 m, y 3 to 5 m)"
+            ),
+            "{err}"
+        );
+        let err = load("x_m,y_m,b1\n12.5,north,-70\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains(":2: column `y_m`: \"north\" is not a number of metres"),
+            "{err}"
+        );
     }
 
     #[test]

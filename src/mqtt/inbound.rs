@@ -15,7 +15,7 @@ use serde::Deserialize;
 use uuid::Uuid;
 
 use super::sightings;
-use crate::plan::Destination;
+use crate::plan::{Destination, RouteErrorCode};
 use crate::publish::{Topics, valid_device_id};
 use crate::sighting::{BeaconId, Sighting};
 use crate::source::RouteRequest;
@@ -28,7 +28,7 @@ pub enum Inbound {
     BadRoute {
         device: String,
         request_id: Option<String>,
-        code: &'static str,
+        code: RouteErrorCode,
         message: String,
     },
     Feedback(Feedback),
@@ -242,7 +242,7 @@ impl Inbox {
         if size.max(payload.len()) > self.max_payload {
             return bad(
                 None,
-                "payload_too_large",
+                RouteErrorCode::PayloadTooLarge,
                 format!(
                     "the request is {size} bytes; the limit is {}",
                     self.max_payload
@@ -254,7 +254,7 @@ impl Inbox {
             Err(e) => {
                 return bad(
                     None,
-                    "invalid_json",
+                    RouteErrorCode::InvalidJson,
                     format!("the request is not JSON: {e}"),
                 );
             }
@@ -267,9 +267,11 @@ impl Inbox {
             .filter(|id| valid_request_id(id))
             .map(str::to_owned);
         match serde_json::from_value::<RouteSet>(value) {
-            Ok(r) if !r.request_id.as_deref().is_none_or(valid_request_id) => {
-                bad(None, "invalid_request", REQUEST_ID_RULE.to_owned())
-            }
+            Ok(r) if !r.request_id.as_deref().is_none_or(valid_request_id) => bad(
+                None,
+                RouteErrorCode::InvalidRequest,
+                REQUEST_ID_RULE.to_owned(),
+            ),
             Ok(r) => Inbound::Route(RouteRequest {
                 t: now,
                 device: device.to_owned(),
@@ -279,7 +281,7 @@ impl Inbox {
             }),
             Err(e) => bad(
                 request_id,
-                "invalid_request",
+                RouteErrorCode::InvalidRequest,
                 format!(
                     "{e}; a request is {{\"to\": \"<place>\" or [x, y], \"profile\"?: \"...\", \"request_id\"?: \"...\"}}"
                 ),
@@ -342,7 +344,7 @@ mod tests {
         )
     }
 
-    fn code(inbound: Inbound) -> (&'static str, Option<String>) {
+    fn code(inbound: Inbound) -> (RouteErrorCode, Option<String>) {
         match inbound {
             Inbound::BadRoute {
                 code, request_id, ..
@@ -378,28 +380,28 @@ mod tests {
         let t = "gangway/gw/devices/p/route/set";
         assert_eq!(
             code(i.read(t, b"{nope", 0.0).unwrap()),
-            ("invalid_json", None)
+            (RouteErrorCode::InvalidJson, None)
         );
         assert_eq!(
             code(
                 i.read(t, br#"{"request_id":"r9","to":{"x":1}}"#, 0.0)
                     .unwrap()
             ),
-            ("invalid_request", Some("r9".into()))
+            (RouteErrorCode::InvalidRequest, Some("r9".into()))
         );
         assert_eq!(
             code(i.read(t, &vec![b' '; 1001], 0.0).unwrap()).0,
-            "payload_too_large"
+            RouteErrorCode::PayloadTooLarge
         );
         // Cut off by the link: empty, with the size it had.
         assert_eq!(
             code(i.read_sized(t, b"", 16 << 20, 0.0).unwrap()).0,
-            "payload_too_large"
+            RouteErrorCode::PayloadTooLarge
         );
         let long_id = format!(r#"{{"to":"x","request_id":"{}"}}"#, "i".repeat(129));
         assert_eq!(
             code(i.read(t, long_id.as_bytes(), 0.0).unwrap()),
-            ("invalid_request", None)
+            (RouteErrorCode::InvalidRequest, None)
         );
     }
 

@@ -429,6 +429,7 @@ impl PartialOrd for Open {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::plan::RouteErrorCode;
     use std::path::Path;
 
     fn site(map: &str) -> Arc<Site> {
@@ -525,7 +526,7 @@ mod tests {
             p.route(Cell::new(0, 1), b, Profile::Wheelchair)
                 .unwrap_err()
                 .code(),
-            "blocked_cell"
+            RouteErrorCode::BlockedCell
         );
         let closed = site("#.#");
         assert_eq!(
@@ -533,7 +534,7 @@ mod tests {
                 .route(Cell::new(0, 0), Cell::new(2, 0), Profile::Default)
                 .unwrap_err()
                 .code(),
-            "unreachable"
+            RouteErrorCode::Unreachable
         );
     }
 

@@ -274,6 +274,7 @@ fn heuristic(a: Cell, b: Cell, connectivity: Connectivity) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::plan::RouteErrorCode;
     use std::path::Path;
 
     fn site(map: &str) -> Arc<Site> {
@@ -350,14 +351,14 @@ mod tests {
                 .map(|p| p.route)
                 .unwrap_err()
                 .code(),
-            "unreachable"
+            RouteErrorCode::Unreachable
         );
         assert_eq!(
             p.plan(Cell::new(0, 0), Cell::new(1, 0), Profile::Default)
                 .map(|p| p.route)
                 .unwrap_err()
                 .code(),
-            "blocked_cell"
+            RouteErrorCode::BlockedCell
         );
     }
 }

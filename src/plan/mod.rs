@@ -1,7 +1,7 @@
 //! Planning: a walkable route from a device's cell to a destination.
 //!
 //! Owns what a route is ([`Route`]), how a destination is named ([`Destination`]),
-//! the ways a request can fail ([`PlanError`], each with a stable code for MQTT
+//! the ways a request can fail ([`PlanError`], each with a stable [`RouteErrorCode`] for MQTT
 //! error replies) and the planners behind [`Planner`]. Every planner answers with
 //! a route that [`Route::validate`] accepts, or an error: never an invalid route.
 
@@ -17,6 +17,7 @@
 pub mod anyangle;
 pub mod astar;
 pub mod conditional;
+mod error_code;
 pub mod frame;
 pub mod instructions;
 pub mod picture;
@@ -30,6 +31,7 @@ use std::sync::Arc;
 use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
+pub use error_code::RouteErrorCode;
 pub use profile::{PROFILE_NAMES, Profile, unknown_profile_message};
 pub use route::{Route, Waypoint};
 
@@ -69,14 +71,14 @@ pub enum PlanError {
 
 impl PlanError {
     /// Stable machine-readable code, as sent in MQTT error replies.
-    pub fn code(&self) -> &'static str {
+    pub fn code(&self) -> RouteErrorCode {
         match self {
-            PlanError::UnknownPlace { .. } => "unknown_place",
-            PlanError::OffMap { .. } => "off_map",
-            PlanError::Blocked(_) => "blocked_cell",
-            PlanError::Unreachable { .. } => "unreachable",
-            PlanError::Model { .. } => "model_failed",
-            PlanError::Invalid { .. } => "invalid_route",
+            PlanError::UnknownPlace { .. } => RouteErrorCode::UnknownPlace,
+            PlanError::OffMap { .. } => RouteErrorCode::OffMap,
+            PlanError::Blocked(_) => RouteErrorCode::BlockedCell,
+            PlanError::Unreachable { .. } => RouteErrorCode::Unreachable,
+            PlanError::Model { .. } => RouteErrorCode::ModelFailed,
+            PlanError::Invalid { .. } => RouteErrorCode::InvalidRoute,
         }
     }
 }

@@ -17,12 +17,13 @@
 //! event). From HCI events only LE Meta (0x3E) subevents LE Advertising Report
 //! (0x02) and LE Extended Advertising Report (0x0D) are used: each report's AD
 //! structures are searched for manufacturer-specific data (type 0xFF) holding an
-//! iBeacon frame ([`ibeacon::parse_manufacturer_data`]), which becomes a
-//! sighting with the record's timestamp and the report's RSSI. Everything else
-//! (commands, ACL, other events, other adverts) is skipped and counted by
-//! [`SkipReason`]; a malformed packet never stops the reader. Only a broken
-//! record frame (a truncated last record, an impossible length) ends the file,
-//! with an error naming the record number and byte offset.
+//! iBeacon frame ([`ibeacon::find_in_ad`]), which becomes a sighting with the
+//! record's timestamp and the report's RSSI ([`super::adverts`], shared with
+//! the pcap reader). Everything else (commands, ACL, other events, other
+//! adverts) is skipped and counted by [`SkipReason`]; a malformed packet never
+//! stops the reader. Only a broken record frame (a truncated last record, an
+//! impossible length) ends the file, with an error naming the record number
+//! and byte offset.
 //!
 //! Hand-written rather than built on a crate: the btsnoop crates on crates.io
 //! (`btsnoop`, `btsnoop_parser`) parse a whole file held in memory and fail it
@@ -34,14 +35,15 @@
 //! LE Advertising Report events, so a capture opens in Wireshark and btmon and
 //! reads back to the same sightings (timestamps to the microsecond).
 
-use std::collections::VecDeque;
-use std::fmt;
 use std::fs::File;
 use std::io::{self, BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use super::ibeacon::{self, IBeacon};
+use super::adverts::{
+    Adverts, HCI_EVENT_LE_META, LE_ADVERTISING_REPORT, RSSI_UNAVAILABLE, SkipReason,
+};
+use super::ibeacon::{self, AD_MANUFACTURER_SPECIFIC, IBeacon};
 use crate::sighting::{BeaconId, Sighting};
 
 /// The first eight bytes of every btsnoop file.
@@ -56,18 +58,13 @@ const UNIX_EPOCH_US: i64 = 0x00dc_ddb3_0f2f_8000;
 /// memory.
 const MAX_RECORD_LEN: u32 = 1 << 20;
 
-const HCI_EVENT_LE_META: u8 = 0x3E;
-const LE_ADVERTISING_REPORT: u8 = 0x02;
-const LE_EXTENDED_ADVERTISING_REPORT: u8 = 0x0D;
-const H4_EVENT: u8 = 0x04;
+/// The H4 packet type byte of an HCI event.
+pub(super) const H4_EVENT: u8 = 0x04;
 const MONITOR_NEW_INDEX: u16 = 0;
 const MONITOR_EVENT_PKT: u16 = 3;
 /// Flags of an H1/H4 record: bit 0 = received (controller → host), bit 1 =
 /// command or event rather than data.
 const FLAGS_RECEIVED_EVENT: u32 = 0b11;
-/// The RSSI value a controller reports when it has none.
-const RSSI_UNAVAILABLE: i8 = 127;
-const AD_MANUFACTURER_SPECIFIC: u8 = 0xFF;
 
 /// How packets are framed in the file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -113,57 +110,6 @@ impl Datalink {
     }
 }
 
-/// Why a record or an advertising report gave no sighting.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
-pub enum SkipReason {
-    /// Commands, ACL/SCO/ISO data, monitor notes and index records (per record).
-    NotAnEvent,
-    /// HCI events other than LE Meta (per record).
-    OtherEvent,
-    /// LE Meta subevents other than the two advertising reports (per record).
-    OtherLeSubevent,
-    /// An event whose length fields disagree with its size (per record).
-    MalformedEvent,
-    /// A report whose controller gave no RSSI (per report).
-    NoRssi,
-    /// A report with no iBeacon frame: other vendors, Apple Continuity, Eddystone… (per report).
-    NotIBeacon,
-    /// The last record was cut short (only counted with `skip_bad`).
-    TruncatedRecord,
-}
-
-impl SkipReason {
-    /// Every reason, in declaration order: a reason's discriminant is its index
-    /// here and in the reader's counters.
-    pub const ALL: [SkipReason; 7] = [
-        SkipReason::NotAnEvent,
-        SkipReason::OtherEvent,
-        SkipReason::OtherLeSubevent,
-        SkipReason::MalformedEvent,
-        SkipReason::NoRssi,
-        SkipReason::NotIBeacon,
-        SkipReason::TruncatedRecord,
-    ];
-
-    pub fn as_str(self) -> &'static str {
-        match self {
-            SkipReason::NotAnEvent => "not_an_event",
-            SkipReason::OtherEvent => "other_event",
-            SkipReason::OtherLeSubevent => "other_le_subevent",
-            SkipReason::MalformedEvent => "malformed_event",
-            SkipReason::NoRssi => "no_rssi",
-            SkipReason::NotIBeacon => "not_ibeacon",
-            SkipReason::TruncatedRecord => "truncated_record",
-        }
-    }
-}
-
-impl fmt::Display for SkipReason {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
 #[derive(Debug, thiserror::Error)]
 pub enum BtsnoopError {
     #[error("{path}: cannot read the capture: {source}")]
@@ -199,17 +145,15 @@ pub struct BtsnoopReader<R> {
     input: R,
     path: PathBuf,
     datalink: Datalink,
-    observer: Arc<str>,
     skip_bad: bool,
     /// Records read so far; the current record's number.
     record: u64,
     /// Byte offset of the next record.
     offset: u64,
     packet: Vec<u8>,
-    /// Sightings of the current record not yet returned (a report event can
-    /// carry several reports).
-    pending: VecDeque<Sighting>,
-    skipped: [u64; SkipReason::ALL.len()],
+    /// Sightings not yet returned (a report event can carry several reports),
+    /// and the skip counts.
+    adverts: Adverts,
     done: bool,
 }
 
@@ -271,13 +215,11 @@ impl<R: Read> BtsnoopReader<R> {
             input,
             path: path.to_owned(),
             datalink,
-            observer,
             skip_bad,
             record: 0,
             offset: FILE_HEADER_LEN as u64,
             packet: Vec::new(),
-            pending: VecDeque::new(),
-            skipped: [0; SkipReason::ALL.len()],
+            adverts: Adverts::new(observer),
             done: false,
         })
     }
@@ -293,11 +235,7 @@ impl<R: Read> BtsnoopReader<R> {
 
     /// How many records or reports were skipped, by reason (zero counts left out).
     pub fn skipped(&self) -> impl Iterator<Item = (SkipReason, u64)> + '_ {
-        SkipReason::ALL
-            .iter()
-            .zip(self.skipped)
-            .filter(|(_, n)| *n > 0)
-            .map(|(r, n)| (*r, n))
+        self.adverts.skipped().iter()
     }
 
     /// Reads the next record into `self.packet`; `Ok(None)` at a clean end.
@@ -355,30 +293,10 @@ impl<R: Read> BtsnoopReader<R> {
     /// it skips.
     fn decode(&mut self, flags: u32, timestamp: i64) {
         let Some(event) = self.datalink.event(flags, &self.packet) else {
-            self.skipped[SkipReason::NotAnEvent as usize] += 1;
-            return;
+            return self.adverts.skip(SkipReason::NotAnEvent);
         };
         let t = timestamp.saturating_sub(UNIX_EPOCH_US) as f64 / 1e6;
-        let (skipped, pending, observer) = (&mut self.skipped, &mut self.pending, &self.observer);
-        let outcome = le_reports(event, |rssi, data| {
-            if rssi == RSSI_UNAVAILABLE {
-                skipped[SkipReason::NoRssi as usize] += 1;
-                return;
-            }
-            match find_ibeacon(data) {
-                Some(beacon) => pending.push_back(Sighting {
-                    t,
-                    observer: observer.clone(),
-                    advertiser: beacon.id,
-                    tx_power: Some(beacon.measured_power),
-                    rssi: i16::from(rssi),
-                }),
-                None => skipped[SkipReason::NotIBeacon as usize] += 1,
-            }
-        });
-        if let Err(reason) = outcome {
-            skipped[reason as usize] += 1;
-        }
+        self.adverts.hci_event(t, event);
     }
 }
 
@@ -387,7 +305,7 @@ impl<R: Read> Iterator for BtsnoopReader<R> {
 
     fn next(&mut self) -> Option<Self::Item> {
         loop {
-            if let Some(sighting) = self.pending.pop_front() {
+            if let Some(sighting) = self.adverts.pop() {
                 return Some(Ok(sighting));
             }
             if self.done {
@@ -400,7 +318,7 @@ impl<R: Read> Iterator for BtsnoopReader<R> {
                     // The framing cannot be trusted past a broken record.
                     self.done = true;
                     if self.skip_bad && matches!(e, BtsnoopError::Truncated { .. }) {
-                        self.skipped[SkipReason::TruncatedRecord as usize] += 1;
+                        self.adverts.skip(SkipReason::TruncatedRecord);
                         tracing::warn!("{e}");
                     } else {
                         return Some(Err(e));
@@ -409,74 +327,6 @@ impl<R: Read> Iterator for BtsnoopReader<R> {
             }
         }
     }
-}
-
-/// Calls `report(rssi, ad_data)` for every report of an LE (Extended)
-/// Advertising Report event; any other event is a [`SkipReason`]. A malformed
-/// event reports nothing, not even its well-formed first reports, since its
-/// length fields cannot be trusted.
-fn le_reports(event: &[u8], mut report: impl FnMut(i8, &[u8])) -> Result<(), SkipReason> {
-    let (&code, rest) = event.split_first().ok_or(SkipReason::MalformedEvent)?;
-    let (&len, params) = rest.split_first().ok_or(SkipReason::MalformedEvent)?;
-    if code != HCI_EVENT_LE_META {
-        return Err(SkipReason::OtherEvent);
-    }
-    let params = params
-        .get(..usize::from(len))
-        .ok_or(SkipReason::MalformedEvent)?;
-    let (&subevent, params) = params.split_first().ok_or(SkipReason::MalformedEvent)?;
-    // Fixed bytes of one report before its data length byte, and after its data.
-    let (before_len, after_data) = match subevent {
-        // event type, address type, address
-        LE_ADVERTISING_REPORT => (1 + 1 + 6, 1),
-        // event type (2), address type, address, primary and secondary PHY, SID,
-        // TX power, RSSI, periodic interval (2), direct address type, direct address
-        LE_EXTENDED_ADVERTISING_REPORT => (2 + 1 + 6 + 1 + 1 + 1 + 1 + 1 + 2 + 1 + 6, 0),
-        _ => return Err(SkipReason::OtherLeSubevent),
-    };
-    let (&count, mut reports) = params.split_first().ok_or(SkipReason::MalformedEvent)?;
-    // Validate the whole event before reporting any of it.
-    let mut found: Vec<(i8, &[u8])> = Vec::with_capacity(usize::from(count));
-    for _ in 0..count {
-        let fixed = reports
-            .get(..before_len + 1)
-            .ok_or(SkipReason::MalformedEvent)?;
-        let data_len = usize::from(fixed[before_len]);
-        let end = before_len + 1 + data_len + after_data;
-        let whole = reports.get(..end).ok_or(SkipReason::MalformedEvent)?;
-        let data = &whole[before_len + 1..before_len + 1 + data_len];
-        let rssi = if subevent == LE_ADVERTISING_REPORT {
-            whole[end - 1] as i8
-        } else {
-            // RSSI follows event type (2), address type, address, PHYs, SID, TX power.
-            whole[2 + 1 + 6 + 1 + 1 + 1 + 1] as i8
-        };
-        found.push((rssi, data));
-        reports = &reports[end..];
-    }
-    for (rssi, data) in found {
-        report(rssi, data);
-    }
-    Ok(())
-}
-
-/// The first iBeacon frame among an advert's AD structures
-/// (`length | type | data`, a zero length ends the list).
-fn find_ibeacon(mut ad: &[u8]) -> Option<IBeacon> {
-    while let Some((&len, rest)) = ad.split_first() {
-        let len = usize::from(len);
-        if len == 0 || len > rest.len() {
-            return None;
-        }
-        let (structure, next) = rest.split_at(len);
-        if structure[0] == AD_MANUFACTURER_SPECIFIC
-            && let Some(beacon) = ibeacon::parse_manufacturer_data(&structure[1..])
-        {
-            return Some(beacon);
-        }
-        ad = next;
-    }
-    None
 }
 
 /// Writes sightings as a btsnoop capture of synthesized LE Advertising Report
@@ -610,7 +460,7 @@ fn be32(bytes: &[u8]) -> u32 {
 }
 
 /// Reads until `buf` is full or the input ends; returns how much was read.
-fn read_full(input: &mut impl Read, buf: &mut [u8]) -> io::Result<usize> {
+pub(super) fn read_full(input: &mut impl Read, buf: &mut [u8]) -> io::Result<usize> {
     let mut got = 0;
     while got < buf.len() {
         match input.read(&mut buf[got..]) {
@@ -950,13 +800,6 @@ mod tests {
                 })
                 .is_err()
         );
-    }
-
-    #[test]
-    fn skip_reasons_index_their_counters() {
-        for (i, reason) in SkipReason::ALL.iter().enumerate() {
-            assert_eq!(*reason as usize, i, "{reason}");
-        }
     }
 
     proptest! {

@@ -3,13 +3,16 @@
 //! `record`).
 //!
 //! Formats ([`Format`]): the JSON Lines advert log ([`super::log`]), CSV scan
-//! logs ([`super::csvlog`], read only: a live scan has no rows) and btsnoop HCI
-//! captures ([`super::btsnoop`]).
+//! logs ([`super::csvlog`], read only: a live scan has no rows), btsnoop HCI
+//! captures ([`super::btsnoop`]) and pcap/pcapng captures ([`super::pcap`],
+//! read only: `record` writes btsnoop for Wireshark).
 //!
 //! Without an explicit format, a file to read that starts with the btsnoop magic
-//! is btsnoop whatever its name (Android calls its capture `btsnoop_hci.log`), a
-//! `.csv` file is a scan log, and anything else is JSON Lines. A file to write
-//! is btsnoop when named `*.btsnoop`, `*.snoop` or `*.cfa`, JSON Lines otherwise.
+//! is btsnoop whatever its name (Android calls its capture `btsnoop_hci.log`),
+//! one that starts with a pcap or pcapng magic number is pcap, a `.pcap` or
+//! `.pcapng` file is pcap too (so a damaged one is reported as such), a `.csv`
+//! file is a scan log, and anything else is JSON Lines. A file to write is
+//! btsnoop when named `*.btsnoop`, `*.snoop` or `*.cfa`, JSON Lines otherwise.
 
 use std::fs::File;
 use std::io::{self, BufReader, BufWriter, Read};
@@ -20,6 +23,7 @@ use super::Event;
 use super::btsnoop::{BtsnoopError, BtsnoopReader, BtsnoopWriter, Datalink, MAGIC};
 use super::csvlog::{CsvLog, CsvOptions};
 use super::log::{LogError, LogReader, LogWriter};
+use super::pcap::{self, PcapError, PcapReader};
 use crate::locate::survey::SurveyError;
 use crate::site::Site;
 
@@ -32,6 +36,10 @@ pub enum Format {
     Csv,
     /// An HCI capture as written by `btmon -w` or Android's HCI snoop log.
     Btsnoop,
+    /// A pcap or pcapng capture (Wireshark, tcpdump, nRF Sniffer) of a Bluetooth
+    /// LE linktype.
+    #[value(alias = "pcapng")]
+    Pcap,
 }
 
 impl Format {
@@ -49,8 +57,15 @@ impl Format {
         if got == magic.len() && magic == MAGIC {
             return Ok(Format::Btsnoop);
         }
+        if let Some(&first) = magic.first_chunk::<4>()
+            && got >= first.len()
+            && pcap::is_magic(first)
+        {
+            return Ok(Format::Pcap);
+        }
         Ok(match extension(path).as_deref() {
             Some("csv") => Format::Csv,
+            Some("pcap" | "pcapng") => Format::Pcap,
             _ => Format::Jsonl,
         })
     }
@@ -60,6 +75,7 @@ impl Format {
         match extension(path).as_deref() {
             Some("btsnoop" | "snoop" | "cfa") => Format::Btsnoop,
             Some("csv") => Format::Csv,
+            Some("pcap" | "pcapng") => Format::Pcap,
             _ => Format::Jsonl,
         }
     }
@@ -80,6 +96,8 @@ pub enum CaptureError {
     Csv(#[from] SurveyError),
     #[error(transparent)]
     Btsnoop(#[from] BtsnoopError),
+    #[error(transparent)]
+    Pcap(#[from] PcapError),
     #[error("{}: {reason}", path.display())]
     Other { path: PathBuf, reason: String },
 }
@@ -91,7 +109,7 @@ pub struct ReadOptions {
     pub format: Option<Format>,
     /// Skip and count bad lines, rows and truncated records instead of stopping.
     pub skip_bad: bool,
-    /// The observer id of CSV and btsnoop captures, which do not name one.
+    /// The observer id of CSV, btsnoop and pcap captures, which do not name one.
     pub device: Option<String>,
     /// The "not heard" RSSI of CSV scan logs.
     pub not_heard: i16,
@@ -99,7 +117,7 @@ pub struct ReadOptions {
 
 /// Observer id of CSV scan logs when none is given: a survey's walker.
 pub const DEFAULT_CSV_DEVICE: &str = "survey";
-/// Observer id of btsnoop captures when none is given.
+/// Observer id of btsnoop and pcap captures when none is given.
 pub const DEFAULT_BTSNOOP_DEVICE: &str = "capture";
 
 /// Any capture, read as events in file order (CSV: time order).
@@ -107,6 +125,7 @@ pub enum CaptureReader {
     Jsonl(LogReader<BufReader<File>>),
     Csv(CsvLog),
     Btsnoop(BtsnoopReader<BufReader<File>>),
+    Pcap(PcapReader<BufReader<File>>),
 }
 
 impl CaptureReader {
@@ -141,6 +160,11 @@ impl CaptureReader {
                 device(DEFAULT_BTSNOOP_DEVICE),
                 options.skip_bad,
             )?),
+            Format::Pcap => CaptureReader::Pcap(PcapReader::open(
+                path,
+                device(DEFAULT_BTSNOOP_DEVICE),
+                options.skip_bad,
+            )?),
         })
     }
 
@@ -149,6 +173,7 @@ impl CaptureReader {
             CaptureReader::Jsonl(_) => Format::Jsonl,
             CaptureReader::Csv(_) => Format::Csv,
             CaptureReader::Btsnoop(_) => Format::Btsnoop,
+            CaptureReader::Pcap(_) => Format::Pcap,
         }
     }
 
@@ -161,6 +186,10 @@ impl CaptureReader {
                 ("ignored_columns".into(), r.ignored_columns().len() as u64),
             ],
             CaptureReader::Btsnoop(r) => r
+                .skipped()
+                .map(|(reason, n)| (reason.to_string(), n))
+                .collect(),
+            CaptureReader::Pcap(r) => r
                 .skipped()
                 .map(|(reason, n)| (reason.to_string(), n))
                 .collect(),
@@ -182,6 +211,7 @@ impl Iterator for CaptureReader {
             CaptureReader::Jsonl(r) => r.next().map(|e| e.map_err(Into::into)),
             CaptureReader::Csv(r) => r.next().map(Ok),
             CaptureReader::Btsnoop(r) => r.next().map(|s| s.map(Event::Advert).map_err(Into::into)),
+            CaptureReader::Pcap(r) => r.next().map(|s| s.map(Event::Advert).map_err(Into::into)),
         }
     }
 }
@@ -209,6 +239,13 @@ impl CaptureWriter {
                 return Err(error(
                     "cannot record CSV: live adverts arrive one at a time, not in rows of one \
                      scan; record jsonl or btsnoop"
+                        .into(),
+                ));
+            }
+            Format::Pcap => {
+                return Err(error(
+                    "cannot record pcap: gangway writes captures as btsnoop, which Wireshark \
+                     opens too; name the file .btsnoop or pass --format btsnoop"
                         .into(),
                 ));
             }
@@ -287,10 +324,28 @@ mod tests {
         std::fs::write(&jsonl, "").unwrap();
         assert_eq!(Format::detect(&jsonl).unwrap(), Format::Jsonl);
         assert!(Format::detect(&dir.path().join("absent")).is_err());
+        // pcap and pcapng by their magic numbers whatever the name, and by name.
+        for magic in [
+            [0x0A, 0x0D, 0x0D, 0x0A],
+            [0xD4, 0xC3, 0xB2, 0xA1],
+            [0xA1, 0xB2, 0x3C, 0x4D],
+        ] {
+            let sniffed = dir.path().join("sniffer.log");
+            std::fs::write(&sniffed, magic).unwrap();
+            assert_eq!(
+                Format::detect(&sniffed).unwrap(),
+                Format::Pcap,
+                "{magic:x?}"
+            );
+        }
+        let damaged = dir.path().join("walk.PCAPNG");
+        std::fs::write(&damaged, "{}").unwrap();
+        assert_eq!(Format::detect(&damaged).unwrap(), Format::Pcap);
 
         assert_eq!(Format::for_output(Path::new("a.btsnoop")), Format::Btsnoop);
         assert_eq!(Format::for_output(Path::new("a.jsonl")), Format::Jsonl);
         assert_eq!(Format::for_output(Path::new("a")), Format::Jsonl);
+        assert_eq!(Format::for_output(Path::new("a.pcapng")), Format::Pcap);
     }
 
     #[test]
@@ -327,6 +382,11 @@ mod tests {
             .unwrap()
             .to_string();
         assert!(err.contains("cannot record CSV"), "{err}");
+        let err = CaptureWriter::create(&dir.path().join("x.pcapng"), None)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(err.contains("cannot record pcap"), "{err}");
         let mut w =
             CaptureWriter::create(&dir.path().join("x.bin"), Some(Format::Btsnoop)).unwrap();
         let truth = Event::Truth(Truth {

@@ -8,8 +8,9 @@
 //! ```
 //!
 //! btleplug already splits the company id off into a map key, so [`parse_payload`]
-//! takes the bytes after it; [`parse_manufacturer_data`] takes the whole field
-//! (btsnoop captures and other raw sources).
+//! takes the bytes after it; [`parse_manufacturer_data`] takes the whole field,
+//! and [`find_in_ad`] searches an advert's AD structures for it (btsnoop and
+//! pcap captures and other raw sources).
 
 use uuid::Uuid;
 
@@ -17,6 +18,9 @@ use crate::sighting::BeaconId;
 
 /// Apple's Bluetooth SIG company identifier, which iBeacon frames carry.
 pub const APPLE_COMPANY_ID: u16 = 0x004C;
+
+/// The AD type of manufacturer-specific data, where iBeacon frames travel.
+pub const AD_MANUFACTURER_SPECIFIC: u8 = 0xFF;
 
 /// The iBeacon type (0x02) and remaining length (0x15 = 21 bytes).
 const IBEACON_PREFIX: [u8; 2] = [0x02, 0x15];
@@ -57,6 +61,26 @@ pub fn parse_payload(payload: &[u8]) -> Option<IBeacon> {
         id: BeaconId { uuid, major, minor },
         measured_power: frame[22] as i8,
     })
+}
+
+/// The first iBeacon frame among an advert's AD structures
+/// (`length | type | data`; a zero length ends the list, and a structure that
+/// runs past the end ends the search).
+pub fn find_in_ad(mut ad: &[u8]) -> Option<IBeacon> {
+    while let Some((&len, rest)) = ad.split_first() {
+        let len = usize::from(len);
+        if len == 0 || len > rest.len() {
+            return None;
+        }
+        let (structure, next) = rest.split_at(len);
+        if structure[0] == AD_MANUFACTURER_SPECIFIC
+            && let Some(beacon) = parse_manufacturer_data(&structure[1..])
+        {
+            return Some(beacon);
+        }
+        ad = next;
+    }
+    None
 }
 
 /// Builds the manufacturer data (company id included) of an iBeacon frame; the
@@ -133,11 +157,38 @@ mod tests {
         assert_eq!(parse_manufacturer_data(&long), None);
     }
 
+    #[test]
+    fn finds_the_frame_among_ad_structures() {
+        // Flags, a 16-bit service UUID list, then the frame.
+        let mut ad = vec![
+            0x02,
+            0x01,
+            0x06,
+            0x03,
+            0x03,
+            0xAA,
+            0xFE,
+            26,
+            AD_MANUFACTURER_SPECIFIC,
+        ];
+        ad.extend_from_slice(&REAL_FRAME);
+        let b = find_in_ad(&ad).expect("an iBeacon");
+        assert_eq!(b.id.minor, 3001);
+        // Cut one byte short: the last structure runs past the end.
+        assert_eq!(find_in_ad(&ad[..ad.len() - 1]), None);
+        // A zero length ends the list before the frame.
+        let mut ended = vec![0x00];
+        ended.extend_from_slice(&ad);
+        assert_eq!(find_in_ad(&ended), None);
+        assert_eq!(find_in_ad(&[]), None);
+    }
+
     proptest! {
         #[test]
         fn arbitrary_bytes_never_panic(data in proptest::collection::vec(any::<u8>(), 0..64)) {
             let _ = parse_manufacturer_data(&data);
             let _ = parse_payload(&data);
+            let _ = find_in_ad(&data);
         }
 
         #[test]

@@ -6,15 +6,22 @@
 //! - [`log`]: the JSON Lines advert log (`gangway record` writes it, `replay` reads it);
 //! - [`csvlog`]: CSV scan logs such as the UCI survey (replay only);
 //! - [`btsnoop`]: HCI captures from `btmon -w` or Android's HCI snoop log;
+//! - [`pcap`]: pcap and pcapng captures from Wireshark, tcpdump and the nRF
+//!   Sniffer (Bluetooth LE linktypes: [`pcap_link`]);
+//! - [`adverts`]: what the btsnoop and pcap readers share, from advertising
+//!   data to sightings and skip counts;
 //! - [`capture`]: picks one of those formats for a file and opens it;
 //! - [`simulate`]: walkers on a site, heard through a path-loss model or a survey.
 
+pub mod adverts;
 pub mod ble;
 pub mod btsnoop;
 pub mod capture;
 pub mod csvlog;
 pub mod ibeacon;
 pub mod log;
+pub mod pcap;
+pub mod pcap_link;
 pub mod simulate;
 
 use serde::{Deserialize, Serialize};

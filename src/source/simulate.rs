@@ -4,10 +4,16 @@
 //! Each walker starts at a random place, walks shortest walkable routes at its
 //! own pace to random destinations (named places mostly, any walkable cell
 //! sometimes), pauses, and walks on. Its phone scans `scan_hz` times a second
-//! and hears each beacon with an RSSI from the log-distance model plus Gaussian
-//! shadowing, drops a share of adverts, and misses those below the receiver's
-//! sensitivity. With a survey, each scan instead replays a real reading taken
-//! in (or nearest to) the walker's cell.
+//! and hears each beacon as the survey-free localizer's radio model of that
+//! beacon says (`locate::pathloss::Radio`: the config's values, or the
+//! calibration file's fit of the real building): heard with the model's
+//! detection probability (spread over the scans of one fingerprint window, so
+//! a window hears it as often as the model says), at an RSSI from the
+//! log-distance model plus Gaussian shadowing; on top of that it drops a share
+//! of adverts and misses those below the receiver's sensitivity. So a
+//! simulation of a calibrated site sounds like the building the calibration
+//! was fitted to. With a survey, each scan instead replays a real reading
+//! taken in (or nearest to) the walker's cell.
 //!
 //! Output is a time-ordered event list; the same site, config and seed give the
 //! same events, bit for bit.
@@ -22,8 +28,10 @@ use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, Normal};
 
 use super::{Event, RouteRequest, Truth};
-use crate::locate::pathloss::PathLossConfig;
+use crate::locate::calibrate::Calibration;
+use crate::locate::pathloss::{self, PathLossConfig, Radio};
 use crate::locate::survey::Survey;
+use crate::locate::window::Orientation;
 use crate::plan::{Connectivity, Destination, astar};
 use crate::sighting::Sighting;
 use crate::site::{Cell, Site};
@@ -45,7 +53,13 @@ pub struct SimConfig {
     pub requests_per_walker: usize,
     /// Time of the first event (Unix seconds).
     pub start_t: f64,
+    /// The beacons' radio: the config's `[localizer.pathloss]` values…
     pub pathloss: PathLossConfig,
+    /// …and the per-beacon fit of a calibration file, when there is one.
+    pub calibration: Option<Calibration>,
+    /// Seconds of one fingerprint window (`[window] length_s`): the span the
+    /// radio model's detection probability is about.
+    pub window_s: f64,
 }
 
 impl Default for SimConfig {
@@ -60,7 +74,27 @@ impl Default for SimConfig {
             requests_per_walker: 2,
             start_t: 1_767_225_600.0, // 2026-01-01T00:00:00Z
             pathloss: PathLossConfig::default(),
+            calibration: None,
+            window_s: crate::locate::window::WindowConfig::default().length_s,
         }
+    }
+}
+
+impl SimConfig {
+    /// The defaults, with phones hearing the beacons as the gateway config's
+    /// survey-free radio model (and its calibration file) describes them.
+    pub fn hearing(config: &crate::config::Config, site: &Site) -> anyhow::Result<SimConfig> {
+        let pathloss = config.localizer.pathloss.clone();
+        let calibration = match &pathloss.calibration {
+            Some(path) => Some(Calibration::load(path, site)?),
+            None => None,
+        };
+        Ok(SimConfig {
+            pathloss,
+            calibration,
+            window_s: config.window.length_s,
+            ..SimConfig::default()
+        })
     }
 }
 
@@ -149,21 +183,41 @@ pub struct Phone<'a> {
     site: &'a Site,
     config: &'a SimConfig,
     survey: Option<&'a Survey>,
-    shadowing: Normal<f64>,
+    /// Per beacon of the site, its radio and the spread of its RSSI; `None`
+    /// for a beacon without a known position (never heard).
+    beacons: Vec<Option<(Radio, Normal<f64>)>>,
+    /// Scans in one fingerprint window.
+    scans_per_window: f64,
 }
 
 impl<'a> Phone<'a> {
     pub fn new(site: &'a Site, config: &'a SimConfig, survey: Option<&'a Survey>) -> Self {
+        let beacons = pathloss::anchors(
+            site,
+            Orientation::Observer,
+            &config.pathloss,
+            config.calibration.as_ref(),
+        )
+        .into_iter()
+        .map(|anchor| {
+            anchor.map(|(_, radio)| {
+                let spread = Normal::new(0.0, radio.shadowing_db).expect("validated spread");
+                (radio, spread)
+            })
+        })
+        .collect();
         Phone {
             site,
             config,
             survey,
-            shadowing: Normal::new(0.0, config.pathloss.shadowing_db).expect("finite shadowing"),
+            beacons,
+            scans_per_window: (config.scan_hz * config.window_s).max(1.0),
         }
     }
 
-    /// One scan at `t` by `observer` in `cell`, at `pos` (in cells, from the
-    /// map's corner): appends the adverts heard to `events`.
+    /// One scan at `t` by `observer` in `cell`, at `pos` (in grid units, from
+    /// the map's corner: see [`Site::world_of_grid`]): appends the adverts
+    /// heard to `events`.
     pub fn scan(
         &self,
         cell: Cell,
@@ -175,16 +229,49 @@ impl<'a> Phone<'a> {
     ) {
         match self.survey {
             Some(survey) => hear_survey(self.site, survey, cell, t, observer, rng, events),
-            None => hear_model(
-                self.site,
-                self.config,
-                pos,
+            None => self.hear_model(pos, t, observer, rng, events),
+        }
+    }
+
+    /// One scan from the radio model at `pos` (grid units).
+    fn hear_model(
+        &self,
+        (gx, gy): (f64, f64),
+        t: f64,
+        observer: &Arc<str>,
+        rng: &mut Xoshiro256PlusPlus,
+        events: &mut Vec<Event>,
+    ) {
+        let here = self.site.world_of_grid([gx, gy]);
+        for (beacon, model) in self.site.beacons.iter().zip(&self.beacons) {
+            let (Some(mount), Some((radio, spread))) = (beacon.mount, model) else {
+                continue;
+            };
+            let distance_m = mount.distance_m(here);
+            // Heard in a scan with the probability that makes a window of
+            // `scans_per_window` scans hear it as often as the model says.
+            let in_window = radio.detection(distance_m);
+            let in_scan = 1.0 - (1.0 - in_window).powf(1.0 / self.scans_per_window);
+            if !rng.random_bool(in_scan) || rng.random_bool(self.config.dropout) {
+                continue;
+            }
+            let rssi = radio.expected_rssi(distance_m) + spread.sample(rng);
+            if rssi < self.config.pathloss.sensitivity_dbm {
+                continue;
+            }
+            events.push(Event::Advert(Sighting {
                 t,
-                observer,
-                &self.shadowing,
-                rng,
-                events,
-            ),
+                observer: observer.clone(),
+                advertiser: beacon.beacon,
+                // What the beacon's frame advertises, not what it measures.
+                tx_power: Some(
+                    beacon
+                        .tx_power
+                        .map_or(self.config.pathloss.tx_power_dbm, f64::from)
+                        .round() as i8,
+                ),
+                rssi: rssi.round() as i16,
+            }));
         }
     }
 }
@@ -226,39 +313,6 @@ fn walk(
         points.push((t, at));
     }
     Timeline { points }
-}
-
-#[allow(clippy::too_many_arguments)]
-fn hear_model(
-    site: &Site,
-    config: &SimConfig,
-    (px, py): (f64, f64),
-    t: f64,
-    observer: &Arc<str>,
-    shadowing: &Normal<f64>,
-    rng: &mut Xoshiro256PlusPlus,
-    events: &mut Vec<Event>,
-) {
-    for beacon in &site.beacons {
-        let Some(cell) = beacon.cell else { continue };
-        let (bx, by) = centre(cell);
-        let distance_m = (px - bx).hypot(py - by) * site.cell_m;
-        let tx = beacon
-            .tx_power
-            .map_or(config.pathloss.tx_power_dbm, f64::from);
-        let rssi = config.pathloss.expected_rssi(tx, distance_m) + shadowing.sample(rng);
-        let dropped = rng.random_bool(config.dropout);
-        if dropped || rssi < config.pathloss.sensitivity_dbm {
-            continue;
-        }
-        events.push(Event::Advert(Sighting {
-            t,
-            observer: observer.clone(),
-            advertiser: beacon.beacon,
-            tx_power: Some(tx.round() as i8),
-            rssi: rssi.round() as i16,
-        }));
-    }
 }
 
 fn hear_survey(
