@@ -1,4 +1,5 @@
-//! Planning speed: A* on the sample site, the frame-guided repair every
+//! Planning speed: A* and the any-angle baseline (Theta*) on the sample
+//! site, the frame-guided repair every
 //! learned route goes through, and, when trained models are in `models/`
 //! (see docs/planning.md), the learned modes themselves. Targets (issue 5):
 //! plan p50 ≤ 100 µs, p99 ≤ 1 ms including repair.
@@ -24,6 +25,10 @@ fn planning(c: &mut Criterion) {
     });
     c.bench_function("astar low-vision (turn costs)", |b| {
         b.iter(|| black_box(plan::Planner::plan(&astar, from, to, Profile::LowVision)))
+    });
+    let anyangle = plan::anyangle::AnyAngle::new(site.clone());
+    c.bench_function("anyangle place to place", |b| {
+        b.iter(|| black_box(anyangle.route(from, to, Profile::Default)))
     });
 
     // A frame with the shortest route's cells lit except a gap: repair work.

@@ -34,3 +34,4 @@ pub mod source;
 pub mod store;
 pub mod throttle;
 pub mod train;
+pub mod walks;

@@ -94,6 +94,7 @@ async fn a_run_records_trajectories_routes_and_feedback() {
             "20",
             "--min-class-walks",
             "1",
+            "--accept-failed",
             "--json",
         ])
         .output()

@@ -187,6 +187,7 @@ fn checkpoints_are_written_loaded_and_plotted_with_sample_routes() {
         "--conditional",
         "--checkpoint-every",
         "2",
+        "--accept-failed",
         "--json",
     ]);
     let checkpoints = dir.path().join("models/checkpoints");

@@ -55,8 +55,8 @@ struct GuidanceArgs {
 
 #[derive(clap::Args)]
 struct PlanningArgs {
-    #[arg(long, default_value_os_t = super::default_config())]
-    config: PathBuf,
+    #[command(flatten)]
+    planner: super::PlannerSource,
     /// Random open-cell pairs besides every ordered pair of named places.
     #[arg(long, default_value_t = 1000)]
     random_pairs: usize,
@@ -186,7 +186,7 @@ fn guidance(args: GuidanceArgs) -> anyhow::Result<ExitCode> {
 
 fn planning(args: PlanningArgs) -> anyhow::Result<ExitCode> {
     use crate::eval::{figures, planning};
-    let (config, site) = super::load(&args.config)?;
+    let (planner, site) = args.planner.load()?;
     let read = |path: &Option<PathBuf>| -> anyhow::Result<_> {
         Ok(match path {
             Some(p) => Some(trajectory::read(p, &site)?),
@@ -208,7 +208,7 @@ fn planning(args: PlanningArgs) -> anyhow::Result<ExitCode> {
         None => None,
     };
     let pairs = planning::pairs(&site, args.random_pairs, args.seed);
-    let mut report = planning::evaluate(&config.planner, site.clone(), &pairs, &walks);
+    let mut report = planning::evaluate(&planner, site.clone(), &pairs, &walks);
     if let Some(points) = &checkpoints {
         report["checkpoints"] = serde_json::to_value(points)?;
         if let Some(out) = &args.pictures {
@@ -220,8 +220,7 @@ fn planning(args: PlanningArgs) -> anyhow::Result<ExitCode> {
         }
     }
     if let Some(out) = &args.pictures {
-        let written =
-            figures::sample_routes(&config.planner, site.clone(), args.samples_per_class, out)?;
+        let written = figures::sample_routes(&planner, site.clone(), args.samples_per_class, out)?;
         eprintln!("wrote {} sample sheets to {}", written.len(), out.display());
     }
     if args.json {
@@ -240,7 +239,7 @@ fn planning(args: PlanningArgs) -> anyhow::Result<ExitCode> {
             "novelty is null: give --training-walks FILE, the walks the generators were trained on"
         );
     }
-    if config.planner.mode == crate::plan::PlannerMode::Astar {
+    if planner.mode == crate::plan::PlannerMode::Astar {
         println!(
             "the configured mode is astar: novelty and human_iou_gan are under `modes` \
              (rejection, conditional)"

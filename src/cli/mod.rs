@@ -11,6 +11,7 @@ mod replay;
 mod run;
 mod simulate;
 mod train;
+mod walks;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -46,6 +47,8 @@ enum Command {
     Train(train::Args),
     /// Evaluate localization on a labelled survey.
     Eval(eval::Args),
+    /// Real walks in: import recorded tracks onto a site, build a scene's site.
+    Walks(walks::Args),
 }
 
 /// Where `--config` points when it is not given.
@@ -65,6 +68,7 @@ impl Cli {
             Command::Plan(args) => plan::run(args),
             Command::Train(args) => train::run(args),
             Command::Eval(args) => eval::run(args),
+            Command::Walks(args) => walks::run(args),
         }
     }
 }
@@ -76,6 +80,76 @@ fn load(
     let config = crate::config::Config::load(config)?;
     let site = crate::site::Site::load(&config.site)?;
     Ok((config, std::sync::Arc::new(site)))
+}
+
+/// Where a planning command gets its site, models and planner settings: a
+/// gateway config, or a site file and a directory of trained models given
+/// directly, so that what `gangway train --out DIR` wrote is served without
+/// writing a config.
+#[derive(clap::Args)]
+struct PlannerSource {
+    /// The gateway config [default: config/gangway.toml unless --site is given].
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Plan on this site file instead of the config's (without --config, the
+    /// planner settings are the defaults).
+    #[arg(long)]
+    site: Option<PathBuf>,
+    /// Serve the models in this directory (`generator.onnx`,
+    /// `path_classifier.onnx`, `conditional_generator.onnx`, as `gangway
+    /// train --out` writes them) instead of the config's `[planner.models]`.
+    #[arg(long)]
+    models: Option<PathBuf>,
+    /// The planner mode instead of the config's `[planner] mode`: astar,
+    /// rejection or conditional.
+    #[arg(long, value_parser = parse_mode)]
+    mode: Option<crate::plan::PlannerMode>,
+}
+
+fn parse_mode(text: &str) -> Result<crate::plan::PlannerMode, String> {
+    use crate::plan::PlannerMode;
+    PlannerMode::ALL
+        .into_iter()
+        .find(|m| m.name() == text)
+        .ok_or_else(|| {
+            let names: Vec<&str> = PlannerMode::ALL.iter().map(|m| m.name()).collect();
+            format!("unknown mode `{text}`; use one of {}", names.join(", "))
+        })
+}
+
+impl PlannerSource {
+    /// The planner settings and the site they plan on.
+    fn load(
+        &self,
+    ) -> anyhow::Result<(
+        crate::plan::PlannerConfig,
+        std::sync::Arc<crate::site::Site>,
+    )> {
+        use crate::model::Kind;
+        let (mut planner, site) = match (&self.config, &self.site) {
+            (None, Some(site)) => (
+                crate::plan::PlannerConfig::default(),
+                std::sync::Arc::new(crate::site::Site::load(site)?),
+            ),
+            (config, site) => {
+                let config = crate::config::Config::load(
+                    config.clone().unwrap_or_else(default_config).as_path(),
+                )?;
+                let site = crate::site::Site::load(site.as_ref().unwrap_or(&config.site))?;
+                (config.planner, std::sync::Arc::new(site))
+            }
+        };
+        if let Some(dir) = &self.models {
+            let file = |kind: Kind| dir.join(format!("{}.onnx", kind.name()));
+            planner.models.generator = file(Kind::Generator);
+            planner.models.path_classifier = file(Kind::PathClassifier);
+            planner.models.conditional_generator = file(Kind::ConditionalGenerator);
+        }
+        if let Some(mode) = self.mode {
+            planner.mode = mode;
+        }
+        Ok((planner, site))
+    }
 }
 
 /// A tokio runtime for the long-running subcommands (`run`, `record`):

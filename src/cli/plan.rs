@@ -11,8 +11,8 @@ use crate::publish::RouteBody;
 
 #[derive(clap::Args)]
 pub struct Args {
-    #[arg(long, default_value_os_t = super::default_config())]
-    config: PathBuf,
+    #[command(flatten)]
+    planner: super::PlannerSource,
     /// Start: a place name or `x,y`.
     #[arg(long)]
     from: String,
@@ -43,7 +43,7 @@ fn destination(text: &str) -> Destination {
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
-    let (config, site) = super::load(&args.config)?;
+    let (config, site) = args.planner.load()?;
     let profile = Profile::parse(&args.profile).ok_or_else(|| {
         anyhow::anyhow!(
             "--profile: {}",
@@ -52,7 +52,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     })?;
     let from = destination(&args.from).resolve(&site).context("--from")?;
     let to = destination(&args.to).resolve(&site).context("--to")?;
-    let planner = plan::build(&config.planner, site.clone())?;
+    let planner = plan::build(&config, site.clone())?;
     let started = Instant::now();
     let planned = planner.plan(from, to, profile)?;
     let latency_us = started.elapsed().as_micros() as u64;

@@ -9,6 +9,7 @@ use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::locate::survey::Survey;
+use crate::model::Kind;
 use crate::site::Site;
 use crate::train::job::{self, Options, Progress, Trained};
 use crate::train::paths::PathSet;
@@ -70,6 +71,11 @@ pub struct Args {
     /// Print the summary as JSON instead of text.
     #[arg(long)]
     json: bool,
+    /// Write generators that fail their checks (endpoint hits, walkable
+    /// share, repair rate, distinct frames) where planners load them anyway,
+    /// and exit 0: for experiments and plumbing tests with a few iterations.
+    #[arg(long)]
+    accept_failed: bool,
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
@@ -97,6 +103,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         classifier_iterations: args.classifier_iterations,
         heldout_share: args.heldout,
         checkpoint_every: args.checkpoint_every,
+        accept_failed: args.accept_failed,
     };
     let started = Instant::now();
     let mut bars = Bars::new(args.json);
@@ -141,6 +148,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         )?);
     }
     let wall = started.elapsed().as_secs_f64();
+    let card = args.out.join("MODEL_CARD.md");
+    std::fs::write(&card, model_card(&site, &args, walks, &written, wall))
+        .with_context(|| format!("cannot write {}", card.display()))?;
+    let failed: Vec<&Trained> = written
+        .iter()
+        .filter(|t| !t.passed() && matches!(t.kind, Kind::Generator | Kind::ConditionalGenerator))
+        .collect();
     if args.json {
         let models: Vec<_> = written
             .iter()
@@ -152,6 +166,14 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                     "bytes": t.bytes,
                     "seconds": t.seconds,
                     "metrics": t.metrics,
+                    "checks": t.checks.iter().map(|c| serde_json::json!({
+                        "metric": c.metric,
+                        "value": c.value,
+                        "bound": c.bound,
+                        "at_most": c.at_most,
+                        "passed": c.passed(),
+                    })).collect::<Vec<_>>(),
+                    "passed": t.passed(),
                 })
             })
             .collect();
@@ -188,7 +210,118 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         }
         println!("wall time {wall:.1} s");
     }
-    Ok(ExitCode::SUCCESS)
+    if failed.is_empty() {
+        return Ok(ExitCode::SUCCESS);
+    }
+    for t in &failed {
+        let what: Vec<String> = t
+            .checks
+            .iter()
+            .filter(|c| !c.passed())
+            .map(|c| c.describe())
+            .collect();
+        eprintln!("{} failed its checks: {}", t.kind.name(), what.join(", "));
+    }
+    if args.accept_failed {
+        eprintln!("written where planners load them anyway (--accept-failed)");
+        return Ok(ExitCode::SUCCESS);
+    }
+    eprintln!(
+        "not servable: written to {} instead, see {}. Try more --iterations, more walks per \
+         source/destination pair (or coarser cells: --cell-m), fewer rare pairs \
+         (--min-class-walks), or serve the astar mode meanwhile",
+        args.out.join("failed").display(),
+        card.display()
+    );
+    Ok(ExitCode::FAILURE)
+}
+
+/// `MODEL_CARD.md`: what was trained, from what, what it measured and
+/// whether it passed its checks.
+fn model_card(
+    site: &Site,
+    args: &Args,
+    walks: Option<(usize, usize)>,
+    written: &[Trained],
+    wall: f64,
+) -> String {
+    use std::fmt::Write as _;
+    let mut card = String::new();
+    let _ = writeln!(
+        card,
+        "# Models in this directory
+"
+    );
+    let _ = writeln!(
+        card,
+        "Written by `{}` in {wall:.0} s.
+",
+        std::env::args().collect::<Vec<_>>().join(" ")
+    );
+    let _ = writeln!(
+        card,
+        "- site: `{}`, {} × {} cells of {} m ({} walkable), map hash `{}`",
+        site.name,
+        site.width(),
+        site.height(),
+        site.cell_m,
+        site.open_cells().len(),
+        &site.map_hash()[..16]
+    );
+    if let Some((n, classes)) = walks {
+        let _ = writeln!(
+            card,
+            "- walks: {n} (`{}`), {classes} source/destination classes (pairs with {}+ walks)",
+            args.trajectories
+                .as_ref()
+                .map_or("the learning store".into(), |p| p.display().to_string()),
+            args.min_class_walks
+        );
+    }
+    let _ = writeln!(
+        card,
+        "- iterations {}, batch {}, seed {}
+",
+        args.iterations, args.batch, args.seed
+    );
+    let _ = writeln!(card, "| file | kind | servable | metrics | checks |");
+    let _ = writeln!(card, "|---|---|---|---|---|");
+    for t in written {
+        let metrics: Vec<String> = t
+            .metrics
+            .iter()
+            .map(|(k, v)| format!("{k} {}", short(*v)))
+            .collect();
+        let checks: Vec<String> = t
+            .checks
+            .iter()
+            .map(|c| {
+                format!(
+                    "{} {}",
+                    if c.passed() { "pass" } else { "FAIL" },
+                    c.describe()
+                )
+            })
+            .collect();
+        let _ = writeln!(
+            card,
+            "| `{}` | {} | {} | {} | {} |",
+            t.file.display(),
+            t.kind.name(),
+            if t.passed() || args.accept_failed {
+                "yes"
+            } else {
+                "no"
+            },
+            metrics.join(", "),
+            if checks.is_empty() {
+                "–".to_owned()
+            } else {
+                checks.join("; ")
+            }
+        );
+    }
+    card
 }
 
 fn short(v: f64) -> String {

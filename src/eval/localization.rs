@@ -189,6 +189,7 @@ fn train_cell_classifier(site: &Site, train: &Survey, seed: u64) -> Result<Onnx,
         classifier_iterations: CELL_CLASSIFIER_ITERATIONS,
         heldout_share: 0.0,
         checkpoint_every: None,
+        accept_failed: false,
     };
     let trained =
         train_cells(site, train, &options, dir.path(), &mut Silent).map_err(EvalError::Training)?;

@@ -22,6 +22,17 @@
 //! without both files). `human_iou_gan_unseen` and `human_iou_astar_unseen`
 //! are the IoUs over only the other, unseen held-out walks, which a generator
 //! cannot match by reproducing a training walk.
+//!
+//! Fair judges on the held-out walks (`baselines`, and `heldout` in each
+//! mode): beside A*, the any-angle route ([`plan::anyangle`], Theta*) and the
+//! straight line where the profile may walk it. Every judge's route and each
+//! walk (its recorded positions when it has them, else its cells' centres)
+//! are compared in metres ([`shape`]: DTW and discrete Fréchet on both
+//! resampled every half cell), by cell IoU and by length ratio (route over
+//! walk). `closer_than` gives, per baseline, how often the mode's route is
+//! closer to the walk by DTW than the baseline's (wins, losses, ties: within
+//! a micrometre), the share of wins among the walks both answered, and the
+//! two-sided sign-test p-value of wins against losses.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -30,7 +41,7 @@ use rand::rngs::Xoshiro256PlusPlus;
 use rand::{RngExt, SeedableRng};
 use serde_json::{Value, json};
 
-use super::similarity::{CellBits, TrainingFrames, cell_iou};
+use super::similarity::{CellBits, Polyline, TrainingFrames, cell_iou, shape, sign_test};
 use crate::model::runtime::PathClassifier;
 use crate::plan::{self, Origin, PlannerConfig, PlannerMode, Profile};
 use crate::site::{Cell, Site};
@@ -103,6 +114,10 @@ pub fn evaluate(
     let unseen: Option<Vec<bool>> = heldout_distances
         .as_ref()
         .map(|d| d.iter().map(|&d| d > 0.0).collect());
+    let judged = walks
+        .heldout
+        .as_deref()
+        .map(|heldout| Judged::new(&site, config.connectivity, heldout));
     let mut modes = serde_json::Map::new();
     for mode in PlannerMode::ALL {
         let report = match plan::build_mode(config, mode, site.clone()) {
@@ -119,6 +134,12 @@ pub fn evaluate(
                 let (all, unseen) = iou_means(astar_ious.as_deref(), unseen.as_deref());
                 report["human_iou_astar"] = json!(all);
                 report["human_iou_astar_unseen"] = json!(unseen);
+                report["heldout"] = match (&judged, &walks.heldout) {
+                    (Some(judged), Some(heldout)) => {
+                        judged.mode_report(&judge_planner(&site, &*planner, heldout))
+                    }
+                    _ => Value::Null,
+                };
                 report
             }
             Err(e) => json!({ "unavailable": format!("{e:#}") }),
@@ -153,8 +174,178 @@ pub fn evaluate(
         top.insert("heldout_seen_share".into(), Value::Null);
         top.insert("heldout_unseen_walks".into(), Value::Null);
     }
+    top.insert(
+        "baselines".into(),
+        judged
+            .as_ref()
+            .map_or(Value::Null, Judged::baselines_report),
+    );
     top.insert("modes".into(), Value::Object(modes));
     Value::Object(top)
+}
+
+/// How one judge's route compares with one held-out walk.
+#[derive(Clone, Copy, Debug)]
+struct Score {
+    dtw_m: f64,
+    frechet_m: f64,
+    iou: f64,
+    length_ratio: f64,
+}
+
+/// Scores of the baselines on every held-out walk (`None`: no route, e.g.
+/// the straight line is blocked).
+struct Judged {
+    astar: Vec<Option<Score>>,
+    anyangle: Vec<Option<Score>>,
+    straight: Vec<Option<Score>>,
+}
+
+/// The profile a walk names, or the default one.
+fn walk_profile(w: &Trajectory) -> Profile {
+    w.profile
+        .as_deref()
+        .and_then(Profile::parse)
+        .unwrap_or(Profile::Default)
+}
+
+/// A route (its cells, and the line it walks in metres) scored against a
+/// walk: against its recorded positions when it has them, else its cells'
+/// centres.
+fn score(site: &Site, walk: &Trajectory, cells: &[Cell], line: &Polyline) -> Option<Score> {
+    let walked = match &walk.positions_m {
+        Some(points) => Polyline(points.clone()),
+        None => Polyline::of_cells(site, &walk.cells),
+    };
+    let s = shape(line, &walked, site.cell_m / 2.0)?;
+    let walk_m = walked.length_m();
+    Some(Score {
+        dtw_m: s.dtw_m,
+        frechet_m: s.frechet_m,
+        iou: cell_iou(site, cells, &walk.cells),
+        length_ratio: if walk_m > 0.0 {
+            line.length_m() / walk_m
+        } else {
+            1.0
+        },
+    })
+}
+
+/// `planner`'s route for each walk's ends and profile, scored.
+fn judge_planner(
+    site: &Site,
+    planner: &dyn plan::Planner,
+    walks: &[Trajectory],
+) -> Vec<Option<Score>> {
+    walks
+        .iter()
+        .map(|w| {
+            let planned = planner
+                .plan(w.source(), w.destination(), walk_profile(w))
+                .ok()?;
+            let cells = &planned.route.cells;
+            score(site, w, cells, &Polyline::of_cells(site, cells))
+        })
+        .collect()
+}
+
+impl Judged {
+    fn new(site: &Arc<Site>, connectivity: plan::Connectivity, walks: &[Trajectory]) -> Judged {
+        let shortest = plan::astar::AStar::new(site.clone(), connectivity);
+        let any = plan::anyangle::AnyAngle::new(site.clone());
+        let polyline = |r: &plan::anyangle::AnyAngleRoute| Polyline::of_cells(site, &r.vertices);
+        Judged {
+            astar: judge_planner(site, &shortest, walks),
+            anyangle: walks
+                .iter()
+                .map(|w| {
+                    let r = any
+                        .route(w.source(), w.destination(), walk_profile(w))
+                        .ok()?;
+                    score(site, w, &r.route.cells, &polyline(&r))
+                })
+                .collect(),
+            straight: walks
+                .iter()
+                .map(|w| {
+                    let r = any.straight(w.source(), w.destination(), walk_profile(w))?;
+                    score(site, w, &r.route.cells, &polyline(&r))
+                })
+                .collect(),
+        }
+    }
+
+    fn baselines(&self) -> [(&'static str, &[Option<Score>]); 3] {
+        [
+            ("astar", &self.astar),
+            ("anyangle", &self.anyangle),
+            ("straight", &self.straight),
+        ]
+    }
+
+    fn baselines_report(&self) -> Value {
+        Value::Object(
+            self.baselines()
+                .into_iter()
+                .map(|(name, scores)| (name.to_owned(), summary(scores)))
+                .collect(),
+        )
+    }
+
+    /// A mode's summary and how often it is closer to the walks than each
+    /// baseline.
+    fn mode_report(&self, scores: &[Option<Score>]) -> Value {
+        let mut report = summary(scores);
+        let closer: serde_json::Map<String, Value> = self
+            .baselines()
+            .into_iter()
+            .map(|(name, baseline)| (name.to_owned(), closer_than(scores, baseline)))
+            .collect();
+        report["closer_than"] = Value::Object(closer);
+        report
+    }
+}
+
+/// Medians of DTW and Fréchet, means of IoU and length ratio, over the walks
+/// a judge answered; `answered_share` says how many that is.
+fn summary(scores: &[Option<Score>]) -> Value {
+    let answered: Vec<Score> = scores.iter().flatten().copied().collect();
+    let column = |f: fn(&Score) -> f64| answered.iter().map(f).collect::<Vec<f64>>();
+    json!({
+        "walks": answered.len(),
+        "answered_share": answered.len() as f64 / scores.len().max(1) as f64,
+        "dtw_m_median": percentile(&mut column(|s| s.dtw_m), 0.5),
+        "dtw_m_mean": mean(&column(|s| s.dtw_m)),
+        "frechet_m_median": percentile(&mut column(|s| s.frechet_m), 0.5),
+        "iou_mean": mean(&column(|s| s.iou)),
+        "length_ratio_mean": mean(&column(|s| s.length_ratio)),
+    })
+}
+
+/// Wins, losses and ties by DTW of `mode` against `baseline` over the walks
+/// both answered, with the share of wins and the sign test's p-value.
+fn closer_than(mode: &[Option<Score>], baseline: &[Option<Score>]) -> Value {
+    const TIE_M: f64 = 1e-6;
+    let (mut wins, mut losses, mut ties) = (0usize, 0usize, 0usize);
+    for (m, b) in mode.iter().zip(baseline) {
+        let (Some(m), Some(b)) = (m, b) else { continue };
+        if m.dtw_m < b.dtw_m - TIE_M {
+            wins += 1;
+        } else if m.dtw_m > b.dtw_m + TIE_M {
+            losses += 1;
+        } else {
+            ties += 1;
+        }
+    }
+    let compared = wins + losses + ties;
+    json!({
+        "walks": compared,
+        "wins": wins,
+        "losses": losses,
+        "ties": ties,
+        "share": (compared > 0).then(|| wins as f64 / compared as f64),
+        "sign_test_p": sign_test(wins, losses),
+    })
 }
 
 fn evaluate_mode(
@@ -281,13 +472,8 @@ fn human_iou(site: &Site, planner: &dyn plan::Planner, walks: &[Trajectory]) -> 
     walks
         .iter()
         .map(|w| {
-            let profile = w
-                .profile
-                .as_deref()
-                .and_then(Profile::parse)
-                .unwrap_or(Profile::Default);
             planner
-                .plan(w.source(), w.destination(), profile)
+                .plan(w.source(), w.destination(), walk_profile(w))
                 .map_or(0.0, |p| cell_iou(site, &p.route.cells, &w.cells))
         })
         .collect()

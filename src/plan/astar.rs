@@ -36,8 +36,9 @@ impl Planner for AStar {
 }
 
 /// The profile's cheapest route, each cell's cost also scaled by `extra`
-/// (≥ 1). Shared by every planner: the baseline, and the repair of learned
-/// frames.
+/// (≥ 1), equally cheap routes broken towards the straight line
+/// ([`Costs::hug_line`]). Shared by every planner: the baseline, and the
+/// repair of learned frames.
 pub fn profile_search(
     site: &Site,
     connectivity: Connectivity,
@@ -46,33 +47,61 @@ pub fn profile_search(
     profile: Profile,
     extra: impl Fn(Cell) -> f64,
 ) -> Result<Route, PlanError> {
-    search_with(
-        site,
-        connectivity,
-        from,
-        to,
-        &Costs {
-            passable: |c| profile.passable(site, c),
-            cell_cost: |c| profile.cell_cost(site, c) * extra(c),
-            turn_cost: profile.turn_cost(),
-        },
-    )
+    search_for(site, connectivity, [from, to], profile, extra, true)
 }
 
-#[derive(PartialEq)]
+/// [`search_with`] the costs of `profile`, scaled by `extra`.
+fn search_for(
+    site: &Site,
+    connectivity: Connectivity,
+    [from, to]: [Cell; 2],
+    profile: Profile,
+    extra: impl Fn(Cell) -> f64,
+    hug_line: bool,
+) -> Result<Route, PlanError> {
+    let costs = Costs {
+        passable: |c| profile.passable(site, c),
+        cell_cost: |c| profile.cell_cost(site, c) * extra(c),
+        turn_cost: profile.turn_cost(),
+        hug_line,
+    };
+    search_with(site, connectivity, from, to, &costs)
+}
+
+#[derive(PartialEq, Eq)]
 struct Entry {
-    f: f64,
+    /// f as ordered by the search: with [`Costs::hug_line`] in millionths of
+    /// a cell (equal-cost routes summed in different orders differ in the
+    /// last bits of a float, and must tie), else the float's bits (which
+    /// order like the values, f being ≥ 0).
+    f: i64,
+    /// With `hug_line`, twice the area between the cell and the straight line
+    /// from source to destination (else 0): among equal f the cell nearest
+    /// the line is expanded first.
+    off_line: u64,
     open: u32,
 }
 
-impl Eq for Entry {}
+impl Entry {
+    fn new(f: f64, off_line: Option<u64>, open: u32) -> Entry {
+        Entry {
+            f: match off_line {
+                Some(_) => (f * 1e6).round() as i64,
+                None => f.to_bits() as i64,
+            },
+            off_line: off_line.unwrap_or(0),
+            open,
+        }
+    }
+}
 
 impl Ord for Entry {
     fn cmp(&self, other: &Self) -> Ordering {
-        // Min-heap on f; ties broken by index for determinism.
+        // Min-heap on f, then nearest the line, then by index for determinism.
         other
             .f
-            .total_cmp(&self.f)
+            .cmp(&self.f)
+            .then_with(|| other.off_line.cmp(&self.off_line))
             .then_with(|| other.open.cmp(&self.open))
     }
 }
@@ -83,10 +112,21 @@ impl PartialOrd for Entry {
     }
 }
 
+/// |(c − from) × (to − from)|: how far `c` is off the line from `from` to
+/// `to`, scaled by the line's length (the same for every cell of a search).
+fn off_line(from: Cell, to: Cell, c: Cell) -> u64 {
+    let (fx, fy) = (i64::from(from.x), i64::from(from.y));
+    let cross = (i64::from(c.x) - fx) * (i64::from(to.y) - fy)
+        - (i64::from(c.y) - fy) * (i64::from(to.x) - fx);
+    cross.unsigned_abs()
+}
+
 /// A* from `from` to `to` over walkable cells. Entering a cell costs the step
 /// length (1 or √2) times `cell_cost(cell)`; pass factors ≥ 1 so the octile
 /// heuristic stays admissible. The default profile's search: every walkable
-/// cell passable, no cost of its own, no turn cost.
+/// cell passable, no cost of its own, no turn cost; equally cheap routes are
+/// broken by cell index, not towards the line (the simulator's walkers and
+/// the fixtures they recorded keep their routes).
 pub fn search(
     site: &Site,
     connectivity: Connectivity,
@@ -94,7 +134,14 @@ pub fn search(
     to: Cell,
     cell_cost: impl Fn(Cell) -> f64,
 ) -> Result<Route, PlanError> {
-    profile_search(site, connectivity, from, to, Profile::Default, cell_cost)
+    search_for(
+        site,
+        connectivity,
+        [from, to],
+        Profile::Default,
+        cell_cost,
+        false,
+    )
 }
 
 /// What a search may use and what it pays.
@@ -105,6 +152,11 @@ pub struct Costs<P, C> {
     pub cell_cost: C,
     /// Added for every change of direction, in cell lengths (≥ 0).
     pub turn_cost: f64,
+    /// Break ties between equally cheap routes towards the straight line
+    /// from source to destination, so the route interleaves straight and
+    /// diagonal steps as a person would instead of taking all straight steps
+    /// then all diagonals (served routes); else by cell index.
+    pub hug_line: bool,
 }
 
 /// A* as [`search`], over the cells `costs.passable` allows (corners too:
@@ -137,10 +189,15 @@ pub fn search_with(
     let mut closed = vec![false; n];
     let mut heap = BinaryHeap::new();
     g[start as usize] = 0.0;
-    heap.push(Entry {
-        f: heuristic(from, to, connectivity),
-        open: start,
-    });
+    let line = |c: Cell| costs.hug_line.then(|| off_line(from, to, c));
+    // With hug_line, a route only float rounding makes cheaper is a tie: the
+    // first found, nearer the line, keeps the cell.
+    let slack = if costs.hug_line { 1e-9 } else { 0.0 };
+    heap.push(Entry::new(
+        heuristic(from, to, connectivity),
+        line(from),
+        start,
+    ));
     while let Some(Entry { open: s, .. }) = heap.pop() {
         let (open, heading) = (s as usize / headings, s as usize % headings);
         if open == goal_open {
@@ -179,13 +236,14 @@ pub fn search_with(
             };
             let t = state(j, k);
             let cand = g[s as usize] + step * (costs.cell_cost)(next) + turn;
-            if cand < g[t] {
+            if cand < g[t] - slack {
                 g[t] = cand;
                 came_from[t] = s;
-                heap.push(Entry {
-                    f: cand + heuristic(next, to, connectivity),
-                    open: t as u32,
-                });
+                heap.push(Entry::new(
+                    cand + heuristic(next, to, connectivity),
+                    line(next),
+                    t as u32,
+                ));
             }
         }
     }
@@ -256,6 +314,32 @@ mod tests {
         assert_eq!(four.cells.len(), 5);
         four.validate(&s, Cell::new(0, 0), Cell::new(2, 2), Connectivity::Four)
             .unwrap();
+    }
+
+    #[test]
+    fn equal_routes_hug_the_straight_line() {
+        // 8 columns by 4 rows: 3 diagonal and 4 straight steps in any order
+        // are equally short; the route interleaves them along the line.
+        let s = site("########\n########\n########\n########");
+        let (a, b) = (Cell::new(0, 0), Cell::new(7, 3));
+        let route = AStar::new(s.clone(), Connectivity::Eight)
+            .plan(a, b, Profile::Default)
+            .unwrap()
+            .route;
+        route.validate(&s, a, b, Connectivity::Eight).unwrap();
+        assert!((route.length_m(&s) - (4.0 + 3.0 * std::f64::consts::SQRT_2)).abs() < 1e-9);
+        // No cell is more than a cell from the line (straight-then-diagonal
+        // would be 3 · 7 / √58 ≈ 2.8 cells off at the bend).
+        let worst = route
+            .cells
+            .iter()
+            .map(|&c| off_line(a, b, c) as f64 / 58f64.sqrt())
+            .fold(0.0, f64::max);
+        assert!(
+            worst <= 1.0,
+            "{worst} cells off the line: {:?}",
+            route.cells
+        );
     }
 
     #[test]

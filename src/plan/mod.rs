@@ -11,8 +11,10 @@
 //! conditional GAN: [`conditional`]). The learned modes turn frames into
 //! routes with [`frame::route_from_frame`], which repairs what a frame gets
 //! wrong. Profiles ([`Profile`]) change which cells a walker may use and what
-//! they cost, in every mode.
+//! they cost, in every mode. [`anyangle`] is the any-angle baseline the
+//! learned modes are judged against (`gangway eval planning`).
 
+pub mod anyangle;
 pub mod astar;
 pub mod conditional;
 mod error_code;

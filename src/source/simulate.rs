@@ -466,6 +466,7 @@ pub fn simulate_walks(site: &Site, config: &WalkConfig) -> Vec<Trajectory> {
             times,
             profile: None,
             feedback: None,
+            positions_m: None,
         });
         // Walks start a few minutes apart.
         t0 = round_ms(t0 + rng.random_range(30.0..300.0));

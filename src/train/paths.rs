@@ -141,6 +141,7 @@ mod tests {
             times: (0..cells.len()).map(|t| t as f64).collect(),
             profile: None,
             feedback: None,
+            positions_m: None,
         }
     }
 

@@ -76,6 +76,7 @@ pub fn walks_from_store(path: &Path, site: &Site) -> anyhow::Result<Vec<Trajecto
                 times,
                 profile: None,
                 feedback,
+                positions_m: None,
             });
         }
     }
@@ -96,6 +97,7 @@ pub fn walks_from_store(path: &Path, site: &Site) -> anyhow::Result<Vec<Trajecto
             times,
             profile: None,
             feedback: Some(feedback),
+            positions_m: None,
         });
     }
     Ok(walks)
@@ -145,6 +147,7 @@ mod tests {
             times: vec![0.0, 1.0],
             profile: None,
             feedback,
+            positions_m: None,
         }
     }
 

@@ -37,6 +37,12 @@ pub struct Trajectory {
     /// How the walker rated the route, 0 (bad) to 1 (good), when asked.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub feedback: Option<f64>,
+    /// The recorded positions the cells were made from (world metres, the
+    /// site's frame), when the walk was imported from a recording: routes
+    /// are judged against where the person actually walked, not against the
+    /// cell centres, which a grid route would match for free.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub positions_m: Option<Vec<[f64; 2]>>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -115,6 +121,16 @@ impl Trajectory {
         {
             return Err(format!("`feedback` is {f}; it must be between 0 and 1"));
         }
+        if let Some(points) = &self.positions_m {
+            if let Some(i) = points.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
+                return Err(format!(
+                    "`positions_m`[{i}] is not two finite numbers of metres"
+                ));
+            }
+            if points.is_empty() {
+                return Err("`positions_m` is empty; leave it out when unknown".into());
+            }
+        }
         Ok(())
     }
 }
@@ -183,6 +199,7 @@ mod tests {
             times: vec![0.0, 1.0, 2.5],
             profile: None,
             feedback: Some(0.75),
+            positions_m: None,
         };
         let mut buf = Vec::new();
         write(&mut buf, std::slice::from_ref(&walk)).unwrap();

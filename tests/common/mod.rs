@@ -37,16 +37,23 @@ pub fn gangway_ok(args: &[&str]) -> String {
 /// (`CI` set) it must be there; elsewhere a test that needs it is skipped with
 /// a note.
 pub fn uci_survey() -> Option<PathBuf> {
-    let p = root().join("../shared/data/uci-ble-rssi/iBeacon_RSSI_Labeled.csv");
+    shared_data("uci-ble-rssi/iBeacon_RSSI_Labeled.csv")
+}
+
+/// A file or directory under `../shared/data`, the real data beside the
+/// checkout: in CI (`CI` set) it must be there; elsewhere a test that needs
+/// it is skipped with a note.
+pub fn shared_data(relative: &str) -> Option<PathBuf> {
+    let p = root().join("../shared/data").join(relative);
     if p.exists() {
         return Some(p);
     }
     assert!(
         std::env::var_os("CI").is_none(),
-        "CI must have the survey at {}",
+        "CI must have {}",
         p.display()
     );
-    eprintln!("skipped: no survey at {}", p.display());
+    eprintln!("skipped: no {}", p.display());
     None
 }
 
