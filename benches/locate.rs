@@ -10,13 +10,13 @@ use std::sync::Arc;
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use gangway::locate::{Localizer, LocalizerConfig};
 use gangway::locate::knn::{Knn, KnnConfig};
 use gangway::locate::pathloss::{PathLoss, PathLossConfig};
 use gangway::locate::radiomap::{RadioMap, RadioMapConfig};
 use gangway::locate::survey::Survey;
 use gangway::locate::tracker::{Tracker, TrackerConfig};
 use gangway::locate::window::{Orientation, WindowConfig, Windows, anchor_ids};
+use gangway::locate::{Localizer, LocalizerConfig};
 use gangway::sighting::Sighting;
 use gangway::site::Site;
 use gangway::source::ibeacon::{encode_manufacturer_data, parse_manufacturer_data};
@@ -30,8 +30,13 @@ fn site() -> Arc<Site> {
 const SURVEY: &str = "../shared/data/uci-ble-rssi/iBeacon_RSSI_Labeled.csv";
 
 fn survey(site: &Site) -> Survey {
-    Survey::load(Path::new(SURVEY), site, &anchor_ids(site, Orientation::Observer), -200)
-        .expect("the kNN benches need the survey at ../shared/data/uci-ble-rssi")
+    Survey::load(
+        Path::new(SURVEY),
+        site,
+        &anchor_ids(site, Orientation::Observer),
+        -200,
+    )
+    .expect("the kNN benches need the survey at ../shared/data/uci-ble-rssi")
 }
 
 fn benches(c: &mut Criterion) {
