@@ -1,7 +1,10 @@
 //! `gangway replay` on the capture formats people already have, and `--score`.
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+mod common;
+
+use std::path::Path;
+
+use common::{gangway, gangway_ok, root};
 
 use gangway::sighting::Sighting;
 use gangway::source::Event;
@@ -22,26 +25,6 @@ const SCORE_KEYS: [&str; 9] = [
     "truths",
     "tolerance_s",
 ];
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-/// Runs gangway in the repository root; returns stdout, failing on a non-zero exit.
-fn gangway_ok(args: &[&str]) -> String {
-    let out = Command::new(env!("CARGO_BIN_EXE_gangway"))
-        .args(args)
-        .current_dir(root())
-        .env("RUST_LOG", "warn")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "gangway {args:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8(out.stdout).unwrap()
-}
 
 /// The one JSON object `--score --json` prints.
 fn score(args: &[&str]) -> Value {
@@ -163,11 +146,7 @@ fn a_csv_scan_log_replays_and_scores_against_its_labels() {
     std::fs::write(&csv, text).unwrap();
 
     // b3099 is no beacon of the site: refused, or ignored with --skip-bad.
-    let out = Command::new(env!("CARGO_BIN_EXE_gangway"))
-        .args(["replay", path(&csv), "--score"])
-        .current_dir(root())
-        .output()
-        .unwrap();
+    let out = gangway(&["replay", path(&csv), "--score"]);
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains(":1: column `b3099`: names no beacon"), "{err}");
@@ -264,11 +243,7 @@ fn an_nrf_sniffer_pcapng_replays_like_the_log_it_was_written_from() {
     // A file named .pcapng that is not one is reported as such, not read as JSON Lines.
     let fake = dir.path().join("fake.pcapng");
     std::fs::write(&fake, "{}\n").unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_gangway"))
-        .args(["replay", path(&fake), "--print"])
-        .current_dir(root())
-        .output()
-        .unwrap();
+    let out = gangway(&["replay", path(&fake), "--print"]);
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
@@ -278,14 +253,13 @@ fn an_nrf_sniffer_pcapng_replays_like_the_log_it_was_written_from() {
 }
 
 /// The UCI survey as published, newest row first, replayed through the default
-/// pipeline. Skipped when ../shared is not there (a clone without the data).
+/// pipeline. Skipped outside CI when ../shared is not there (a clone without
+/// the data); in CI the data must be there.
 #[test]
 fn the_uci_survey_replays_as_published() {
-    let survey = root().join("../shared/data/uci-ble-rssi/iBeacon_RSSI_Labeled.csv");
-    if !survey.exists() {
-        eprintln!("skipped: {} is not present", survey.display());
+    let Some(survey) = common::uci_survey() else {
         return;
-    }
+    };
     let s = score(&["replay", path(&survey), "--score", "--json"]);
     assert_eq!(s["truths"], 1420);
     // Sorted into time order, the survey's ~2 s readings give about a fix per
