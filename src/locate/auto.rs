@@ -14,7 +14,7 @@ use std::sync::Arc;
 
 use super::crossval::choose;
 use super::knn::Knn;
-use super::radiomap::{RadioMap, RadioMapConfig};
+use super::radiomap::RadioMap;
 use super::reliability::ConfidenceMap;
 use super::survey::{Sample, Survey};
 use super::tracker::TrackerConfig;
@@ -72,16 +72,11 @@ pub(crate) fn surveyed(
     )?;
     // The map's settings are fixed from here on, so the folds below do not
     // cross-validate them again.
-    let (bandwidth_m, shadowing_db) = map.settings();
-    let fixed = RadioMapConfig {
-        bandwidth_m: Some(bandwidth_m),
-        shadowing_db: Some(shadowing_db),
-        ..config.radiomap.clone()
-    };
+    let settings = map.settings();
     let blend = |knn_share: f64, rows: &[&Sample]| -> Result<Blend, LocalizerError> {
         Ok(Blend::new(
             Knn::new(&config.knn, site, rows, windows.missing_dbm)?,
-            RadioMap::new(&fixed, site, ids, windows.orientation, tracker, rows)?,
+            RadioMap::with_settings(site, ids, windows.orientation, tracker, rows, settings)?,
             knn_share,
         ))
     };
@@ -98,7 +93,12 @@ pub(crate) fn surveyed(
         cv_error_cells = chosen.error_cells,
         "surveyed localizer: k-NN vote and radio map blended as cross-validation chose"
     );
-    let mut best = blend(chosen.candidate, samples)?;
+    // `map` is already the map of every row with those settings.
+    let mut best = Blend::new(
+        Knn::new(&config.knn, site, samples, windows.missing_dbm)?,
+        map,
+        chosen.candidate,
+    );
     best.confidence = chosen.confidence;
     Ok(Box::new(best))
 }

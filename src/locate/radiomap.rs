@@ -67,8 +67,6 @@ const SPREADS_DB: [f64; 4] = [3.0, 4.0, 6.0, 8.0];
 pub struct RadioMap {
     tables: PathLoss,
     confidence: ConfidenceMap,
-    /// Mean held-out error (cells) of the chosen settings.
-    cv_error_cells: f64,
     /// The kernel width (m) and RSSI spread (dB) it was built with.
     settings: (f64, f64),
 }
@@ -111,13 +109,7 @@ impl RadioMap {
         tracker: &TrackerConfig,
         samples: &[&Sample],
     ) -> Result<Self, LocalizerError> {
-        if samples.is_empty() {
-            return Err(LocalizerError::EmptySurvey);
-        }
-        if let Some(s) = samples.iter().find(|s| site.open_index(s.cell).is_none()) {
-            return Err(LocalizerError::SurveyOnBlockedCell(s.cell));
-        }
-        let prior = survey_free(site, ids, orientation, tracker, samples)?;
+        let prior = prior(site, ids, orientation, tracker, samples)?;
         let bandwidths: Vec<f64> = match config.bandwidth_m {
             Some(b) => vec![b],
             None => BANDWIDTHS_CELLS.iter().map(|b| b * site.cell_m).collect(),
@@ -149,8 +141,26 @@ impl RadioMap {
         Ok(RadioMap {
             tables: build(site, &prior, samples, bandwidth_m, shadowing_db)?,
             confidence: chosen.confidence,
-            cv_error_cells: chosen.error_cells,
             settings: chosen.candidate,
+        })
+    }
+
+    /// The map of `samples` with its settings given, neither cross-validated
+    /// nor with a fitted confidence: for callers that cross-validate it
+    /// themselves (the blend of [`super::auto`]).
+    pub(crate) fn with_settings(
+        site: &Arc<Site>,
+        ids: &[String],
+        orientation: Orientation,
+        tracker: &TrackerConfig,
+        samples: &[&Sample],
+        (bandwidth_m, shadowing_db): (f64, f64),
+    ) -> Result<Self, LocalizerError> {
+        let prior = prior(site, ids, orientation, tracker, samples)?;
+        Ok(RadioMap {
+            tables: build(site, &prior, samples, bandwidth_m, shadowing_db)?,
+            confidence: ConfidenceMap::default(),
+            settings: (bandwidth_m, shadowing_db),
         })
     }
 
@@ -158,12 +168,23 @@ impl RadioMap {
     pub fn settings(&self) -> (f64, f64) {
         self.settings
     }
+}
 
-    /// Mean held-out error (cells) of the chosen settings over the survey's
-    /// sessions.
-    pub fn cv_error_cells(&self) -> f64 {
-        self.cv_error_cells
+/// Checks the rows and fits the map's survey-free prior to them.
+fn prior(
+    site: &Arc<Site>,
+    ids: &[String],
+    orientation: Orientation,
+    tracker: &TrackerConfig,
+    samples: &[&Sample],
+) -> Result<Vec<Anchor>, LocalizerError> {
+    if samples.is_empty() {
+        return Err(LocalizerError::EmptySurvey);
     }
+    if let Some(s) = samples.iter().find(|s| site.open_index(s.cell).is_none()) {
+        return Err(LocalizerError::SurveyOnBlockedCell(s.cell));
+    }
+    survey_free(site, ids, orientation, tracker, samples)
 }
 
 impl Localizer for RadioMap {
