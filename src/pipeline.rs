@@ -185,8 +185,9 @@ impl Pipeline {
         match event {
             Event::Advert(sighting) => {
                 self.stats.sightings += 1;
-                if let Some(fp) = self.windows.push(sighting) {
-                    self.fix(&fp, out);
+                match self.windows.push(sighting) {
+                    Some(fp) => self.fix(&fp, sighting.t, out),
+                    None => self.tick(sighting, out),
                 }
             }
             Event::Request(request) => {
@@ -218,11 +219,26 @@ impl Pipeline {
     /// Closes all open windows (end of a replay).
     pub fn finish(&mut self, out: &mut Vec<Message>) {
         for fp in self.windows.flush() {
-            self.fix(&fp, out);
+            self.fix(&fp, fp.t, out);
         }
     }
 
-    fn fix(&mut self, fp: &Fingerprint, out: &mut Vec<Message>) {
+    /// Guidance between fixes: the sighting's time tells a guided device's
+    /// session where its walker is by now (announcements and arrival need
+    /// not wait for the next fix). Devices are the observers of what they
+    /// hear; a guided advertiser (a tag heard by gateways) is judged at
+    /// its fixes only.
+    fn tick(&mut self, sighting: &crate::sighting::Sighting, out: &mut Vec<Message>) {
+        if self.guide.is_empty() || self.orientation() != Orientation::Observer {
+            return;
+        }
+        if let Some(guidance) = self.guide.tick(&self.site, &sighting.observer, sighting.t) {
+            out.push(self.topics.encode_guidance(&guidance));
+        }
+    }
+
+    /// One fix from the window `fp`, closed by an event at `now`.
+    fn fix(&mut self, fp: &Fingerprint, now: f64, out: &mut Vec<Message>) {
         if fp.heard_count() == 0 {
             return;
         }
@@ -253,7 +269,7 @@ impl Pipeline {
             anchors_heard: fp.heard_count(),
         };
         out.push(self.topics.encode_location(&location));
-        let Some(guidance) = self.guide.update(&self.site, &fp.entity, cell, fp.t) else {
+        let Some(guidance) = self.guide.update(&self.site, &fp.entity, cell, fp.t, now) else {
             return;
         };
         out.push(self.topics.encode_guidance(&guidance));
