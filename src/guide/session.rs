@@ -89,8 +89,10 @@ pub struct Session {
     judged_t: f64,
     last_fix: Option<LastFix>,
     /// Located fixes since the walker was told they had arrived: an
-    /// arrival is watched for as many fixes as leaving the route takes,
-    /// and one more, in case it was told too soon.
+    /// arrival is watched for twice as many fixes as leaving the route
+    /// takes, and one more, in case it was told too soon (the fixes of a
+    /// walker who walked on trail them by a fix or two before they leave
+    /// the corridor: `gangway eval guidance`, docs/guidance.md).
     since_arrival: u32,
     walked: Walked,
 }
