@@ -68,6 +68,11 @@ pub struct Args {
     /// `OUT/checkpoints/iter-<N>/` (for `gangway eval planning --checkpoints`).
     #[arg(long)]
     checkpoint_every: Option<std::num::NonZeroUsize>,
+    /// Train only the desire lines from the walks (and the cell classifier
+    /// with --survey), not the GAN models: large sites, or walks whose
+    /// endpoints are all distinct pairs.
+    #[arg(long)]
+    desire_only: bool,
     /// Print the summary as JSON instead of text.
     #[arg(long)]
     json: bool,
@@ -127,18 +132,24 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                     tracing::info!(walks = recorded.len(), store = %db.display(), "walks from the learning store");
                     all.extend(recorded);
                 }
-                PathSet::from_trajectories(&site, &recorded::weighted(all), args.min_class_walks)
+                let all = recorded::weighted(all);
+                written.push(job::train_desire(
+                    &site, &all, &options, &args.out, &mut bars,
+                )?);
+                PathSet::from_trajectories(&site, &all, args.min_class_walks)
             }
         };
         walks = Some((set.walks.len(), set.classes.len()));
-        written.extend(job::train_paths(
-            &site,
-            &set,
-            &options,
-            args.access_weight,
-            &args.out,
-            &mut bars,
-        )?);
+        if !args.desire_only {
+            written.extend(job::train_paths(
+                &site,
+                &set,
+                &options,
+                args.access_weight,
+                &args.out,
+                &mut bars,
+            )?);
+        }
     }
     if let Some(path) = &args.survey {
         let anchors: Vec<String> = site.beacons.iter().map(|b| b.id.clone()).collect();
@@ -153,7 +164,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         .with_context(|| format!("cannot write {}", card.display()))?;
     let failed: Vec<&Trained> = written
         .iter()
-        .filter(|t| !t.passed() && matches!(t.kind, Kind::Generator | Kind::ConditionalGenerator))
+        .filter(|t| {
+            !t.passed()
+                && matches!(
+                    t.kind,
+                    Kind::Generator | Kind::ConditionalGenerator | Kind::DesireLines
+                )
+        })
         .collect();
     if args.json {
         let models: Vec<_> = written

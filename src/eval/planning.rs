@@ -244,7 +244,18 @@ fn judge_planner(
                 .plan(w.source(), w.destination(), walk_profile(w))
                 .ok()?;
             let cells = &planned.route.cells;
-            score(site, w, cells, &Polyline::of_cells(site, cells))
+            // A planner that drew a line is judged by it, as any-angle is
+            // by its vertices; else by its cells' centres.
+            let line = match &planned.line {
+                Some(points) => Polyline(
+                    points
+                        .iter()
+                        .map(|&p| plan::anyangle::world_of_point(site, p))
+                        .collect(),
+                ),
+                None => Polyline::of_cells(site, cells),
+            };
+            score(site, w, cells, &line)
         })
         .collect()
 }
@@ -401,7 +412,9 @@ fn evaluate_mode(
             Origin::Repaired => repaired += 1,
             _ => {}
         }
-        if !matches!(planned.origin, Origin::Untrained) && planned.frame.is_some() {
+        if !matches!(planned.origin, Origin::Untrained)
+            && (planned.frame.is_some() || planned.line.is_some())
+        {
             trained += 1;
         }
     }

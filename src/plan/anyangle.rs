@@ -38,6 +38,33 @@ pub fn centre(cell: Cell) -> GridPoint {
     [f64::from(cell.x) + 0.5, f64::from(cell.y) + 0.5]
 }
 
+/// `p` (cell units) in world metres through the site's frame.
+pub fn world_of_point(site: &Site, p: GridPoint) -> [f64; 2] {
+    let (origin, step) = frame_steps(site);
+    [
+        origin[0] + (p[0] - 0.5) * step[0],
+        origin[1] + (p[1] - 0.5) * step[1],
+    ]
+}
+
+/// A point in world metres in cell units (the inverse of [`world_of_point`]).
+pub fn point_of_world(site: &Site, w: [f64; 2]) -> GridPoint {
+    let (origin, step) = frame_steps(site);
+    [
+        0.5 + (w[0] - origin[0]) / step[0],
+        0.5 + (w[1] - origin[1]) / step[1],
+    ]
+}
+
+/// The world position of cell (0, 0)'s centre and how far one cell moves it
+/// along each axis (negative for a y axis pointing up): the site's frame is
+/// axis-aligned, so that is all of it.
+fn frame_steps(site: &Site) -> ([f64; 2], [f64; 2]) {
+    let a = site.world_of_cell(Cell::new(0, 0));
+    let b = site.world_of_cell(Cell::new(1, 1));
+    (a, [b[0] - a[0], b[1] - a[1]])
+}
+
 /// The cells a segment passes through, in order, from the cell holding `a`
 /// to the cell holding `b`.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -249,6 +276,10 @@ pub struct AnyAngle {
 impl AnyAngle {
     pub fn new(site: Arc<Site>) -> Self {
         AnyAngle { site }
+    }
+
+    pub fn site(&self) -> &Site {
+        &self.site
     }
 
     /// The straight segment from `from` to `to` when the profile may walk it
