@@ -133,9 +133,14 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                     all.extend(recorded);
                 }
                 let all = recorded::weighted(all);
-                written.push(job::train_desire(
-                    &site, &all, &options, &args.out, &mut bars,
-                )?);
+                match job::train_desire(&site, &all, &options, &args.out, &mut bars) {
+                    Ok(trained) => written.push(trained),
+                    // Too few walks for desire lines need not stop the GANs.
+                    Err(e) if !args.desire_only => {
+                        eprintln!("desire lines not trained: {e:#}");
+                    }
+                    Err(e) => return Err(e),
+                }
                 PathSet::from_trajectories(&site, &all, args.min_class_walks)
             }
         };

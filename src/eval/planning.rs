@@ -191,6 +191,8 @@ struct Score {
     frechet_m: f64,
     iou: f64,
     length_ratio: f64,
+    /// The learned frame or line behind the route needed repair.
+    repaired: bool,
 }
 
 /// Scores of the baselines on every held-out walk (`None`: no route, e.g.
@@ -228,6 +230,7 @@ fn score(site: &Site, walk: &Trajectory, cells: &[Cell], line: &Polyline) -> Opt
         } else {
             1.0
         },
+        repaired: false,
     })
 }
 
@@ -255,7 +258,8 @@ fn judge_planner(
                 ),
                 None => Polyline::of_cells(site, cells),
             };
-            score(site, w, cells, &line)
+            let repaired = planned.origin == Origin::Repaired;
+            score(site, w, cells, &line).map(|s| Score { repaired, ..s })
         })
         .collect()
 }
@@ -330,6 +334,7 @@ fn summary(scores: &[Option<Score>]) -> Value {
         "frechet_m_median": percentile(&mut column(|s| s.frechet_m), 0.5),
         "iou_mean": mean(&column(|s| s.iou)),
         "length_ratio_mean": mean(&column(|s| s.length_ratio)),
+        "repaired_share": mean(&column(|s| f64::from(u8::from(s.repaired)))),
     })
 }
 

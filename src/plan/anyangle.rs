@@ -249,6 +249,30 @@ pub fn without_loops<T>(items: Vec<T>, cell_of: impl Fn(&T) -> Cell) -> Vec<T> {
     out
 }
 
+/// The turning points of a walk pulled taut: from each kept cell, straight on
+/// to the farthest later cell the segment to which is [`clear`] for
+/// `passable`. String-pulling a grid route is the cheap any-angle route: a
+/// grid search plus one line check per cell, against Theta*'s line check per
+/// expanded neighbour.
+pub fn string_pulled(site: &Site, cells: &[Cell], passable: impl Fn(Cell) -> bool) -> Vec<Cell> {
+    let Some(&first) = cells.first() else {
+        return Vec::new();
+    };
+    let mut out = vec![first];
+    let mut anchor = first;
+    for w in cells.windows(2).skip(1) {
+        // w[1] is the next cell; w[0] the last one still in sight.
+        if !clear(site, anchor, w[1], &passable) {
+            anchor = w[0];
+            out.push(anchor);
+        }
+    }
+    if cells.len() > 1 {
+        out.push(*cells.last().expect("not empty"));
+    }
+    out
+}
+
 /// An any-angle route: the polyline (turning points, cell centres) and the
 /// 8-connected cells along it.
 #[derive(Clone, Debug, PartialEq)]

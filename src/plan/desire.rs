@@ -6,7 +6,9 @@
 //! (cell units). [`walkable_line`] keeps it where the profile may walk it and
 //! repairs it where not: a point on a cell the profile may not use is
 //! dropped, and a segment that crosses one is replaced by the any-angle route
-//! ([`AnyAngle`], Theta*) between its ends. The route is the cells along the result ([`polyline_cells`]: 8-connected,
+//! (its shortest grid route pulled taut, [`string_pulled`]: a grid search
+//! and a line check per cell, much cheaper than Theta* on large sites)
+//! between its ends. The route is the cells along the result ([`polyline_cells`]: 8-connected,
 //! no blocked corner cut, loops cut), validated like every route; a 4-connected
 //! site routes along those cells with the frame repair search. The answer
 //! carries the line itself ([`Planned::line`]), which is what a walker is
@@ -18,7 +20,8 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use super::anyangle::{AnyAngle, GridPoint, centre, polyline_cells, segment_cells};
+use super::anyangle::{GridPoint, centre, polyline_cells, segment_cells, string_pulled};
+use super::astar::profile_search;
 use super::frame::route_from_frame;
 use super::{Connectivity, Origin, PlanError, Planned, Planner, Profile, Route, Timings};
 use crate::model::runtime::DesireModel;
@@ -28,7 +31,6 @@ pub struct Desire {
     site: Arc<Site>,
     connectivity: Connectivity,
     model: DesireModel,
-    anyangle: AnyAngle,
     version: String,
 }
 
@@ -36,7 +38,6 @@ impl Desire {
     pub fn new(site: Arc<Site>, connectivity: Connectivity, model: DesireModel) -> Desire {
         let version = super::model_version(&[model.model()]);
         Desire {
-            anyangle: AnyAngle::new(site.clone()),
             site,
             connectivity,
             model,
@@ -75,7 +76,7 @@ impl Planner for Desire {
             .iter()
             .map(|p| [f64::from(p[0]), f64::from(p[1])])
             .collect();
-        let (line, repaired) = walkable_line(&self.anyangle, profile, &points, from, to)?;
+        let (line, repaired) = walkable_line(site, profile, &points, from, to)?;
         plan_along(site, self.connectivity, profile, line, repaired, from, to).map(|mut p| {
             p.timings = timings;
             p
@@ -133,13 +134,12 @@ fn plan_along(
 /// ends. When a repair cannot be made (a snapped point in a part of the site
 /// not connected to the route), the whole line is the any-angle route.
 pub fn walkable_line(
-    anyangle: &AnyAngle,
+    site: &Site,
     profile: Profile,
     points: &[GridPoint],
     from: Cell,
     to: Cell,
 ) -> Result<(Vec<GridPoint>, bool), PlanError> {
-    let site = anyangle.site();
     let passable = |c: Cell| profile.passable(site, c);
     let mut out = vec![centre(from)];
     let mut repaired = false;
@@ -165,22 +165,22 @@ pub fn walkable_line(
             cell_at(site, prev).expect("on the grid"),
             cell_at(site, p).expect("on the grid"),
         );
-        match anyangle.route(a, b, profile) {
+        match detour(site, profile, a, b) {
             Ok(leg) => {
                 // Through the centre of prev's cell, where Theta*'s clear
                 // segments start (prev may be anywhere in it).
                 if prev != centre(a) {
                     out.push(centre(a));
                 }
-                out.extend(leg.vertices[1..].iter().map(|&c| centre(c)));
+                out.extend(leg[1..].iter().map(|&c| centre(c)));
                 if centre(b) != p {
                     out.push(p);
                 }
             }
             Err(_) if !last => continue,
             Err(_) => {
-                let whole = anyangle.route(from, to, profile)?;
-                return Ok((whole.vertices.iter().map(|&c| centre(c)).collect(), true));
+                let whole = detour(site, profile, from, to)?;
+                return Ok((whole.iter().map(|&c| centre(c)).collect(), true));
             }
         }
     }
@@ -189,6 +189,13 @@ pub fn walkable_line(
         out.push(end);
     }
     Ok((out, repaired))
+}
+
+/// The any-angle way from `a` to `b` for `profile`: its shortest grid route
+/// pulled taut ([`string_pulled`]), as turning cells.
+fn detour(site: &Site, profile: Profile, a: Cell, b: Cell) -> Result<Vec<Cell>, PlanError> {
+    let route = profile_search(site, Connectivity::Eight, a, b, profile, |_| 1.0)?;
+    Ok(string_pulled(site, &route.cells, |c| profile.passable(site, c)))
 }
 
 /// The cell holding `p` (cell units), when it is on the grid.
@@ -227,7 +234,6 @@ mod tests {
     fn a_bent_line_is_kept_where_walkable_and_repaired_round_walls() {
         // 9 × 5 room with a wall in the middle of the bottom rows.
         let s = site("#########\n#########\n#########\n####.####\n####.####");
-        let any = AnyAngle::new(s.clone());
         let (from, to) = (Cell::new(0, 4), Cell::new(8, 4));
         // A line bowing up over the wall: walkable as it is.
         let over: Vec<GridPoint> = (0..=8)
@@ -236,7 +242,7 @@ mod tests {
                 [0.5 + 8.0 * t, 4.5 - 8.0 * t * (1.0 - t) * 1.5]
             })
             .collect();
-        let (line, repaired) = walkable_line(&any, Profile::Default, &over, from, to).unwrap();
+        let (line, repaired) = walkable_line(&s, Profile::Default, &over, from, to).unwrap();
         assert!(!repaired, "{line:?}");
         let planned = plan_along(
             &s,
@@ -251,7 +257,7 @@ mod tests {
         assert_eq!(planned.origin, Origin::Frame);
         // The straight line through the wall: repaired round it.
         let straight = vec![centre(from), [4.5, 4.5], centre(to)];
-        let (line, repaired) = walkable_line(&any, Profile::Default, &straight, from, to).unwrap();
+        let (line, repaired) = walkable_line(&s, Profile::Default, &straight, from, to).unwrap();
         assert!(repaired);
         let planned = plan_along(
             &s,

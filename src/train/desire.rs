@@ -98,7 +98,7 @@ pub fn train(site: &Arc<Site>, walks: &[Trajectory]) -> anyhow::Result<Trained> 
                     shrink,
                 );
                 for i in fold.clone() {
-                    score.add(site, &any, &model, &prepared[i], baseline[i], step);
+                    score.add(site, &model, &prepared[i], baseline[i], step);
                 }
             }
             if best.as_ref().is_none_or(|(b, _, _)| score.better_than(b)) {
@@ -145,7 +145,6 @@ impl Score {
     fn add(
         &mut self,
         site: &Site,
-        any: &AnyAngle,
         model: &DesireLines,
         walk: &Walk,
         baseline: Option<f64>,
@@ -159,7 +158,7 @@ impl Score {
             .map(|p| [f64::from(p[0]), f64::from(p[1])])
             .collect();
         let Ok((line, repaired)) =
-            walkable_line(any, Profile::Default, &points, cell_of(a), cell_of(b))
+            walkable_line(site, Profile::Default, &points, cell_of(a), cell_of(b))
         else {
             return;
         };
