@@ -31,7 +31,7 @@ use crate::train::trajectory::Trajectory;
 /// Consecutive time folds of the cross-validation.
 pub const FOLDS: usize = 3;
 /// Kernel widths tried, metres (converted to cells at the site's cell size).
-pub const SIGMAS_M: [f64; 7] = [0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0];
+pub const SIGMAS_M: [f64; 8] = [0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0];
 /// Shrinkage strengths tried.
 pub const SHRINKS: [f32; 8] = [0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0];
 
