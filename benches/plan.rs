@@ -97,7 +97,10 @@ fn pillared_site(side: usize) -> Site {
 }
 
 /// Sorted request times of `planner` over `pairs`, µs.
-fn request_times(planner: &dyn plan::Planner, pairs: &[(gangway::site::Cell, gangway::site::Cell)]) -> Vec<f64> {
+fn request_times(
+    planner: &dyn plan::Planner,
+    pairs: &[(gangway::site::Cell, gangway::site::Cell)],
+) -> Vec<f64> {
     let mut times: Vec<f64> = pairs
         .iter()
         .map(|&(a, b)| {
@@ -181,7 +184,10 @@ fn draw_scale(rows: &[[f64; 6]]) {
     let root = SVGBackend::new(&out, (720, 420)).into_drawing_area();
     root.fill(&WHITE).unwrap();
     let mut chart = ChartBuilder::on(&root)
-        .caption("desire lines: cost against walkable cells", ("sans-serif", 18))
+        .caption(
+            "desire lines: cost against walkable cells",
+            ("sans-serif", 18),
+        )
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(60)

@@ -189,12 +189,12 @@ fn shipped_models_run_in_tract_and_write_reference_outputs() {
         // (Desire lines are no generator: whether tract finds float16-exact
         // constants in their bank does not matter.)
         if kind != Kind::DesireLines {
-        assert_eq!(
-            model.has_single_row_plan(),
-            matches!(kind, Kind::Generator | Kind::ConditionalGenerator),
-            "{}",
-            path.display()
-        );
+            assert_eq!(
+                model.has_single_row_plan(),
+                matches!(kind, Kind::Generator | Kind::ConditionalGenerator),
+                "{}",
+                path.display()
+            );
         }
         // One row runs its own plan when the weights are float16
         // (model::runtime); it must give that row of the batch, and

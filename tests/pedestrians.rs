@@ -130,7 +130,10 @@ fn desire_beats_the_baselines(report: &Value, scene: &str) {
     let closer = desire["closer_than"]["anyangle"]["share"].as_f64().unwrap();
     assert!(closer >= 0.55, "{scene}: closer than any-angle on {closer}");
     let closer_astar = desire["closer_than"]["astar"]["share"].as_f64().unwrap();
-    assert!(closer_astar >= 0.6, "{scene}: closer than A* on {closer_astar}");
+    assert!(
+        closer_astar >= 0.6,
+        "{scene}: closer than A* on {closer_astar}"
+    );
     let median = |v: &Value| v["dtw_m_median"].as_f64().unwrap();
     for baseline in ["anyangle", "astar"] {
         let b = &report["baselines"][baseline];
@@ -141,7 +144,10 @@ fn desire_beats_the_baselines(report: &Value, scene: &str) {
         );
     }
     let repaired = desire["repaired_share"].as_f64().unwrap();
-    assert!(repaired <= 0.2, "{scene}: {repaired} of held-out routes repaired");
+    assert!(
+        repaired <= 0.2,
+        "{scene}: {repaired} of held-out routes repaired"
+    );
 }
 
 #[test]
@@ -211,6 +217,7 @@ fn real_walks_are_imported_and_judged_and_a_trained_directory_is_served() {
         "--out",
         text(&models),
         "--conditional",
+        "--desire",
         "--iterations",
         "150",
         "--classifier-iterations",

@@ -68,6 +68,10 @@ pub struct Args {
     /// `OUT/checkpoints/iter-<N>/` (for `gangway eval planning --checkpoints`).
     #[arg(long)]
     checkpoint_every: Option<std::num::NonZeroUsize>,
+    /// Also train the desire lines (`desire_lines.onnx`, the `desire`
+    /// planner) from the walks: settings cross-validated on them, seconds.
+    #[arg(long)]
+    desire: bool,
     /// Train only the desire lines from the walks (and the cell classifier
     /// with --survey), not the GAN models: large sites, or walks whose
     /// endpoints are all distinct pairs.
@@ -133,13 +137,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                     all.extend(recorded);
                 }
                 let all = recorded::weighted(all);
-                match job::train_desire(&site, &all, &options, &args.out, &mut bars) {
-                    Ok(trained) => written.push(trained),
-                    // Too few walks for desire lines need not stop the GANs.
-                    Err(e) if !args.desire_only => {
-                        eprintln!("desire lines not trained: {e:#}");
-                    }
-                    Err(e) => return Err(e),
+                if args.desire || args.desire_only {
+                    written.push(job::train_desire(
+                        &site, &all, &options, &args.out, &mut bars,
+                    )?);
                 }
                 PathSet::from_trajectories(&site, &all, args.min_class_walks)
             }

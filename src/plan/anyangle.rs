@@ -599,4 +599,41 @@ mod tests {
         let walk = vec![c(0, 0), c(1, 0), c(1, 1), c(0, 1), c(1, 0), c(2, 0)];
         assert_eq!(without_loops(walk, |&c| c), vec![c(0, 0), c(1, 0), c(2, 0)]);
     }
+
+    #[test]
+    fn string_pulling_keeps_only_the_corners_and_points_map_to_metres_and_back() {
+        let text = "name = \"t\"\ncell_m = 0.5\norigin_m = [2.0, 9.0]\ny_axis = \"up\"\nmap = '''\n#####\n#....\n#####\n'''\n";
+        let s = Site::parse(text, std::path::Path::new("t.toml")).unwrap();
+        // Down the left column, then along the bottom row.
+        let walk: Vec<Cell> = [
+            (4, 0),
+            (3, 0),
+            (2, 0),
+            (1, 0),
+            (0, 0),
+            (0, 1),
+            (0, 2),
+            (1, 2),
+            (2, 2),
+            (3, 2),
+            (4, 2),
+        ]
+        .map(|(x, y)| Cell::new(x, y))
+        .to_vec();
+        let taut = string_pulled(&s, &walk, |c| s.walkable(c));
+        assert_eq!(taut.first(), Some(&Cell::new(4, 0)));
+        assert_eq!(taut.last(), Some(&Cell::new(4, 2)));
+        assert!(taut.len() <= 4, "{taut:?}");
+        for w in taut.windows(2) {
+            assert!(clear(&s, w[0], w[1], |c| s.walkable(c)), "{taut:?}");
+        }
+        let p = [1.25, 2.75];
+        let w = world_of_point(&s, p);
+        assert!(
+            (w[0] - (2.0 + 1.25 * 0.5)).abs() < 1e-9 && (w[1] - (9.0 - 2.75 * 0.5)).abs() < 1e-9,
+            "{w:?}"
+        );
+        let back = point_of_world(&s, w);
+        assert!((back[0] - p[0]).abs() < 1e-9 && (back[1] - p[1]).abs() < 1e-9);
+    }
 }

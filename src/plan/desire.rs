@@ -195,7 +195,9 @@ pub fn walkable_line(
 /// pulled taut ([`string_pulled`]), as turning cells.
 fn detour(site: &Site, profile: Profile, a: Cell, b: Cell) -> Result<Vec<Cell>, PlanError> {
     let route = profile_search(site, Connectivity::Eight, a, b, profile, |_| 1.0)?;
-    Ok(string_pulled(site, &route.cells, |c| profile.passable(site, c)))
+    Ok(string_pulled(site, &route.cells, |c| {
+        profile.passable(site, c)
+    }))
 }
 
 /// The cell holding `p` (cell units), when it is on the grid.

@@ -69,7 +69,7 @@ pub fn train(site: &Arc<Site>, walks: &[Trajectory]) -> anyhow::Result<Trained> 
     let baseline: Vec<Option<f64>> = prepared
         .iter()
         .map(|w| {
-            let [a, b] = w.ends.map(|p| cell_of(p));
+            let [a, b] = w.ends.map(cell_of);
             let r = any.route(a, b, Profile::Default).ok()?;
             let line = metres(
                 site,
