@@ -36,7 +36,14 @@ pub struct Desire {
 
 impl Desire {
     pub fn new(site: Arc<Site>, connectivity: Connectivity, model: DesireModel) -> Desire {
-        let version = super::model_version(&[model.model()]);
+        // "desire_lines@474lines/seed1": the bank is what was learned.
+        let meta = model.model().metadata();
+        let version = format!(
+            "{}@{}lines/seed{}",
+            meta.kind.name(),
+            meta.metrics.get("bank_lines").copied().unwrap_or(0.0),
+            meta.seed
+        );
         Desire {
             site,
             connectivity,

@@ -353,15 +353,7 @@ fn train_gan(
     let mut metrics = measure(&mut trained.generator);
     metrics.insert("train_seconds".into(), seconds);
     let checks = checks(run.kinds[0], &metrics);
-    let passed = checks.iter().all(Check::passed);
-    let dir = if passed || options.accept_failed {
-        out.to_owned()
-    } else {
-        let dir = out.join("failed");
-        std::fs::create_dir_all(&dir)
-            .with_context(|| format!("cannot create {}", dir.display()))?;
-        dir
-    };
+    let dir = destination(out, &checks, options)?;
     let mut written = write_gan(
         &dir,
         run.kinds,
@@ -376,6 +368,17 @@ fn train_gan(
         t.checks = checks.clone();
     }
     Ok(written)
+}
+
+/// Where a model that was held to `checks` is written: `out` when it passed
+/// them (or `accept_failed`), else `out/failed/`, where planners do not look.
+fn destination(out: &Path, checks: &[Check], options: &Options) -> anyhow::Result<PathBuf> {
+    if checks.iter().all(Check::passed) || options.accept_failed {
+        return Ok(out.to_owned());
+    }
+    let dir = out.join("failed");
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    Ok(dir)
 }
 
 /// Trains the desire lines on `walks` (cross-validating their settings) and
@@ -398,15 +401,7 @@ pub fn train_desire(
     meta.metrics
         .insert("train_seconds".into(), started.elapsed().as_secs_f64());
     let checks = checks(Kind::DesireLines, &meta.metrics);
-    let passed = checks.iter().all(Check::passed);
-    let dir = if passed || options.accept_failed {
-        out.to_owned()
-    } else {
-        let dir = out.join("failed");
-        std::fs::create_dir_all(&dir)
-            .with_context(|| format!("cannot create {}", dir.display()))?;
-        dir
-    };
+    let dir = destination(out, &checks, options)?;
     let file = dir.join(format!("{}.onnx", Kind::DesireLines.name()));
     export::write_proto(&file, &trained.model.to_onnx(&meta))
         .with_context(|| format!("cannot write {}", file.display()))?;
