@@ -23,6 +23,7 @@ pub mod desire;
 mod error_code;
 pub mod frame;
 pub mod instructions;
+pub mod lines;
 pub mod picture;
 mod profile;
 pub mod rejection;

@@ -20,11 +20,11 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use crate::eval::similarity::{Polyline, shape};
 use crate::model::desire::{DesireLines, POINTS};
 use crate::plan::Profile;
 use crate::plan::anyangle::{AnyAngle, GridPoint, centre, point_of_world, world_of_point};
 use crate::plan::desire::walkable_line;
+use crate::plan::lines::{Polyline, shape};
 use crate::site::Site;
 use crate::train::trajectory::Trajectory;
 
