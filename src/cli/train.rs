@@ -249,10 +249,16 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         eprintln!("written where planners load them anyway (--accept-failed)");
         return Ok(ExitCode::SUCCESS);
     }
+    let hint = if failed.iter().all(|t| t.kind == Kind::DesireLines) {
+        "Desire lines that do not beat the any-angle route on the training walks' later \
+         folds need more walks (recorded walks of real people, --from-store), or the astar \
+         mode meanwhile"
+    } else {
+        "Try more --iterations, more walks per source/destination pair (or coarser cells: \
+         --cell-m), fewer rare pairs (--min-class-walks), or serve the astar mode meanwhile"
+    };
     eprintln!(
-        "not servable: written to {} instead, see {}. Try more --iterations, more walks per \
-         source/destination pair (or coarser cells: --cell-m), fewer rare pairs \
-         (--min-class-walks), or serve the astar mode meanwhile",
+        "not servable: written to {} instead, see {}. {hint}",
         args.out.join("failed").display(),
         card.display()
     );
@@ -301,12 +307,29 @@ fn model_card(
             args.min_class_walks
         );
     }
-    let _ = writeln!(
-        card,
-        "- iterations {}, batch {}, seed {}
-",
-        args.iterations, args.batch, args.seed
-    );
+    if !args.desire_only {
+        let _ = writeln!(
+            card,
+            "- GAN iterations {}, batch {}, seed {}",
+            args.iterations, args.batch, args.seed
+        );
+    }
+    for t in written.iter().filter(|t| t.kind == Kind::DesireLines) {
+        let m = |k: &str| t.metrics.get(k).copied().unwrap_or(f64::NAN);
+        let _ = writeln!(
+            card,
+            "- `desire_lines.onnx` is no neural network: a kernel regression over the \
+             shapes of {:.0} walks (each both ways) conditioned on the endpoints' coordinates, \
+             shrunk towards the straight line where the neighbouring walks disagree; kernel \
+             width σ {} m and shrinkage {} chosen by {} time-ordered folds of these walks \
+             (docs/planning.md, \"Desire lines\")",
+            m("bank_lines") / 2.0,
+            m("sigma_m"),
+            m("shrink"),
+            crate::train::desire::FOLDS
+        );
+    }
+    let _ = writeln!(card);
     let _ = writeln!(card, "| file | kind | servable | metrics | checks |");
     let _ = writeln!(card, "|---|---|---|---|---|");
     for t in written {
