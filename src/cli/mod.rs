@@ -96,12 +96,13 @@ struct PlannerSource {
     #[arg(long)]
     site: Option<PathBuf>,
     /// Serve the models in this directory (`generator.onnx`,
-    /// `path_classifier.onnx`, `conditional_generator.onnx`, as `gangway
-    /// train --out` writes them) instead of the config's `[planner.models]`.
+    /// `path_classifier.onnx`, `conditional_generator.onnx`,
+    /// `desire_lines.onnx`, as `gangway train --out` writes them) instead of
+    /// the config's `[planner.models]`.
     #[arg(long)]
     models: Option<PathBuf>,
     /// The planner mode instead of the config's `[planner] mode`: astar,
-    /// rejection or conditional.
+    /// rejection, conditional or desire.
     #[arg(long, value_parser = parse_mode)]
     mode: Option<crate::plan::PlannerMode>,
 }
@@ -144,6 +145,7 @@ impl PlannerSource {
             planner.models.generator = file(Kind::Generator);
             planner.models.path_classifier = file(Kind::PathClassifier);
             planner.models.conditional_generator = file(Kind::ConditionalGenerator);
+            planner.models.desire_lines = file(Kind::DesireLines);
         }
         if let Some(mode) = self.mode {
             planner.mode = mode;
