@@ -35,3 +35,4 @@ pub mod store;
 pub mod throttle;
 pub mod train;
 pub mod walks;
+pub mod web;

@@ -1,0 +1,185 @@
+//! The browser UI: an HTTP server (axum) with a live floor map, a site
+//! editor over a floor-plan image, and the JSON they read.
+//!
+//! What it owns: the routes ([`router`]), who may write ([`security`]), the
+//! site as the pages draw it ([`view`]), the editor's API ([`editor`]) and
+//! the pages themselves ([`assets`], built into the binary). It is a sink of
+//! the gateway and a front end of the site file; the pipeline knows nothing
+//! of it.
+//!
+//! Invariants: nothing the air or the broker names is ever put into a page
+//! as HTML (the scripts only set text and attributes), every response
+//! carries the Content-Security-Policy of [`security`], every write passes
+//! [`security::guard`], and the token is never served.
+
+mod assets;
+pub mod config;
+mod editor;
+mod security;
+mod view;
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::sync::Arc;
+
+use axum::Router;
+use axum::extract::{DefaultBodyLimit, State};
+use axum::response::{IntoResponse, Redirect, Response};
+use axum::routing::get;
+use tokio::net::TcpListener;
+
+pub use config::WebConfig;
+pub use editor::Editor;
+pub use security::CONTENT_SECURITY_POLICY;
+
+use crate::site::Site;
+
+/// Largest JSON body taken (an edited site document).
+const MAX_JSON_BYTES: usize = 4 << 20;
+
+/// What one server serves: the site on the map, the editor, or both.
+pub struct Ui {
+    /// The site the map shows; none in an editor-only server.
+    pub site: Option<Arc<Site>>,
+    pub editor: Option<Editor>,
+}
+
+#[derive(Clone)]
+struct App {
+    guard: Arc<security::Guard>,
+    site: Option<Arc<Site>>,
+    editor: Option<Arc<Editor>>,
+}
+
+/// A bound, not yet serving, web server.
+pub struct Server {
+    listener: TcpListener,
+    addr: SocketAddr,
+    guard: Arc<security::Guard>,
+}
+
+impl Server {
+    /// Binds `[web] bind` and reads the token. A token file that is named
+    /// but unreadable is an error; none at all off loopback serves the map
+    /// only (and says so).
+    pub async fn bind(config: &WebConfig) -> anyhow::Result<Server> {
+        let token = config.token().map_err(anyhow::Error::msg)?;
+        let listener = TcpListener::bind(config.bind)
+            .await
+            .map_err(|e| anyhow::anyhow!("[web] cannot listen on {}: {e}", config.bind))?;
+        let addr = listener.local_addr()?;
+        if config.needs_token() && token.is_none() && !config.read_only {
+            tracing::warn!(
+                %addr,
+                "[web] bound off loopback without a token: serving the map only; set [web] \
+                 token_file or the systemd credential {}",
+                config::TOKEN_CREDENTIAL
+            );
+        }
+        let guard = Arc::new(security::Guard::new(addr, config.read_only, token));
+        Ok(Server {
+            listener,
+            addr,
+            guard,
+        })
+    }
+
+    /// Where it listens (the real port when `bind` asked for port 0).
+    pub fn addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// Serves until `shutdown` completes.
+    pub async fn serve(
+        self,
+        ui: Ui,
+        shutdown: impl Future<Output = ()> + Send + 'static,
+    ) -> anyhow::Result<()> {
+        let app = App {
+            guard: self.guard.clone(),
+            site: ui.site,
+            editor: ui.editor.map(Arc::new),
+        };
+        axum::serve(self.listener, router(app))
+            .with_graceful_shutdown(shutdown)
+            .await?;
+        Ok(())
+    }
+}
+
+fn router(app: App) -> Router {
+    let mut routes = Router::new()
+        .route("/", get(index))
+        .route("/assets/{name}", get(assets::asset))
+        .route("/healthz", get(healthz))
+        .route("/api/site", get(site))
+        .route("/api/floorplan", get(floorplan))
+        .route("/api/access", get(access));
+    if let Some(editor) = &app.editor {
+        routes = routes.route("/edit", get(assets::edit_page)).merge(
+            Router::new()
+                .route("/api/editor", get(editor::get))
+                .route("/api/editor/check", axum::routing::post(editor::check))
+                .route("/api/editor/site", axum::routing::put(editor::save))
+                .route(
+                    "/api/editor/image",
+                    get(editor::image)
+                        .put(editor::upload)
+                        .layer(DefaultBodyLimit::max(crate::site::MAX_IMAGE_BYTES as usize)),
+                )
+                .with_state(editor.clone()),
+        );
+    }
+    routes
+        .layer(DefaultBodyLimit::max(MAX_JSON_BYTES))
+        .layer(axum::middleware::from_fn_with_state(
+            app.guard.clone(),
+            security::guard,
+        ))
+        .with_state(app)
+}
+
+/// The map, or the editor when there is no site to map.
+async fn index(State(app): State<App>) -> Response {
+    match app.site {
+        Some(_) => assets::map_page().await.into_response(),
+        None => Redirect::temporary("/edit").into_response(),
+    }
+}
+
+async fn healthz() -> impl IntoResponse {
+    axum::Json(serde_json::json!({ "status": "ok" }))
+}
+
+async fn access(State(app): State<App>) -> impl IntoResponse {
+    let mut access = app.guard.access();
+    access["editor"] = app.editor.is_some().into();
+    access["map"] = app.site.is_some().into();
+    axum::Json(access)
+}
+
+/// `GET /api/site`: the map's site; an editor-only server sends the editor.
+async fn site(State(app): State<App>) -> Response {
+    match &app.site {
+        Some(site) => {
+            let url = site.floorplan().map(|_| "/api/floorplan");
+            axum::Json(view::SiteView::new(site, url)).into_response()
+        }
+        None => security::error(
+            axum::http::StatusCode::NOT_FOUND,
+            "not_found",
+            "this server edits a site file and maps none; see /edit",
+        ),
+    }
+}
+
+async fn floorplan(State(app): State<App>) -> Response {
+    match app.site.as_ref().and_then(|s| s.floorplan()) {
+        Some(plan) => editor::image_file(&plan.image),
+        None => security::error(
+            axum::http::StatusCode::NOT_FOUND,
+            "not_found",
+            "the site names no floor plan",
+        ),
+    }
+}

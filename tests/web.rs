@@ -1,0 +1,555 @@
+//! The browser UI in a real browser: Debian's chromium driven over WebDriver
+//! (chromedriver) by fantoccini, one browser session for every check.
+//!
+//! Without chromium and chromedriver (packages `chromium`, `chromium-driver`;
+//! `.ci/run` installs them) the browser test prints a note and skips, except
+//! in CI. The HTTP checks (headers, the token, cross-site writes) need no
+//! browser. Screenshots of every page go to `target/web-screenshots/`.
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use fantoccini::actions::{
+    InputSource, KeyAction, KeyActions, MOUSE_BUTTON_LEFT, MouseActions, PointerAction,
+};
+use fantoccini::{Client, ClientBuilder, Locator};
+use serde_json::{Value, json};
+
+const HOSTILE: &str = "<img src=x onerror=\"window.__pwned=1\">";
+
+/// A child process killed when dropped.
+struct Proc(Child);
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// `gangway site edit` on a free port; returns it and its base URL.
+fn editor(site: &Path, extra: &[&str]) -> (Proc, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_gangway"))
+        .args(["site", "edit", "--site"])
+        .arg(site)
+        .args(extra)
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("gangway runs");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let url = line
+        .split_whitespace()
+        .find(|w| w.starts_with("http://"))
+        .unwrap_or_else(|| panic!("no URL in {line:?}"))
+        .trim_end_matches("/edit")
+        .to_owned();
+    (Proc(child), url)
+}
+
+fn screenshots() -> PathBuf {
+    let dir = common::root().join("target/web-screenshots");
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// chromedriver and a headless chromium session, or none (skip) when they
+/// are not installed outside CI.
+struct Browser {
+    client: Client,
+    _driver: Proc,
+    _profile: tempfile::TempDir,
+}
+
+impl Browser {
+    async fn start() -> Option<Browser> {
+        let (chromium, driver) = (
+            Path::new("/usr/bin/chromium"),
+            Path::new("/usr/bin/chromedriver"),
+        );
+        if !(chromium.exists() && driver.exists()) {
+            assert!(
+                std::env::var_os("CI").is_none(),
+                "CI needs chromium and chromium-driver"
+            );
+            eprintln!(
+                "skipped: no /usr/bin/chromium or /usr/bin/chromedriver (Debian: apt install chromium chromium-driver)"
+            );
+            return None;
+        }
+        let port = free_port();
+        let child = Command::new(driver)
+            .arg(format!("--port={port}"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("chromedriver runs");
+        let driver = Proc(child);
+        let deadline = Instant::now() + Duration::from_secs(20);
+        while TcpStream::connect(("127.0.0.1", port)).is_err() {
+            assert!(Instant::now() < deadline, "chromedriver did not listen");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let profile = tempfile::tempdir().unwrap();
+        let mut caps = serde_json::Map::new();
+        caps.insert(
+            "goog:chromeOptions".into(),
+            json!({
+                "binary": chromium,
+                "args": [
+                    "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                    "--no-first-run", "--disable-background-networking",
+                    "--disable-component-update", "--disable-sync",
+                    "--disable-dev-shm-usage", "--window-size=1500,950",
+                    format!("--user-data-dir={}", profile.path().display()),
+                ],
+            }),
+        );
+        let client = ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
+            .capabilities(caps)
+            .connect(&format!("http://127.0.0.1:{port}"))
+            .await
+            .expect("a chromium session");
+        Some(Browser {
+            client,
+            _driver: driver,
+            _profile: profile,
+        })
+    }
+
+    async fn js(&self, script: &str) -> Value {
+        self.client
+            .execute(script, vec![])
+            .await
+            .unwrap_or_else(|e| panic!("{script}: {e}"))
+    }
+
+    /// Waits until `script` returns true (a timeout fails the test with
+    /// what `describe` returns then).
+    async fn until(&self, what: &str, script: &str, describe: &str) {
+        let deadline = Instant::now() + Duration::from_secs(20);
+        loop {
+            if self.js(script).await == Value::Bool(true) {
+                return;
+            }
+            if Instant::now() > deadline {
+                let now = self.js(describe).await;
+                panic!("timed out waiting for {what}: {now}");
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    }
+
+    async fn text(&self, id: &str) -> String {
+        self.js(&format!(
+            "return document.getElementById('{id}').textContent"
+        ))
+        .await
+        .as_str()
+        .unwrap_or_default()
+        .to_owned()
+    }
+
+    async fn click_id(&self, id: &str) {
+        self.client
+            .find(Locator::Id(id))
+            .await
+            .unwrap()
+            .click()
+            .await
+            .unwrap();
+    }
+
+    async fn tool(&self, name: &str) {
+        self.client
+            .find(Locator::Css(&format!("input[name=tool][value={name}]")))
+            .await
+            .unwrap()
+            .click()
+            .await
+            .unwrap();
+    }
+
+    async fn type_into(&self, id: &str, text: &str) {
+        let input = self.client.find(Locator::Id(id)).await.unwrap();
+        input.clear().await.unwrap();
+        input.send_keys(text).await.unwrap();
+    }
+
+    /// Viewport coordinates of pixels of the floor-plan image.
+    async fn image_points(&self, pixels: &[[f64; 2]]) -> Vec<[f64; 2]> {
+        let script = format!(
+            "const m = document.querySelector('.layer-floorplan image').getScreenCTM();
+             return {}.map(p => {{ const q = new DOMPoint(p[0], p[1]).matrixTransform(m); return [q.x, q.y]; }});",
+            serde_json::to_string(pixels).unwrap()
+        );
+        serde_json::from_value(self.js(&script).await).unwrap()
+    }
+
+    async fn click_at(&self, [x, y]: [f64; 2]) {
+        let mouse = MouseActions::new("mouse".into())
+            .then(PointerAction::MoveTo {
+                duration: None,
+                x: x.round(),
+                y: y.round(),
+            })
+            .then(PointerAction::Down {
+                button: MOUSE_BUTTON_LEFT,
+            })
+            .then(PointerAction::Up {
+                button: MOUSE_BUTTON_LEFT,
+            });
+        self.client.perform_actions(mouse).await.unwrap();
+        self.client.release_actions().await.unwrap();
+    }
+
+    /// A Shift-drag from `a` to `b`.
+    async fn shift_drag(&self, a: [f64; 2], b: [f64; 2]) {
+        let shift = '\u{e008}';
+        let keys = KeyActions::new("keys".into())
+            .then(KeyAction::Down { value: shift })
+            .pause(Duration::from_millis(10))
+            .pause(Duration::from_millis(10))
+            .pause(Duration::from_millis(10))
+            .then(KeyAction::Up { value: shift });
+        let mouse = MouseActions::new("mouse".into())
+            .pause(Duration::from_millis(10))
+            .then(PointerAction::MoveTo {
+                duration: None,
+                x: a[0].round(),
+                y: a[1].round(),
+            })
+            .then(PointerAction::Down {
+                button: MOUSE_BUTTON_LEFT,
+            })
+            .then(PointerAction::MoveTo {
+                duration: Some(Duration::from_millis(100)),
+                x: b[0].round(),
+                y: b[1].round(),
+            })
+            .then(PointerAction::Up {
+                button: MOUSE_BUTTON_LEFT,
+            });
+        self.client
+            .perform_actions(fantoccini::actions::Actions::from(keys).and(mouse))
+            .await
+            .unwrap();
+        self.client.release_actions().await.unwrap();
+    }
+
+    async fn screenshot(&self, name: &str) {
+        let png = self.client.screenshot().await.unwrap();
+        std::fs::write(screenshots().join(name), png).unwrap();
+    }
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_web_ui_in_a_real_browser() {
+    let Some(plan) = common::shared_data("uci-ble-rssi/iBeacon_Layout.jpg") else {
+        return;
+    };
+    let Some(browser) = Browser::start().await else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let site = dir.path().join("library.toml");
+    let image = dir.path().join("iBeacon_Layout.jpg");
+    the_editor_goes_from_a_plan_image_to_a_valid_site(&browser, &site, &plan, &image).await;
+    browser.client.close().await.unwrap();
+}
+
+/// A new user, no TOML: open the plan, set the scale, paint the floor,
+/// place beacons and places (one with a hostile name), save; `gangway check`
+/// accepts the file, and opening and saving it again changes nothing.
+async fn the_editor_goes_from_a_plan_image_to_a_valid_site(
+    browser: &Browser,
+    site: &Path,
+    plan: &Path,
+    image: &Path,
+) {
+    let (_server, url) = editor(site, &[]);
+    browser.client.goto(&format!("{url}/edit")).await.unwrap();
+    browser
+        .until(
+            "the first check",
+            "return document.getElementById('problems').children.length > 0",
+            "return document.getElementById('check-summary').textContent",
+        )
+        .await;
+    assert!(
+        browser
+            .text("problems")
+            .await
+            .contains("the site needs a `map`"),
+        "{}",
+        browser.text("problems").await
+    );
+
+    // 1. The plan image, uploaded through the file picker. The dataset's
+    // file is only copied into a temporary directory, never into the repo.
+    let input = browser
+        .client
+        .find(Locator::Id("image-file"))
+        .await
+        .unwrap();
+    let plan = std::fs::canonicalize(plan).unwrap();
+    input.send_keys(plan.to_str().unwrap()).await.unwrap();
+    browser
+        .until(
+            "the plan image",
+            "return !!document.querySelector('.layer-floorplan image')",
+            "return document.getElementById('save-status').textContent",
+        )
+        .await;
+    assert_eq!(std::fs::read(image).unwrap(), std::fs::read(&plan).unwrap());
+
+    // 2. The scale: the centres of survey cells A01 and W01 are 22 m apart
+    // (one survey cell = 1 m, as in config/sites/waldo.toml).
+    browser.tool("measure").await;
+    let points = browser
+        .image_points(&[
+            [120.0, 118.0],
+            [692.0, 118.0],
+            [107.0, 105.0],
+            [718.0, 495.0],
+        ])
+        .await;
+    browser.click_at(points[0]).await;
+    browser.click_at(points[1]).await;
+    browser.type_into("scale-m", "22").await;
+    browser.click_id("scale-apply").await;
+    let info = browser.text("scale-info").await;
+    assert!(info.contains("px per metre"), "{info}");
+    browser
+        .until(
+            "the blocked grid's check",
+            "return document.getElementById('problems').textContent.includes('no cell is walkable')",
+            "return document.getElementById('problems').textContent",
+        )
+        .await;
+
+    // 3. The surveyed floor, A01 to W15, painted walkable with a Shift-drag.
+    let points = browser
+        .image_points(&[[107.0, 105.0], [718.0, 495.0]])
+        .await;
+    browser.tool("paint").await;
+    browser.shift_drag(points[0], points[1]).await;
+
+    // 4. Beacons where the plan shows 2, 3 and 4; places, one named to attack.
+    browser.tool("beacon").await;
+    for p in browser
+        .image_points(&[[361.0, 194.0], [469.0, 194.0], [587.0, 194.0]])
+        .await
+    {
+        browser.click_at(p).await;
+    }
+    browser.tool("place").await;
+    let places = browser
+        .image_points(&[[360.0, 358.0], [700.0, 480.0]])
+        .await;
+    browser.type_into("place-name", HOSTILE).await;
+    browser.click_at(places[0]).await;
+    browser.type_into("place-name", "east entrance").await;
+    browser.click_at(places[1]).await;
+    browser
+        .until(
+            "a valid site",
+            "return document.getElementById('check-summary').textContent.startsWith('ok:')",
+            "return document.getElementById('check-summary').textContent + ' | ' + document.getElementById('problems').textContent",
+        )
+        .await;
+    let summary = browser.text("check-summary").await;
+    assert!(summary.contains("3 beacons, 2 places"), "{summary}");
+
+    // The hostile name is text: no element made of it, no handler run.
+    let hostile = browser
+        .js(
+            "return { imgs: document.querySelectorAll('img').length, pwned: window.__pwned === 1,
+                      names: [...document.querySelectorAll('.place-name')].map(t => t.textContent),
+                      listed: document.getElementById('places').textContent }",
+        )
+        .await;
+    assert_eq!(hostile["imgs"], 0, "{hostile}");
+    assert_eq!(hostile["pwned"], false, "{hostile}");
+    assert!(
+        hostile["names"]
+            .as_array()
+            .unwrap()
+            .contains(&json!(HOSTILE)),
+        "{hostile}"
+    );
+    assert!(
+        hostile["listed"].as_str().unwrap().contains(HOSTILE),
+        "{hostile}"
+    );
+    browser.screenshot("editor.png").await;
+
+    // 5. Save; `gangway check` accepts the file.
+    browser.click_id("save").await;
+    browser
+        .until(
+            "the save",
+            "return document.getElementById('save-status').textContent.startsWith('saved')",
+            "return document.getElementById('save-status').textContent",
+        )
+        .await;
+    let saved = std::fs::read_to_string(site).unwrap();
+    assert!(
+        saved.contains("[floorplan]") && saved.contains("image = \"iBeacon_Layout.jpg\""),
+        "{saved}"
+    );
+    let config = site.with_file_name("gangway.toml");
+    std::fs::write(
+        &config,
+        "gateway_id = \"gw-test\"\nsite = \"library.toml\"\n[localizer]\nmethod = \"pathloss\"\n",
+    )
+    .unwrap();
+    let out = common::gangway_ok(&["check", "--config", config.to_str().unwrap()]);
+    assert!(out.starts_with("ok: "), "{out}");
+    assert!(out.contains("3 beacons, 0 gateways, 2 places"), "{out}");
+
+    // 6. Opened again and saved unchanged: the same bytes.
+    browser.client.refresh().await.unwrap();
+    browser
+        .until(
+            "the reopened site's check",
+            "return document.getElementById('check-summary').textContent.startsWith('ok:')",
+            "return document.getElementById('check-summary').textContent",
+        )
+        .await;
+    browser.click_id("save").await;
+    browser
+        .until(
+            "the second save",
+            "return document.getElementById('save-status').textContent.startsWith('saved')",
+            "return document.getElementById('save-status').textContent",
+        )
+        .await;
+    assert_eq!(std::fs::read_to_string(site).unwrap(), saved);
+}
+
+/// Every page and API reply carries the strict policy; the health check answers.
+#[test]
+fn every_reply_carries_the_content_security_policy() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_server, url) = editor(&dir.path().join("s.toml"), &["--bind", "127.0.0.1:0"]);
+    for path in [
+        "/edit",
+        "/assets/edit.js",
+        "/api/editor",
+        "/healthz",
+        "/nope",
+    ] {
+        let reply = ureq::get(&format!("{url}{path}"))
+            .config()
+            .http_status_as_error(false)
+            .build()
+            .call()
+            .unwrap();
+        let csp = reply
+            .headers()
+            .get("content-security-policy")
+            .and_then(|v| v.to_str().ok())
+            .unwrap_or_default()
+            .to_owned();
+        assert_eq!(csp, gangway::web::CONTENT_SECURITY_POLICY, "{path}");
+        assert!(
+            csp.contains("script-src 'self'") && !csp.contains("unsafe"),
+            "{csp}"
+        );
+        assert_eq!(reply.headers()["x-content-type-options"], "nosniff");
+    }
+    let health: Value = ureq::get(&format!("{url}/healthz"))
+        .call()
+        .unwrap()
+        .body_mut()
+        .read_json()
+        .unwrap();
+    assert_eq!(health["status"], "ok");
+}
+
+/// Bound off loopback, a write without the token is refused; with it, it
+/// is taken. On loopback, another site's page cannot write (cross-origin)
+/// and a rebound host name is not answered.
+#[test]
+fn writes_off_loopback_need_the_token() {
+    let dir = tempfile::tempdir().unwrap();
+    let token = "s3cret-token-for-the-test";
+    let token_file = common::write(dir.path(), "token", &format!("{token}\n"));
+    let site = dir.path().join("s.toml");
+    let (_server, url) = editor(
+        &site,
+        &[
+            "--bind",
+            "0.0.0.0:0",
+            "--token-file",
+            token_file.to_str().unwrap(),
+        ],
+    );
+    let doc = json!({ "doc": { "name": "s", "cell_m": 1.0, "map": "##\n" } });
+    let put = |auth: Option<&str>| {
+        let mut req = ureq::put(&format!("{url}/api/editor/site"))
+            .config()
+            .http_status_as_error(false)
+            .build();
+        if let Some(a) = auth {
+            req = req.header("Authorization", a);
+        }
+        let mut reply = req.send_json(&doc).unwrap();
+        let status = reply.status().as_u16();
+        let body: Value = reply.body_mut().read_json().unwrap_or(Value::Null);
+        (status, body)
+    };
+    let (status, body) = put(None);
+    assert_eq!(status, 401, "{body}");
+    assert_eq!(body["error"]["code"], "unauthorized");
+    assert_eq!(put(Some("Bearer wrong-token-0123456789")).0, 401);
+    assert!(!site.exists(), "nothing was written without the token");
+    let (status, body) = put(Some(&format!("Bearer {token}")));
+    assert_eq!(status, 200, "{body}");
+    assert!(site.exists());
+    // The token is never served.
+    for path in ["/api/access", "/api/editor", "/edit", "/assets/edit.js"] {
+        let text = ureq::get(&format!("{url}{path}"))
+            .call()
+            .unwrap()
+            .body_mut()
+            .read_to_string()
+            .unwrap();
+        assert!(!text.contains(token), "{path}");
+    }
+
+    let (_local, url) = editor(&dir.path().join("t.toml"), &["--bind", "127.0.0.1:0"]);
+    let cross = ureq::put(&format!("{url}/api/editor/site"))
+        .header("Origin", "http://evil.example")
+        .config()
+        .http_status_as_error(false)
+        .build()
+        .send_json(&doc)
+        .unwrap();
+    assert_eq!(cross.status().as_u16(), 403);
+    let rebound = ureq::get(&format!("{url}/api/editor"))
+        .header("Host", "evil.example")
+        .config()
+        .http_status_as_error(false)
+        .build()
+        .call()
+        .unwrap();
+    assert_eq!(rebound.status().as_u16(), 421);
+}
