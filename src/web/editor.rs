@@ -131,19 +131,31 @@ fn image_url(name: &str) -> String {
     format!("{}?{}", url.path(), url.query().unwrap_or(""))
 }
 
-/// `target` relative to `dir` (both made absolute), with `..` where needed.
+/// `target` relative to `dir`, with `..` where needed. Lexical (symbolic
+/// links are kept, not resolved), so a path that climbs to data beside the
+/// checkout stays the same wherever the checkout is.
 fn relative(dir: &Path, target: &Path) -> anyhow::Result<String> {
-    let dir = std::fs::canonicalize(dir)?;
-    let target = std::fs::canonicalize(target)?;
-    let (a, b): (Vec<Component>, Vec<Component>) =
-        (dir.components().collect(), target.components().collect());
+    let normal = |p: &Path| -> std::io::Result<Vec<std::ffi::OsString>> {
+        let mut out = Vec::new();
+        for c in std::path::absolute(p)?.components() {
+            match c {
+                Component::ParentDir => {
+                    out.pop();
+                }
+                Component::Normal(name) => out.push(name.to_owned()),
+                Component::RootDir | Component::CurDir | Component::Prefix(_) => {}
+            }
+        }
+        Ok(out)
+    };
+    let (a, b) = (normal(dir)?, normal(target)?);
     let common = a.iter().zip(&b).take_while(|(x, y)| x == y).count();
     let mut out = PathBuf::new();
     for _ in common..a.len() {
         out.push("..");
     }
-    for c in &b[common..] {
-        out.push(c);
+    for name in &b[common..] {
+        out.push(name);
     }
     out.into_os_string()
         .into_string()
@@ -371,5 +383,11 @@ mod tests {
             relative(&sites, &sites.join("here.png")).unwrap(),
             "here.png"
         );
+        // Through a link, the path the user gave, not where the link points.
+        let elsewhere = tempfile::tempdir().unwrap();
+        std::fs::write(elsewhere.path().join("plan.png"), b"x").unwrap();
+        std::os::unix::fs::symlink(elsewhere.path(), dir.path().join("shared")).unwrap();
+        let linked = sites.join("../../shared/plan.png");
+        assert_eq!(relative(&sites, &linked).unwrap(), "../../shared/plan.png");
     }
 }
