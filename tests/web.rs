@@ -271,7 +271,157 @@ async fn the_web_ui_in_a_real_browser() {
     let site = dir.path().join("library.toml");
     let image = dir.path().join("iBeacon_Layout.jpg");
     the_editor_goes_from_a_plan_image_to_a_valid_site(&browser, &site, &plan, &image).await;
+    the_live_map_follows_a_replay_and_routes_a_click(&browser, dir.path()).await;
     browser.client.close().await.unwrap();
+}
+
+/// `gangway run --replay` with the web UI: the map loads, devices move as
+/// the walk plays, a click on a device and a place asks for a route through
+/// the same admission as MQTT and shows it with its instructions, a device
+/// whose id is markup shows it as text, and /metrics counts it all.
+async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir: &Path) {
+    // The sample walk, plus a phone whose id is an HTML attack walking
+    // beside walker-02.
+    let walk = std::fs::read_to_string(common::root().join("fixtures/walk-waldo.jsonl")).unwrap();
+    let mut log = String::new();
+    for line in walk.lines() {
+        log.push_str(line);
+        log.push('\n');
+        if line.contains("\"observer\":\"walker-02\"") {
+            let hostile = serde_json::to_string(HOSTILE).unwrap();
+            log.push_str(&line.replace("\"walker-02\"", &hostile));
+            log.push('\n');
+        }
+    }
+    let log_path = common::write(dir, "walk.jsonl", &log);
+    let web_port = free_port();
+    let config = common::write(
+        dir,
+        "live.toml",
+        &format!(
+            "gateway_id = \"gw-web\"\nsite = \"{}\"\n[planner]\nmode = \"astar\"\n\
+             [mqtt]\nembedded_port = {}\nstats_interval_s = 1\n[web]\nbind = \"127.0.0.1:{web_port}\"\n",
+            common::root().join("config/sites/waldo.toml").display(),
+            free_port()
+        ),
+    );
+    let _gateway = Proc(
+        Command::new(env!("CARGO_BIN_EXE_gangway"))
+            .args(["run", "--config"])
+            .arg(&config)
+            .arg("--replay")
+            .arg(&log_path)
+            .args(["--speed", "3"])
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let url = format!("http://127.0.0.1:{web_port}");
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while ureq::get(&format!("{url}/healthz")).call().is_err() {
+        assert!(
+            Instant::now() < deadline,
+            "the gateway's web UI did not start"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    browser.client.goto(&format!("{url}/")).await.unwrap();
+    browser
+        .until(
+            "devices on the map",
+            "return document.querySelectorAll('.layer-devices .device').length >= 3",
+            "return document.getElementById('connection').textContent + ' ' + document.querySelectorAll('.device').length",
+        )
+        .await;
+    let positions =
+        "return Object.fromEntries([...document.querySelectorAll('.layer-devices .device')]
+        .map(d => [d.dataset.device, d.getAttribute('transform')]))";
+    let before = browser.js(positions).await;
+    tokio::time::sleep(Duration::from_secs(4)).await;
+    let after = browser.js(positions).await;
+    let moved = before
+        .as_object()
+        .unwrap()
+        .iter()
+        .filter(|(id, at)| after.get(id.as_str()).is_some_and(|now| now != *at))
+        .count();
+    assert!(moved >= 1, "no device moved in 4 s: {before} then {after}");
+
+    // The hostile id is a device like any other, shown as text.
+    browser
+        .until(
+            "the hostile device",
+            &format!("return !!document.querySelector('.device[data-device=\"' + CSS.escape({}) + '\"]')", serde_json::to_string(HOSTILE).unwrap()),
+            "return [...document.querySelectorAll('.device')].map(d => d.dataset.device)",
+        )
+        .await;
+    let hostile = browser
+        .js("return { imgs: document.querySelectorAll('img').length, pwned: window.__pwned === 1,
+                      titles: [...document.querySelectorAll('.device title')].map(t => t.textContent) }")
+        .await;
+    assert_eq!(hostile["imgs"], 0, "{hostile}");
+    assert_eq!(hostile["pwned"], false, "{hostile}");
+    assert!(
+        hostile["titles"].to_string().contains("onerror"),
+        "{hostile}"
+    );
+
+    // Click walker-01's dot, then the help desk: a route and its instructions.
+    let dot = browser
+        .js("const r = document.querySelector('.device[data-device=\"walker-01\"] .dot').getBoundingClientRect();
+             return [r.x + r.width / 2, r.y + r.height / 2]")
+        .await;
+    browser.click_at(serde_json::from_value(dot).unwrap()).await;
+    let desk = browser
+        .js("const r = document.querySelector('.place[data-place=\"help desk\"] rect').getBoundingClientRect();
+             return [r.x + r.width / 2, r.y + r.height / 2]")
+        .await;
+    browser
+        .click_at(serde_json::from_value(desk).unwrap())
+        .await;
+    browser
+        .until(
+            "the route",
+            "return document.querySelectorAll('#route .instructions li').length > 0 && !!document.querySelector('.layer-route polyline')",
+            "return document.getElementById('route-pick').textContent + ' | ' + document.getElementById('route').textContent",
+        )
+        .await;
+    let pick = browser.text("route-pick").await;
+    assert!(
+        pick.contains("walker-01") && pick.contains("help desk"),
+        "{pick}"
+    );
+    let route = browser.text("route").await;
+    assert!(route.contains(" m by astar"), "{route}");
+    browser
+        .until(
+            "the page's own figures",
+            "return Number(document.getElementById('page-stats').dataset.latencyP99) >= 0",
+            "return document.getElementById('page-stats').textContent",
+        )
+        .await;
+    browser.screenshot("map.png").await;
+
+    let metrics = ureq::get(&format!("{url}/metrics"))
+        .call()
+        .unwrap()
+        .body_mut()
+        .read_to_string()
+        .unwrap();
+    for series in [
+        "# TYPE gangway_fixes_total counter",
+        "# TYPE gangway_tracked gauge",
+        "# TYPE gangway_route_latency_seconds histogram",
+    ] {
+        assert!(metrics.contains(series), "{series} missing:\n{metrics}");
+    }
+    let routes = metrics
+        .lines()
+        .find_map(|l| l.strip_prefix("gangway_route_latency_seconds_count "))
+        .and_then(|v| v.parse::<u64>().ok())
+        .unwrap_or(0);
+    assert!(routes >= 1, "{metrics}");
 }
 
 /// A new user, no TOML: open the plan, set the scale, paint the floor,

@@ -66,6 +66,10 @@ pub struct Args {
     /// With --score: print the score as one JSON object.
     #[arg(long, requires = "score")]
     json: bool,
+    /// Serve the live map at this address while the log plays (with --speed
+    /// 1, as it happened); [web] of the config otherwise.
+    #[arg(long, value_name = "ADDR")]
+    web: Option<std::net::SocketAddr>,
     /// With --score: how far in time (seconds) a truth may be from the fix it
     /// scores; default the fingerprint window length.
     #[arg(long, requires = "score")]
@@ -131,6 +135,17 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                  (--print, --out FILE, --score, --mqtt-url URL or --embedded-broker send them somewhere)"
             );
         }
+        let mut sources: Vec<Box<dyn crate::source::Source>> = Vec::new();
+        if let Some(bind) = args.web {
+            let config = crate::config::Config {
+                web: crate::web::WebConfig { bind, ..config.web.clone() },
+                ..config.clone()
+            };
+            if let Some((sink, source)) = crate::web::start(&config, site.clone(), &mut Vec::new()).await {
+                sinks.push(Box::new(sink));
+                sources.push(Box::new(source));
+            }
+        }
         let source = CaptureSource::new(args.log.clone(), reader, args.speed);
         let serving = Loaded {
             config,
@@ -152,7 +167,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         let stats = daemon::run(
             serving,
             options,
-            vec![Box::new(source)],
+            {
+                sources.push(Box::new(source));
+                sources
+            },
             sinks,
             interrupted,
             reloads,

@@ -101,6 +101,10 @@ async fn serve(args: Args) -> anyhow::Result<()> {
             }
         }
     }
+    if let Some((sink, source)) = crate::web::start(config, site.clone(), &mut fallbacks).await {
+        sinks.push(Box::new(sink));
+        sources.push(Box::new(source));
+    }
     if let Some(out) = &args.out {
         sinks.push(Box::new(JsonLines::create(
             Topics::new(config.topic_prefix()),

@@ -83,7 +83,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         server
             .serve(
                 Ui {
-                    site: None,
+                    live: None,
                     editor: Some(editor),
                 },
                 stop,

@@ -15,6 +15,8 @@
 mod assets;
 pub mod config;
 mod editor;
+mod live;
+mod metrics;
 mod security;
 mod view;
 
@@ -30,25 +32,75 @@ use tokio::net::TcpListener;
 
 pub use config::WebConfig;
 pub use editor::Editor;
+pub use live::{Live, TRAIL, WebSink, WebSource};
 pub use security::CONTENT_SECURITY_POLICY;
 
 use crate::site::Site;
 
+/// The site the map shows, replaced on reloads.
+pub(crate) type SiteCell = Arc<std::sync::RwLock<Arc<Site>>>;
+
 /// Largest JSON body taken (an edited site document).
 const MAX_JSON_BYTES: usize = 4 << 20;
 
-/// What one server serves: the site on the map, the editor, or both.
+/// What one server serves: the live map, the editor, or both.
 pub struct Ui {
-    /// The site the map shows; none in an editor-only server.
-    pub site: Option<Arc<Site>>,
+    /// The gateway's live state (and the site it maps); none in an
+    /// editor-only server.
+    pub live: Option<Arc<Live>>,
     pub editor: Option<Editor>,
 }
 
 #[derive(Clone)]
 struct App {
     guard: Arc<security::Guard>,
-    site: Option<Arc<Site>>,
+    site: Option<SiteCell>,
+    live: Option<Arc<Live>>,
     editor: Option<Arc<Editor>>,
+}
+
+/// Starts the web UI of a running gateway (`[web]` of `gateway`): serves the
+/// live map of `site` (and the editor of the site file) for as long as the
+/// runtime lives, and returns the sink and source to hand to the runtime.
+/// A UI that cannot start never stops the gateway: why is logged and added
+/// to `fallbacks`, and the gateway serves without it.
+pub async fn start(
+    gateway: &crate::config::Config,
+    site: Arc<Site>,
+    fallbacks: &mut Vec<String>,
+) -> Option<(WebSink, WebSource)> {
+    let config = &gateway.web;
+    if !config.enabled {
+        return None;
+    }
+    let server = match Server::bind(config).await {
+        Ok(server) => server,
+        Err(e) => {
+            let why = format!("{e:#}; serving without the web UI");
+            tracing::error!("{why}");
+            fallbacks.push(why);
+            return None;
+        }
+    };
+    let editor = match Editor::open(&gateway.site, None) {
+        Ok(editor) => Some(editor),
+        Err(e) => {
+            tracing::warn!("[web] no site editor: {e:#}");
+            None
+        }
+    };
+    let (live, sink, source) = Live::new(site, gateway.limits.max_devices);
+    tracing::info!(addr = %server.addr(), "web UI at http://{}/", server.addr());
+    let ui = Ui {
+        live: Some(live),
+        editor,
+    };
+    tokio::spawn(async move {
+        if let Err(e) = server.serve(ui, std::future::pending()).await {
+            tracing::error!("[web] the web UI stopped: {e:#}");
+        }
+    });
+    Some((sink, source))
 }
 
 /// A bound, not yet serving, web server.
@@ -97,7 +149,8 @@ impl Server {
     ) -> anyhow::Result<()> {
         let app = App {
             guard: self.guard.clone(),
-            site: ui.site,
+            site: ui.live.as_ref().map(|live| live.site.clone()),
+            live: ui.live,
             editor: ui.editor.map(Arc::new),
         };
         axum::serve(self.listener, router(app))
@@ -115,6 +168,15 @@ fn router(app: App) -> Router {
         .route("/api/site", get(site))
         .route("/api/floorplan", get(floorplan))
         .route("/api/access", get(access));
+    if let Some(live) = &app.live {
+        routes = routes.merge(
+            Router::new()
+                .route("/api/live", get(live::stream))
+                .route("/api/route", axum::routing::post(live::route))
+                .route("/metrics", get(metrics))
+                .with_state(live.clone()),
+        );
+    }
     if let Some(editor) = &app.editor {
         routes = routes.route("/edit", get(assets::edit_page)).merge(
             Router::new()
@@ -155,15 +217,16 @@ async fn access(State(app): State<App>) -> impl IntoResponse {
     let mut access = app.guard.access();
     access["editor"] = app.editor.is_some().into();
     access["map"] = app.site.is_some().into();
+    access["live"] = app.live.is_some().into();
     axum::Json(access)
 }
 
 /// `GET /api/site`: the map's site; an editor-only server sends the editor.
 async fn site(State(app): State<App>) -> Response {
-    match &app.site {
+    match current(&app) {
         Some(site) => {
             let url = site.floorplan().map(|_| "/api/floorplan");
-            axum::Json(view::SiteView::new(site, url)).into_response()
+            axum::Json(view::SiteView::new(&site, url)).into_response()
         }
         None => security::error(
             axum::http::StatusCode::NOT_FOUND,
@@ -173,8 +236,26 @@ async fn site(State(app): State<App>) -> Response {
     }
 }
 
+/// The site the map shows now.
+fn current(app: &App) -> Option<Arc<Site>> {
+    let cell = app.site.as_ref()?;
+    Some(cell.read().unwrap_or_else(|e| e.into_inner()).clone())
+}
+
+async fn metrics(State(live): State<Arc<Live>>) -> Response {
+    (
+        [(
+            axum::http::header::CONTENT_TYPE,
+            "text/plain; version=0.0.4; charset=utf-8",
+        )],
+        live.metrics.render(live.streams()),
+    )
+        .into_response()
+}
+
 async fn floorplan(State(app): State<App>) -> Response {
-    match app.site.as_ref().and_then(|s| s.floorplan()) {
+    let site = current(&app);
+    match site.as_ref().and_then(|s| s.floorplan()) {
         Some(plan) => editor::image_file(&plan.image),
         None => security::error(
             axum::http::StatusCode::NOT_FOUND,

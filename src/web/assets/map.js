@@ -21,7 +21,8 @@ const LIST_MAX = 200;
 
 let site = null;
 let access = {};
-const view = new PlanView($("plan"));
+// Dragging pans, except on a device or a place, which take clicks.
+const view = new PlanView($("plan"), { panWithLeft: (e) => !(e.target.closest && e.target.closest(".device, .place")) });
 const devices = new Map(); // id -> { id, cell, t, confidence, place, trail: [[gx, gy]], node, trailNode, dirty }
 let selected = null; // device id
 let routes = new Map(); // device -> last path payload
@@ -335,7 +336,7 @@ function showRoute() {
   }
   fill(
     box,
-    h("p", {}, `${path.length_m.toFixed(1)} m by ${path.planner}, planned in ${(path.latency_us / 1000).toFixed(1)} ms`),
+    h("p", {}, `${path.length_m.toFixed(1)} m by ${path.planner}, planned in ${(path.latency_us / 1000).toFixed(2)} ms`),
     progress,
     h("ol", { class: "instructions" }, path.instructions.map((i) => h("li", {}, i.text))),
   );
