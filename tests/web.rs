@@ -378,7 +378,7 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
              return [r.x + r.width / 2, r.y + r.height / 2]")
         .await;
     browser
-        .click_at(serde_json::from_value(desk).unwrap())
+        .click_at(serde_json::from_value(desk.clone()).unwrap())
         .await;
     browser
         .until(
@@ -402,6 +402,52 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
         )
         .await;
     browser.screenshot("map.png").await;
+
+    // Survey mode: walker-01 (still selected) stands at the help desk for
+    // two windows; the survey file gets them in the generic layout, which
+    // the gateway's own survey reader takes.
+    browser
+        .client
+        .find(Locator::Id("survey-on"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+    browser.type_into("survey-samples", "2").await;
+    browser
+        .click_at(serde_json::from_value(desk).unwrap())
+        .await;
+    browser
+        .until(
+            "two surveyed windows",
+            "return document.getElementById('survey-status').textContent.includes('2 of 2 windows (done)')",
+            "return document.getElementById('survey-status').textContent",
+        )
+        .await;
+    let survey = dir.join("survey.csv");
+    let text = std::fs::read_to_string(&survey).unwrap();
+    assert!(text.starts_with("x_m,y_m,t,b3001,"), "{text}");
+    assert_eq!(text.lines().count(), 3, "{text}");
+    let site = gangway::site::Site::load(&common::root().join("config/sites/waldo.toml")).unwrap();
+    let anchors: Vec<String> = site.beacons.iter().map(|b| b.id.clone()).collect();
+    let read = gangway::locate::survey::Survey::load(&survey, &site, &anchors, -200).unwrap();
+    assert_eq!(read.samples.len(), 2);
+    assert!(
+        read.samples
+            .iter()
+            .all(|s| s.cell == gangway::site::Cell::new(9, 9))
+    );
+    let heat = browser.client.find(Locator::Id("heat")).await.unwrap();
+    heat.select_by_value("samples").await.unwrap();
+    browser
+        .until(
+            "the coverage map",
+            "return document.querySelectorAll('.layer-heat rect').length >= 1",
+            "return document.getElementById('heat-legend').textContent",
+        )
+        .await;
+    browser.screenshot("survey.png").await;
 
     let metrics = ureq::get(&format!("{url}/metrics"))
         .call()

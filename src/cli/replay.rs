@@ -66,8 +66,9 @@ pub struct Args {
     /// With --score: print the score as one JSON object.
     #[arg(long, requires = "score")]
     json: bool,
-    /// Serve the live map at this address while the log plays (with --speed
-    /// 1, as it happened); [web] of the config otherwise.
+    /// Serve the live map (and route requests from it) at this address while
+    /// the log plays, with --speed 1 as it happened; the replay then ends
+    /// with Ctrl-C, so the map can still be looked at after the log's end.
     #[arg(long, value_name = "ADDR")]
     web: Option<std::net::SocketAddr>,
     /// With --score: how far in time (seconds) a truth may be from the fix it
@@ -135,18 +136,17 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                  (--print, --out FILE, --score, --mqtt-url URL or --embedded-broker send them somewhere)"
             );
         }
-        let mut sources: Vec<Box<dyn crate::source::Source>> = Vec::new();
+        let source = CaptureSource::new(args.log.clone(), reader, args.speed);
+        let mut sources: Vec<Box<dyn crate::source::Source>> = vec![Box::new(source)];
         if let Some(bind) = args.web {
             let config = crate::config::Config {
                 web: crate::web::WebConfig { bind, ..config.web.clone() },
                 ..config.clone()
             };
-            if let Some((sink, source)) = crate::web::start(&config, site.clone(), &mut Vec::new()).await {
-                sinks.push(Box::new(sink));
-                sources.push(Box::new(source));
+            if let Some(web) = crate::web::start(&config, site.clone(), &mut Vec::new()).await {
+                web.add_to(&mut sources, &mut sinks);
             }
         }
-        let source = CaptureSource::new(args.log.clone(), reader, args.speed);
         let serving = Loaded {
             config,
             site: site.clone(),
@@ -167,10 +167,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         let stats = daemon::run(
             serving,
             options,
-            {
-                sources.push(Box::new(source));
-                sources
-            },
+            sources,
             sinks,
             interrupted,
             reloads,

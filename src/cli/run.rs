@@ -101,9 +101,8 @@ async fn serve(args: Args) -> anyhow::Result<()> {
             }
         }
     }
-    if let Some((sink, source)) = crate::web::start(config, site.clone(), &mut fallbacks).await {
-        sinks.push(Box::new(sink));
-        sources.push(Box::new(source));
+    if let Some(web) = crate::web::start(config, site.clone(), &mut fallbacks).await {
+        web.add_to(&mut sources, &mut sinks);
     }
     if let Some(out) = &args.out {
         sinks.push(Box::new(JsonLines::create(

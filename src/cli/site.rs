@@ -80,15 +80,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 Err(_) => shutdown.await,
             }
         };
-        server
-            .serve(
-                Ui {
-                    live: None,
-                    editor: Some(editor),
-                },
-                stop,
-            )
-            .await
+        server.serve(Ui::editor(editor), stop).await
     })?;
     Ok(ExitCode::SUCCESS)
 }

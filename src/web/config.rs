@@ -24,6 +24,9 @@ pub struct WebConfig {
     /// The file holding the token writes need when bound off loopback
     /// (default: the systemd credential `web-token`).
     pub token_file: Option<PathBuf>,
+    /// Where survey mode appends its fingerprints (default: `survey.csv` in
+    /// `$STATE_DIRECTORY` under systemd, else beside the config file).
+    pub survey_file: Option<PathBuf>,
 }
 
 impl Default for WebConfig {
@@ -33,6 +36,7 @@ impl Default for WebConfig {
             bind: SocketAddr::from(([127, 0, 0, 1], 8080)),
             read_only: false,
             token_file: None,
+            survey_file: None,
         }
     }
 }
@@ -42,6 +46,12 @@ impl WebConfig {
         if let Some(file) = &mut self.token_file {
             *file = base.join(&*file);
         }
+        let state = std::env::var_os("STATE_DIRECTORY").map(PathBuf::from);
+        let survey = self.survey_file.take();
+        self.survey_file = Some(match survey {
+            Some(file) => base.join(file),
+            None => state.as_deref().unwrap_or(base).join("survey.csv"),
+        });
     }
 
     /// Whether writes need the token: bound anywhere but loopback.

@@ -18,6 +18,7 @@ mod editor;
 mod live;
 mod metrics;
 mod security;
+mod survey;
 mod view;
 
 use std::future::Future;
@@ -35,7 +36,9 @@ pub use editor::Editor;
 pub use live::{Live, TRAIL, WebSink, WebSource};
 pub use security::CONTENT_SECURITY_POLICY;
 
+use crate::sink::Sink;
 use crate::site::Site;
+use crate::source::Source;
 
 /// The site the map shows, replaced on reloads.
 pub(crate) type SiteCell = Arc<std::sync::RwLock<Arc<Site>>>;
@@ -49,6 +52,18 @@ pub struct Ui {
     /// editor-only server.
     pub live: Option<Arc<Live>>,
     pub editor: Option<Editor>,
+    survey: Option<Arc<survey::Survey>>,
+}
+
+impl Ui {
+    /// The editor of one site file, alone.
+    pub fn editor(editor: Editor) -> Ui {
+        Ui {
+            live: None,
+            editor: Some(editor),
+            survey: None,
+        }
+    }
 }
 
 #[derive(Clone)]
@@ -57,18 +72,40 @@ struct App {
     site: Option<SiteCell>,
     live: Option<Arc<Live>>,
     editor: Option<Arc<Editor>>,
+    survey: Option<Arc<survey::Survey>>,
+}
+
+/// The web UI of a running gateway, ready to join its runtime.
+pub struct Web {
+    sink: WebSink,
+    source: WebSource,
+    survey: Option<Arc<survey::Survey>>,
+}
+
+impl Web {
+    /// Adds the UI to the runtime's sources and sinks: its sink (the live
+    /// map), its source (route requests from the pages), and survey mode's
+    /// view of the sightings of every source already there.
+    pub fn add_to(self, sources: &mut Vec<Box<dyn Source>>, sinks: &mut Vec<Box<dyn Sink>>) {
+        if let Some(survey) = &self.survey {
+            let tapped = std::mem::take(sources).into_iter().map(|s| survey.tap(s));
+            sources.extend(tapped);
+        }
+        sources.push(Box::new(self.source));
+        sinks.push(Box::new(self.sink));
+    }
 }
 
 /// Starts the web UI of a running gateway (`[web]` of `gateway`): serves the
-/// live map of `site` (and the editor of the site file) for as long as the
-/// runtime lives, and returns the sink and source to hand to the runtime.
-/// A UI that cannot start never stops the gateway: why is logged and added
-/// to `fallbacks`, and the gateway serves without it.
+/// live map of `site`, the editor of the site file and survey mode for as
+/// long as the runtime lives. A UI that cannot start never stops the
+/// gateway: why is logged and added to `fallbacks`, and the gateway serves
+/// without it.
 pub async fn start(
     gateway: &crate::config::Config,
     site: Arc<Site>,
     fallbacks: &mut Vec<String>,
-) -> Option<(WebSink, WebSource)> {
+) -> Option<Web> {
     let config = &gateway.web;
     if !config.enabled {
         return None;
@@ -89,18 +126,34 @@ pub async fn start(
             None
         }
     };
+    let survey = config.survey_file.as_ref().and_then(|file| {
+        match survey::Survey::open(file, site.clone(), gateway) {
+            Ok(survey) => Some(Arc::new(survey)),
+            Err(e) => {
+                let why = format!("[web] survey mode is off: {e:#}");
+                tracing::error!("{why}");
+                fallbacks.push(why);
+                None
+            }
+        }
+    });
     let (live, sink, source) = Live::new(site, gateway.limits.max_devices);
     tracing::info!(addr = %server.addr(), "web UI at http://{}/", server.addr());
     let ui = Ui {
         live: Some(live),
         editor,
+        survey: survey.clone(),
     };
     tokio::spawn(async move {
         if let Err(e) = server.serve(ui, std::future::pending()).await {
             tracing::error!("[web] the web UI stopped: {e:#}");
         }
     });
-    Some((sink, source))
+    Some(Web {
+        sink,
+        source,
+        survey,
+    })
 }
 
 /// A bound, not yet serving, web server.
@@ -152,6 +205,7 @@ impl Server {
             site: ui.live.as_ref().map(|live| live.site.clone()),
             live: ui.live,
             editor: ui.editor.map(Arc::new),
+            survey: ui.survey,
         };
         axum::serve(self.listener, router(app))
             .with_graceful_shutdown(shutdown)
@@ -175,6 +229,14 @@ fn router(app: App) -> Router {
                 .route("/api/route", axum::routing::post(live::route))
                 .route("/metrics", get(metrics))
                 .with_state(live.clone()),
+        );
+    }
+    if let Some(survey) = &app.survey {
+        routes = routes.merge(
+            Router::new()
+                .route("/api/survey", get(survey::status).post(survey::start))
+                .route("/api/survey/stop", axum::routing::post(survey::stop))
+                .with_state(survey.clone()),
         );
     }
     if let Some(editor) = &app.editor {
@@ -218,6 +280,7 @@ async fn access(State(app): State<App>) -> impl IntoResponse {
     access["editor"] = app.editor.is_some().into();
     access["map"] = app.site.is_some().into();
     access["live"] = app.live.is_some().into();
+    access["survey"] = app.survey.is_some().into();
     axum::Json(access)
 }
 

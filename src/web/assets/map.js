@@ -6,7 +6,7 @@
 // Device ids and place names come from the air and the broker: they are
 // only ever set as text (textContent, <title>), never parsed as HTML.
 
-import { api, h, s, fill, PlanView, drawSite, drawFloorplan, token, setToken } from "/assets/site.js";
+import { api, h, s, fill, Frame, PlanView, drawSite, drawFloorplan, token, setToken } from "/assets/site.js";
 
 const $ = (id) => document.getElementById(id);
 /** Fixes kept per device for its trail. */
@@ -55,7 +55,7 @@ async function load() {
   $("token-box").hidden = !access.needs_token;
   $("token").value = token();
   $("edit-link").hidden = !access.editor;
-  $("survey-link").hidden = !access.survey;
+  $("survey").hidden = !access.survey;
   site = await api("/api/site");
   fill($("site-name"), site.name);
   document.title = `gangway · ${site.name}`;
@@ -69,11 +69,13 @@ async function load() {
   );
   for (const node of view.layers.places.querySelectorAll(".place")) {
     node.addEventListener("click", (e) => {
+      if ($("survey-on").checked) return; // a spot to survey, like any cell
       e.stopPropagation();
       pickPlace(site.places.find((p) => p.name === node.dataset.place));
     });
   }
   connect();
+  refreshSurvey();
 }
 
 $("token").addEventListener("change", () => setToken($("token").value.trim()));
@@ -86,8 +88,9 @@ $("plan").addEventListener("pointermove", (e) => {
 
 $("plan").addEventListener("click", (e) => {
   if (view.lastDragMoved || !site || !selected) return;
-  if (e.target.closest(".device") || e.target.closest(".place")) return;
+  if (e.target.closest(".device") || (e.target.closest(".place") && !$("survey-on").checked)) return;
   const [gx, gy] = view.toGrid(e);
+  if ($("survey-on").checked) return surveyAt([gx, gy]);
   const x = Math.floor(gx);
   const y = Math.floor(gy);
   if (x < 0 || y < 0 || x >= site.width || y >= site.height || site.tiles[y * site.width + x] === ".") return;
@@ -165,6 +168,7 @@ function applyFix(fix, sentMs, live) {
   }
   d.t = fix.t;
   d.confidence = fix.confidence;
+  noteConfidence(fix);
   d.place = fix.place;
   d.unknown = !fix.cell;
   if (fix.cell) {
@@ -283,7 +287,7 @@ function selectDevice(id) {
 }
 
 function pickPlace(place) {
-  if (!place) return;
+  if (!place || $("survey-on").checked) return;
   if (!selected) {
     fill($("route-pick"), h("span", { class: "bad" }, "click a device first"));
     return;
@@ -339,6 +343,106 @@ function showRoute() {
     h("p", {}, `${path.length_m.toFixed(1)} m by ${path.planner}, planned in ${(path.latency_us / 1000).toFixed(2)} ms`),
     progress,
     h("ol", { class: "instructions" }, path.instructions.map((i) => h("li", {}, i.text))),
+  );
+}
+
+// ---- survey ----
+
+/** The selected device stands at grid point `g`: record its fingerprints there. */
+async function surveyAt(g) {
+  const [x, y] = new Frame(site.cell_m, site.origin_m, site.y_axis).world(g).map((v) => Math.round(v * 100) / 100);
+  const samples = Math.round(Number($("survey-samples").value)) || 10;
+  try {
+    await api("/api/survey", { method: "POST", json: { device: selected, x_m: x, y_m: y, samples } });
+    refreshSurvey();
+  } catch (e) {
+    fill($("survey-status"), h("span", { class: "bad" }, e.message));
+  }
+}
+
+$("survey-stop").addEventListener("click", async () => {
+  try {
+    await api("/api/survey/stop", { method: "POST", json: {} });
+  } catch (e) {
+    fill($("survey-status"), h("span", { class: "bad" }, e.message));
+  }
+  refreshSurvey();
+});
+
+$("survey-on").addEventListener("change", () => {
+  $("plan").dataset.tool = $("survey-on").checked ? "survey" : "pan";
+  refreshSurvey();
+});
+$("heat").addEventListener("change", () => refreshSurvey());
+
+let survey = null;
+async function refreshSurvey() {
+  if (!access.survey) return;
+  try {
+    survey = await api("/api/survey");
+  } catch (e) {
+    fill($("survey-status"), h("span", { class: "bad" }, e.message));
+    return;
+  }
+  const heat = $("heat");
+  const known = new Set([...heat.options].map((o) => o.value));
+  survey.anchors.forEach((id, i) => {
+    if (!known.has("rssi:" + i)) heat.append(h("option", { value: "rssi:" + i }, `RSSI of ${id}`));
+  });
+  const spot = survey.spot;
+  $("survey-stop").hidden = !spot || spot.taken >= spot.wanted;
+  const covered = survey.cells.length;
+  const lines = [`${survey.recorded} windows recorded here; ${covered} cells surveyed in ${survey.file}`];
+  if (spot) lines.unshift(`${spot.device} at ${spot.x_m}, ${spot.y_m} m: ${spot.taken} of ${spot.wanted} windows${spot.taken >= spot.wanted ? " (done)" : "…"}`);
+  if (survey.error) lines.push(survey.error);
+  fill($("survey-status"), lines.map((l) => h("div", {}, l)));
+  drawHeat();
+}
+setInterval(() => {
+  if ($("survey-on").checked || $("heat").value) refreshSurvey();
+}, 2000);
+
+/** Colours from blue (low) to red (high). */
+function ramp(v) {
+  const k = Math.min(1, Math.max(0, v));
+  return `hsl(${Math.round(240 - 240 * k)} 85% 50%)`;
+}
+
+const confidence = new Map(); // "x,y" -> [sum, count] of published confidences
+function noteConfidence(fix) {
+  if (!fix.cell) return;
+  const key = fix.cell.join(",");
+  const c = confidence.get(key) || [0, 0];
+  c[0] += fix.confidence;
+  c[1] += 1;
+  confidence.set(key, c);
+}
+
+function drawHeat() {
+  const mode = $("heat").value;
+  const cells = [];
+  let legend = "";
+  if (mode === "samples" && survey) {
+    const most = Math.max(1, ...survey.cells.map((c) => c.samples));
+    for (const c of survey.cells) cells.push([c.cell, c.samples / most, `${c.samples} windows`]);
+    legend = `blue: few windows, red: ${most}; cells without colour are not surveyed`;
+  } else if (mode.startsWith("rssi:") && survey) {
+    const i = Number(mode.slice(5));
+    for (const c of survey.cells) {
+      const r = c.rssi[i];
+      if (r !== null && r !== undefined) cells.push([c.cell, (r + 100) / 60, `${r.toFixed(0)} dBm`]);
+    }
+    legend = `mean RSSI of ${survey.anchors[i]} where surveyed: blue -100 dBm, red -40 dBm; no colour: not heard`;
+  } else if (mode === "confidence") {
+    for (const [key, [sum, n]] of confidence) cells.push([key.split(",").map(Number), sum / n, `mean confidence ${(sum / n).toFixed(2)} over ${n} fixes`]);
+    legend = "mean published confidence of the fixes in each cell since this page opened: blue 0, red 1";
+  }
+  fill($("heat-legend"), legend);
+  fill(
+    view.layers.heat,
+    cells.map(([cell, v, title]) =>
+      s("rect", { class: "heat", x: cell[0], y: cell[1], width: 1, height: 1, fill: ramp(v) }, s("title", {}, title)),
+    ),
   );
 }
 
