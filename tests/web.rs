@@ -7,30 +7,18 @@
 //! browser. Screenshots of every page go to `target/web-screenshots/`.
 
 mod common;
+mod web_support;
 
 use std::io::{BufRead, BufReader};
-use std::net::TcpStream;
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::path::Path;
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use fantoccini::actions::{
-    InputSource, KeyAction, KeyActions, MOUSE_BUTTON_LEFT, MouseActions, PointerAction,
-};
-use fantoccini::{Client, ClientBuilder, Locator};
+use fantoccini::Locator;
 use serde_json::{Value, json};
+use web_support::{Browser, Proc, free_port};
 
 const HOSTILE: &str = "<img src=x onerror=\"window.__pwned=1\">";
-
-/// A child process killed when dropped.
-struct Proc(Child);
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
 
 /// `gangway site edit` on a free port; returns it and its base URL.
 fn editor(site: &Path, extra: &[&str]) -> (Proc, String) {
@@ -55,216 +43,12 @@ fn editor(site: &Path, extra: &[&str]) -> (Proc, String) {
     (Proc(child), url)
 }
 
-fn screenshots() -> PathBuf {
-    let dir = common::root().join("target/web-screenshots");
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-/// chromedriver and a headless chromium session, or none (skip) when they
-/// are not installed outside CI.
-struct Browser {
-    client: Client,
-    _driver: Proc,
-    _profile: tempfile::TempDir,
-}
-
-impl Browser {
-    async fn start() -> Option<Browser> {
-        let (chromium, driver) = (
-            Path::new("/usr/bin/chromium"),
-            Path::new("/usr/bin/chromedriver"),
-        );
-        if !(chromium.exists() && driver.exists()) {
-            assert!(
-                std::env::var_os("CI").is_none(),
-                "CI needs chromium and chromium-driver"
-            );
-            eprintln!(
-                "skipped: no /usr/bin/chromium or /usr/bin/chromedriver (Debian: apt install chromium chromium-driver)"
-            );
-            return None;
-        }
-        let port = free_port();
-        let child = Command::new(driver)
-            .arg(format!("--port={port}"))
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("chromedriver runs");
-        let driver = Proc(child);
-        let deadline = Instant::now() + Duration::from_secs(20);
-        while TcpStream::connect(("127.0.0.1", port)).is_err() {
-            assert!(Instant::now() < deadline, "chromedriver did not listen");
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        let profile = tempfile::tempdir().unwrap();
-        let mut caps = serde_json::Map::new();
-        caps.insert(
-            "goog:chromeOptions".into(),
-            json!({
-                "binary": chromium,
-                "args": [
-                    "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic",
-                    "--no-first-run", "--disable-background-networking",
-                    "--disable-component-update", "--disable-sync",
-                    "--disable-dev-shm-usage", "--window-size=1500,950",
-                    format!("--user-data-dir={}", profile.path().display()),
-                ],
-            }),
-        );
-        let client = ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
-            .capabilities(caps)
-            .connect(&format!("http://127.0.0.1:{port}"))
-            .await
-            .expect("a chromium session");
-        Some(Browser {
-            client,
-            _driver: driver,
-            _profile: profile,
-        })
-    }
-
-    async fn js(&self, script: &str) -> Value {
-        self.client
-            .execute(script, vec![])
-            .await
-            .unwrap_or_else(|e| panic!("{script}: {e}"))
-    }
-
-    /// Waits until `script` returns true (a timeout fails the test with
-    /// what `describe` returns then).
-    async fn until(&self, what: &str, script: &str, describe: &str) {
-        let deadline = Instant::now() + Duration::from_secs(20);
-        loop {
-            if self.js(script).await == Value::Bool(true) {
-                return;
-            }
-            if Instant::now() > deadline {
-                let now = self.js(describe).await;
-                panic!("timed out waiting for {what}: {now}");
-            }
-            tokio::time::sleep(Duration::from_millis(100)).await;
-        }
-    }
-
-    async fn text(&self, id: &str) -> String {
-        self.js(&format!(
-            "return document.getElementById('{id}').textContent"
-        ))
-        .await
-        .as_str()
-        .unwrap_or_default()
-        .to_owned()
-    }
-
-    async fn click_id(&self, id: &str) {
-        self.client
-            .find(Locator::Id(id))
-            .await
-            .unwrap()
-            .click()
-            .await
-            .unwrap();
-    }
-
-    async fn tool(&self, name: &str) {
-        self.client
-            .find(Locator::Css(&format!("input[name=tool][value={name}]")))
-            .await
-            .unwrap()
-            .click()
-            .await
-            .unwrap();
-    }
-
-    async fn type_into(&self, id: &str, text: &str) {
-        let input = self.client.find(Locator::Id(id)).await.unwrap();
-        input.clear().await.unwrap();
-        input.send_keys(text).await.unwrap();
-    }
-
-    /// Viewport coordinates of pixels of the floor-plan image.
-    async fn image_points(&self, pixels: &[[f64; 2]]) -> Vec<[f64; 2]> {
-        let script = format!(
-            "const m = document.querySelector('.layer-floorplan image').getScreenCTM();
-             return {}.map(p => {{ const q = new DOMPoint(p[0], p[1]).matrixTransform(m); return [q.x, q.y]; }});",
-            serde_json::to_string(pixels).unwrap()
-        );
-        serde_json::from_value(self.js(&script).await).unwrap()
-    }
-
-    async fn click_at(&self, [x, y]: [f64; 2]) {
-        let mouse = MouseActions::new("mouse".into())
-            .then(PointerAction::MoveTo {
-                duration: None,
-                x: x.round(),
-                y: y.round(),
-            })
-            .then(PointerAction::Down {
-                button: MOUSE_BUTTON_LEFT,
-            })
-            .then(PointerAction::Up {
-                button: MOUSE_BUTTON_LEFT,
-            });
-        self.client.perform_actions(mouse).await.unwrap();
-        self.client.release_actions().await.unwrap();
-    }
-
-    /// A Shift-drag from `a` to `b`.
-    async fn shift_drag(&self, a: [f64; 2], b: [f64; 2]) {
-        let shift = '\u{e008}';
-        let keys = KeyActions::new("keys".into())
-            .then(KeyAction::Down { value: shift })
-            .pause(Duration::from_millis(10))
-            .pause(Duration::from_millis(10))
-            .pause(Duration::from_millis(10))
-            .then(KeyAction::Up { value: shift });
-        let mouse = MouseActions::new("mouse".into())
-            .pause(Duration::from_millis(10))
-            .then(PointerAction::MoveTo {
-                duration: None,
-                x: a[0].round(),
-                y: a[1].round(),
-            })
-            .then(PointerAction::Down {
-                button: MOUSE_BUTTON_LEFT,
-            })
-            .then(PointerAction::MoveTo {
-                duration: Some(Duration::from_millis(100)),
-                x: b[0].round(),
-                y: b[1].round(),
-            })
-            .then(PointerAction::Up {
-                button: MOUSE_BUTTON_LEFT,
-            });
-        self.client
-            .perform_actions(fantoccini::actions::Actions::from(keys).and(mouse))
-            .await
-            .unwrap();
-        self.client.release_actions().await.unwrap();
-    }
-
-    async fn screenshot(&self, name: &str) {
-        let png = self.client.screenshot().await.unwrap();
-        std::fs::write(screenshots().join(name), png).unwrap();
-    }
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_web_ui_in_a_real_browser() {
     let Some(plan) = common::shared_data("uci-ble-rssi/iBeacon_Layout.jpg") else {
         return;
     };
-    let Some(browser) = Browser::start().await else {
+    let Some(browser) = Browser::start(&common::root().join("target/web-screenshots")).await else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -357,8 +141,10 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
         )
         .await;
     let hostile = browser
-        .js("return { imgs: document.querySelectorAll('img').length, pwned: window.__pwned === 1,
-                      titles: [...document.querySelectorAll('.device title')].map(t => t.textContent) }")
+        .js("for (const d of document.querySelectorAll('.device')) d.dispatchEvent(new PointerEvent('pointerenter'));
+             return { imgs: document.querySelectorAll('img').length, pwned: window.__pwned === 1,
+                      titles: [...document.querySelectorAll('.device title')].map(t => t.textContent),
+                      listed: document.getElementById('devices').textContent }")
         .await;
     assert_eq!(hostile["imgs"], 0, "{hostile}");
     assert_eq!(hostile["pwned"], false, "{hostile}");

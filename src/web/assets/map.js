@@ -182,6 +182,12 @@ function applyFix(fix, sentMs, live) {
   d.dirty = true;
 }
 
+function describe(d) {
+  let title = d.node.querySelector("title");
+  if (!title) d.node.append((title = s("title", {})));
+  title.textContent = `${d.id}: ${d.unknown ? "unknown (last located here)" : d.place || "cell " + d.cell.join(", ")}, confidence ${(d.confidence * 100).toFixed(0)} %`;
+}
+
 function removeDevice(id) {
   const d = devices.get(id);
   if (!d) return;
@@ -205,26 +211,29 @@ function draw() {
     d.dirty = false;
     if (!d.cell) continue; // never located: in the list only
     if (!d.node) {
-      d.node = s(
-        "g",
-        { class: "device", "data-device": d.id },
-        s("circle", { class: "halo" }),
-        s("circle", { class: "dot", r: 0.3 }),
-        s("text", { class: "device-unknown", y: 0.18 }, "?"),
-        s("title", {}),
-      );
+      d.node = s("g", { class: "device", "data-device": d.id }, s("circle", { class: "halo" }), s("circle", { class: "dot", r: 0.3 }));
       d.node.addEventListener("click", (e) => {
         e.stopPropagation();
         selectDevice(d.id);
       });
+      // The tooltip is written when the pointer comes, not on every fix.
+      d.node.addEventListener("pointerenter", () => describe(d));
       view.layers.devices.append(d.node);
+      d.shown = {};
     }
+    // Only what changed is written: at a thousand fixes a second, every
+    // attribute set costs style and layout work in the next frame.
     const [x, y] = d.trail[d.trail.length - 1] || [d.cell[0] + 0.5, d.cell[1] + 0.5];
-    d.node.setAttribute("transform", `translate(${x} ${y})`);
-    d.node.classList.toggle("unknown", d.unknown);
-    d.node.classList.toggle("selected", d.id === selected);
-    d.node.firstChild.setAttribute("r", d.unknown ? 0 : haloRadius(d.confidence));
-    d.node.lastChild.textContent = `${d.id}: ${d.unknown ? "unknown (last seen here)" : d.place || "cell " + d.cell.join(", ")}, confidence ${(d.confidence * 100).toFixed(0)} %`;
+    const at = `translate(${x} ${y})`;
+    const halo = d.unknown ? 0 : Math.round(haloRadius(d.confidence) * 20) / 20;
+    const state = (d.unknown ? 1 : 0) + (d.id === selected ? 2 : 0);
+    if (d.shown.at !== at) d.node.setAttribute("transform", (d.shown.at = at));
+    if (d.shown.halo !== halo) d.node.firstChild.setAttribute("r", (d.shown.halo = halo));
+    if (d.shown.state !== state) {
+      d.shown.state = state;
+      d.node.classList.toggle("unknown", d.unknown);
+      d.node.classList.toggle("selected", d.id === selected);
+    }
     const showTrail = (allTrails || d.id === selected) && d.trail.length > 1;
     if (showTrail) {
       if (!d.trailNode) {
@@ -241,7 +250,7 @@ function draw() {
     listDirty = false;
     renderList();
   }
-  fill($("device-count"), String(devices.size));
+  if ($("device-count").textContent !== String(devices.size)) fill($("device-count"), String(devices.size));
 }
 
 $("device-filter").addEventListener("input", () => {
