@@ -267,10 +267,10 @@ impl Writer<'_> {
             });
             array.push(table);
         }
-        if self.out.is_empty() {
-            if let Some(first) = array.get_mut(0) {
-                first.decor_mut().set_prefix("");
-            }
+        if self.out.is_empty()
+            && let Some(first) = array.get_mut(0)
+        {
+            first.decor_mut().set_prefix("");
         }
         self.out[key] = Item::ArrayOfTables(array);
     }
