@@ -14,11 +14,27 @@ use fantoccini::actions::{
 use fantoccini::{Client, ClientBuilder, Locator};
 use serde_json::{Value, json};
 
-/// A child process killed when dropped.
+/// A child process killed when dropped; with its whole process group when
+/// it leads one (chromedriver: the browsers it starts must not outlive a
+/// failed test).
 pub struct Proc(pub Child);
+
+impl Proc {
+    /// Spawns `command` leading a process group of its own.
+    pub fn group(mut command: Command) -> Proc {
+        use std::os::unix::process::CommandExt;
+        Proc(command.process_group(0).spawn().expect("the program runs"))
+    }
+}
 
 impl Drop for Proc {
     fn drop(&mut self) {
+        // The group is the child's pid when it leads one; kill(-pid) is a
+        // no-op (ESRCH) when it does not.
+        // SAFETY: kill only sends a signal.
+        unsafe {
+            libc::kill(-(self.0.id() as i32), libc::SIGKILL);
+        }
         let _ = self.0.kill();
         let _ = self.0.wait();
     }
@@ -51,13 +67,12 @@ impl Browser {
             return None;
         }
         let port = free_port();
-        let child = Command::new(driver)
+        let mut command = Command::new(driver);
+        command
             .arg(format!("--port={port}"))
             .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("chromedriver runs");
-        let driver = Proc(child);
+            .stderr(Stdio::null());
+        let driver = Proc::group(command);
         let deadline = Instant::now() + Duration::from_secs(20);
         while TcpStream::connect(("127.0.0.1", port)).is_err() {
             assert!(Instant::now() < deadline, "chromedriver did not listen");
