@@ -36,3 +36,4 @@ pub mod store;
 pub mod throttle;
 pub mod train;
 pub mod walks;
+pub mod web;

@@ -10,6 +10,7 @@ mod record;
 mod replay;
 mod run;
 mod simulate;
+mod site;
 mod train;
 mod walks;
 
@@ -49,6 +50,8 @@ enum Command {
     Eval(eval::Args),
     /// Real walks in: import recorded tracks onto a site, build a scene's site.
     Walks(walks::Args),
+    /// Site files: edit one over its floor plan in the browser.
+    Site(site::Args),
 }
 
 /// Where `--config` points when it is not given.
@@ -69,6 +72,7 @@ impl Cli {
             Command::Train(args) => train::run(args),
             Command::Eval(args) => eval::run(args),
             Command::Walks(args) => walks::run(args),
+            Command::Site(args) => site::run(args),
         }
     }
 }
