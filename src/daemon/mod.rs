@@ -72,8 +72,9 @@ const WARN_EVERY: Duration = Duration::from_secs(10);
 const BACKLOG_POLL: Duration = Duration::from_millis(5);
 /// What an `overloaded` or `rate_limited` reply suggests waiting, seconds.
 const RETRY_AFTER_S: f64 = 1.0;
-/// Batches of own events queued at most.
-const EVENTS_QUEUE: usize = 64;
+/// Batches of own events queued at most (a radio sends one event a batch, a
+/// capture up to `source::playback::BATCH`).
+const EVENTS_QUEUE: usize = 32;
 /// Messages from others queued at most: few, since while the runtime does
 /// not take them the broker holds the rest (unacknowledged).
 const INBOUND_QUEUE: usize = 16;

@@ -105,11 +105,11 @@ impl Occupancy {
             .zip(&self.counts)
             .map(|(place, &n)| (place.clone(), n.into()))
             .collect();
-        Some(Message {
-            topic: topics.occupancy(),
-            payload: json!({"schema": OCCUPANCY_SCHEMA, "t": t, "places": places}),
-            retain: true,
-        })
+        Some(Message::json(
+            topics.occupancy(),
+            &json!({"schema": OCCUPANCY_SCHEMA, "t": t, "places": places}),
+            true,
+        ))
     }
 }
 
@@ -136,7 +136,7 @@ mod tests {
 
     fn counts(o: &mut Occupancy) -> Option<serde_json::Value> {
         o.update(&Topics::new("gangway/gw"), 1.0)
-            .map(|m| m.payload["places"].clone())
+            .map(|m| m.value()["places"].clone())
     }
 
     #[test]

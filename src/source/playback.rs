@@ -17,7 +17,7 @@ use super::capture::{CaptureError, CaptureReader};
 use super::{Event, Source, SourceContext};
 
 /// Most events handed to the runtime at once.
-pub const BATCH: usize = 512;
+pub const BATCH: usize = 256;
 
 /// When each event of a played log is due.
 #[derive(Debug)]
