@@ -24,10 +24,10 @@ use futures::future::BoxFuture;
 use serde::Serialize;
 use tokio::sync::oneshot;
 
+use crate::event::Truth;
 use crate::publish::{Location, Output};
 use crate::sink::Sink;
 use crate::site::{Cell, Site};
-use crate::source::Truth;
 
 /// Collects truths and fixes during a replay.
 #[derive(Debug)]

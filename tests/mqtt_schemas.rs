@@ -9,6 +9,7 @@ mod mqtt_support;
 use std::sync::Arc;
 
 use gangway::config::Config;
+use gangway::event::{Event, Inbound};
 use gangway::mqtt::inbound::Inbox;
 use gangway::mqtt::sightings;
 use gangway::mqtt::topics::Topics;
@@ -17,7 +18,6 @@ use gangway::plan::RouteErrorCode;
 use gangway::publish::Output;
 use gangway::site::Site;
 use gangway::source::log::LogReader;
-use gangway::source::{Event, Inbound};
 use mqtt_support::{check_schema, repo, schema_of};
 use serde_json::json;
 

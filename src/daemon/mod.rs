@@ -32,7 +32,7 @@
 //! or a counted refusal, and a source that fails is logged (and, in the
 //! daemon, the rest keeps serving).
 
-pub mod admission;
+mod admission;
 pub mod state;
 
 use std::future::Future;
@@ -53,9 +53,9 @@ use crate::publish::stats::{BleStatus, STATS_SCHEMA, Stats};
 use crate::publish::{FeedbackRefused, Output, RouteOutcome};
 use crate::sighting::{Sighting, unix_now};
 use crate::sink::Sink;
-use crate::source::{
-    Event, Feedback, Inbound, Input, RouteRequest, Shutdown, Source, SourceContext,
-};
+use crate::source::{Input, Shutdown, Source, SourceContext};
+
+use crate::event::{Event, Feedback, Inbound, RouteRequest};
 use crate::throttle::Throttle;
 
 /// How often this gateway's own sightings go out to the other gateways.

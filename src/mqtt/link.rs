@@ -190,11 +190,6 @@ impl Link {
         !self.task.is_finished()
     }
 
-    /// Queues a message; never blocks.
-    pub fn publish(&self, message: super::topics::Message) {
-        self.publish_batch(vec![message]);
-    }
-
     /// Queues messages, in order, in one hand-over to the link task; never
     /// blocks.
     pub fn publish_batch(&self, messages: Vec<super::topics::Message>) {

@@ -16,22 +16,22 @@
 //! - [`discovery`]: Home Assistant MQTT discovery;
 //! - [`broker`]: the embedded broker used when no url is configured.
 
-pub mod broker;
-pub mod config;
-pub mod discovery;
+pub(crate) mod broker;
+pub(crate) mod config;
+pub(crate) mod discovery;
 pub mod inbound;
-pub mod link;
-pub mod occupancy;
-pub mod queue;
+pub(crate) mod link;
+pub(crate) mod occupancy;
+pub(crate) mod queue;
 pub mod sightings;
-pub mod sink;
-pub mod source;
+pub(crate) mod sink;
+pub(crate) mod source;
 pub mod topics;
 
 use std::time::Duration;
 
 pub use config::{MqttConfig, MqttError};
-pub use link::{Link, LinkSettings, LinkStats, Received};
+pub(crate) use link::{Link, LinkSettings, LinkStats, Received};
 
 /// The broker to use: `override_url`, else `[mqtt] url`, else an embedded
 /// broker started now on 127.0.0.1.
