@@ -37,3 +37,4 @@ pub mod store;
 pub mod throttle;
 pub mod train;
 pub mod walks;
+pub mod web;

@@ -202,8 +202,9 @@ impl Pipeline {
         match event {
             Event::Advert(sighting) => {
                 self.stats.sightings += 1;
-                if let Some(fp) = self.windows.push(sighting) {
-                    self.fix(&fp, out);
+                match self.windows.push(sighting) {
+                    Some(fp) => self.fix(&fp, sighting.t, out),
+                    None => self.tick(sighting, out),
                 }
             }
             Event::Request(request) => {
@@ -228,7 +229,7 @@ impl Pipeline {
     /// Closes all open windows (end of a replay).
     pub fn finish(&mut self, out: &mut Vec<Output>) {
         for fp in self.windows.flush() {
-            self.fix(&fp, out);
+            self.fix(&fp, fp.t, out);
         }
     }
 
@@ -249,7 +250,23 @@ impl Pipeline {
         );
     }
 
-    fn fix(&mut self, fp: &Fingerprint, out: &mut Vec<Output>) {
+    /// Guidance between fixes: the sighting's time tells a guided device's
+    /// session where its walker is by now (announcements and arrival need
+    /// not wait for the next fix). Devices are the observers of what they
+    /// hear; a guided advertiser (a tag heard by gateways) is judged at
+    /// its fixes only.
+    fn tick(&mut self, sighting: &crate::sighting::Sighting, out: &mut Vec<Output>) {
+        if self.guide.is_empty() || self.orientation() != Orientation::Observer {
+            return;
+        }
+        if let Some(guidance) = self.guide.tick(&self.site, &sighting.observer, sighting.t) {
+            out.push(Output::Guidance(Box::new(guidance)));
+            self.forgotten_and_finished(out);
+        }
+    }
+
+    /// One fix from the window `fp`, closed by an event at `now`.
+    fn fix(&mut self, fp: &Fingerprint, now: f64, out: &mut Vec<Output>) {
         if fp.heard_count() == 0 {
             return;
         }
@@ -280,7 +297,7 @@ impl Pipeline {
             anchors_heard: fp.heard_count(),
         };
         out.push(Output::Location(location));
-        if let Some(guidance) = self.guide.update(&self.site, &fp.entity, cell, fp.t) {
+        if let Some(guidance) = self.guide.update(&self.site, &fp.entity, cell, fp.t, now) {
             let off_route = guidance.event == Some(GuidanceEvent::OffRoute);
             out.push(Output::Guidance(Box::new(guidance)));
             if off_route {
