@@ -245,7 +245,6 @@ fn occupancy_object_id(place: &str, all: &[&str]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::publish::LOCATION_SCHEMA;
     use crate::site::Cell;
 
     fn discovery() -> Discovery {
@@ -279,18 +278,7 @@ mod tests {
     }
 
     fn location(place: Option<&str>, cell: Option<Cell>) -> Location {
-        Location {
-            schema: LOCATION_SCHEMA,
-            device: "phone 7".into(),
-            t: 1.0,
-            cell,
-            label: None,
-            x_m: None,
-            y_m: None,
-            place: place.map(str::to_owned),
-            confidence: 0.5,
-            anchors_heard: 3,
-        }
+        Location::sample("phone 7", 1.0, cell, place)
     }
 
     #[test]

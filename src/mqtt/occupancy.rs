@@ -116,22 +116,11 @@ impl Occupancy {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::publish::LOCATION_SCHEMA;
     use crate::site::Cell;
 
     fn location(device: &str, place: Option<&str>, cell: serde_json::Value) -> Location {
-        Location {
-            schema: LOCATION_SCHEMA,
-            device: device.into(),
-            t: 1.0,
-            cell: serde_json::from_value::<Option<Cell>>(cell).unwrap(),
-            label: None,
-            x_m: None,
-            y_m: None,
-            place: place.map(str::to_owned),
-            confidence: 0.5,
-            anchors_heard: 3,
-        }
+        let cell = serde_json::from_value::<Option<Cell>>(cell).unwrap();
+        Location::sample(device, 1.0, cell, place)
     }
 
     fn counts(o: &mut Occupancy) -> Option<serde_json::Value> {

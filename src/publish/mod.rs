@@ -85,6 +85,30 @@ pub struct Location {
     pub anchors_heard: usize,
 }
 
+#[cfg(test)]
+impl Location {
+    /// A fix for tests: `device` at `cell` (unknown when `None`), near `place`.
+    pub(crate) fn sample(
+        device: &str,
+        t: f64,
+        cell: Option<Cell>,
+        place: Option<&str>,
+    ) -> Location {
+        Location {
+            schema: LOCATION_SCHEMA,
+            device: device.into(),
+            t,
+            cell,
+            label: None,
+            x_m: None,
+            y_m: None,
+            place: place.map(str::to_owned),
+            confidence: 0.5,
+            anchors_heard: 3,
+        }
+    }
+}
+
 /// The answer to a route request: a route or an error, never both.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct RouteReply {
