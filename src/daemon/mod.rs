@@ -171,7 +171,7 @@ pub async fn run(
             Ok(()) = changed(&mut radio) => Step::RadioChanged,
             _ = watchdog_tick.tick(), if watchdog.is_some() => Step::Watchdog,
             Some(()) = reloads.recv() => Step::Reload,
-            loaded = join(&mut reload), if reload.is_some() => Step::Reloaded(loaded),
+            loaded = join(&mut reload), if reload.is_some() => Step::Reloaded(Box::new(loaded)),
             Some(joined) = tasks.join_next() => Step::SourceEnded(joined),
         };
         match step {
@@ -207,7 +207,7 @@ pub async fn run(
             },
             Step::Reloaded(loaded) => {
                 reload = None;
-                runtime.swap(loaded);
+                runtime.swap(*loaded);
                 if std::mem::take(&mut reload_again)
                     && let Some(path) = &options.config_path
                 {
@@ -301,7 +301,8 @@ enum Step {
     RadioChanged,
     Watchdog,
     Reload,
-    Reloaded(anyhow::Result<Loaded>),
+    /// Boxed: a loaded pipeline is large, the other steps small.
+    Reloaded(Box<anyhow::Result<Loaded>>),
     SourceEnded(Result<(&'static str, anyhow::Result<()>), tokio::task::JoinError>),
 }
 
