@@ -138,7 +138,10 @@ fn desire_beats_the_baselines(report: &Value, scene: &str) {
     for baseline in ["anyangle", "astar"] {
         let b = &report["baselines"][baseline];
         for m in ["dtw_m_median", "frechet_m_median"] {
-            assert!(median(desire, m) < median(b, m), "{scene}: {m} vs {baseline}");
+            assert!(
+                median(desire, m) < median(b, m),
+                "{scene}: {m} vs {baseline}"
+            );
         }
         assert!(
             desire["iou_mean"].as_f64().unwrap() > b["iou_mean"].as_f64().unwrap(),
