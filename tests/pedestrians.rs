@@ -123,6 +123,25 @@ fn check_judges(report: &Value, learned: &[&str]) {
     }
 }
 
+/// `gangway eval planning` of the `models` served on `site`, judged on the
+/// `heldout` walks and 20 random pairs.
+fn judged(site: &Path, models: &Path, heldout: &Path) -> Value {
+    serde_json::from_str(&gangway_ok(&[
+        "eval",
+        "planning",
+        "--site",
+        text(site),
+        "--models",
+        text(models),
+        "--random-pairs",
+        "20",
+        "--heldout-walks",
+        text(heldout),
+        "--json",
+    ]))
+    .unwrap()
+}
+
 /// The quality floor of the desire lines on a real scene: a gate on what
 /// they reach (the targets, met on both scenes).
 fn desire_beats_the_baselines(report: &Value, scene: &str) {
@@ -200,20 +219,7 @@ fn real_walks_are_imported_and_judged_and_a_trained_directory_is_served() {
         "--desire-only",
         "--json",
     ]);
-    let report: Value = serde_json::from_str(&gangway_ok(&[
-        "eval",
-        "planning",
-        "--site",
-        text(&site),
-        "--models",
-        text(&models),
-        "--random-pairs",
-        "20",
-        "--heldout-walks",
-        text(&heldout),
-        "--json",
-    ]))
-    .unwrap();
+    let report = judged(&site, &models, &heldout);
     check_judges(&report, &["desire"]);
     desire_beats_the_baselines(&report, "seq_eth");
 
@@ -241,20 +247,7 @@ fn real_walks_are_imported_and_judged_and_a_trained_directory_is_served() {
         "--json",
     ]);
     assert!(models.join("MODEL_CARD.md").is_file());
-    let report: Value = serde_json::from_str(&gangway_ok(&[
-        "eval",
-        "planning",
-        "--site",
-        text(&site),
-        "--models",
-        text(&models),
-        "--random-pairs",
-        "20",
-        "--heldout-walks",
-        text(&heldout),
-        "--json",
-    ]))
-    .unwrap();
+    let report = judged(&site, &models, &heldout);
     check_judges(&report, &["conditional", "rejection", "desire"]);
     desire_beats_the_baselines(&report, "students03");
     let walk = &trajectory::read(&heldout, &Site::load(&site).unwrap()).unwrap()[0];

@@ -415,11 +415,9 @@ fn off_boundaries(p: GridPoint) -> GridPoint {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::path::Path;
 
     fn site(map: &str) -> Arc<Site> {
-        let text = format!("name = \"t\"\ncell_m = 1.0\nmap = '''\n{map}\n'''\n");
-        Arc::new(Site::parse(&text, Path::new("t.toml")).unwrap())
+        Arc::new(Site::of_map(map))
     }
 
     #[test]
