@@ -268,6 +268,14 @@ impl Config {
             .pathloss
             .validate()
             .map_err(|e| format!("[localizer.pathloss] {e}"))?;
+        self.localizer
+            .knn
+            .validate()
+            .map_err(|e| format!("[localizer.knn] {e}"))?;
+        self.localizer
+            .recalibration
+            .validate()
+            .map_err(|e| format!("[localizer.recalibration] {e}"))?;
         self.guidance.validate()?;
         self.ble.validate()?;
         self.mqtt.validate().map_err(|e| e.to_string())?;
