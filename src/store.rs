@@ -861,4 +861,37 @@ mod tests {
         let err = Store::open_read_only(&path).err().unwrap().to_string();
         assert!(err.contains("s.sqlite") && err.contains("99"), "{err}");
     }
+
+    #[test]
+    fn heard_windows_read_back_newest_and_are_kept_bounded() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.sqlite");
+        let mut store = Store::open(&path).unwrap();
+        let heard = |device: &str, t: f64| Record::Heard {
+            device: device.into(),
+            t,
+            readings: vec![("b1".into(), -70.5), ("b2".into(), -81.0)],
+        };
+        store
+            .write(&[
+                heard("b", 3.0),
+                heard("a", 1.0),
+                heard("a", 2.0),
+                heard("b", 0.5),
+            ])
+            .unwrap();
+        // The newest three, by device then time.
+        let read = Store::open_read_only(&path).unwrap().heard(3).unwrap();
+        let keys: Vec<(&str, f64)> = read.iter().map(|r| (r.device.as_str(), r.t)).collect();
+        assert_eq!(keys, [("a", 1.0), ("a", 2.0), ("b", 3.0)]);
+        assert_eq!(
+            read[0].readings,
+            [("b1".to_owned(), -70.5), ("b2".to_owned(), -81.0)]
+        );
+        assert_eq!(store.keep_newest_heard(2).unwrap(), 2);
+        assert_eq!(store.heard(10).unwrap().len(), 2);
+        // Retention covers the table like the others.
+        assert_eq!(store.prune(10.0, 6.5, u64::MAX).unwrap(), 2);
+        assert!(store.heard(10).unwrap().is_empty());
+    }
 }

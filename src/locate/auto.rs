@@ -5,7 +5,7 @@
 //!
 //! With a survey, each window goes to whichever surveyed method can read it:
 //! the k-NN vote when the survey holds a fingerprint like this one (its
-//! nearest row within two kernel widths, [`FAMILIAR_BANDWIDTHS`]), else the
+//! nearest row within two kernel widths, [`Knn::familiar`]), else the
 //! interpolated radio map. The vote is a lookup of fingerprints seen before:
 //! unbeatable on a floor surveyed cell by cell where visitors hear what the
 //! surveyor heard, blind to a fingerprint nobody recorded and to cells between
@@ -107,25 +107,17 @@ pub(crate) fn surveyed(
     Ok(Box::new(gated))
 }
 
-/// A fingerprint is familiar when a survey row lies within this many k-NN
-/// kernel widths of it (L1, dB): the nearest row then still carries
-/// e^-2 ≈ 14% of an exact match's weight, so the vote is a lookup of
-/// something recorded rather than the least bad of strangers.
-const FAMILIAR_BANDWIDTHS: f32 = 2.0;
-
 /// The k-NN vote or the radio map, chosen per window by how familiar the
 /// fingerprint is to the survey.
 struct Gated {
     knn: Knn,
     map: RadioMap,
-    familiar_db: f32,
     confidence: ConfidenceMap,
 }
 
 impl Gated {
     fn new(knn: Knn, map: RadioMap) -> Gated {
         Gated {
-            familiar_db: FAMILIAR_BANDWIDTHS * knn.bandwidth_db(),
             knn,
             map,
             confidence: ConfidenceMap::default(),
@@ -140,7 +132,7 @@ impl Localizer for Gated {
 
     fn log_likelihood(&mut self, rssi: &[f32], heard: &[bool], out: &mut [f32]) {
         self.knn.log_likelihood(rssi, heard, out);
-        if self.knn.nearest_db() > self.familiar_db {
+        if !self.knn.familiar() {
             self.map.log_likelihood(rssi, heard, out);
         }
     }

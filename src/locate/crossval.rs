@@ -23,13 +23,16 @@ pub enum Folds {
     /// survey has no times): cheap, for choosing between settings.
     Sessions(usize),
     /// Each walking session held out in turn, the model built from all the
-    /// others (ten folds of rows without times): held-out fixes from models
+    /// others, in at most [`MAX_FOLDS`] folds (sessions dealt round-robin
+    /// beyond that, and rows without times): held-out fixes from models
     /// nearly as large as the final one, for fitting its confidence.
     EachSession,
 }
 
-/// Folds of rows when a survey without times is held out "each session".
-const ROW_FOLDS: usize = 10;
+/// Folds of [`Folds::EachSession`] at most: each trains on ≥ 95% of the
+/// survey, and a survey of a thousand one-row sessions is not rebuilt a
+/// thousand times.
+const MAX_FOLDS: usize = 20;
 
 /// The chosen candidate, its mean held-out error (cells) and the confidence
 /// map of its held-out fixes.
@@ -86,16 +89,17 @@ fn folds(samples: &[&Sample], how: Folds) -> (Vec<usize>, usize) {
     let Some(times) = times else {
         let n = match how {
             Folds::Sessions(n) => n,
-            Folds::EachSession => ROW_FOLDS,
+            Folds::EachSession => MAX_FOLDS,
         };
         return ((0..samples.len()).map(|i| i % n).collect(), n);
     };
     let (order, session) = sessions(&times, SESSION_GAP_S);
     let count = order.last().map_or(0, |&i| session[i] + 1);
-    match how {
-        Folds::Sessions(n) => (session.into_iter().map(|s| s % n).collect(), n),
-        Folds::EachSession => (session, count),
-    }
+    let n = match how {
+        Folds::Sessions(n) => n,
+        Folds::EachSession => count.clamp(1, MAX_FOLDS),
+    };
+    (session.into_iter().map(|s| s % n).collect(), n)
 }
 
 /// (raw confidence, error in cells) of one held-out row.
