@@ -11,8 +11,9 @@ use std::path::Path;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use gangway::guide::{GuidanceConfig, Guide};
+use gangway::mqtt::topics::Topics;
 use gangway::plan::{Connectivity, Profile, astar};
-use gangway::publish::Topics;
+use gangway::publish::Output;
 use gangway::site::Site;
 
 fn guidance(c: &mut Criterion) {
@@ -36,7 +37,7 @@ fn guidance(c: &mut Criterion) {
             t += 2.0;
             let message = guide.update(&site, "phone", Some(walk[i]), t);
             i = (i + 1) % walk.len();
-            black_box(message.map(|m| topics.encode_guidance(&m)))
+            black_box(message.and_then(|m| topics.encode(&Output::Guidance(Box::new(m)))))
         })
     });
     println!(

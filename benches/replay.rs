@@ -1,9 +1,11 @@
 //! Replay end to end: a JSON Lines advert log read, parsed and run through
-//! the whole pipeline (windows, localizer, tracker, messages), reported as
-//! adverts per second on one thread. The log is simulated on the sample site
-//! (50 walkers for a minute, no route requests) and written to a temp file,
-//! so the figure includes file reading and JSON parsing like
-//! `gangway replay --speed 0`.
+//! the gateway's runtime (windows, localizer, tracker, typed outputs) and
+//! every output encoded as the JSON Lines `--print` writes, to a sink that
+//! drops them; reported as adverts per second on one thread. The log is
+//! simulated on the sample site (50 walkers for a minute, no route
+//! requests) and written to a temp file, so the figure includes file reading
+//! and JSON parsing: it is `gangway replay --speed 0 --print > /dev/null`
+//! without the process start.
 //!
 //! `cargo bench --bench replay`
 
@@ -12,11 +14,15 @@ use std::sync::Arc;
 
 use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_main};
 use gangway::config::Config;
+use gangway::daemon::{self, state::Loaded};
+use gangway::mqtt::topics::Topics;
 use gangway::pipeline::Pipeline;
 use gangway::plan::PlannerMode;
+use gangway::sink::jsonl::JsonLines;
 use gangway::site::Site;
 use gangway::source::Event;
 use gangway::source::capture::{CaptureReader, CaptureWriter, ReadOptions};
+use gangway::source::playback::CaptureSource;
 use gangway::source::simulate::{SimConfig, simulate};
 
 fn root() -> PathBuf {
@@ -49,6 +55,10 @@ fn benches(c: &mut Criterion) {
         writer.write(event).expect("write");
     }
     writer.flush().expect("flush");
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("runtime");
 
     let mut group = c.benchmark_group("replay");
     group.throughput(Throughput::Elements(adverts as u64));
@@ -56,7 +66,7 @@ fn benches(c: &mut Criterion) {
     group.bench_function("jsonl end to end", |b| {
         b.iter_batched(
             || Pipeline::new(&config, site.clone()).expect("pipeline"),
-            |mut pipeline| {
+            |pipeline| {
                 let reader = CaptureReader::open(
                     &log,
                     &site,
@@ -68,13 +78,34 @@ fn benches(c: &mut Criterion) {
                     },
                 )
                 .expect("open");
-                let mut out = Vec::new();
-                for event in reader {
-                    pipeline.handle(&event.expect("event"), &mut out);
-                    out.clear();
-                }
-                pipeline.finish(&mut out);
-                out.len()
+                let serving = Loaded {
+                    config: config.clone(),
+                    site: site.clone(),
+                    pipeline,
+                    fallbacks: Vec::new(),
+                };
+                let print = JsonLines::new(
+                    Topics::new(config.topic_prefix()),
+                    std::io::sink(),
+                    "nowhere",
+                );
+                let options = daemon::Options {
+                    until_sources_end: true,
+                    ..daemon::Options::default()
+                };
+                let (_, reloads) = tokio::sync::mpsc::channel(1);
+                let stats = runtime
+                    .block_on(daemon::run(
+                        serving,
+                        options,
+                        vec![Box::new(CaptureSource::new(log.clone(), reader, 0.0))],
+                        vec![Box::new(print)],
+                        std::future::pending(),
+                        reloads,
+                    ))
+                    .expect("replay");
+                assert_eq!(stats.sightings, adverts as u64);
+                stats.fixes
             },
             BatchSize::PerIteration,
         )

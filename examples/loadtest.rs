@@ -25,7 +25,7 @@ use std::time::{Duration, Instant};
 
 use clap::Parser;
 use gangway::config::Config;
-use gangway::publish::Topics;
+use gangway::mqtt::topics::Topics;
 use gangway::site::Site;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use support::{Guard, gangway, mosquitto, percentile, usage};

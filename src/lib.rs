@@ -4,17 +4,17 @@
 //!
 //! ```text
 //! source ──Event──▶ locate::window ──Fingerprint──▶ Localizer ──▶ locate::tracker
-//!    (ble, log, simulate)                                               │ Fix
-//!                                  publish ◀──Location / RouteReply── pipeline ◀── plan
-//!                                     │
-//!                               mqtt, --print
+//! (ble, capture, mqtt)                                                  │ Fix
+//!                     sink ◀──publish::Output── pipeline ◀── plan, guide
+//!     (mqtt, jsonl, store, score)
 //! ```
 //!
 //! [`site`] and [`config`] describe the building and the gateway; [`pipeline`]
-//! wires the stages together without doing I/O; [`daemon`] and the [`cli`]
-//! drive it, [`mqtt`] connects it to the broker, and [`store`] keeps what the
-//! daemon saw for training. [`score`] compares a replay's fixes with its log's
-//! ground truth.
+//! wires the stages together without doing I/O and returns typed outputs
+//! ([`publish`]); the runtime ([`daemon`]) runs it between [`source`]s and
+//! [`sink`]s, and the [`cli`] wires them. [`mqtt`] is the broker as a source
+//! and a sink, [`store`] keeps what the daemon saw for training, and [`score`]
+//! compares a replay's fixes with its log's ground truth.
 
 pub mod cli;
 pub mod config;
@@ -29,6 +29,7 @@ pub mod plan;
 pub mod publish;
 pub mod score;
 pub mod sighting;
+pub mod sink;
 pub mod site;
 pub mod source;
 pub mod store;

@@ -4,10 +4,10 @@
 //! guided device a guidance message, and a route re-planned from where the
 //! device is when it has left its route.
 //!
-//! It does no I/O and keeps no clock of its own: the daemon, `replay` and the
-//! tests feed it [`Event`]s and send on the [`Message`]s it returns. That keeps
-//! replay as fast as the CPU allows and makes the daemon's behaviour testable
-//! from a log.
+//! It does no I/O and keeps no clock of its own: the runtime ([`crate::daemon`])
+//! and the tests feed it [`Event`]s and hand the typed [`Output`]s it returns
+//! to the sinks. It knows no topic and writes no JSON. That keeps replay as
+//! fast as the CPU allows and makes the daemon's behaviour testable from a log.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -19,22 +19,55 @@ use crate::locate::window::{Fingerprint, Orientation, Windows};
 use crate::locate::{self, Localizer};
 use crate::plan::{self, Planner, Profile, Route, RouteErrorCode};
 use crate::publish::{
-    ErrorBody, LOCATION_SCHEMA, Location, Message, PATH_SCHEMA, RouteBody, RouteOutcome,
-    RouteReply, Topics, valid_device_id,
+    ErrorBody, LOCATION_SCHEMA, Location, Output, PATH_SCHEMA, RouteBody, RouteOutcome, RouteReply,
+    valid_device_id,
 };
 use crate::site::{Cell, Site};
 use crate::source::{Event, RouteRequest};
 
-/// Counters a gateway reports about its pipeline.
+/// Counters a gateway reports about its pipeline. A reload adds the
+/// replaced pipeline's to the ones kept (`+=`), so every counter is summed
+/// in this one place.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Stats {
     pub sightings: u64,
+    /// Sightings of anchors the site does not know.
+    pub sightings_ignored: u64,
     pub fixes: u64,
     pub requests: u64,
     pub routes: u64,
     pub request_errors: u64,
     /// Entities whose id cannot be a topic level; their fixes are not published.
     pub bad_device_ids: u64,
+    /// Tracks and fingerprint windows forgotten by `[limits]` (idle, or least
+    /// recently seen past `max_devices`).
+    pub evicted_devices: u64,
+    pub evicted_windows: u64,
+}
+
+impl std::ops::AddAssign for Stats {
+    fn add_assign(&mut self, other: Stats) {
+        let Stats {
+            sightings,
+            sightings_ignored,
+            fixes,
+            requests,
+            routes,
+            request_errors,
+            bad_device_ids,
+            evicted_devices,
+            evicted_windows,
+        } = other;
+        self.sightings += sightings;
+        self.sightings_ignored += sightings_ignored;
+        self.fixes += fixes;
+        self.requests += requests;
+        self.routes += routes;
+        self.request_errors += request_errors;
+        self.bad_device_ids += bad_device_ids;
+        self.evicted_devices += evicted_devices;
+        self.evicted_windows += evicted_windows;
+    }
 }
 
 pub struct Pipeline {
@@ -44,7 +77,6 @@ pub struct Pipeline {
     tracker: Tracker,
     planner: Box<dyn Planner>,
     guide: Guide,
-    topics: Topics,
     log_likelihood: Vec<f32>,
     /// Published confidence under which a fix is published as unknown.
     min_confidence: f32,
@@ -128,7 +160,6 @@ impl Pipeline {
                 config.guidance.clone(),
                 config.guidance.fix_lag_s(&config.window),
             ),
-            topics: Topics::new(config.topic_prefix()),
             log_likelihood: vec![0.0; site.open_cells().len()],
             site,
             min_confidence: config.localizer.min_confidence,
@@ -141,17 +172,14 @@ impl Pipeline {
         &self.site
     }
 
-    pub fn topics(&self) -> &Topics {
-        &self.topics
-    }
-
+    /// The counters so far.
     pub fn stats(&self) -> Stats {
-        self.stats
-    }
-
-    /// Sightings of anchors the site does not know.
-    pub fn unknown_anchor_sightings(&self) -> u64 {
-        self.windows.unknown_anchor_count()
+        Stats {
+            sightings_ignored: self.windows.unknown_anchor_count(),
+            evicted_windows: self.windows.evicted_count(),
+            evicted_devices: self.tracker.evicted_count(),
+            ..self.stats
+        }
     }
 
     /// The guidance sessions.
@@ -169,19 +197,8 @@ impl Pipeline {
         self.windows.entity_count()
     }
 
-    /// Windows and tracks forgotten by `[limits]` (idle, or least recently
-    /// seen past `max_devices`).
-    pub fn evicted(&self) -> (u64, u64) {
-        (self.windows.evicted_count(), self.tracker.evicted_count())
-    }
-
-    /// The devices whose tracks were forgotten since the last call.
-    pub fn take_evicted(&mut self) -> Vec<Arc<str>> {
-        self.tracker.take_evicted()
-    }
-
     /// Handles one event, appending what it causes to publish to `out`.
-    pub fn handle(&mut self, event: &Event, out: &mut Vec<Message>) {
+    pub fn handle(&mut self, event: &Event, out: &mut Vec<Output>) {
         match event {
             Event::Advert(sighting) => {
                 self.stats.sightings += 1;
@@ -191,38 +208,48 @@ impl Pipeline {
             }
             Event::Request(request) => {
                 let reply = self.route(request);
-                out.push(self.topics.encode_route(&reply));
-                if let RouteOutcome::Route(body) = &reply.outcome {
-                    self.guide_along(&reply, body, false, out);
-                }
+                self.reply(reply, false, out);
             }
-            // Ground truth is for scoring a replay, not for the pipeline.
-            Event::Truth(_) => {}
+            // Ground truth is for scoring a replay, not for the pipeline:
+            // passed on for the sinks that score.
+            Event::Truth(truth) => out.push(Output::Truth(truth.clone())),
         }
-    }
-
-    /// The adherence of the guidance sessions finished since the last call
-    /// (implicit feedback for the learning store).
-    pub fn take_adherence(&mut self) -> Vec<crate::guide::Adherence> {
-        self.guide.take_finished()
     }
 
     /// Ends the guidance session of `device` at its request, publishing its
     /// last message (`cancelled`); nothing when it has none.
-    pub fn cancel(&mut self, device: &str, t: f64, out: &mut Vec<Message>) {
+    pub fn cancel(&mut self, device: &str, t: f64, out: &mut Vec<Output>) {
         if let Some(last) = self.guide.cancel(device, t) {
-            out.push(self.topics.encode_guidance(&last));
+            out.push(Output::Guidance(Box::new(last)));
         }
+        self.forgotten_and_finished(out);
     }
 
     /// Closes all open windows (end of a replay).
-    pub fn finish(&mut self, out: &mut Vec<Message>) {
+    pub fn finish(&mut self, out: &mut Vec<Output>) {
         for fp in self.windows.flush() {
             self.fix(&fp, out);
         }
     }
 
-    fn fix(&mut self, fp: &Fingerprint, out: &mut Vec<Message>) {
+    /// What the stages let go of since the last call: devices whose tracks
+    /// were forgotten, and the adherence of guidance sessions that ended.
+    fn forgotten_and_finished(&mut self, out: &mut Vec<Output>) {
+        out.extend(
+            self.tracker
+                .take_evicted()
+                .into_iter()
+                .map(Output::Forgotten),
+        );
+        out.extend(
+            self.guide
+                .take_finished()
+                .into_iter()
+                .map(Output::Adherence),
+        );
+    }
+
+    fn fix(&mut self, fp: &Fingerprint, out: &mut Vec<Output>) {
         if fp.heard_count() == 0 {
             return;
         }
@@ -252,29 +279,42 @@ impl Pipeline {
             confidence,
             anchors_heard: fp.heard_count(),
         };
-        out.push(self.topics.encode_location(&location));
-        let Some(guidance) = self.guide.update(&self.site, &fp.entity, cell, fp.t) else {
-            return;
-        };
-        out.push(self.topics.encode_guidance(&guidance));
-        if guidance.event == Some(GuidanceEvent::OffRoute) {
-            self.reroute(&fp.entity, fix.cell, fp.t, out);
+        out.push(Output::Location(location));
+        if let Some(guidance) = self.guide.update(&self.site, &fp.entity, cell, fp.t) {
+            let off_route = guidance.event == Some(GuidanceEvent::OffRoute);
+            out.push(Output::Guidance(Box::new(guidance)));
+            if off_route {
+                self.reroute(&fp.entity, fix.cell, fp.t, out);
+            }
         }
+        self.forgotten_and_finished(out);
     }
 
-    /// Starts guiding a device along a route just published.
+    /// Publishes a route reply and, for a route, starts guiding along it.
+    fn reply(&mut self, reply: RouteReply, rerouted: bool, out: &mut Vec<Output>) {
+        if let RouteOutcome::Route(body) = &reply.outcome {
+            let first = self.guide_along(&reply, body, rerouted);
+            out.push(Output::Route(Box::new(reply)));
+            out.push(Output::Guidance(Box::new(first)));
+        } else {
+            out.push(Output::Route(Box::new(reply)));
+        }
+        self.forgotten_and_finished(out);
+    }
+
+    /// Starts guiding a device along a route just published; returns the
+    /// session's first message.
     fn guide_along(
         &mut self,
         reply: &RouteReply,
         body: &RouteBody,
         rerouted: bool,
-        out: &mut Vec<Message>,
-    ) {
+    ) -> crate::publish::Guidance {
         let route = Route {
             cells: body.waypoints.iter().map(|w| w.cell).collect(),
         };
         let profile = Profile::parse(body.profile).unwrap_or_default();
-        let first = self.guide.start(
+        self.guide.start(
             &self.site,
             &reply.device,
             reply.request_id.clone(),
@@ -282,15 +322,14 @@ impl Pipeline {
             &route,
             reply.t,
             rerouted,
-        );
-        out.push(self.topics.encode_guidance(&first));
+        )
     }
 
     /// Re-plans the route of a device that left it, from its tracked `cell`
     /// to the same destination, and publishes it with reason `off_route`.
     /// When no route can be planned the session stays off route (and the
     /// device is told so by its guidance) until it walks back or asks again.
-    fn reroute(&mut self, device: &str, cell: Cell, t: f64, out: &mut Vec<Message>) {
+    fn reroute(&mut self, device: &str, cell: Cell, t: f64, out: &mut Vec<Output>) {
         let Some(session) = self.guide.session(device) else {
             return;
         };
@@ -325,10 +364,7 @@ impl Pipeline {
             t,
             outcome: RouteOutcome::Route(body),
         };
-        out.push(self.topics.encode_route(&reply));
-        if let RouteOutcome::Route(body) = &reply.outcome {
-            self.guide_along(&reply, body, true, out);
-        }
+        self.reply(reply, true, out);
     }
 
     /// Plans a route from the device's tracked cell; every failure becomes an
@@ -368,7 +404,11 @@ impl Pipeline {
             request_id,
             t,
             outcome: RouteOutcome::Error {
-                error: ErrorBody { code, message },
+                error: ErrorBody {
+                    code,
+                    message,
+                    retry_after_s: None,
+                },
             },
         }
     }
@@ -380,7 +420,11 @@ impl Pipeline {
 
     fn plan_request(&self, request: &RouteRequest, started: Instant) -> RouteOutcome {
         let error = |code: RouteErrorCode, message: String| RouteOutcome::Error {
-            error: ErrorBody { code, message },
+            error: ErrorBody {
+                code,
+                message,
+                retry_after_s: None,
+            },
         };
         let profile = match request.profile.as_deref() {
             None => Profile::Default,

@@ -1,5 +1,6 @@
-//! Scoring a replay: the location messages the pipeline published against the
-//! `truth` events of the log it replayed.
+//! Scoring a replay: the locations the pipeline published against the
+//! `truth` events of the log it replayed. The [`Scorer`] is a sink of the
+//! runtime (`replay --score`); the score comes back on a channel at shutdown.
 //!
 //! Each fix (a location message) is matched to the truth event of the same
 //! device nearest to it in time; if that truth is further than the tolerance
@@ -17,10 +18,14 @@
 //! may arrive after the fix it scores: a few dozen bytes per event.
 
 use std::collections::HashMap;
+use std::sync::Arc;
 
-use serde::{Deserialize, Serialize};
+use futures::future::BoxFuture;
+use serde::Serialize;
+use tokio::sync::oneshot;
 
-use crate::publish::{LOCATION_SCHEMA, Message};
+use crate::publish::{Location, Output};
+use crate::sink::Sink;
 use crate::site::{Cell, Site};
 use crate::source::Truth;
 
@@ -32,14 +37,6 @@ pub struct Scorer {
     truths: HashMap<String, Vec<(f64, Cell)>>,
     truth_count: u64,
     fixes: Vec<(String, f64, Cell)>,
-}
-
-/// The fields of a location payload the scorer needs.
-#[derive(Deserialize)]
-struct LocationFields {
-    device: String,
-    t: f64,
-    cell: Cell,
 }
 
 /// How well the fixes of a replay match its truth.
@@ -81,15 +78,26 @@ impl Scorer {
             .push((truth.t, truth.cell));
     }
 
-    /// Takes the fix of a location message; other messages are ignored.
-    pub fn message(&mut self, message: &Message) {
-        if message.payload.get("schema").and_then(|s| s.as_str()) != Some(LOCATION_SCHEMA) {
-            return;
+    /// Takes a fix; an unknown location names no cell to score.
+    pub fn location(&mut self, location: &Location) {
+        if let Some(cell) = location.cell {
+            self.fixes.push((location.device.clone(), location.t, cell));
         }
-        // The pipeline built this payload from a `Location`, so it always has these.
-        if let Ok(fix) = LocationFields::deserialize(&message.payload) {
-            self.fixes.push((fix.device, fix.t, fix.cell));
-        }
+    }
+
+    /// The scorer as a sink of the runtime: it takes the locations and the
+    /// truths that pass through, and sends the score on the channel when
+    /// the runtime shuts it down.
+    pub fn sink(self, site: Arc<Site>) -> (ScoreSink, oneshot::Receiver<Score>) {
+        let (done, score) = oneshot::channel();
+        (
+            ScoreSink {
+                scorer: self,
+                site,
+                done,
+            },
+            score,
+        )
     }
 
     pub fn score(mut self, site: &Site) -> Score {
@@ -120,6 +128,37 @@ impl Scorer {
             truths: self.truth_count,
             tolerance_s: self.tolerance_s,
         }
+    }
+}
+
+/// A [`Scorer`] fed by the runtime.
+pub struct ScoreSink {
+    scorer: Scorer,
+    site: Arc<Site>,
+    done: oneshot::Sender<Score>,
+}
+
+impl Sink for ScoreSink {
+    fn name(&self) -> &'static str {
+        "score"
+    }
+
+    fn send(&mut self, outputs: &[Output]) -> anyhow::Result<()> {
+        for output in outputs {
+            match output {
+                Output::Location(l) => self.scorer.location(l),
+                Output::Truth(t) => self.scorer.truth(t),
+                _ => {}
+            }
+        }
+        Ok(())
+    }
+
+    fn shutdown(self: Box<Self>) -> BoxFuture<'static, anyhow::Result<()>> {
+        let ScoreSink { scorer, site, done } = *self;
+        // Nobody waiting for the score is no failure of the sink's.
+        let _ = done.send(scorer.score(&site));
+        Box::pin(std::future::ready(Ok(())))
     }
 }
 
@@ -206,7 +245,7 @@ impl std::fmt::Display for Score {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::publish::{Location, Topics};
+    use crate::publish::LOCATION_SCHEMA;
     use std::path::Path;
 
     fn site() -> Site {
@@ -214,8 +253,8 @@ mod tests {
         Site::parse(text, Path::new("t.toml")).unwrap()
     }
 
-    fn fix(device: &str, t: f64, cell: Cell) -> Message {
-        Topics::new("gangway/gw").encode_location(&Location {
+    fn fix(device: &str, t: f64, cell: Cell) -> Location {
+        Location {
             schema: LOCATION_SCHEMA,
             device: device.into(),
             t,
@@ -226,7 +265,7 @@ mod tests {
             place: None,
             confidence: 0.5,
             anchors_heard: 1,
-        })
+        }
     }
 
     fn truth(device: &str, t: f64, cell: Cell) -> Truth {
@@ -243,11 +282,11 @@ mod tests {
         s.truth(&truth("a", 0.0, Cell::new(0, 0)));
         s.truth(&truth("a", 10.0, Cell::new(4, 0)));
         s.truth(&truth("b", 4.0, Cell::new(0, 2)));
-        s.message(&fix("a", 1.0, Cell::new(0, 0))); // exact (truth at 0)
-        s.message(&fix("a", 9.0, Cell::new(3, 1))); // truth at 10: √2 off
-        s.message(&fix("a", 5.0, Cell::new(0, 0))); // nearest truth 5 s away: unmatched
-        s.message(&fix("b", 4.5, Cell::new(3, 2))); // 3 cells off
-        s.message(&fix("c", 4.5, Cell::new(3, 2))); // no truth for c
+        s.location(&fix("a", 1.0, Cell::new(0, 0))); // exact (truth at 0)
+        s.location(&fix("a", 9.0, Cell::new(3, 1))); // truth at 10: √2 off
+        s.location(&fix("a", 5.0, Cell::new(0, 0))); // nearest truth 5 s away: unmatched
+        s.location(&fix("b", 4.5, Cell::new(3, 2))); // 3 cells off
+        s.location(&fix("c", 4.5, Cell::new(3, 2))); // no truth for c
         let score = s.score(&site());
         assert_eq!(score.fixes, 5);
         assert_eq!(score.matched, 3);
@@ -261,11 +300,11 @@ mod tests {
     }
 
     #[test]
-    fn ignores_route_messages_and_reports_nothing_without_matches() {
+    fn ignores_unknown_locations_and_reports_nothing_without_matches() {
         let mut s = Scorer::new(4.0);
-        let mut route = fix("a", 1.0, Cell::new(0, 0));
-        route.payload["schema"] = "gangway.path/1".into();
-        s.message(&route);
+        let mut unknown = fix("a", 1.0, Cell::new(0, 0));
+        unknown.cell = None;
+        s.location(&unknown);
         let score = s.score(&site());
         assert_eq!((score.fixes, score.matched), (0, 0));
         assert_eq!(score.exact, None);

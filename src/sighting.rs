@@ -41,3 +41,11 @@ pub struct Sighting {
     /// Received signal strength in dBm.
     pub rssi: i16,
 }
+
+/// Now, in seconds since the Unix epoch: the clock of live sightings and of
+/// everything the gateway stamps itself.
+pub fn unix_now() -> f64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
+}

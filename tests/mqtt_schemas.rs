@@ -9,27 +9,31 @@ mod mqtt_support;
 use std::sync::Arc;
 
 use gangway::config::Config;
-use gangway::mqtt::inbound::{Inbound, Inbox};
+use gangway::mqtt::inbound::Inbox;
 use gangway::mqtt::sightings;
+use gangway::mqtt::topics::Topics;
 use gangway::pipeline::Pipeline;
 use gangway::plan::RouteErrorCode;
-use gangway::publish::Topics;
+use gangway::publish::Output;
 use gangway::site::Site;
-use gangway::source::Event;
 use gangway::source::log::LogReader;
+use gangway::source::{Event, Inbound};
 use mqtt_support::{check_schema, repo, schema_of};
 use serde_json::json;
 
-fn pipeline() -> Pipeline {
+fn pipeline() -> (Pipeline, Topics) {
     let config = Config::load(&repo().join("config/gangway.toml")).unwrap();
     let site = Arc::new(Site::load(&config.site).unwrap());
-    Pipeline::new(&config, site).unwrap()
+    (
+        Pipeline::new(&config, site).unwrap(),
+        Topics::new(config.topic_prefix()),
+    )
 }
 
 #[test]
 fn replayed_locations_routes_and_errors_match_their_schemas() {
-    let mut pipeline = pipeline();
-    let mut out = Vec::new();
+    let (mut pipeline, topics) = pipeline();
+    let mut outputs = Vec::new();
     let mut own = Vec::new();
     for event in LogReader::open(&repo().join("fixtures/walk-waldo.jsonl"), false).unwrap() {
         let event = event.unwrap();
@@ -38,9 +42,9 @@ fn replayed_locations_routes_and_errors_match_their_schemas() {
         {
             own.push(s.clone());
         }
-        pipeline.handle(&event, &mut out);
+        pipeline.handle(&event, &mut outputs);
     }
-    pipeline.finish(&mut out);
+    pipeline.finish(&mut outputs);
     let reject = pipeline.reject(
         "walker-01",
         Some("r".into()),
@@ -48,7 +52,8 @@ fn replayed_locations_routes_and_errors_match_their_schemas() {
         RouteErrorCode::InvalidJson,
         "bad".into(),
     );
-    out.push(pipeline.topics().encode_route(&reject));
+    outputs.push(Output::Route(Box::new(reject)));
+    let mut out: Vec<_> = outputs.iter().filter_map(|o| topics.encode(o)).collect();
     out.push(sightings::encode(
         "gangway/sites/waldo-library",
         "gw-lobby",

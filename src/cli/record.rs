@@ -11,6 +11,7 @@ use tokio::sync::mpsc;
 
 use crate::source::ble::{self, BleConfig};
 use crate::source::capture::{CaptureWriter, Format};
+use crate::source::{Input, Shutdown, SourceContext};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -44,8 +45,17 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         let manager = ble::connect().await?;
         let adapter = ble::adapter(&manager, &config).await?;
         let (tx, mut rx) = mpsc::channel(4096);
+        let (stop, shutdown) = Shutdown::new();
+        // A scan has no messages from others: that queue goes nowhere.
+        let (nobody, _) = mpsc::channel(1);
+        let mut cx = SourceContext {
+            events: tx,
+            inbound: nobody,
+            shutdown,
+        };
         let silent_restart = config.silent_restart();
-        let scan = async move { ble::scan(&adapter, observer, silent_restart, tx, || {}).await };
+        let scan =
+            async move { ble::scan(&adapter, observer, silent_restart, &mut cx, || {}).await };
         let scanner = tokio::spawn(scan);
         let deadline =
             tokio::time::sleep(args.duration.map_or(Duration::MAX, Duration::from_secs_f64));
@@ -53,17 +63,22 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         let mut adverts = 0u64;
         loop {
             tokio::select! {
-                event = rx.recv() => match event {
-                    Some(event) => {
-                        writer.write(&event).with_context(|| format!("writing {}", args.out.display()))?;
-                        adverts += 1;
+                input = rx.recv() => match input {
+                    Some(Input::Events(events)) => {
+                        for event in &events {
+                            writer.write(event).with_context(|| format!("writing {}", args.out.display()))?;
+                        }
+                        adverts += events.len() as u64;
                     }
+                    Some(Input::Inbound(_)) => {}
                     None => break,
                 },
                 _ = &mut deadline => break,
                 _ = tokio::signal::ctrl_c() => break,
             }
         }
+        // The scan stops discovering before it returns.
+        stop.trigger();
         drop(rx);
         writer.flush()?;
         scanner.await??;

@@ -1,19 +1,23 @@
-//! `gangway replay`: the daemon's pipeline, fed from a log instead of a radio,
-//! optionally scored against the log's ground truth.
+//! `gangway replay`: the gateway's runtime with a capture as its only source
+//! and no messages from others (requests come from the log), ending when the
+//! capture does. Its sinks are what the flags ask for: stdout (`--print`), a
+//! file (`--out`), the scorer (`--score`), a broker (`--mqtt-url`, `[mqtt]
+//! url`, or an embedded one with `--embedded-broker`); with none, it only
+//! reports its counts.
 
-use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
-use anyhow::Context;
+use tokio::sync::mpsc;
 
-use crate::mqtt::{self, Link};
+use crate::daemon::{self, state::Loaded};
+use crate::mqtt::{self, topics::Topics};
 use crate::pipeline::Pipeline;
-use crate::publish::Message;
 use crate::score::Scorer;
-use crate::source::Event;
+use crate::sink::{Sink, jsonl::JsonLines};
 use crate::source::capture::{CaptureReader, Format, ReadOptions};
+use crate::source::playback::CaptureSource;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -40,11 +44,17 @@ pub struct Args {
     /// Write every outgoing message to stdout as {"topic": ..., "payload": ...}.
     #[arg(long)]
     print: bool,
+    /// Write the same JSON Lines as --print to this file.
+    #[arg(long, value_name = "FILE")]
+    out: Option<PathBuf>,
     /// Publish to this broker (mqtt://host:port or mqtts://host:port),
-    /// overriding [mqtt] url. With neither (and no --print), an embedded broker
-    /// starts on 127.0.0.1 for the replay's duration.
+    /// overriding [mqtt] url.
     #[arg(long)]
     mqtt_url: Option<String>,
+    /// Start an embedded MQTT broker on 127.0.0.1:[mqtt] embedded_port for
+    /// the replay's duration and publish to it (instead of [mqtt] url).
+    #[arg(long, conflicts_with = "mqtt_url")]
+    embedded_broker: bool,
     /// Skip and count bad log lines, CSV rows and columns, and a truncated last
     /// btsnoop record instead of stopping at the first.
     #[arg(long)]
@@ -82,102 +92,89 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         "--speed must be 0 (as fast as possible) or a positive factor"
     );
     let (config, site) = super::load(&args.config)?;
-    let mut reader = open(&args, &site)?;
+    let reader = open(&args, &site)?;
     let tolerance_s = args.tolerance_s.unwrap_or(config.window.length_s);
     anyhow::ensure!(
         tolerance_s >= 0.0 && tolerance_s.is_finite(),
         "--tolerance-s must be a number of seconds, 0 or more"
     );
-    let mut scorer = args.score.then(|| Scorer::new(tolerance_s));
-    let mut pipeline = Pipeline::new(&config, site.clone())?;
-    let client_id = format!("{}-replay", config.client_id());
+    let pipeline = Pipeline::new(&config, site.clone())?;
 
-    super::batch_runtime()?.block_on(async {
-        // --print or --score without a broker configured: stdout is the only sink.
-        let url = match (
-            args.mqtt_url.clone(),
-            &config.mqtt.url,
-            args.print || args.score,
-        ) {
-            (None, None, true) => None,
-            (url, _, _) => Some(mqtt::broker_url(&config.mqtt, url)?),
-        };
-        let publisher = match &url {
-            Some(url) => {
-                let settings =
-                    mqtt::link_settings(&config.mqtt, url, &client_id, None, Vec::new())?;
-                Some(Link::start(settings).0)
-            }
-            None => None,
-        };
-        let stdout = std::io::stdout();
-        let mut print = args.print.then(|| std::io::BufWriter::new(stdout.lock()));
-        let mut out: Vec<Message> = Vec::new();
-        let started = Instant::now();
-        let mut first_t = None;
-        let mut events = 0u64;
-        loop {
-            let event = match reader.next() {
-                Some(event) => event?,
-                None => {
-                    pipeline.finish(&mut out);
-                    if let Some(scorer) = scorer.as_mut() {
-                        out.iter().for_each(|m| scorer.message(m));
-                    }
-                    send(&mut out, print.as_mut(), publisher.as_ref()).await?;
-                    break;
-                }
-            };
-            events += 1;
-            if args.speed > 0.0 {
-                let t0 = *first_t.get_or_insert(event.t());
-                let due = Duration::from_secs_f64(((event.t() - t0) / args.speed).max(0.0));
-                if let Some(wait) = due.checked_sub(started.elapsed()) {
-                    if let Some(p) = print.as_mut() {
-                        p.flush()?;
-                    }
-                    tokio::time::sleep(wait).await;
-                }
-            }
-            pipeline.handle(&event, &mut out);
-            if let Some(scorer) = scorer.as_mut() {
-                if let Event::Truth(truth) = &event {
-                    scorer.truth(truth);
-                }
-                out.iter().for_each(|m| scorer.message(m));
-            }
-            send(&mut out, print.as_mut(), publisher.as_ref()).await?;
+    let score = super::batch_runtime()?.block_on(async {
+        let topics = Topics::new(config.topic_prefix());
+        let mut sinks: Vec<Box<dyn Sink>> = Vec::new();
+        if args.print {
+            sinks.push(Box::new(JsonLines::stdout(topics.clone())));
         }
-        if let Some(p) = print.as_mut() {
-            p.flush()?;
+        if let Some(out) = &args.out {
+            sinks.push(Box::new(JsonLines::create(topics.clone(), out)?));
         }
-        let mqtt_dropped = publisher.as_ref().map_or(0, |p| {
-            p.stats()
-                .queue_dropped
-                .load(std::sync::atomic::Ordering::Relaxed)
+        let score = args.score.then(|| {
+            let (sink, score) = Scorer::new(tolerance_s).sink(site.clone());
+            sinks.push(Box::new(sink));
+            score
         });
-        if let Some(publisher) = publisher {
-            publisher.shutdown().await;
+        let url = match (args.mqtt_url.clone(), &config.mqtt.url) {
+            (Some(url), _) => Some(url),
+            (None, _) if args.embedded_broker => Some(mqtt::broker::start(
+                config.mqtt.embedded_port,
+                config.mqtt.max_payload_bytes,
+            )?),
+            (None, url) => url.clone(),
+        };
+        if let Some(url) = &url {
+            sinks.push(Box::new(mqtt::sink::publisher(&config, &site, url)?));
         }
-        let stats = pipeline.stats();
+        if sinks.is_empty() {
+            tracing::warn!(
+                "nothing to send the outputs to: only the counts are reported \
+                 (--print, --out FILE, --score, --mqtt-url URL or --embedded-broker send them somewhere)"
+            );
+        }
+        let source = CaptureSource::new(args.log.clone(), reader, args.speed);
+        let serving = Loaded {
+            config,
+            site: site.clone(),
+            pipeline,
+            fallbacks: Vec::new(),
+        };
+        let options = daemon::Options {
+            until_sources_end: true,
+            ..daemon::Options::default()
+        };
+        // No reloads: the replay plays one config.
+        let (_, reloads) = mpsc::channel(1);
+        // Ctrl-C ends the replay early, with every sink delivering what it holds.
+        let interrupted = async {
+            let _ = tokio::signal::ctrl_c().await;
+        };
+        let started = Instant::now();
+        let stats = daemon::run(
+            serving,
+            options,
+            vec![Box::new(source)],
+            sinks,
+            interrupted,
+            reloads,
+        )
+        .await?;
         tracing::info!(
-            events,
             sightings = stats.sightings,
-            unknown_anchor = pipeline.unknown_anchor_sightings(),
+            unknown_anchor = stats.sightings_ignored,
             fixes = stats.fixes,
             requests = stats.requests,
             routes = stats.routes,
             request_errors = stats.request_errors,
-            format = ?reader.format(),
-            skipped = %reader.skipped(),
-            mqtt_dropped,
+            mqtt_dropped = stats.queue_dropped,
             seconds = started.elapsed().as_secs_f64(),
             "replay done"
         );
-        anyhow::Ok(())
+        anyhow::Ok(match score {
+            Some(score) => Some(score.await?),
+            None => None,
+        })
     })?;
-    if let Some(scorer) = scorer {
-        let score = scorer.score(&site);
+    if let Some(score) = score {
         if args.json {
             println!("{}", serde_json::to_string(&score)?);
         } else {
@@ -185,22 +182,4 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         }
     }
     Ok(ExitCode::SUCCESS)
-}
-
-async fn send(
-    out: &mut Vec<Message>,
-    mut print: Option<&mut impl Write>,
-    publisher: Option<&Link>,
-) -> anyhow::Result<()> {
-    for message in out.drain(..) {
-        if let Some(p) = print.as_deref_mut() {
-            serde_json::to_writer(&mut *p, &message)?;
-            p.write_all(b"\n").context("writing to stdout")?;
-        }
-        if let Some(publisher) = publisher {
-            publisher.wait_for_room().await;
-            publisher.publish(&message);
-        }
-    }
-    Ok(())
 }

@@ -1,9 +1,24 @@
-//! `gangway run`: the daemon.
+//! `gangway run`: the daemon. This file is wiring: the sources (the radio or
+//! a capture, and the broker's subscriptions), the sinks (the broker, the
+//! learning store, `--out`), and the process's signals, handed to
+//! [`daemon::run`].
 
+use std::future::Future;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use crate::daemon::{self, source::Replay};
+use tokio::signal::unix::{SignalKind, signal};
+use tokio::sync::{mpsc, watch};
+
+use crate::daemon::{self, state};
+use crate::mqtt::{self, topics::Topics};
+use crate::publish::stats::BleStatus;
+use crate::sighting::unix_now;
+use crate::sink::{Sink, jsonl::JsonLines, recorder::Recorder};
+use crate::source::Source;
+use crate::source::ble::BleSource;
+use crate::source::capture::{CaptureReader, ReadOptions};
+use crate::source::playback::CaptureSource;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -13,13 +28,18 @@ pub struct Args {
     /// [mqtt] url. Without either, an embedded broker starts on 127.0.0.1.
     #[arg(long)]
     mqtt_url: Option<String>,
-    /// Play this advert log instead of scanning Bluetooth (demos, tests, and
-    /// gateways fed by another recorder); MQTT is served as in a live run.
+    /// Play this capture instead of scanning Bluetooth (demos, tests, and
+    /// gateways fed by another recorder): any format `replay` reads, bad
+    /// lines skipped and counted; MQTT is served as in a live run.
     #[arg(long, value_name = "LOG")]
     replay: Option<PathBuf>,
     /// Playback speed of --replay: 1 is real time, 0 as fast as possible.
     #[arg(long, default_value_t = 1.0, requires = "replay")]
     speed: f64,
+    /// Also write every published message to this file, as JSON Lines (what
+    /// `replay --print` writes).
+    #[arg(long, value_name = "FILE")]
+    out: Option<PathBuf>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
@@ -28,16 +48,107 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         args.speed >= 0.0 && args.speed.is_finite(),
         "--speed must be 0 (as fast as possible) or a positive factor"
     );
-    let options = daemon::Options {
-        config_path: args.config,
-        mqtt_url: args.mqtt_url,
-        replay: args.replay.map(|log| Replay {
-            log,
-            speed: args.speed,
-        }),
-    };
-    super::runtime()?.block_on(daemon::run(options))?;
+    super::runtime()?.block_on(serve(args))?;
     Ok(ExitCode::SUCCESS)
+}
+
+async fn serve(args: Args) -> anyhow::Result<()> {
+    let serving = state::load_at_start(&args.config)?;
+    let config = &serving.config;
+    let site = serving.site.clone();
+    let url = mqtt::broker_url(&config.mqtt, args.mqtt_url)?;
+    let (broker, subscriptions) = mqtt::sink::gateway(config, &site, &url)?;
+    let mut sources: Vec<Box<dyn Source>> = vec![Box::new(subscriptions)];
+    let mut sinks: Vec<Box<dyn Sink>> = vec![Box::new(broker)];
+    let radio = match &args.replay {
+        Some(log) => {
+            // The daemon never stops on input: bad lines are skipped and counted.
+            let options = ReadOptions {
+                format: None,
+                skip_bad: true,
+                device: None,
+                not_heard: -200,
+            };
+            let reader = CaptureReader::open(log, &site, &options)?;
+            sources.push(Box::new(CaptureSource::new(
+                log.clone(),
+                reader,
+                args.speed,
+            )));
+            watch::channel(BleStatus {
+                state: "replay",
+                ..BleStatus::default()
+            })
+            .1
+        }
+        None => {
+            let (ble, status) =
+                BleSource::new(config.ble.clone(), config.gateway_id.as_str().into());
+            sources.push(Box::new(ble));
+            status
+        }
+    };
+    let mut fallbacks = Vec::new();
+    // A store that cannot be opened never stops the gateway: it is moved
+    // aside (or, if even that fails, the gateway serves without recording).
+    if config.store.enabled {
+        match Recorder::open(&config.store, unix_now()) {
+            Ok(recorder) => sinks.push(Box::new(recorder)),
+            Err(e) => {
+                let why = format!("[store] {e}; serving without recording");
+                tracing::error!("{why}");
+                fallbacks.push(why);
+            }
+        }
+    }
+    if let Some(out) = &args.out {
+        sinks.push(Box::new(JsonLines::create(
+            Topics::new(config.topic_prefix()),
+            out,
+        )?));
+    }
+    tracing::info!(
+        broker = %url,
+        prefix = config.topic_prefix(),
+        site = site.name,
+        sharing = mqtt::sink::shares_sightings(config),
+        "gateway {} serving",
+        config.gateway_id
+    );
+    let options = daemon::Options {
+        config_path: Some(args.config.clone()),
+        stats: true,
+        until_sources_end: false,
+        share_sightings: mqtt::sink::shares_sightings(config),
+        radio: Some(radio),
+        fallbacks,
+    };
+    let (shutdown, reloads) = signals()?;
+    daemon::run(serving, options, sources, sinks, shutdown, reloads).await?;
+    Ok(())
+}
+
+/// SIGTERM and SIGINT as the shutdown future, SIGHUP as reloads (one more
+/// asked while one is pending is the same reload).
+fn signals() -> anyhow::Result<(impl Future<Output = ()>, mpsc::Receiver<()>)> {
+    let mut terminate = signal(SignalKind::terminate())?;
+    let mut interrupt = signal(SignalKind::interrupt())?;
+    let mut hangup = signal(SignalKind::hangup())?;
+    let (reload, reloads) = mpsc::channel(1);
+    tokio::spawn(async move {
+        while hangup.recv().await.is_some() {
+            if let Err(mpsc::error::TrySendError::Closed(())) = reload.try_send(()) {
+                return;
+            }
+        }
+    });
+    let shutdown = async move {
+        tokio::select! {
+            _ = terminate.recv() => {}
+            _ = interrupt.recv() => {}
+        }
+    };
+    Ok((shutdown, reloads))
 }
 
 /// glibc raises its mmap threshold each time a large block is freed; after

@@ -1,79 +1,329 @@
-//! The gateway daemon: sightings from the radio (or a replayed log), phone
-//! scans and other gateways' sightings over MQTT, and route requests, all fed
-//! through one [`Pipeline`]; what it returns goes out over the [`Link`].
+//! The runtime every mode of the gateway runs: sources feed one
+//! [`Pipeline`], and what it (and the runtime) produce goes to every sink.
 //!
-//! The daemon owns the process's life: systemd readiness and watchdog,
-//! SIGHUP reloads ([`state`]), SIGTERM/SIGINT graceful shutdown, and the
-//! retained stats. The radio being missing never stops it: MQTT keeps serving
-//! while [`source::radio`] retries.
+//! ```text
+//! sources ──own events──▶ ┌─────────┐            ┌──▶ mqtt (broker, Home Assistant)
+//! (ble, capture,          │ runtime │──Outputs──▶├──▶ jsonl (--print, --out)
+//!  simulation, mqtt)──▶   │pipeline │            ├──▶ store (learning store)
+//!        others' messages └─────────┘            └──▶ score (replay --score)
+//! ```
 //!
-//! Everything from the broker is hostile: route requests wait in a bounded
-//! queue and are answered `overloaded` rather than dropped ([`admission`]),
-//! per-device rates are limited, and the Home Assistant trackers it announced
-//! are bounded like the tracks (`[limits]`) and withdrawn when forgotten.
+//! [`run`] is the whole life of the gateway in the shape of tokio's
+//! mini-redis: it is given its sources, its sinks, a `shutdown` future and a
+//! stream of reload requests, and knows nothing of signals (`cli/run.rs` turns
+//! SIGTERM/SIGINT into `shutdown` and SIGHUP into reloads), so a test drives
+//! it in-process. `gangway run` is this runtime with the radio (or a capture)
+//! and the broker; `gangway replay` is the same runtime with a capture as its
+//! only source and no messages from others: it ends when the capture does.
+//!
+//! What the runtime owns:
+//! - admission of what others send ([`admission`]): route requests wait in a
+//!   bounded queue and are answered `overloaded` rather than dropped,
+//!   per-device rates are limited, feedback is taken only for routes given;
+//!   nothing from others is taken while a sink is backed up;
+//! - reloads ([`state`]): the new config, site and pipeline are built off the
+//!   event loop and swapped in whole, or refused whole;
+//! - the gateway's counters, summed in one place ([`Runtime::stats`]);
+//! - systemd readiness, watchdog and status line (no-ops without systemd);
+//! - the order of shutdown: sources stop first (a scan stops discovering),
+//!   then every sink delivers what it holds.
+//!
+//! A bad input never stops it: every message from others becomes an output
+//! or a counted refusal, and a source that fails is logged (and, in the
+//! daemon, the rest keeps serving).
 
 pub mod admission;
-pub mod recorder;
-pub mod source;
 pub mod state;
 
+use std::future::Future;
 use std::path::PathBuf;
-use std::sync::Arc;
-use std::sync::atomic::Ordering;
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::Duration;
 
-use tokio::signal::unix::{SignalKind, signal};
 use tokio::sync::{mpsc, watch};
+use tokio::task::{JoinHandle, JoinSet};
 use tokio::time::{Instant, MissedTickBehavior};
 
 use admission::{Admit, Issued, PerSecond, Requests};
-use foldhash::HashMap;
+use state::Loaded;
 
-use crate::locate::bounds::Bounds;
 use crate::locate::window::Orientation;
-use crate::mqtt::discovery::Discovery;
-use crate::mqtt::inbound::{Inbound, Inbox, Rejected};
-use crate::mqtt::occupancy::Occupancy;
-use crate::mqtt::stats::{BleStatus, STATS_SCHEMA, Stats};
-use crate::mqtt::{self, Link, Received, sightings};
 use crate::pipeline;
 use crate::plan::RouteErrorCode;
-use crate::publish::{LOCATION_SCHEMA, Message, PATH_SCHEMA, Topics};
-use crate::sighting::Sighting;
-use crate::source::{Event, RouteRequest};
-use crate::store::Record;
+use crate::publish::stats::{BleStatus, STATS_SCHEMA, Stats};
+use crate::publish::{FeedbackRefused, Output, RouteOutcome};
+use crate::sighting::{Sighting, unix_now};
+use crate::sink::Sink;
+use crate::source::{
+    Event, Feedback, Inbound, Input, RouteRequest, Shutdown, Source, SourceContext,
+};
 use crate::throttle::Throttle;
-use recorder::Recorder;
-use state::Loaded;
 
 /// How often this gateway's own sightings go out to the other gateways.
 const SHARE_INTERVAL: Duration = Duration::from_millis(250);
 /// Largest batch of shared sightings in one message.
 const SHARE_BATCH: usize = 256;
-/// How long the source gets at shutdown to stop (a scan stops discovery).
+/// How long the sources get at shutdown to stop (a scan stops discovery).
 const SOURCE_STOP: Duration = Duration::from_secs(2);
-/// How often the learning store is written.
-const RECORD_INTERVAL: Duration = Duration::from_secs(1);
 /// Routes remembered for feedback.
 const ISSUED_ROUTES: usize = 10_000;
 /// At most one line per this period for each kind of repeated refusal.
 const WARN_EVERY: Duration = Duration::from_secs(10);
-/// How often a backed-up link is checked for room again.
+/// How often a backed-up sink is checked for room again.
 const BACKLOG_POLL: Duration = Duration::from_millis(5);
 /// What an `overloaded` or `rate_limited` reply suggests waiting, seconds.
 const RETRY_AFTER_S: f64 = 1.0;
+/// Batches of own events queued at most.
+const EVENTS_QUEUE: usize = 64;
+/// Messages from others queued at most: few, since while the runtime does
+/// not take them the broker holds the rest (unacknowledged).
+const INBOUND_QUEUE: usize = 16;
+/// Inputs handled at most between two flushes of the sinks, under load.
+const FLUSH_EVERY: usize = 16;
+/// How often sinks get their periodic work done.
+const TICK: Duration = Duration::from_secs(1);
 
-/// What `gangway run` asks for.
+/// How the runtime runs.
+#[derive(Debug, Default)]
 pub struct Options {
-    pub config_path: PathBuf,
-    /// Overrides `[mqtt] url`.
-    pub mqtt_url: Option<String>,
-    /// Play a log instead of scanning.
-    pub replay: Option<source::Replay>,
+    /// The config file reloads read; without it reloads are refused.
+    pub config_path: Option<PathBuf>,
+    /// Publish the counters every `[mqtt] stats_interval_s` (and when the
+    /// radio's state changes).
+    pub stats: bool,
+    /// End when every source has ended (a replay), and fail with the first
+    /// source that fails; otherwise serve until `shutdown`.
+    pub until_sources_end: bool,
+    /// Send this gateway's own sightings to the site's other gateways
+    /// ([`Output::Sightings`], advertiser orientation).
+    pub share_sightings: bool,
+    /// The radio's state, for the stats.
+    pub radio: Option<watch::Receiver<BleStatus>>,
+    /// What failed at start-up outside the pipeline (the store), listed in
+    /// the stats' fallbacks.
+    pub fallbacks: Vec<String>,
 }
 
-/// Counters the daemon keeps beside the pipeline's.
-#[derive(Default)]
+/// Runs the gateway until `shutdown` completes (or, with
+/// [`Options::until_sources_end`], until its sources are done); each item of
+/// `reloads` reloads the config. Returns the final counters.
+pub async fn run(
+    serving: Loaded,
+    options: Options,
+    sources: Vec<Box<dyn Source>>,
+    sinks: Vec<Box<dyn Sink>>,
+    shutdown: impl Future<Output = ()>,
+    mut reloads: mpsc::Receiver<()>,
+) -> anyhow::Result<Stats> {
+    let (events_tx, mut events) = mpsc::channel(EVENTS_QUEUE);
+    let (inbound_tx, mut inbound) = mpsc::channel(INBOUND_QUEUE);
+    let (stop_sources, sources_shutdown) = Shutdown::new();
+    let mut tasks = JoinSet::new();
+    for source in sources {
+        let name = source.name();
+        let cx = SourceContext {
+            events: events_tx.clone(),
+            inbound: inbound_tx.clone(),
+            shutdown: sources_shutdown.clone(),
+        };
+        tasks.spawn(async move { (name, source.run(cx).await) });
+    }
+    // Only the sources hold senders: a queue closes when they are all done.
+    drop((events_tx, inbound_tx));
+
+    let mut runtime = Runtime::new(serving, sinks, &options);
+    let stats_every = Duration::from_secs_f64(runtime.state.config.mqtt.stats_interval_s);
+    let mut stats_tick = tokio::time::interval(stats_every);
+    let mut tick = tokio::time::interval(TICK);
+    tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
+    let mut share_tick = tokio::time::interval(SHARE_INTERVAL);
+    share_tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
+    // systemd's watchdog wants a ping at least every WATCHDOG_USEC; pinging
+    // from this loop means a stuck loop gets the service restarted.
+    let watchdog = sd_notify::watchdog_enabled();
+    let mut watchdog_tick =
+        tokio::time::interval(watchdog.map_or(Duration::from_secs(3600), |every| every / 2));
+    let mut radio = options.radio.clone();
+    let mut reload: Option<JoinHandle<anyhow::Result<Loaded>>> = None;
+    let mut reload_again = false;
+    let mut failed = None;
+    let mut since_flush = 0;
+    let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
+    tokio::pin!(shutdown);
+
+    loop {
+        let room = runtime.sinks.iter().all(|s| s.has_room());
+        let step = tokio::select! {
+            () = &mut shutdown => Step::Shutdown,
+            Some(input) = events.recv() => Step::Input(input),
+            // Nothing from others is taken while a sink is backed up: the
+            // replies would push older messages out of its queue; the broker
+            // (and the link's unacknowledged hold) keeps them meanwhile. A
+            // backlog drains with the broker's acknowledgements, so poll.
+            Some(input) = inbound.recv(), if room => Step::Input(input),
+            () = tokio::time::sleep(BACKLOG_POLL), if !room => Step::Idle,
+            // Planning is the costly part: one request per turn, so that
+            // reading (and answering `overloaded`) keeps pace with the broker.
+            () = std::future::ready(()), if !runtime.requests.is_empty() => Step::ServeRequest,
+            _ = share_tick.tick(), if runtime.share.is_some() => Step::Share,
+            _ = tick.tick() => Step::Tick,
+            _ = stats_tick.tick(), if options.stats => Step::Stats,
+            Ok(()) = changed(&mut radio) => Step::RadioChanged,
+            _ = watchdog_tick.tick(), if watchdog.is_some() => Step::Watchdog,
+            Some(()) = reloads.recv() => Step::Reload,
+            loaded = join(&mut reload), if reload.is_some() => Step::Reloaded(loaded),
+            Some(joined) = tasks.join_next() => Step::SourceEnded(joined),
+        };
+        match step {
+            Step::Shutdown => break,
+            Step::Input(input) => runtime.input(input),
+            Step::Idle => {}
+            Step::ServeRequest => runtime.serve_next(),
+            Step::Share => runtime.share_sightings(),
+            Step::Tick => runtime.tick(),
+            Step::Stats => {
+                runtime.publish_stats();
+                runtime.notify_status();
+            }
+            Step::RadioChanged => runtime.publish_stats(),
+            Step::Watchdog => {
+                // Fed from this loop, so a stuck loop is restarted; and not
+                // fed once a sink stopped working (the MQTT link's task
+                // only ends by panicking), since nothing would be served.
+                if let Some(dead) = runtime.sinks.iter().find(|s| !s.is_alive()) {
+                    tracing::error!(
+                        sink = dead.name(),
+                        "a sink stopped working; no more watchdog pings, so systemd restarts the gateway"
+                    );
+                } else {
+                    let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
+                }
+                runtime.notify_status();
+            }
+            Step::Reload => match (&reload, &options.config_path) {
+                (Some(_), _) => reload_again = true,
+                (None, Some(path)) => reload = Some(runtime.start_reload(path.clone())),
+                (None, None) => tracing::warn!("reload ignored: no config file to reload"),
+            },
+            Step::Reloaded(loaded) => {
+                reload = None;
+                runtime.swap(loaded);
+                if std::mem::take(&mut reload_again)
+                    && let Some(path) = &options.config_path
+                {
+                    reload = Some(runtime.start_reload(path.clone()));
+                }
+            }
+            Step::SourceEnded(joined) => {
+                // Everything the source sent is queued by now: take it first.
+                while let Ok(input) = events.try_recv() {
+                    runtime.input(input);
+                    runtime.dispatch()?;
+                }
+                let (name, result) = match joined {
+                    Ok(ended) => ended,
+                    Err(e) => (
+                        "(panicked)",
+                        Err(anyhow::anyhow!("the source task failed: {e}")),
+                    ),
+                };
+                match result {
+                    Ok(()) => {
+                        tracing::info!(source = name, "source done");
+                        // Its devices will not be heard again: close their windows.
+                        runtime.finish();
+                    }
+                    Err(e) if options.until_sources_end => {
+                        failed = Some(e.context(format!("{name} source")));
+                        break;
+                    }
+                    Err(e) => tracing::error!("{name} source stopped: {e:#}; still serving"),
+                }
+                if options.until_sources_end && tasks.is_empty() {
+                    break;
+                }
+            }
+        }
+        runtime.dispatch()?;
+        since_flush += 1;
+        if (events.is_empty() && inbound.is_empty()) || since_flush >= FLUSH_EVERY {
+            runtime.flush().await?;
+            since_flush = 0;
+        }
+    }
+
+    if failed.is_none() && !options.until_sources_end {
+        tracing::info!("shutting down: sources stop, then every sink sends what it holds");
+    }
+    let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
+    stop_sources.trigger();
+    // A source waiting for room in a queue sees it closed and stops.
+    drop((events, inbound));
+    let stopped = async {
+        while let Some(joined) = tasks.join_next().await {
+            if let Ok((name, Err(e))) = joined {
+                tracing::warn!("{name} source: {e:#}");
+            }
+        }
+    };
+    if tokio::time::timeout(SOURCE_STOP, stopped).await.is_err() {
+        tracing::warn!("a source did not stop in time; stopping it now");
+        tasks.abort_all();
+    }
+    runtime.share_sightings();
+    if options.stats {
+        runtime.publish_stats();
+    }
+    runtime.dispatch()?;
+    runtime.flush().await?;
+    let stats = runtime.stats();
+    for sink in runtime.sinks {
+        let name = sink.name();
+        if let Err(e) = sink.shutdown().await {
+            failed.get_or_insert(e.context(format!("{name} sink")));
+        }
+    }
+    match failed {
+        Some(e) => Err(e),
+        None => Ok(stats),
+    }
+}
+
+/// What one turn of the loop does.
+enum Step {
+    Shutdown,
+    Input(Input),
+    Idle,
+    ServeRequest,
+    Share,
+    Tick,
+    Stats,
+    RadioChanged,
+    Watchdog,
+    Reload,
+    Reloaded(anyhow::Result<Loaded>),
+    SourceEnded(Result<(&'static str, anyhow::Result<()>), tokio::task::JoinError>),
+}
+
+async fn changed(
+    radio: &mut Option<watch::Receiver<BleStatus>>,
+) -> Result<(), watch::error::RecvError> {
+    match radio {
+        Some(radio) => radio.changed().await,
+        None => std::future::pending().await,
+    }
+}
+
+async fn join(reload: &mut Option<JoinHandle<anyhow::Result<Loaded>>>) -> anyhow::Result<Loaded> {
+    match reload {
+        Some(task) => task
+            .await
+            .unwrap_or_else(|e| Err(anyhow::anyhow!("the reload failed: {e}"))),
+        None => std::future::pending().await,
+    }
+}
+
+/// Counters the runtime keeps beside the pipeline's.
+#[derive(Debug, Default)]
 struct Counters {
     feedback: u64,
     scans: u64,
@@ -86,11 +336,6 @@ struct Counters {
     overloaded: u64,
     rate_limited: u64,
     feedback_refused: u64,
-    /// Pipeline counters of pipelines replaced by reloads.
-    retired: pipeline::Stats,
-    retired_ignored: u64,
-    /// Windows and tracks forgotten by pipelines replaced by reloads.
-    retired_evicted: (u64, u64),
 }
 
 /// Repeated warnings, each logged at most once per [`WARN_EVERY`].
@@ -100,16 +345,15 @@ struct Throttles {
     rejected: Throttle,
 }
 
-struct Daemon {
+/// The runtime's state between two turns of its loop.
+struct Runtime {
     state: Loaded,
-    topics: Topics,
-    inbox: Inbox,
-    link: Link,
-    discovery: Option<Discovery>,
-    /// Devices with a published discovery config, with the time of their
-    /// latest location, bounded like the tracks.
-    announced: HashMap<Arc<str>, f64>,
-    announced_bounds: Bounds,
+    sinks: Vec<Box<dyn Sink>>,
+    /// What the current turn produced, for the sinks.
+    out: Vec<Output>,
+    /// Counters of the pipelines replaced by reloads.
+    retired: pipeline::Stats,
+    counters: Counters,
     requests: Requests,
     scan_rate: PerSecond,
     /// All scans together (one key).
@@ -117,236 +361,73 @@ struct Daemon {
     request_rate: PerSecond,
     issued: Issued,
     throttles: Throttles,
-    /// Why the learning store is not the configured file, if it is not.
-    store_fallback: Option<String>,
-    /// The last status line given to systemd.
-    status: String,
-    /// Devices per named place, sent when it changes.
-    occupancy: Occupancy,
-    site_prefix: String,
     /// Own sightings waiting to be shared (advertiser orientation only).
     share: Option<Vec<Sighting>>,
-    counters: Counters,
-    /// The learning store, when `[store] enabled`.
-    recorder: Option<Recorder>,
-    ble: watch::Receiver<BleStatus>,
+    radio: Option<watch::Receiver<BleStatus>>,
+    fallbacks: Vec<String>,
+    /// The last status line given to systemd.
+    status: String,
     started: Instant,
-    out: Vec<Message>,
 }
 
-/// Runs until SIGTERM or SIGINT.
-pub async fn run(options: Options) -> anyhow::Result<()> {
-    let state = state::load_at_start(&options.config_path)?;
-    let config = &state.config;
-    let topics = state.pipeline.topics().clone();
-    let site_prefix = config.site_prefix(&state.site.name);
-    let sharing = state.pipeline.orientation() == Orientation::Advertiser;
-    anyhow::ensure!(
-        mqtt::config::valid_prefix(&site_prefix),
-        "the site name {:?} cannot be part of a topic ({site_prefix:?}); set [mqtt] site_prefix",
-        state.site.name
-    );
-    // A store that cannot be opened never stops the gateway: it is moved
-    // aside (or, if even that fails, the gateway serves without recording).
-    let (recorder, store_fallback) = if config.store.enabled {
-        match Recorder::open(&config.store, now()) {
-            Ok((recorder, moved)) => (Some(recorder), moved),
-            Err(e) => {
-                let why = format!("[store] {e}; serving without recording");
-                tracing::error!("{why}");
-                (None, Some(why))
-            }
-        }
-    } else {
-        (None, None)
-    };
-    let url = mqtt::broker_url(&config.mqtt, options.mqtt_url)?;
-    let inbox = Inbox::new(
-        topics.clone(),
-        site_prefix.clone(),
-        config.gateway_id.clone(),
-        config.mqtt.max_payload_bytes,
-        sharing,
-    );
-    let settings = mqtt::link_settings(
-        &config.mqtt,
-        &url,
-        &config.client_id(),
-        Some(topics.status()),
-        inbox.subscriptions(),
-    )?;
-    let (link, mut inbound) = Link::start(settings);
-    let discovery = config.mqtt.ha_discovery.then(|| discovery(&state));
-    if let Some(d) = &discovery {
-        link.set_birth(&d.gateway(), true);
-    }
-    tracing::info!(
-        broker = %url,
-        prefix = topics.prefix(),
-        site = state.site.name,
-        sharing,
-        "gateway {} serving",
-        config.gateway_id
-    );
-
-    let (events_tx, mut events) = mpsc::channel(4096);
-    let (ble_tx, ble_rx) = watch::channel(BleStatus {
-        state: "starting",
-        ..BleStatus::default()
-    });
-    let mut source_task = match options.replay {
-        Some(replay) => {
-            ble_tx.send_replace(BleStatus {
-                state: "replay",
-                ..BleStatus::default()
-            });
-            tokio::spawn(async move {
-                if let Err(e) = source::replay(replay, events_tx).await {
-                    tracing::error!("replay stopped: {e:#}; still serving MQTT");
-                }
-            })
-        }
-        None => tokio::spawn(source::radio(
-            config.ble.clone(),
-            config.gateway_id.as_str().into(),
-            events_tx,
-            ble_tx,
-        )),
-    };
-    let stats_every = Duration::from_secs_f64(config.mqtt.stats_interval_s);
-
-    let limits = config.limits.clone();
-    let mut daemon = Daemon {
-        topics,
-        inbox,
-        link,
-        discovery,
-        announced: HashMap::default(),
-        announced_bounds: Bounds::new(limits.max_devices, limits.device_idle_s),
-        requests: Requests::new(
-            limits.max_pending_requests,
-            Duration::from_secs_f64(limits.request_deadline_s),
-        ),
-        scan_rate: PerSecond::new(limits.scans_per_device_per_s),
-        scan_total: PerSecond::new(limits.scans_per_s),
-        request_rate: PerSecond::new(limits.requests_per_device_per_s),
-        issued: Issued::new(ISSUED_ROUTES),
-        throttles: Throttles {
-            overloaded: Throttle::new(WARN_EVERY),
-            rate_limited: Throttle::new(WARN_EVERY),
-            rejected: Throttle::new(WARN_EVERY),
-        },
-        store_fallback,
-        status: String::new(),
-        occupancy: occupancy(&state),
-        site_prefix,
-        share: sharing.then(Vec::new),
-        counters: Counters::default(),
-        recorder,
-        ble: ble_rx,
-        started: Instant::now(),
-        out: Vec::new(),
-        state,
-    };
-    daemon.publish_occupancy();
-
-    let mut terminate = signal(SignalKind::terminate())?;
-    let mut interrupt = signal(SignalKind::interrupt())?;
-    let mut hangup = signal(SignalKind::hangup())?;
-    let mut stats_tick = tokio::time::interval(stats_every);
-    let mut record_tick = tokio::time::interval(RECORD_INTERVAL);
-    let mut share_tick = tokio::time::interval(SHARE_INTERVAL);
-    share_tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
-    // systemd's watchdog wants a ping at least every WATCHDOG_USEC; pinging from
-    // this loop means a stuck loop gets the service restarted.
-    let watchdog = sd_notify::watchdog_enabled();
-    let mut watchdog_tick =
-        tokio::time::interval(watchdog.map_or(Duration::from_secs(3600), |every| every / 2));
-    let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
-    let mut source_open = true;
-
-    loop {
-        tokio::select! {
-            event = events.recv(), if source_open => match event {
-                Some(event) => daemon.own_event(&event),
-                None => {
-                    source_open = false;
-                    daemon.state.pipeline.finish(&mut daemon.out);
-                    daemon.send();
-                }
+impl Runtime {
+    fn new(state: Loaded, sinks: Vec<Box<dyn Sink>>, options: &Options) -> Runtime {
+        let limits = state.config.limits.clone();
+        Runtime {
+            sinks,
+            out: Vec::new(),
+            retired: pipeline::Stats::default(),
+            counters: Counters::default(),
+            requests: Requests::new(
+                limits.max_pending_requests,
+                Duration::from_secs_f64(limits.request_deadline_s),
+            ),
+            scan_rate: PerSecond::new(limits.scans_per_device_per_s),
+            scan_total: PerSecond::new(limits.scans_per_s),
+            request_rate: PerSecond::new(limits.requests_per_device_per_s),
+            issued: Issued::new(ISSUED_ROUTES),
+            throttles: Throttles {
+                overloaded: Throttle::new(WARN_EVERY),
+                rate_limited: Throttle::new(WARN_EVERY),
+                rejected: Throttle::new(WARN_EVERY),
             },
-            // Nothing is taken in while the link is backed up: the replies
-            // would push older ones out of its queue; the broker (and the
-            // link's unacknowledged hold) keeps the requests meanwhile. A
-            // backlog drains with the broker's acknowledgements, so poll.
-            Some(message) = inbound.recv(), if daemon.link.has_room() => daemon.inbound(&message),
-            () = tokio::time::sleep(BACKLOG_POLL), if !daemon.link.has_room() => {}
-            // Planning is the costly part: one request per turn, so that
-            // reading (and answering `overloaded`) keeps pace with the broker.
-            () = std::future::ready(()), if !daemon.requests.is_empty() => daemon.serve_next(),
-            _ = share_tick.tick(), if daemon.share.is_some() => daemon.flush_shared(),
-            _ = record_tick.tick(), if daemon.recorder.is_some() => daemon.flush_records(),
-            _ = stats_tick.tick() => {
-                daemon.publish_stats();
-                daemon.notify_status();
-            }
-            Ok(()) = daemon.ble.changed() => daemon.publish_stats(),
-            _ = watchdog_tick.tick(), if watchdog.is_some() => {
-                // Fed from this loop, so a stuck loop is restarted; and not
-                // fed once the MQTT link's task is gone (it only ends by
-                // panicking), since nothing would be served any more.
-                if daemon.link.is_alive() {
-                    let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
-                } else {
-                    tracing::error!("the MQTT link stopped; no more watchdog pings, so systemd restarts the gateway");
-                }
-                daemon.notify_status();
-            }
-            _ = hangup.recv() => daemon.reload(&options.config_path),
-            _ = terminate.recv() => break,
-            _ = interrupt.recv() => break,
+            share: options.share_sightings.then(Vec::new),
+            radio: options.radio.clone(),
+            fallbacks: options.fallbacks.clone(),
+            status: String::new(),
+            started: Instant::now(),
+            state,
         }
     }
-    tracing::info!("shutting down: sending what is queued, then `offline`");
-    let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
-    // Closing the channel lets a scan stop discovery before it returns.
-    drop(events);
-    if tokio::time::timeout(SOURCE_STOP, &mut source_task)
-        .await
-        .is_err()
-    {
-        source_task.abort();
-    }
-    daemon.flush_shared();
-    daemon.flush_records();
-    daemon.publish_stats();
-    daemon.link.shutdown().await;
-    Ok(())
-}
 
-impl Daemon {
-    /// A sighting (or scripted request) from this gateway's own source.
+    fn input(&mut self, input: Input) {
+        match input {
+            Input::Events(events) => {
+                for event in &events {
+                    self.own_event(event);
+                }
+            }
+            Input::Inbound(message) => self.inbound(message),
+        }
+    }
+
+    /// A sighting (or scripted request, or truth) from this gateway's own source.
     fn own_event(&mut self, event: &Event) {
         if let (Some(batch), Event::Advert(s)) = (&mut self.share, event)
             && *s.observer == *self.state.config.gateway_id
         {
             batch.push(s.clone());
             if batch.len() >= SHARE_BATCH {
-                self.flush_shared();
+                self.share_sightings();
             }
         }
         self.state.pipeline.handle(event, &mut self.out);
-        self.send();
     }
 
-    fn inbound(&mut self, message: &Received) {
-        let topic = message.topic.as_str();
-        let now = now();
-        match self
-            .inbox
-            .read_sized(topic, &message.payload, message.size, now)
-        {
-            Ok(Inbound::Route(request)) => {
+    fn inbound(&mut self, message: Inbound) {
+        let now = unix_now();
+        match message {
+            Inbound::Route(request) => {
                 if !self.request_rate.allow(&request.device, now) {
                     let why = format!(
                         "more than {} route requests per second from this device",
@@ -357,14 +438,19 @@ impl Daemon {
                     self.refuse_route(&request, RouteErrorCode::Overloaded, why);
                 }
             }
-            Ok(Inbound::BadRoute {
+            Inbound::BadRoute {
                 device,
                 request_id,
                 code,
                 message,
-            }) => {
+            } => {
                 if let Some(more) = self.throttles.rejected.ready() {
-                    tracing::warn!(%topic, code = code.as_str(), not_logged = more, "refused route request: {message}");
+                    tracing::warn!(
+                        device,
+                        code = code.as_str(),
+                        not_logged = more,
+                        "refused route request: {message}"
+                    );
                 }
                 if code == RouteErrorCode::PayloadTooLarge {
                     self.counters.oversized += 1;
@@ -373,30 +459,29 @@ impl Daemon {
                     .state
                     .pipeline
                     .reject(&device, request_id, now, code, message);
-                self.out.push(self.topics.encode_route(&reply));
+                self.out.push(Output::Route(Box::new(reply)));
             }
-            Ok(Inbound::Cancel { device, t }) => {
-                self.state.pipeline.cancel(&device, t, &mut self.out);
-            }
-            Ok(Inbound::Feedback(feedback)) => self.feedback(feedback),
-            Ok(Inbound::Scan(scan)) => {
+            Inbound::Cancel { device, t } => self.state.pipeline.cancel(&device, t, &mut self.out),
+            Inbound::Feedback(feedback) => self.feedback(feedback),
+            Inbound::Scan(scan) => {
                 let pipeline = &mut self.state.pipeline;
                 if pipeline.orientation() != Orientation::Observer {
                     self.counters.rejected += 1;
-                    tracing::warn!(
-                        %topic,
-                        "phone scan ignored: this gateway locates tags ([window] orientation = \
-                         \"advertiser\"), and a phone's scan needs orientation = \"observer\""
-                    );
+                    if let Some(more) = self.throttles.rejected.ready() {
+                        tracing::warn!(
+                            not_logged = more,
+                            "phone scan ignored: this gateway locates tags ([window] orientation = \
+                             \"advertiser\"), and a phone's scan needs orientation = \"observer\""
+                        );
+                    }
                     return;
                 }
-                let device = scan.first().map(|s| s.observer.clone());
-                if let Some(device) = device
+                if let Some(device) = scan.first().map(|s| s.observer.clone())
                     && !(self.scan_total.allow("", now) && self.scan_rate.allow(&device, now))
                 {
                     self.counters.rate_limited += 1;
                     if let Some(more) = self.throttles.rate_limited.ready() {
-                        tracing::warn!(%topic, not_logged = more, "phone scans over [limits] scans_per_s or scans_per_device_per_s dropped");
+                        tracing::warn!(%device, not_logged = more, "phone scans over [limits] scans_per_s or scans_per_device_per_s dropped");
                     }
                     return;
                 }
@@ -405,43 +490,34 @@ impl Daemon {
                     pipeline.handle(&Event::Advert(s), &mut self.out);
                 }
             }
-            Ok(Inbound::Shared(shared)) => {
+            Inbound::Shared(shared) => {
                 self.counters.shared_in += shared.len() as u64;
                 for s in shared {
                     self.state.pipeline.handle(&Event::Advert(s), &mut self.out);
                 }
             }
-            Err(Rejected::Own { .. }) => {}
-            Err(e) => {
+            Inbound::Refused { oversized } => {
                 self.counters.rejected += 1;
-                if e.is_oversized() {
-                    self.counters.oversized += 1;
-                }
-                if let Some(more) = self.throttles.rejected.ready() {
-                    tracing::warn!(not_logged = more, "ignored message: {e}");
-                }
+                self.counters.oversized += u64::from(oversized);
             }
         }
-        self.send();
     }
 
     /// Plans the next waiting route request (or answers `overloaded` if it
     /// waited too long).
     fn serve_next(&mut self) {
         match self.requests.take_next() {
-            Some(Admit::Serve(request)) => {
-                // Through the pipeline's event path, so a served route also
-                // starts the device's guidance session.
-                self.state
-                    .pipeline
-                    .handle(&Event::Request(request), &mut self.out);
-            }
+            // Through the pipeline's event path, so a served route also
+            // starts the device's guidance session.
+            Some(Admit::Serve(request)) => self
+                .state
+                .pipeline
+                .handle(&Event::Request(request), &mut self.out),
             Some(Admit::Overloaded(request, why)) => {
                 self.refuse_route(&request, RouteErrorCode::Overloaded, why)
             }
-            None => return,
+            None => {}
         }
-        self.send();
     }
 
     /// Answers a route request with an error that says when to try again,
@@ -469,21 +545,22 @@ impl Daemon {
             );
         }
         let message = format!("{why}; retry in {RETRY_AFTER_S} s");
-        let reply = self.state.pipeline.reject(
+        let mut reply = self.state.pipeline.reject(
             &request.device,
             request.request_id.clone(),
             request.t,
             code,
             message,
         );
-        let mut encoded = self.topics.encode_route(&reply);
-        encoded.payload["error"]["retry_after_s"] = RETRY_AFTER_S.into();
-        self.out.push(encoded);
+        if let RouteOutcome::Error { error } = &mut reply.outcome {
+            error.retry_after_s = Some(RETRY_AFTER_S);
+        }
+        self.out.push(Output::Route(Box::new(reply)));
     }
 
     /// Feedback is taken once for a route this gateway gave; anything else
     /// is refused with an error on `…/feedback/error`.
-    fn feedback(&mut self, feedback: crate::mqtt::inbound::Feedback) {
+    fn feedback(&mut self, feedback: Feedback) {
         if !self.issued.take(&feedback.device, &feedback.request_id) {
             self.counters.feedback_refused += 1;
             if let Some(more) = self.throttles.rejected.ready() {
@@ -494,21 +571,8 @@ impl Daemon {
                     feedback.request_id
                 );
             }
-            self.out.push(Message {
-                topic: format!("{}/error", self.topics.feedback(&feedback.device)),
-                payload: serde_json::json!({
-                    "schema": FEEDBACK_ERROR_SCHEMA,
-                    "device": feedback.device,
-                    "request_id": feedback.request_id,
-                    "t": feedback.t,
-                    "error": {
-                        "code": "unknown_request",
-                        "message": "feedback is taken once for a route this gateway gave the \
-                                    device recently; this request id is not one of them",
-                    },
-                }),
-                retain: false,
-            });
+            self.out
+                .push(Output::FeedbackRefused(FeedbackRefused::new(&feedback)));
             return;
         }
         self.counters.feedback += 1;
@@ -518,265 +582,163 @@ impl Daemon {
             score = feedback.score,
             "route feedback"
         );
-        if let Some(recorder) = &mut self.recorder {
-            recorder.push(Record::Feedback {
-                device: feedback.device,
-                request_id: feedback.request_id,
-                t: feedback.t,
-                score: feedback.score,
-            });
+        self.out.push(Output::Feedback(feedback));
+    }
+
+    /// Closes every open window (a capture ended).
+    fn finish(&mut self) {
+        self.state.pipeline.finish(&mut self.out);
+    }
+
+    /// Hands what this turn produced to every sink, noting the routes given
+    /// (feedback is taken only for those).
+    fn dispatch(&mut self) -> anyhow::Result<()> {
+        if self.out.is_empty() {
+            return Ok(());
+        }
+        for output in &self.out {
+            if let Output::Route(reply) = output
+                && let (RouteOutcome::Route(_), Some(id)) = (&reply.outcome, &reply.request_id)
+            {
+                self.issued.insert(&reply.device, id);
+            }
+        }
+        for sink in &mut self.sinks {
+            sink.send(&self.out)
+                .map_err(|e| e.context(format!("{} sink", sink.name())))?;
+        }
+        self.out.clear();
+        Ok(())
+    }
+
+    async fn flush(&mut self) -> anyhow::Result<()> {
+        for sink in &mut self.sinks {
+            let name = sink.name();
+            sink.flush()
+                .await
+                .map_err(|e| e.context(format!("{name} sink")))?;
+        }
+        Ok(())
+    }
+
+    fn tick(&mut self) {
+        let now = unix_now();
+        for sink in &mut self.sinks {
+            sink.tick(now);
         }
     }
 
-    /// Publishes what the pipeline produced, announcing new devices to Home
-    /// Assistant before their first location (one config per new device),
-    /// withdrawing those of devices forgotten, and giving each tracker its
-    /// state before the location that carries its attributes; then the
-    /// occupancy counts, if they changed.
-    fn send(&mut self) {
-        for device in self.state.pipeline.take_evicted() {
-            self.withdraw(&device);
-        }
-        for adherence in self.state.pipeline.take_adherence() {
-            if let Some(recorder) = &mut self.recorder {
-                recorder.push(Record::Adherence(adherence));
-            }
-        }
-        let mut out = std::mem::take(&mut self.out);
-        for message in out.drain(..) {
-            let schema = &message.payload["schema"];
-            if *schema == LOCATION_SCHEMA
-                && let Some(device) = message.payload["device"].as_str()
-            {
-                self.announce(device, message.payload["t"].as_f64().unwrap_or(0.0));
-            } else if *schema == PATH_SCHEMA
-                && message.payload.get("waypoints").is_some()
-                && let (Some(device), Some(id)) = (
-                    message.payload["device"].as_str(),
-                    message.payload["request_id"].as_str(),
-                )
-            {
-                self.issued.insert(device, id);
-            }
-            if let Some((topic, state)) = self.discovery.as_ref().and_then(|d| d.presence(&message))
-            {
-                self.link.publish_raw(topic, state.into_bytes(), false);
-            }
-            self.occupancy.observe(&message);
-            if let Some(recorder) = &mut self.recorder {
-                recorder.published(&message);
-            }
-            self.link.publish(&message);
-        }
-        self.out = out;
-        self.publish_occupancy();
-    }
-
-    /// Notes a location of `device` at `t`; the first one announces it.
-    fn announce(&mut self, device: &str, t: f64) {
-        let Some(discovery) = &self.discovery else {
-            return;
-        };
-        if let Some(seen) = self.announced.get_mut(device) {
-            *seen = seen.max(t);
-            return;
-        }
-        let mut forgotten = Vec::new();
-        let full = self.announced.len() >= self.announced_bounds.max();
-        self.announced_bounds.make_room(
-            &mut self.announced,
-            t,
-            full,
-            |&seen| seen,
-            |id| forgotten.push(id.clone()),
-        );
-        for id in forgotten {
-            self.link
-                .clear_retained(discovery.tracker_config_topic(&id));
-        }
-        self.announced.insert(device.into(), t);
-        // Sent now and kept for every reconnect (a restarted broker may have
-        // lost it); the link keeps births by topic, so this costs one config.
-        self.link
-            .set_birth(&[discovery.device_tracker(device)], true);
-    }
-
-    /// Removes a forgotten device from the occupancy counts, and its tracker
-    /// from Home Assistant (an empty retained config) and from the configs
-    /// re-sent after a reconnect.
-    fn withdraw(&mut self, device: &str) {
-        self.occupancy.forget(device);
-        if let Some(discovery) = &self.discovery
-            && self.announced.remove(device).is_some()
+    /// Sends the own sightings gathered since the last time.
+    fn share_sightings(&mut self) {
+        if let Some(batch) = &mut self.share
+            && !batch.is_empty()
         {
-            self.link
-                .clear_retained(discovery.tracker_config_topic(device));
+            self.counters.shared_out += batch.len() as u64;
+            self.out.push(Output::Sightings(std::mem::take(batch)));
         }
     }
 
-    fn flush_records(&mut self) {
-        if let Some(recorder) = &mut self.recorder {
-            recorder.flush(now());
-        }
-    }
-
-    fn flush_shared(&mut self) {
-        let Some(batch) = &mut self.share else { return };
-        if batch.is_empty() {
-            return;
-        }
-        let message = sightings::encode(&self.site_prefix, &self.state.config.gateway_id, batch);
-        self.counters.shared_out += batch.len() as u64;
-        batch.clear();
-        self.link.publish(&message);
-    }
-
+    /// The gateway's counters: the pipeline's (with those of the pipelines
+    /// replaced by reloads), the runtime's, the radio's and every sink's.
     fn stats(&self) -> Stats {
-        let p = self.state.pipeline.stats();
-        let r = &self.counters.retired;
-        let link = self.link.stats();
+        let mut p = self.state.pipeline.stats();
+        p += self.retired;
         let c = &self.counters;
-        let evicted = self.state.pipeline.evicted();
+        let ble = self
+            .radio
+            .as_ref()
+            .map(|r| r.borrow().clone())
+            .unwrap_or_default();
         let mut fallbacks = self.state.fallbacks.clone();
-        fallbacks.extend(self.store_fallback.clone());
-        Stats {
+        fallbacks.extend(self.fallbacks.iter().cloned());
+        let mut stats = Stats {
             schema: STATS_SCHEMA,
             gateway: self.state.config.gateway_id.clone(),
-            t: now(),
+            t: unix_now(),
             uptime_s: self.started.elapsed().as_secs_f64(),
-            sightings: p.sightings + r.sightings,
-            sightings_ignored: self.state.pipeline.unknown_anchor_sightings() + c.retired_ignored,
-            fixes: p.fixes + r.fixes,
-            requests: p.requests + r.requests,
-            routes: p.routes + r.routes,
-            request_errors: p.request_errors + r.request_errors,
+            sightings: p.sightings,
+            sightings_ignored: p.sightings_ignored,
+            fixes: p.fixes,
+            requests: p.requests,
+            routes: p.routes,
+            request_errors: p.request_errors,
+            bad_device_ids: p.bad_device_ids,
+            evicted_devices: p.evicted_devices,
+            evicted_windows: p.evicted_windows,
             feedback: c.feedback,
             scans: c.scans,
             shared_in: c.shared_in,
             shared_out: c.shared_out,
             rejected_messages: c.rejected,
             oversized_messages: c.oversized,
-            inbound_dropped: link.inbound_dropped.load(Ordering::Relaxed),
-            bad_device_ids: p.bad_device_ids + r.bad_device_ids,
-            store_quota_deleted: self.recorder.as_ref().map_or(0, |r| r.quota_deleted),
             overloaded: c.overloaded,
             rate_limited: c.rate_limited,
             feedback_refused: c.feedback_refused,
-            evicted_devices: evicted.1 + c.retired_evicted.1,
-            evicted_windows: evicted.0 + c.retired_evicted.0,
-            disconnects: link.disconnects.load(Ordering::Relaxed),
-            unpublishable: link.unpublishable.load(Ordering::Relaxed),
-            windows: self.state.pipeline.windows_open() as u64,
-            announced: self.announced.len() as u64,
-            pending_requests: self.requests.len() as u64,
-            mqtt: mqtt_state(link),
-            queue_depth: link.queue_depth.load(Ordering::Relaxed),
-            queue_bytes: link.queue_bytes.load(Ordering::Relaxed),
-            queue_dropped: link.queue_dropped.load(Ordering::Relaxed),
-            reconnects: link.reconnects.load(Ordering::Relaxed),
             reloads: c.reloads,
             reload_failures: c.reload_failures,
-            recorded: self.recorder.as_ref().map_or(0, |r| r.written),
-            store_errors: self.recorder.as_ref().map_or(0, |r| r.errors),
-            scan_restarts: self.ble.borrow().scan_restarts,
+            windows: self.state.pipeline.windows_open() as u64,
             tracked: self.state.pipeline.tracked() as u64,
+            pending_requests: self.requests.len() as u64,
+            scan_restarts: ble.scan_restarts,
+            ble,
             site: self.state.site.name.clone(),
             site_hash: self.state.site.map_hash().to_owned(),
-            ble: self.ble.borrow().clone(),
             fallbacks,
+            ..Stats::default()
+        };
+        for sink in &self.sinks {
+            sink.report(&mut stats);
         }
+        stats
+    }
+
+    fn publish_stats(&mut self) {
+        let stats = self.stats();
+        self.out.push(Output::Stats(Box::new(stats)));
     }
 
     /// Tells systemd (`systemctl status`) how the gateway is doing, when
     /// that changed.
     fn notify_status(&mut self) {
-        let link = self.link.stats();
-        let broker = match mqtt_state(link) {
-            "connected" => "broker connected".to_owned(),
-            "flapping" => format!(
-                "CANNOT STAY CONNECTED to the broker ({} connections lost; see the log)",
-                link.disconnects.load(Ordering::Relaxed)
-            ),
-            _ => "broker unreachable, retrying (see the log)".to_owned(),
-        };
-        let status = format!(
-            "{broker}; {} devices tracked, {} route requests waiting",
+        let mut parts: Vec<String> = self.sinks.iter().filter_map(|s| s.status()).collect();
+        parts.push(format!(
+            "{} devices tracked, {} route requests waiting",
             self.state.pipeline.tracked(),
             self.requests.len()
-        );
+        ));
+        let status = parts.join("; ");
         if status != self.status {
             let _ = sd_notify::notify(&[sd_notify::NotifyState::Status(&status)]);
             self.status = status;
         }
     }
 
-    fn publish_stats(&mut self) {
-        let stats = self.stats();
-        let payload = serde_json::to_value(&stats).expect("plain data serializes");
-        self.link.publish(&Message {
-            topic: self.topics.stats(),
-            payload,
-            retain: true,
-        });
-    }
-
-    /// After a reload: occupancy starts afresh with the tracks, and Home
-    /// Assistant gets sensors for the new site's places (and loses those of
-    /// places it no longer has).
-    fn reload_places(&mut self) {
-        self.occupancy = occupancy(&self.state);
-        self.publish_occupancy();
-        let Some(old) = self.discovery.replace(discovery(&self.state)) else {
-            return;
-        };
-        let new = self.discovery.as_ref().expect("just set");
-        for place in old.place_names() {
-            let topic = old.occupancy_config_topic(place);
-            if let Some(gone) =
-                topic.filter(|t| new.occupancy_config_topic(place).as_ref() != Some(t))
-            {
-                self.link.clear_retained(gone);
-            }
-        }
-        // Sent now and kept for every reconnect, by topic.
-        self.link.set_birth(&new.gateway(), true);
-    }
-
-    /// The occupancy counts, if they changed since they were last sent.
-    fn publish_occupancy(&mut self) {
-        if let Some(counts) = self.occupancy.update(&self.topics, now()) {
-            self.link.publish(&counts);
-        }
-    }
-
-    /// SIGHUP: load everything anew; swap only if all of it loads.
-    fn reload(&mut self, config_path: &std::path::Path) {
+    /// Starts loading the config anew, off the event loop (models take a
+    /// while to load); the gateway serves from the old state meanwhile.
+    fn start_reload(&self, path: PathBuf) -> JoinHandle<anyhow::Result<Loaded>> {
         let _ = sd_notify::notify(&[sd_notify::NotifyState::Reloading]);
-        let refused = match state::load(config_path) {
+        tokio::task::spawn_blocking(move || state::load(&path))
+    }
+
+    /// Swaps in a loaded state if all of it loaded and nothing in it needs
+    /// a restart; otherwise keeps serving the old one.
+    fn swap(&mut self, loaded: anyhow::Result<Loaded>) {
+        let refused = match loaded {
             Err(e) => Some(format!("{e:#}")),
             Ok(new) => match state::restart_needed(&self.state, &new) {
                 Some(why) => Some(format!("{why}; restart the gateway to apply it")),
                 None => {
                     let old = std::mem::replace(&mut self.state, new);
-                    let s = old.pipeline.stats();
-                    let r = &mut self.counters.retired;
-                    r.sightings += s.sightings;
-                    r.fixes += s.fixes;
-                    r.requests += s.requests;
-                    r.routes += s.routes;
-                    r.request_errors += s.request_errors;
-                    r.bad_device_ids += s.bad_device_ids;
-                    self.counters.retired_ignored += old.pipeline.unknown_anchor_sightings();
-                    let (windows, tracks) = old.pipeline.evicted();
-                    self.counters.retired_evicted.0 += windows;
-                    self.counters.retired_evicted.1 += tracks;
+                    self.retired += old.pipeline.stats();
                     tracing::info!(
                         site = self.state.site.name,
                         site_hash = self.state.site.map_hash(),
                         "reloaded config and site; tracks start afresh"
                     );
                     self.counters.reloads += 1;
-                    self.reload_places();
+                    for sink in &mut self.sinks {
+                        sink.reload(&self.state.site);
+                    }
                     None
                 }
             },
@@ -788,39 +750,4 @@ impl Daemon {
         self.publish_stats();
         let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
     }
-}
-
-/// Home Assistant discovery for the loaded config and site.
-fn discovery(state: &Loaded) -> Discovery {
-    Discovery::new(
-        &state.config.mqtt.discovery_prefix,
-        &state.config.gateway_id,
-        state.pipeline.topics().clone(),
-        state.site.places().keys().map(String::as_str),
-    )
-}
-
-/// Occupancy of the loaded site's places, everyone away.
-fn occupancy(state: &Loaded) -> Occupancy {
-    Occupancy::new(state.site.places().keys().map(String::as_str))
-}
-
-/// Schema id of the error answered to refused feedback.
-pub const FEEDBACK_ERROR_SCHEMA: &str = "gangway.feedback-error/1";
-
-/// The connection's state for the stats and systemd's status line.
-fn mqtt_state(link: &mqtt::LinkStats) -> &'static str {
-    if link.flapping.load(Ordering::Relaxed) {
-        "flapping"
-    } else if link.connected.load(Ordering::Relaxed) {
-        "connected"
-    } else {
-        "disconnected"
-    }
-}
-
-fn now() -> f64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
 }

@@ -21,15 +21,14 @@ use std::sync::Arc;
 use rand::rngs::Xoshiro256PlusPlus;
 use rand::{RngExt, SeedableRng};
 use serde::Serialize;
-use serde_json::Value;
 
 use crate::config::Config;
 use crate::eval::planning::percentile;
-use crate::guide::RouteLine;
+use crate::guide::{GuidanceEvent, RouteLine};
 use crate::locate::survey::Survey;
 use crate::pipeline::Pipeline;
 use crate::plan::{Connectivity, Destination, Route, astar};
-use crate::publish::Message;
+use crate::publish::{Output, RouteOutcome, RouteReply};
 use crate::site::{Cell, Site};
 use crate::source::simulate::{Phone, SimConfig};
 use crate::source::{Event, RouteRequest};
@@ -105,23 +104,18 @@ struct Served {
 }
 
 impl Served {
-    fn read(site: &Site, body: &Value) -> Option<Served> {
-        let cells: Vec<Cell> = body["waypoints"]
-            .as_array()?
+    /// The route of a reply; `None` for an error.
+    fn read(site: &Site, reply: &RouteReply) -> Option<Served> {
+        let RouteOutcome::Route(body) = &reply.outcome else {
+            return None;
+        };
+        let cells: Vec<Cell> = body.waypoints.iter().map(|w| w.cell).collect();
+        let decisions: Vec<(Cell, f64)> = body
+            .maneuvers
             .iter()
-            .map(|w| serde_json::from_value(w["cell"].clone()).ok())
-            .collect::<Option<_>>()?;
-        let decisions: Vec<(Cell, f64)> = body["maneuvers"]
-            .as_array()?
-            .iter()
-            .filter(|m| m["type"] != "depart")
-            .map(|m| {
-                Some((
-                    serde_json::from_value(m["at"].clone()).ok()?,
-                    m["along_m"].as_f64()?,
-                ))
-            })
-            .collect::<Option<_>>()?;
+            .filter(|m| m.is_decision())
+            .map(|m| (m.at, m.along_m))
+            .collect();
         Some(Served {
             line: RouteLine::new(site, &Route { cells }),
             passed: vec![false; decisions.len()],
@@ -230,11 +224,10 @@ pub fn evaluate(
             request_id: Some(format!("{device}-r")),
         };
         pipeline.handle(&Event::Request(request), &mut out);
-        let Some(mut served) = out
-            .iter()
-            .find(|m| m.topic.ends_with("/path"))
-            .and_then(|m| Served::read(&site, &m.payload))
-        else {
+        let Some(mut served) = out.iter().find_map(|o| match o {
+            Output::Route(reply) => Served::read(&site, reply),
+            _ => None,
+        }) else {
             report.refused_trips += 1;
             continue;
         };
@@ -288,8 +281,8 @@ pub fn evaluate(
             let (cell, pos) = walker.at();
             let [x_m, y_m] = site.world_of_grid([pos.0, pos.1]);
             let metres = (x_m, y_m);
-            for m in out.drain(..) {
-                if m.topic.ends_with("/location") {
+            for output in out.drain(..) {
+                if let Output::Location(location) = &output {
                     fixes += 1;
                     let (off_m, progress) =
                         served
@@ -298,8 +291,7 @@ pub fn evaluate(
                     if off_m <= guidance.corridor_m {
                         served.truth_m = progress;
                         if straying.is_none()
-                            && let Ok(fix) =
-                                serde_json::from_value::<Cell>(m.payload["cell"].clone())
+                            && let Some(fix) = location.cell
                         {
                             let (fix_off, fix_m) = served.line.project(
                                 &site,
@@ -324,17 +316,16 @@ pub fn evaluate(
                     if cell == destination && reach_fix.is_none() {
                         reach_fix = Some(fixes);
                     }
-                } else if m.topic.ends_with("/guidance") {
-                    match m.payload["event"].as_str() {
-                        Some("announce") => {
-                            let at: Option<Cell> =
-                                serde_json::from_value(m.payload["next"]["at"].clone()).ok();
+                } else if let Output::Guidance(guidance) = &output {
+                    match guidance.event {
+                        Some(GuidanceEvent::Announce) => {
+                            let at = guidance.next.as_ref().map(|n| n.at);
                             if let Some(k) = served.decisions.iter().position(|d| Some(d.0) == at) {
                                 served.announced[k]
                                     .get_or_insert(served.decisions[k].1 - served.truth_m);
                             }
                         }
-                        Some("off_route") => match straying.take() {
+                        Some(GuidanceEvent::OffRoute) => match straying.take() {
                             Some(first_out) => {
                                 detect.push(
                                     fixes.saturating_sub(first_out.unwrap_or(fixes)) as f64 + 1.0,
@@ -344,13 +335,15 @@ pub fn evaluate(
                         },
                         // The walk goes on to the destination: an arrival
                         // told early is scored as such.
-                        Some("arrived") => arrived_fix = Some(fixes),
+                        Some(GuidanceEvent::Arrived) => arrived_fix = Some(fixes),
                         _ => {}
                     }
                     if let Some(s) = pipeline.guide().session(&device) {
                         report.max_session_bytes = report.max_session_bytes.max(s.state_bytes());
                     }
-                } else if m.topic.ends_with("/path") && m.payload["reason"] == "off_route" {
+                } else if let Output::Route(reply) = &output
+                    && matches!(&reply.outcome, RouteOutcome::Route(b) if b.reason == Some("off_route"))
+                {
                     reroutes += 1;
                     score_announcements(
                         &served,
@@ -358,7 +351,7 @@ pub fn evaluate(
                         &mut announced_m,
                         &mut report,
                     );
-                    if let Some(next) = Served::read(&site, &m.payload) {
+                    if let Some(next) = Served::read(&site, reply) {
                         served = next;
                         walker = follow(&site, cell, &served);
                         end_t = None;
@@ -466,7 +459,7 @@ fn scan(
     device: &Arc<str>,
     t: f64,
     rng: &mut Xoshiro256PlusPlus,
-    out: &mut Vec<Message>,
+    out: &mut Vec<Output>,
 ) {
     let (cell, pos) = walker.at();
     let mut events = Vec::new();

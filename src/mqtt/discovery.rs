@@ -17,8 +17,9 @@
 
 use serde_json::json;
 
-use super::stats::{COUNTERS, GAUGES};
-use crate::publish::{Message, Topics};
+use super::topics::{Message, Topics};
+use crate::publish::Location;
+use crate::publish::stats::{COUNTERS, GAUGES};
 
 /// Tracker state of a device located in the building but at no named place.
 pub const HOME: &str = "home";
@@ -204,22 +205,16 @@ impl Discovery {
         )
     }
 
-    /// The tracker state a location message sets, as `(topic, payload)`:
-    /// the named place, [`HOME`] in the building at no named place, or
-    /// [`NOT_HOME`] when the location is unknown (no cell). `None` for any
-    /// other message.
-    pub fn presence(&self, message: &Message) -> Option<(String, String)> {
-        let location = &message.payload;
-        if location["schema"] != crate::publish::LOCATION_SCHEMA {
-            return None;
-        }
-        let device = location["device"].as_str()?;
-        let state = if location["cell"].is_null() {
-            NOT_HOME
-        } else {
-            location["place"].as_str().unwrap_or(HOME)
+    /// The tracker state a location sets, as `(topic, payload)`: the named
+    /// place, [`HOME`] in the building at no named place, or [`NOT_HOME`]
+    /// when the location is unknown (no cell).
+    pub fn presence(&self, location: &Location) -> (String, String) {
+        let state = match (location.cell, &location.place) {
+            (None, _) => NOT_HOME,
+            (Some(_), Some(place)) => place,
+            (Some(_), None) => HOME,
         };
-        Some((self.topics.presence(device), state.to_owned()))
+        (self.topics.presence(&location.device), state.to_owned())
     }
 }
 
@@ -255,6 +250,7 @@ fn occupancy_object_id(place: &str, all: &[&str]) -> String {
 mod tests {
     use super::*;
     use crate::publish::LOCATION_SCHEMA;
+    use crate::site::Cell;
 
     fn discovery() -> Discovery {
         Discovery::new(
@@ -286,12 +282,18 @@ mod tests {
         assert_eq!(m.payload["availability"][0]["topic"], "gangway/gw.1/status");
     }
 
-    fn location(place: serde_json::Value, cell: serde_json::Value) -> Message {
-        Message {
-            topic: "gangway/gw.1/devices/phone 7/location".into(),
-            payload: json!({"schema": LOCATION_SCHEMA, "device": "phone 7", "cell": cell,
-                            "place": place}),
-            retain: false,
+    fn location(place: Option<&str>, cell: Option<Cell>) -> Location {
+        Location {
+            schema: LOCATION_SCHEMA,
+            device: "phone 7".into(),
+            t: 1.0,
+            cell,
+            label: None,
+            x_m: None,
+            y_m: None,
+            place: place.map(str::to_owned),
+            confidence: 0.5,
+            anchors_heard: 3,
         }
     }
 
@@ -301,20 +303,14 @@ mod tests {
         let topic = "gangway/gw.1/devices/phone 7/presence".to_owned();
         let at = |place, cell| d.presence(&location(place, cell));
         assert_eq!(
-            at(json!("help desk"), json!([9, 9])),
-            Some((topic.clone(), "help desk".into()))
+            at(Some("help desk"), Some(Cell::new(9, 9))),
+            (topic.clone(), "help desk".into())
         );
         assert_eq!(
-            at(json!(null), json!([3, 4])),
-            Some((topic.clone(), HOME.into()))
+            at(None, Some(Cell::new(3, 4))),
+            (topic.clone(), HOME.into())
         );
-        assert_eq!(at(json!(null), json!(null)), Some((topic, NOT_HOME.into())));
-        let stats = Message {
-            topic: "gangway/gw.1/stats".into(),
-            payload: json!({"schema": "gangway.stats/1"}),
-            retain: true,
-        };
-        assert_eq!(d.presence(&stats), None);
+        assert_eq!(at(None, None), (topic, NOT_HOME.into()));
     }
 
     #[test]

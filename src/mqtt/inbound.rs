@@ -1,5 +1,5 @@
 //! Messages the gateway subscribes to, from topic and bytes to what the
-//! pipeline consumes. Nothing here panics or gives up on bad input: every
+//! runtime consumes. Nothing here panics or gives up on bad input: every
 //! message becomes an [`Inbound`] or a [`Rejected`] that says why.
 //!
 //! - `<prefix>/devices/<device>/route/set`: `{"to": place | [x, y], "profile"?, "request_id"?}`;
@@ -17,42 +17,11 @@ use serde::Deserialize;
 use uuid::Uuid;
 
 use super::sightings;
+use super::topics::Topics;
 use crate::plan::{Destination, RouteErrorCode};
-use crate::publish::{Topics, valid_device_id};
+use crate::publish::valid_device_id;
 use crate::sighting::{BeaconId, Sighting};
-use crate::source::RouteRequest;
-
-/// A message the daemon acts on.
-#[derive(Debug, PartialEq)]
-pub enum Inbound {
-    Route(RouteRequest),
-    /// A route request that could not be read; it still gets an error reply.
-    BadRoute {
-        device: String,
-        request_id: Option<String>,
-        code: RouteErrorCode,
-        message: String,
-    },
-    /// End the guidance session of `device` (received at `t`).
-    Cancel {
-        device: String,
-        t: f64,
-    },
-    Feedback(Feedback),
-    /// A phone's scan: sightings with the phone as observer.
-    Scan(Vec<Sighting>),
-    /// Another gateway's sightings.
-    Shared(Vec<Sighting>),
-}
-
-/// A score for a route the gateway gave.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Feedback {
-    pub t: f64,
-    pub device: String,
-    pub request_id: String,
-    pub score: u8,
-}
+use crate::source::{Feedback, Inbound, RouteRequest};
 
 /// Why a message was not used; the daemon logs it and counts it.
 #[derive(Debug, PartialEq, thiserror::Error)]

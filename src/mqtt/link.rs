@@ -178,7 +178,7 @@ impl Link {
     }
 
     /// Queues a JSON message; never blocks.
-    pub fn publish(&self, message: &crate::publish::Message) {
+    pub fn publish(&self, message: &super::topics::Message) {
         self.publish_raw(
             message.topic.clone(),
             serde_json::to_vec(&message.payload).expect("JSON values serialize"),
@@ -227,7 +227,7 @@ impl Link {
     /// Adds (or replaces, by topic) messages sent (before the queue) after
     /// every connect; with `send_now` they are also sent on the current
     /// connection. Costs the messages given, not the birth already kept.
-    pub fn set_birth(&self, messages: &[crate::publish::Message], send_now: bool) {
+    pub fn set_birth(&self, messages: &[super::topics::Message], send_now: bool) {
         let birth = messages
             .iter()
             .map(|m| Outgoing {

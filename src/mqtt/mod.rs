@@ -1,13 +1,17 @@
-//! MQTT: everything between the pipeline and the broker. Topics and payloads
+//! MQTT: everything between the runtime and the broker. Topics and payloads
 //! are documented in docs/mqtt.md, with JSON Schemas in docs/schemas/.
 //!
+//! - [`sink`]: the broker as a sink of outputs (with Home Assistant discovery,
+//!   presence and occupancy), and [`source`]: as a source of what the gateway
+//!   subscribes to; both over one [`link`];
+//! - [`topics`]: topic names, and outputs encoded as JSON messages (also what
+//!   `--print` writes);
 //! - [`config`]: `[mqtt]`, client options, credentials, TLS (rustls on ring);
 //! - [`link`]: the connection task: reconnects, offline [`queue`], redelivery,
 //!   retained status with last will;
 //! - [`inbound`]: subscribed topics (route requests, feedback, phone scans,
-//!   shared sightings) read into what the pipeline consumes;
+//!   shared sightings) read into what the runtime consumes;
 //! - [`sightings`]: the shared-sightings payload between gateways of a site;
-//! - [`stats`]: the retained counters payload;
 //! - [`occupancy`]: the retained devices-per-place payload;
 //! - [`discovery`]: Home Assistant MQTT discovery;
 //! - [`broker`]: the embedded broker used when no url is configured.
@@ -20,7 +24,9 @@ pub mod link;
 pub mod occupancy;
 pub mod queue;
 pub mod sightings;
-pub mod stats;
+pub mod sink;
+pub mod source;
+pub mod topics;
 
 use std::time::Duration;
 

@@ -1,5 +1,5 @@
 //! Occupancy: how many devices are at each named place of the site, followed
-//! from the location messages the gateway publishes (a device counts at the
+//! from the locations the gateway publishes (a device counts at the
 //! place of its latest location, and at none once its location is unknown,
 //! between places, or it is forgotten). Sent retained on `<prefix>/occupancy`
 //! whenever a count changes (docs/schemas/occupancy.schema.json); Home
@@ -9,7 +9,8 @@ use std::collections::HashMap;
 
 use serde_json::json;
 
-use crate::publish::{LOCATION_SCHEMA, Message, Topics};
+use super::topics::{Message, Topics};
+use crate::publish::Location;
 
 pub const OCCUPANCY_SCHEMA: &str = "gangway.occupancy/1";
 
@@ -45,19 +46,14 @@ impl Occupancy {
         }
     }
 
-    /// Follows one published message: a location moves its device to its
-    /// place, or out of every place. Other messages change nothing.
-    pub fn observe(&mut self, message: &Message) {
-        let location = &message.payload;
-        if location["schema"] != LOCATION_SCHEMA {
-            return;
-        }
-        let Some(device) = location["device"].as_str() else {
-            return;
-        };
-        let place = location["place"]
-            .as_str()
-            .filter(|_| !location["cell"].is_null())
+    /// Follows one published location: it moves its device to its place, or
+    /// out of every place.
+    pub fn observe(&mut self, location: &Location) {
+        let device = location.device.as_str();
+        let place = location
+            .place
+            .as_deref()
+            .filter(|_| location.cell.is_some())
             .and_then(|name| self.places.iter().position(|p| p == name));
         let was = self.at.get(device).copied();
         if was == place {
@@ -120,13 +116,21 @@ impl Occupancy {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::publish::LOCATION_SCHEMA;
+    use crate::site::Cell;
 
-    fn location(device: &str, place: Option<&str>, cell: serde_json::Value) -> Message {
-        Message {
-            topic: format!("gangway/gw/devices/{device}/location"),
-            payload: json!({"schema": LOCATION_SCHEMA, "device": device, "cell": cell,
-                            "place": place}),
-            retain: false,
+    fn location(device: &str, place: Option<&str>, cell: serde_json::Value) -> Location {
+        Location {
+            schema: LOCATION_SCHEMA,
+            device: device.into(),
+            t: 1.0,
+            cell: serde_json::from_value::<Option<Cell>>(cell).unwrap(),
+            label: None,
+            x_m: None,
+            y_m: None,
+            place: place.map(str::to_owned),
+            confidence: 0.5,
+            anchors_heard: 3,
         }
     }
 
@@ -156,13 +160,6 @@ mod tests {
         o.forget("a");
         o.forget("nobody");
         assert_eq!(counts(&mut o), Some(json!({"desk": 0, "lab": 0})));
-        let stats = Message {
-            topic: "gangway/gw/stats".into(),
-            payload: json!({"schema": "gangway.stats/1", "device": "a", "place": "lab"}),
-            retain: true,
-        };
-        o.observe(&stats);
-        assert_eq!(counts(&mut o), None);
     }
 
     #[test]

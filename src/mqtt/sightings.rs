@@ -8,7 +8,7 @@ use std::sync::Arc;
 use serde::{Deserialize, Serialize};
 use uuid::Uuid;
 
-use crate::publish::Message;
+use super::topics::Message;
 use crate::sighting::{BeaconId, Sighting};
 
 pub const SIGHTINGS_SCHEMA: &str = "gangway.sightings/1";

@@ -12,10 +12,15 @@
 //! for the caller to reopen it; and a scan that reports nothing at all for
 //! `[ble] silent_restart_s` is stopped and started again, since BlueZ scans
 //! are known to go quiet after hours without any error.
+//!
+//! [`BleSource`] is the radio as a source of the runtime: a supervisor that
+//! reopens the adapter with capped backoff while it is missing or lost (the
+//! MQTT side keeps serving meanwhile), publishes the radio's state for the
+//! stats, and at shutdown stops discovery before it returns.
 
 use std::collections::HashMap;
 use std::sync::Arc;
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::Duration;
 
 use btleplug::api::{
     Central, CentralEvent, CentralState, Manager as _, Peripheral as _, ScanFilter,
@@ -23,13 +28,15 @@ use btleplug::api::{
 use btleplug::platform::PeripheralId;
 pub use btleplug::platform::{Adapter, Manager};
 use futures::StreamExt;
+use futures::future::BoxFuture;
 use serde::Deserialize;
-use tokio::sync::mpsc;
+use tokio::sync::watch;
 use tokio::time::Instant;
 
-use super::Event;
 use super::ibeacon::{self, APPLE_COMPANY_ID, IBeacon};
-use crate::sighting::Sighting;
+use super::{Event, Shutdown, Source, SourceContext};
+use crate::publish::stats::BleStatus;
+use crate::sighting::{Sighting, unix_now};
 
 /// How often a scan asks BlueZ whether its adapter is still there and powered
 /// (BlueZ's removal signal does not reach btleplug's event stream).
@@ -37,6 +44,10 @@ const ADAPTER_CHECK: Duration = Duration::from_secs(2);
 /// Most iBeacon peripherals remembered: BlueZ makes a device of every random
 /// address it hears, so the table is bounded like anything fed from the air.
 const MAX_BEACONS: usize = 4096;
+/// Backoff between attempts to open the adapter. The cap keeps a returning
+/// adapter scanning within a few seconds; each attempt is one D-Bus call.
+const BLE_RETRY_MIN: Duration = Duration::from_secs(1);
+const BLE_RETRY_MAX: Duration = Duration::from_secs(5);
 
 /// `[ble]` in the gateway config.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
@@ -144,17 +155,134 @@ async fn name(adapter: &Adapter) -> String {
         .unwrap_or_else(|| "(unnamed)".to_owned())
 }
 
-/// Scans until `events` is closed (then returns `Ok` after stopping
-/// discovery) or the adapter fails, sending one [`Event::Advert`] per iBeacon
-/// advert heard; `observer` names this host. A scan silent for
-/// `silent_restart` is restarted and `restarted` called.
+/// The radio as a source: scans for as long as the runtime runs, reopening
+/// the adapter after every failure, and publishes the radio's state on its
+/// status channel (the stats' `ble`, with the silent scans restarted).
+pub struct BleSource {
+    config: BleConfig,
+    /// This host, the observer of what it hears.
+    observer: Arc<str>,
+    status: watch::Sender<BleStatus>,
+}
+
+impl BleSource {
+    /// The source and the radio's state for the stats.
+    pub fn new(config: BleConfig, observer: Arc<str>) -> (BleSource, watch::Receiver<BleStatus>) {
+        let (status, rx) = watch::channel(BleStatus {
+            state: "starting",
+            ..BleStatus::default()
+        });
+        (
+            BleSource {
+                config,
+                observer,
+                status,
+            },
+            rx,
+        )
+    }
+}
+
+impl Source for BleSource {
+    fn name(&self) -> &'static str {
+        "ble"
+    }
+
+    fn run(self: Box<Self>, cx: SourceContext) -> BoxFuture<'static, anyhow::Result<()>> {
+        Box::pin(async move {
+            self.supervise(cx).await;
+            Ok(())
+        })
+    }
+}
+
+impl BleSource {
+    async fn supervise(self, mut cx: SourceContext) {
+        let report =
+            |state: &'static str, error: Option<String>, failures: u64, retry_in_s: Option<f64>| {
+                self.status.send_modify(|s| {
+                    s.state = state;
+                    s.error = error;
+                    s.failures = failures;
+                    s.retry_in_s = retry_in_s;
+                });
+            };
+        let mut manager = None;
+        let mut backoff = BLE_RETRY_MIN;
+        let mut failures = 0u64;
+        loop {
+            let opened = tokio::select! {
+                opened = open(&mut manager, &self.config) => opened,
+                () = cx.shutdown.recv() => return,
+            };
+            let error = match opened {
+                Ok(adapter) => {
+                    tracing::info!("Bluetooth adapter open; scanning");
+                    failures = 0;
+                    backoff = BLE_RETRY_MIN;
+                    report("scanning", None, 0, None);
+                    let restarted = || self.status.send_modify(|s| s.scan_restarts += 1);
+                    let scan = scan(
+                        &adapter,
+                        self.observer.clone(),
+                        self.config.silent_restart(),
+                        &mut cx,
+                        restarted,
+                    );
+                    match scan.await {
+                        Ok(()) => return,
+                        Err(e) => e.to_string(),
+                    }
+                }
+                Err(e) => e.to_string(),
+            };
+            failures += 1;
+            // Every retry is in the stats; the log gets the first few and then
+            // ever fewer, so a machine without Bluetooth does not fill it.
+            if failures.is_power_of_two() {
+                tracing::warn!(
+                    retry_in_s = backoff.as_secs_f64(),
+                    failures,
+                    "Bluetooth unavailable: {error}; MQTT keeps serving, retrying"
+                );
+            }
+            report(
+                "retrying",
+                Some(error),
+                failures,
+                Some(backoff.as_secs_f64()),
+            );
+            tokio::select! {
+                () = tokio::time::sleep(backoff) => {}
+                () = cx.shutdown.recv() => return,
+            }
+            backoff = (backoff * 2).min(BLE_RETRY_MAX);
+        }
+    }
+}
+
+/// The configured adapter, through the one BlueZ connection of `manager`
+/// (made on first use).
+async fn open(manager: &mut Option<Manager>, config: &BleConfig) -> Result<Adapter, BleError> {
+    let manager = match manager {
+        Some(m) => m,
+        none => none.insert(connect().await?),
+    };
+    adapter(manager, config).await
+}
+
+/// Scans until shutdown or until the runtime is gone (then returns `Ok`
+/// after stopping discovery), or until the adapter fails, sending one
+/// [`Event::Advert`] per iBeacon advert heard; `observer` names this host. A
+/// scan silent for `silent_restart` is restarted and `restarted` called.
 pub async fn scan(
     adapter: &Adapter,
     observer: Arc<str>,
     silent_restart: Option<Duration>,
-    events: mpsc::Sender<Event>,
+    cx: &mut SourceContext,
     mut restarted: impl FnMut(),
 ) -> Result<(), BleError> {
+    let mut shutdown: Shutdown = cx.shutdown.clone();
     let name = name(adapter).await;
     let mut stream = adapter.events().await?;
     adapter.start_scan(ScanFilter::default()).await?;
@@ -176,13 +304,13 @@ pub async fn scan(
                 }
                 if let Some((beacon, rssi)) = heard.event(adapter, event).await {
                     let sighting = Sighting {
-                        t: now(),
+                        t: unix_now(),
                         observer: observer.clone(),
                         advertiser: beacon.id,
                         tx_power: Some(beacon.measured_power),
                         rssi,
                     };
-                    if events.send(Event::Advert(sighting)).await.is_err() {
+                    if cx.events(vec![Event::Advert(sighting)]).await.is_err() {
                         break Ok(());
                     }
                 }
@@ -210,7 +338,7 @@ pub async fn scan(
                 last_event = Instant::now();
                 silence.as_mut().reset(last_event + silent_for);
             }
-            () = events.closed() => break Ok(()),
+            () = shutdown.recv() => break Ok(()),
         }
     };
     // Leave BlueZ not discovering on our account; the adapter may be gone.
@@ -278,12 +406,6 @@ impl Heard {
         self.beacons.insert(id, beacon);
         Some(beacon)
     }
-}
-
-fn now() -> f64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
 }
 
 #[cfg(test)]

@@ -1,17 +1,18 @@
-//! Feeds the learning store ([`crate::store`]) from what the daemon publishes:
-//! every location is a point of a device's smoothed trajectory, every route
-//! reply a route given, plus the feedback received. Records are buffered and
-//! written once a second in one transaction; a failing disk is logged and
-//! counted, and never stops the daemon (the buffer is dropped, so memory stays
-//! bounded). A store that cannot be opened is moved aside and started afresh
+//! The learning store ([`crate::store`]) as a sink: every known location is
+//! a point of a device's smoothed trajectory, every route a route given, plus
+//! the feedback accepted and each finished guidance session's adherence.
+//! Records are buffered and written once a second in one transaction; a
+//! failing disk is logged and counted, and never stops the daemon (the buffer
+//! is dropped, so memory stays bounded). A store that cannot be opened is moved aside and started afresh
 //! ([`Store::open_or_move_aside`]); one that cannot even be created leaves
 //! the gateway serving without recording. Either way it is listed in the
 //! stats' fallbacks.
 
-use serde::Deserialize;
+use futures::future::BoxFuture;
 
-use crate::publish::{LOCATION_SCHEMA, Message, PATH_SCHEMA};
-use crate::site::Cell;
+use super::Sink;
+use crate::publish::stats::Stats;
+use crate::publish::{Output, RouteOutcome};
 use crate::store::{Record, Store, StoreConfig, StoreError};
 
 /// How often old rows are pruned, in seconds.
@@ -27,32 +28,12 @@ pub struct Recorder {
     pending: Vec<Record>,
     last_prune: f64,
     last_quota: f64,
-    pub errors: u64,
-    pub written: u64,
+    /// Why the store is not the configured file, if it had to be moved aside.
+    fallback: Option<String>,
+    errors: u64,
+    written: u64,
     /// Rows deleted to stay within the quotas.
-    pub quota_deleted: u64,
-}
-
-#[derive(Deserialize)]
-struct LocationFields {
-    device: String,
-    t: f64,
-    cell: Cell,
-    confidence: f32,
-}
-
-#[derive(Deserialize)]
-struct Waypoint {
-    cell: Cell,
-}
-
-#[derive(Deserialize)]
-struct RouteFields {
-    device: String,
-    request_id: Option<String>,
-    t: f64,
-    planner: String,
-    waypoints: Vec<Waypoint>,
+    quota_deleted: u64,
 }
 
 impl Recorder {
@@ -60,7 +41,7 @@ impl Recorder {
     /// when the store had to be moved aside, what happened.
     /// The first prune is an hour after `now` (seconds since the epoch), not
     /// at once: a replayed log's old timestamps would be pruned as they come.
-    pub fn open(config: &StoreConfig, now: f64) -> Result<(Recorder, Option<String>), StoreError> {
+    pub fn open(config: &StoreConfig, now: f64) -> Result<Recorder, StoreError> {
         let path = config.resolved_path();
         let (store, moved) = Store::open_or_move_aside(&path)?;
         if let Some(moved) = &moved {
@@ -73,52 +54,54 @@ impl Recorder {
             pending: Vec::new(),
             last_prune: now,
             last_quota: f64::NEG_INFINITY,
+            fallback: moved,
             errors: 0,
             written: 0,
             quota_deleted: 0,
         };
-        Ok((recorder, moved))
+        Ok(recorder)
     }
 
-    /// Keeps what a published message teaches: fixes and routes given.
-    pub fn published(&mut self, message: &Message) {
-        let schema = &message.payload["schema"];
-        let record = if *schema == LOCATION_SCHEMA {
-            LocationFields::deserialize(&message.payload)
-                .ok()
-                .map(|l| Record::Fix {
-                    device: l.device,
-                    t: l.t,
-                    cell: l.cell,
-                    confidence: l.confidence,
-                })
-        } else if *schema == PATH_SCHEMA {
-            // Error replies have no waypoints and teach nothing.
-            RouteFields::deserialize(&message.payload)
-                .ok()
-                .map(|r| Record::Route {
-                    device: r.device,
-                    request_id: r.request_id,
-                    t: r.t,
-                    planner: r.planner,
-                    cells: r.waypoints.into_iter().map(|w| w.cell).collect(),
-                })
-        } else {
-            None
-        };
-        if let Some(record) = record {
-            self.push(record);
-        }
+    /// What an output teaches, if anything.
+    fn record(output: &Output) -> Option<Record> {
+        Some(match output {
+            // An unknown location is no point of a walk.
+            Output::Location(l) => Record::Fix {
+                device: l.device.clone(),
+                t: l.t,
+                cell: l.cell?,
+                confidence: l.confidence,
+            },
+            // Error replies teach nothing.
+            Output::Route(reply) => match &reply.outcome {
+                RouteOutcome::Route(body) => Record::Route {
+                    device: reply.device.clone(),
+                    request_id: reply.request_id.clone(),
+                    t: reply.t,
+                    planner: body.planner.to_owned(),
+                    cells: body.waypoints.iter().map(|w| w.cell).collect(),
+                },
+                RouteOutcome::Error { .. } => return None,
+            },
+            Output::Feedback(f) => Record::Feedback {
+                device: f.device.clone(),
+                request_id: f.request_id.clone(),
+                t: f.t,
+                score: f.score,
+            },
+            Output::Adherence(a) => Record::Adherence(a.clone()),
+            _ => return None,
+        })
     }
 
-    pub fn push(&mut self, record: Record) {
+    fn push(&mut self, record: Record) {
         if self.pending.len() < MAX_PENDING {
             self.pending.push(record);
         }
     }
 
     /// Writes what is buffered, and prunes once an hour.
-    pub fn flush(&mut self, now: f64) {
+    fn write(&mut self, now: f64) {
         if !self.pending.is_empty() {
             match self.store.write(&self.pending) {
                 Ok(()) => self.written += self.pending.len() as u64,
@@ -158,5 +141,36 @@ impl Recorder {
                 }
             }
         }
+    }
+}
+
+impl Sink for Recorder {
+    fn name(&self) -> &'static str {
+        "store"
+    }
+
+    fn send(&mut self, outputs: &[Output]) -> anyhow::Result<()> {
+        for output in outputs {
+            if let Some(record) = Recorder::record(output) {
+                self.push(record);
+            }
+        }
+        Ok(())
+    }
+
+    fn tick(&mut self, now: f64) {
+        self.write(now);
+    }
+
+    fn report(&self, stats: &mut Stats) {
+        stats.recorded = self.written;
+        stats.store_errors = self.errors;
+        stats.store_quota_deleted = self.quota_deleted;
+        stats.fallbacks.extend(self.fallback.clone());
+    }
+
+    fn shutdown(mut self: Box<Self>) -> BoxFuture<'static, anyhow::Result<()>> {
+        self.write(crate::sighting::unix_now());
+        Box::pin(std::future::ready(Ok(())))
     }
 }

@@ -1,18 +1,22 @@
-//! What the gateway publishes, as MQTT topics and JSON payloads. Every sink
-//! (MQTT, `--print` on stdout) sends exactly these messages, so what a test sees
-//! on stdout is what a subscriber gets from the broker.
+//! What the gateway publishes, as typed outputs: the pipeline and the runtime
+//! produce [`Output`]s, and every sink (MQTT, `--print` on stdout, `--out`
+//! files, the learning store, the scorer, the web map) takes the same ones.
+//! Nothing here knows a topic or writes JSON: the types derive `Serialize`
+//! because each one *is* its payload's schema (docs/schemas), and the MQTT
+//! encoder (`mqtt::topics`) names the topic and writes the bytes, for the
+//! broker and for stdout alike, so what a test sees on stdout is what a
+//! subscriber gets from the broker.
 //!
-//! Topics under the prefix (default `gangway/<gateway id>`):
-//! - `<prefix>/devices/<device>/location`: a [`Location`] per fix;
-//! - `<prefix>/devices/<device>/path`: a [`RouteReply`] per route request,
-//!   and one per route re-planned when a walker left theirs;
-//! - `<prefix>/devices/<device>/guidance`: a [`Guidance`] per fix of a device
-//!   being guided along a route (see `guide`);
-//! - `<prefix>/devices/<device>/presence`: Home Assistant's tracker state
-//!   (`mqtt::discovery`);
-//! - `<prefix>/occupancy`: devices per named place (`mqtt::occupancy`);
-//! - `<prefix>/status`, `<prefix>/stats` and the subscribed topics
-//!   (`route/set`, `feedback`, `scans`): see `mqtt` and docs/mqtt.md.
+//! - [`Location`]: a fix, known (a cell) or unknown (`cell` null);
+//! - [`RouteReply`]: the answer to a route request, a route or an error with
+//!   its [`RouteErrorCode`], and routes re-planned off route;
+//! - [`Guidance`]: progress along a served route;
+//! - and what the runtime adds: feedback, adherence, forgotten devices, shared
+//!   sightings, the counters ([`stats`]).
+
+pub mod stats;
+
+use std::sync::Arc;
 
 use serde::Serialize;
 
@@ -24,13 +28,35 @@ pub const LOCATION_SCHEMA: &str = "gangway.location/1";
 pub const PATH_SCHEMA: &str = "gangway.path/1";
 pub const GUIDANCE_SCHEMA: &str = "gangway.guidance/1";
 
-/// One outgoing message.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct Message {
-    pub topic: String,
-    pub payload: serde_json::Value,
-    #[serde(skip)]
-    pub retain: bool,
+/// Everything a sink can be given, in the order it happened. Sinks take
+/// what they use and pass over the rest (`_ => {}`), so a new kind of output
+/// costs only the sinks that want it.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Output {
+    /// A fix of a device: where it is, or an unknown location.
+    Location(Location),
+    /// A route or a route error, answering a request or re-planned off route.
+    Route(Box<RouteReply>),
+    /// Guidance along a route being walked.
+    Guidance(Box<Guidance>),
+    /// Where a device really was (a replayed log's `truth`), passed through
+    /// the pipeline untouched for scoring.
+    Truth(crate::source::Truth),
+    /// A device whose track was forgotten (`[limits]`): sinks drop what they
+    /// keep about it.
+    Forgotten(Arc<str>),
+    /// How well a finished guidance session followed its route (implicit
+    /// feedback for the learning store).
+    Adherence(crate::guide::Adherence),
+    /// A score for a route this gateway gave.
+    Feedback(crate::source::Feedback),
+    /// Feedback refused: no such route was given to the device.
+    FeedbackRefused(FeedbackRefused),
+    /// This gateway's own sightings, for the other gateways of its site
+    /// (advertiser orientation).
+    Sightings(Vec<crate::sighting::Sighting>),
+    /// The gateway's counters.
+    Stats(Box<stats::Stats>),
 }
 
 /// A device's position after a fix. When the evidence was too weak to name a
@@ -178,99 +204,44 @@ pub struct ErrorBody {
     /// Stable code, sent as its string (`unknown_place`, `off_map`, …).
     pub code: RouteErrorCode,
     pub message: String,
+    /// With `overloaded` and `rate_limited`: seconds to wait before asking again.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub retry_after_s: Option<f64>,
 }
 
-/// Topic names under one prefix.
-#[derive(Clone, Debug)]
-pub struct Topics {
-    prefix: String,
+/// Schema id of the error answered to refused feedback.
+pub const FEEDBACK_ERROR_SCHEMA: &str = "gangway.feedback-error/1";
+
+/// The answer to feedback on a route this gateway did not give the device
+/// (or that was scored already).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FeedbackRefused {
+    pub schema: &'static str,
+    pub device: String,
+    pub request_id: String,
+    pub t: f64,
+    pub error: FeedbackError,
 }
 
-impl Topics {
-    pub fn new(prefix: impl Into<String>) -> Self {
-        Topics {
-            prefix: prefix.into(),
-        }
-    }
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FeedbackError {
+    /// Always `unknown_request`.
+    pub code: &'static str,
+    pub message: &'static str,
+}
 
-    pub fn prefix(&self) -> &str {
-        &self.prefix
-    }
-
-    pub fn location(&self, device: &str) -> String {
-        format!("{}/devices/{device}/location", self.prefix)
-    }
-
-    /// Plain-text tracker state for Home Assistant: place, `home` or `not_home`.
-    pub fn presence(&self, device: &str) -> String {
-        format!("{}/devices/{device}/presence", self.prefix)
-    }
-
-    /// Retained devices per named place.
-    pub fn occupancy(&self) -> String {
-        format!("{}/occupancy", self.prefix)
-    }
-
-    pub fn path(&self, device: &str) -> String {
-        format!("{}/devices/{device}/path", self.prefix)
-    }
-
-    /// Retained `online` / `offline` (the last will).
-    pub fn status(&self) -> String {
-        format!("{}/status", self.prefix)
-    }
-
-    /// Retained counters.
-    pub fn stats(&self) -> String {
-        format!("{}/stats", self.prefix)
-    }
-
-    /// Guidance for a device walking a route.
-    pub fn guidance(&self, device: &str) -> String {
-        format!("{}/devices/{device}/guidance", self.prefix)
-    }
-
-    /// Route requests for a device.
-    pub fn route_set(&self, device: &str) -> String {
-        format!("{}/devices/{device}/route/set", self.prefix)
-    }
-
-    /// A device's request to end its guidance session.
-    pub fn route_cancel(&self, device: &str) -> String {
-        format!("{}/devices/{device}/route/cancel", self.prefix)
-    }
-
-    /// Feedback on a route.
-    pub fn feedback(&self, device: &str) -> String {
-        format!("{}/devices/{device}/feedback", self.prefix)
-    }
-
-    /// Scans a phone publishes of the beacons it hears.
-    pub fn scans(&self, device: &str) -> String {
-        format!("{}/scans/{device}", self.prefix)
-    }
-
-    pub fn encode_location(&self, location: &Location) -> Message {
-        Message {
-            topic: self.location(&location.device),
-            payload: serde_json::to_value(location).expect("plain data serializes"),
-            retain: false,
-        }
-    }
-
-    pub fn encode_guidance(&self, guidance: &Guidance) -> Message {
-        Message {
-            topic: self.guidance(&guidance.device),
-            payload: serde_json::to_value(guidance).expect("plain data serializes"),
-            retain: false,
-        }
-    }
-
-    pub fn encode_route(&self, reply: &RouteReply) -> Message {
-        Message {
-            topic: self.path(&reply.device),
-            payload: serde_json::to_value(reply).expect("plain data serializes"),
-            retain: false,
+impl FeedbackRefused {
+    pub fn new(feedback: &crate::source::Feedback) -> FeedbackRefused {
+        FeedbackRefused {
+            schema: FEEDBACK_ERROR_SCHEMA,
+            device: feedback.device.clone(),
+            request_id: feedback.request_id.clone(),
+            t: feedback.t,
+            error: FeedbackError {
+                code: "unknown_request",
+                message: "feedback is taken once for a route this gateway gave the device \
+                          recently; this request id is not one of them",
+            },
         }
     }
 }
@@ -298,26 +269,5 @@ mod tests {
         for bad in ["", "a/b", "a+", "#", "tab\there", &"x".repeat(129)] {
             assert!(!valid_device_id(bad), "{bad:?}");
         }
-    }
-
-    #[test]
-    fn an_error_reply_has_an_error_object_and_no_route() {
-        let reply = RouteReply {
-            schema: PATH_SCHEMA,
-            device: "d".into(),
-            request_id: Some("r1".into()),
-            t: 1.0,
-            outcome: RouteOutcome::Error {
-                error: ErrorBody {
-                    code: RouteErrorCode::UnknownPlace,
-                    message: "unknown place `x`".into(),
-                },
-            },
-        };
-        let msg = Topics::new("gangway/gw").encode_route(&reply);
-        assert_eq!(msg.topic, "gangway/gw/devices/d/path");
-        assert_eq!(msg.payload["error"]["code"], "unknown_place");
-        assert_eq!(msg.payload["request_id"], "r1");
-        assert!(msg.payload.get("waypoints").is_none());
     }
 }
