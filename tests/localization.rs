@@ -657,3 +657,149 @@ fn a_metric_site_publishes_world_coordinates() {
     }
     assert!(known > 10, "only {known} located fixes:\n{out}");
 }
+
+/// A sink that counts the pipeline swaps the runtime announces (reloads and
+/// recalibrations both swap the whole pipeline).
+#[derive(Clone, Default)]
+struct Swaps(std::sync::Arc<std::sync::atomic::AtomicUsize>);
+
+impl gangway::sink::Sink for Swaps {
+    fn name(&self) -> &'static str {
+        "swaps"
+    }
+
+    fn send(&mut self, _: &[gangway::publish::Output]) -> anyhow::Result<()> {
+        Ok(())
+    }
+
+    fn reload(&mut self, _: &gangway::site::Site) {
+        self.0.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+    }
+
+    fn shutdown(self: Box<Self>) -> futures::future::BoxFuture<'static, anyhow::Result<()>> {
+        Box::pin(std::future::ready(Ok(())))
+    }
+}
+
+/// Polls `done` every 50 ms for up to 60 s.
+async fn eventually(what: &str, mut done: impl FnMut() -> bool) {
+    for _ in 0..1200 {
+        if done() {
+            return;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    panic!("no {what} within 60 s");
+}
+
+/// The daemon gathers what it hears into the learning store and, asked to,
+/// recalibrates the survey-free model from it off the event loop, writes the
+/// file and serves it (swapped in like a reload); a restart serves it too.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_daemon_recalibrates_from_what_it_heard_and_serves_it() {
+    use gangway::daemon::{self, state};
+    use gangway::sighting::{BeaconId, Sighting};
+    use gangway::source::{ChannelSource, Event, Input};
+    use std::sync::atomic::Ordering;
+
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "workshop.toml", SMALL_SITE);
+    let store = dir.path().join("learning.sqlite");
+    let config = write(
+        dir.path(),
+        "gangway.toml",
+        &format!(
+            "gateway_id = \"gw-w\"\nsite = \"workshop.toml\"\n[planner]\nmode = \"astar\"\n\
+             [store]\nenabled = true\npath = \"{}\"\n\
+             [localizer.recalibration]\nenabled = true\nevery_h = 0\nmin_windows = 100\n",
+            store.display()
+        ),
+    );
+    let serving = state::load_at_start(&config).unwrap();
+    // Heard in the last minutes: the store prunes what is older than its
+    // retention.
+    let now = gangway::sighting::unix_now();
+    let recorder = gangway::sink::recorder::Recorder::open(&serving.config.store, now)
+        .unwrap()
+        .keep_heard(serving.config.localizer.recalibration.max_windows);
+    let swaps = Swaps::default();
+    let (feed, source) = ChannelSource::new(64);
+    let (ask, asked) = tokio::sync::mpsc::channel(1);
+    let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+    let (_reload, reloads) = tokio::sync::mpsc::channel(1);
+    let options = daemon::Options {
+        recalibrate: Some(asked),
+        ..daemon::Options::default()
+    };
+    let daemon = tokio::spawn(daemon::run(
+        serving,
+        options,
+        vec![Box::new(source)],
+        vec![Box::new(recorder), Box::new(swaps.clone())],
+        async {
+            let _ = stopped.await;
+        },
+        reloads,
+    ));
+
+    // Two phones pacing the workshop's corridors, each beacon heard once a
+    // second when near enough, louder when nearer.
+    let uuid = uuid::Uuid::parse_str("0b1c2d3e-4f50-6172-8394-a5b6c7d8e9f0").unwrap();
+    let beacons = [(0.0, 0.0), (7.0, 0.0), (0.0, 4.0), (7.0, 4.0)];
+    for phone in ["phone-a", "phone-b"] {
+        let observer: std::sync::Arc<str> = phone.into();
+        let mut events = Vec::new();
+        for s in 0..400u32 {
+            let x = f64::from((s / 8 + u32::from(phone == "phone-b") * 3) % 8);
+            let y = if (s / 64) % 2 == 0 { 0.0 } else { 4.0 };
+            for (minor, (bx, by)) in (1u16..).zip(beacons) {
+                let d = 2.0 * ((x - bx) * (x - bx) + (y - by) * (y - by)).sqrt();
+                if d > 9.0 || (s + u32::from(minor)) % 3 == 0 {
+                    continue;
+                }
+                events.push(Event::Advert(Sighting {
+                    t: now - 1_000.0 + f64::from(s),
+                    observer: observer.clone(),
+                    advertiser: BeaconId {
+                        uuid,
+                        major: 7,
+                        minor,
+                    },
+                    tx_power: None,
+                    rssi: (-66.0 - 25.0 * d.max(0.5).log10()) as i16,
+                }));
+            }
+        }
+        for batch in events.chunks(64) {
+            feed.send(Input::Events(batch.to_vec())).await.unwrap();
+        }
+    }
+    let heard = || {
+        gangway::store::Store::open_read_only(&store)
+            .and_then(|s| s.heard(10_000))
+            .map_or(0, |rows| rows.len())
+    };
+    eventually("heard windows in the store", || heard() >= 300).await;
+
+    ask.send(()).await.unwrap();
+    eventually("the recalibrated pipeline", || {
+        swaps.0.load(Ordering::SeqCst) == 1
+    })
+    .await;
+    let file = dir.path().join("calibration.toml");
+    let site = gangway::site::Site::load(&dir.path().join("workshop.toml")).unwrap();
+    let calibration = gangway::locate::calibrate::Calibration::load(&file, &site).unwrap();
+    assert_eq!(calibration.anchors.len(), 4);
+    assert!(calibration.windows >= 300, "{}", calibration.windows);
+    assert!(!calibration.cells.is_empty(), "cells refined by default");
+
+    stop.send(()).unwrap();
+    let stats = daemon.await.unwrap().unwrap();
+    assert_eq!(stats.reload_failures, 0);
+    // A restart serves what was learned.
+    let restarted = state::load_at_start(&config).unwrap();
+    assert_eq!(
+        restarted.config.localizer.pathloss.calibration.as_deref(),
+        Some(file.as_path())
+    );
+}

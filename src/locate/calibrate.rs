@@ -419,14 +419,14 @@ impl Em<'_> {
                     }
                 }
             });
-            for c in 0..cells.len() {
+            for (c, &w) in weight.iter().enumerate() {
                 for a in 0..n {
                     let i = c * n + a;
                     if prior_mu[i].is_nan() {
                         continue;
                     }
                     let (p0, mu0) = (prior_p[i], prior_mu[i]);
-                    p[i] = ((hits[i] + kappa * p0) / (weight[c] + kappa))
+                    p[i] = ((hits[i] + kappa * p0) / (w + kappa))
                         .clamp(DETECTION_BOUNDS.0, DETECTION_BOUNDS.1);
                     mu[i] = (sums[i] + kappa * p0 * mu0) / (hits[i] + kappa * p0);
                 }

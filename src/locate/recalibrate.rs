@@ -2,27 +2,28 @@
 //! model refitted on a schedule or on request, with no position known.
 //!
 //! Three parts, so that the daemon's event loop only ever does the cheap one:
-//! - [`Gatherer`] keeps each fingerprint window that heard an anchor, as a
-//!   [`Record::Heard`] for the learning store, in a bounded buffer the
-//!   daemon drains with its other store writes (memory: at most
-//!   [`MAX_PENDING`] windows; disk: the store's quotas and
-//!   [`RecalibrationConfig::max_windows`], see [`Store::keep_newest_heard`]);
+//! - [`Heard::of`] turns each fingerprint window that heard an anchor into an
+//!   [`crate::publish::Output::Heard`], which the learning store's sink keeps
+//!   ([`crate::store::Record::Heard`]; memory: the sink's bounded buffer; disk:
+//!   the store's quotas and [`RecalibrationConfig::max_windows`], see
+//!   [`Store::keep_newest_heard`]);
 //! - [`Schedule`] says when a run is due: every `every_h` hours once
-//!   `min_windows` new windows were gathered, or at once on request;
+//!   `min_windows` new windows were heard, or at once on request;
 //! - [`run`] is the job: it reads the newest windows from the store, fits
 //!   the radio model by EM ([`super::calibrate::fit`], per cell too when
 //!   `cells` is set, since these are the phones and the floor the gateway
 //!   localizes), writes the calibration file atomically (a temporary file
 //!   renamed over the old one) and returns it. It blocks for seconds and
 //!   touches nothing the event loop holds, so it runs on a blocking thread;
-//!   the daemon then builds the localizer anew with the file and swaps it in
-//!   only if that succeeds, as a reload does.
+//!   the daemon then builds its pipeline anew with the file and swaps it in
+//!   only if that succeeds, as a reload does. Restarts and reloads serve the
+//!   newest recalibrated file ([`serving`]).
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use super::calibrate::{
     Calibration, CellChange, Change, DEFAULT_CELL_PRIOR_READINGS, FitOptions, Window, fit,
@@ -30,9 +31,9 @@ use super::calibrate::{
 use super::pathloss::{PathLossConfig, anchors};
 use super::tracker::TrackerConfig;
 use super::window::{Fingerprint, Orientation, anchor_ids};
-use super::{LocalizerConfig, LocalizerError};
+use super::{LocalizerConfig, LocalizerError, Method};
 use crate::site::Site;
-use crate::store::{Record, Store, StoreError};
+use crate::store::{Store, StoreConfig, StoreError};
 
 /// `[localizer.recalibration]` in the gateway config.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
@@ -93,9 +94,6 @@ impl RecalibrationConfig {
     }
 }
 
-/// Windows waiting for the store at most; past it the oldest go (counted).
-pub const MAX_PENDING: usize = 4096;
-
 /// EM iterations of the per-cell refinement of a scheduled run.
 const CELL_ITERATIONS: usize = 8;
 
@@ -103,63 +101,61 @@ const CELL_ITERATIONS: usize = 8;
 /// run's memory is bounded by the site, not by how long a device stayed.
 const MAX_TRAJECTORY: usize = 512;
 
-/// Keeps the windows worth recalibrating from, for the store.
-pub struct Gatherer {
-    ids: Vec<String>,
-    pending: VecDeque<Record>,
-    gathered: u64,
-    dropped: u64,
+/// One fingerprint window kept for recalibration: the anchors a device heard
+/// (by id, so a site whose anchors are reordered still reads it) and how loud.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Heard {
+    pub device: String,
+    pub t: f64,
+    pub readings: Vec<(String, f32)>,
 }
 
-impl Gatherer {
-    /// For a site's anchors in `orientation`.
-    pub fn new(site: &Site, orientation: Orientation) -> Gatherer {
-        Gatherer {
-            ids: anchor_ids(site, orientation),
-            pending: VecDeque::new(),
-            gathered: 0,
-            dropped: 0,
-        }
-    }
-
-    /// Keeps `window` if it heard any anchor.
-    pub fn offer(&mut self, window: &Fingerprint) {
+impl Heard {
+    /// The window, if it heard any anchor; `ids` are the anchors in the
+    /// window's order ([`anchor_ids`]).
+    pub fn of(window: &Fingerprint, ids: &[String]) -> Option<Heard> {
         let readings: Vec<(String, f32)> = window
             .heard
             .iter()
             .zip(&window.rssi)
-            .zip(&self.ids)
+            .zip(ids)
             .filter(|((heard, _), _)| **heard)
             .map(|((_, &rssi), id)| (id.clone(), rssi))
             .collect();
-        if readings.is_empty() {
-            return;
-        }
-        if self.pending.len() >= MAX_PENDING {
-            self.pending.pop_front();
-            self.dropped += 1;
-        }
-        self.pending.push_back(Record::Heard {
+        (!readings.is_empty()).then(|| Heard {
             device: window.entity.to_string(),
             t: window.t,
             readings,
-        });
-        self.gathered += 1;
+        })
     }
+}
 
-    /// The windows kept since the last call, oldest first.
-    pub fn drain(&mut self) -> Vec<Record> {
-        self.pending.drain(..).collect()
+/// Whether recalibration changes what `config` serves: the survey-free
+/// model, configured or chosen by `auto` for want of a survey.
+pub fn applies(config: &LocalizerConfig) -> bool {
+    match config.method {
+        Method::Pathloss => true,
+        Method::Auto => config.knn.survey.is_none() && config.radiomap.survey.is_none(),
+        Method::Knn | Method::Radiomap | Method::Onnx | Method::Strongest => false,
     }
+}
 
-    /// Windows kept since start.
-    pub fn gathered(&self) -> u64 {
-        self.gathered
+/// The localizer config a gateway serves with: with recalibration on and a
+/// recalibrated file that loads, that file; else `config` as it is.
+pub fn serving(config: &LocalizerConfig, store: &StoreConfig, site: &Site) -> LocalizerConfig {
+    if !(config.recalibration.enabled && applies(config)) {
+        return config.clone();
     }
-
-    /// Windows lost because the store did not take them in time.
-    pub fn dropped(&self) -> u64 {
-        self.dropped
+    let path = config.recalibration.out_path(&store.resolved_path());
+    if !path.exists() {
+        return config.clone();
+    }
+    match Calibration::load(&path, site) {
+        Ok(_) => with_calibration(config, &path),
+        Err(e) => {
+            tracing::error!("{e}; serving the configured calibration instead");
+            config.clone()
+        }
     }
 }
 
@@ -170,7 +166,7 @@ pub struct Schedule {
     min_windows: u64,
     /// Time of the last run's start (or of the schedule's creation).
     last: f64,
-    /// [`Gatherer::gathered`] at the last run's start.
+    /// Windows heard (since start) at the last run's start.
     gathered_at_last: u64,
     requested: bool,
     running: bool,
@@ -410,6 +406,7 @@ fn write_atomically(path: &Path, text: &str) -> std::io::Result<()> {
 mod tests {
     use super::*;
     use crate::locate::pathloss::Radio;
+    use crate::store::Record;
     use rand::{RngExt, SeedableRng};
 
     fn site() -> Arc<Site> {
@@ -483,41 +480,29 @@ cell = [11, 0]
     }
 
     #[test]
-    fn the_gatherer_keeps_heard_windows_and_stays_bounded() {
+    fn a_window_is_kept_by_anchor_id_and_only_if_it_heard_one() {
         let site = site();
-        let mut gatherer = Gatherer::new(&site, Orientation::Observer);
+        let ids = anchor_ids(&site, Orientation::Observer);
         let silent = Fingerprint {
             entity: "p".into(),
-            t: 0.0,
+            t: 4.0,
             rssi: vec![-105.0; 3],
             heard: vec![false; 3],
         };
-        gatherer.offer(&silent);
-        assert_eq!(
-            gatherer.gathered(),
-            0,
-            "a window that heard nothing is not kept"
-        );
+        assert_eq!(Heard::of(&silent, &ids), None);
         let heard = Fingerprint {
             heard: vec![false, true, false],
             rssi: vec![-105.0, -71.0, -105.0],
             ..silent
         };
-        for _ in 0..MAX_PENDING + 10 {
-            gatherer.offer(&heard);
-        }
-        assert_eq!(gatherer.dropped(), 10);
-        let drained = gatherer.drain();
-        assert_eq!(drained.len(), MAX_PENDING);
         assert_eq!(
-            drained[0],
-            Record::Heard {
+            Heard::of(&heard, &ids),
+            Some(Heard {
                 device: "p".into(),
-                t: 0.0,
+                t: 4.0,
                 readings: vec![("middle".into(), -71.0)]
-            }
+            })
         );
-        assert!(gatherer.drain().is_empty());
     }
 
     #[test]
@@ -560,13 +545,19 @@ cell = [11, 0]
         let dir = tempfile::tempdir().unwrap();
         let store_path = dir.path().join("learning.sqlite");
         let mut store = Store::open(&store_path).unwrap();
-        let mut gatherer = Gatherer::new(&site, Orientation::Observer);
-        for (window, _) in walks(&site, &truth, 1) {
-            gatherer.offer(&window);
-        }
-        store.write(&gatherer.drain()).unwrap();
+        let ids = anchor_ids(&site, Orientation::Observer);
+        let records: Vec<Record> = walks(&site, &truth, 1)
+            .iter()
+            .filter_map(|(window, _)| Heard::of(window, &ids))
+            .map(|h| Record::Heard {
+                device: h.device,
+                t: h.t,
+                readings: h.readings,
+            })
+            .collect();
+        store.write(&records).unwrap();
         drop(store);
-        let gathered = gatherer.gathered() as usize;
+        let gathered = records.len();
 
         let localizer = LocalizerConfig {
             recalibration: RecalibrationConfig {
