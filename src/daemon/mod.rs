@@ -867,6 +867,12 @@ impl Runtime {
                 None => {
                     let old = std::mem::replace(&mut self.state, new);
                     self.retired += old.pipeline.stats();
+                    let (before, after) = (&old.config.localizer, &self.state.config.localizer);
+                    if before.recalibration != after.recalibration
+                        || recalibrate::applies(before) != recalibrate::applies(after)
+                    {
+                        self.recalibration = Recalibration::new(&self.state);
+                    }
                     tracing::info!(
                         site = self.state.site.name,
                         site_hash = self.state.site.map_hash(),

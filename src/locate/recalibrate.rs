@@ -635,4 +635,46 @@ cell = [11, 0]
         assert!(e.to_string().contains("min_windows"), "{e}");
         assert!(!dir.path().join("calibration.toml").exists());
     }
+
+    #[test]
+    fn a_gateway_serves_the_recalibrated_file_only_when_on_and_loadable() {
+        let site = site();
+        let dir = tempfile::tempdir().unwrap();
+        let store = StoreConfig {
+            enabled: true,
+            path: Some(dir.path().join("learning.sqlite")),
+            ..StoreConfig::default()
+        };
+        let on = LocalizerConfig {
+            recalibration: RecalibrationConfig {
+                enabled: true,
+                ..RecalibrationConfig::default()
+            },
+            ..LocalizerConfig::default()
+        };
+        let file = dir.path().join("calibration.toml");
+        // No file yet: the configured calibration.
+        assert_eq!(serving(&on, &store, &site).pathloss.calibration, None);
+        let calibration = Calibration {
+            site: "corridor".into(),
+            windows: 1,
+            iterations: 1,
+            anchors: Vec::new(),
+            cells: Vec::new(),
+        };
+        std::fs::write(&file, calibration.to_toml()).unwrap();
+        assert_eq!(
+            serving(&on, &store, &site).pathloss.calibration.as_deref(),
+            Some(file.as_path())
+        );
+        // Off, or surveyed: the file is not what serves.
+        let off = LocalizerConfig::default();
+        assert_eq!(serving(&off, &store, &site).pathloss.calibration, None);
+        let mut surveyed = on.clone();
+        surveyed.method = Method::Knn;
+        assert_eq!(serving(&surveyed, &store, &site).pathloss.calibration, None);
+        // A broken file: the configured calibration, not a failure.
+        std::fs::write(&file, "anchor = 3").unwrap();
+        assert_eq!(serving(&on, &store, &site).pathloss.calibration, None);
+    }
 }
