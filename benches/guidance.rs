@@ -1,9 +1,11 @@
-//! One guidance update per fix: a walker's fix projected on its route, the
-//! next maneuver, announcements and the message built and encoded as JSON
-//! (the work the
-//! pipeline adds per fix of a guided device). The walker walks a route
-//! across the waldo floor over and over; a new session starts each time
-//! round (1 update in ~40), as a route request would.
+//! What guidance adds to the pipeline: per fix of a guided device, the fix
+//! projected on its route, the progress filter, the next maneuver,
+//! announcements and the message built and encoded as JSON
+//! (`guidance_update`); per other event of the device (a sighting between
+//! fixes), progress judged at its time (`guidance_tick`, no message most of
+//! the time). The walker walks a route across the waldo floor over and
+//! over; a new session starts each time round (1 update in ~40), as a route
+//! request would.
 //! Run: `cargo bench --bench guidance`.
 
 use std::hint::black_box;
@@ -12,7 +14,7 @@ use std::path::Path;
 use criterion::{Criterion, criterion_group, criterion_main};
 use gangway::guide::{GuidanceConfig, Guide};
 use gangway::mqtt::topics::Topics;
-use gangway::plan::{Connectivity, Profile, astar};
+use gangway::plan::{Connectivity, Profile, Route, astar};
 use gangway::publish::Output;
 use gangway::site::Site;
 
@@ -26,17 +28,39 @@ fn guidance(c: &mut Criterion) {
     let route = astar::search(&site, Connectivity::Eight, from, to, |_| 1.0).unwrap();
     // Stop short of the destination: arriving would end the session.
     let walk = &route.cells[..route.cells.len() - 6];
-    let mut guide = Guide::new(GuidanceConfig::default(), 2.0);
     let topics = Topics::new("gangway/gw-lobby");
+    let start = |guide: &mut Guide, route: &Route, t: f64| {
+        guide.start(&site, "phone", None, Profile::Default, route, t, false);
+    };
+    let mut guide = Guide::new(GuidanceConfig::default(), 2.0);
     let (mut i, mut t) = (0, 0.0);
     c.bench_function("guidance_update", |b| {
         b.iter(|| {
             if i == 0 {
-                guide.start(&site, "phone", None, Profile::Default, &route, t, false);
+                start(&mut guide, &route, t);
             }
             t += 2.0;
-            let message = guide.update(&site, "phone", Some(walk[i]), t);
+            let message = guide.update(&site, "phone", Some(walk[i]), t, t);
             i = (i + 1) % walk.len();
+            black_box(message.and_then(|m| topics.encode(&Output::Guidance(Box::new(m)))))
+        })
+    });
+    // Ten events between fixes two seconds apart.
+    let mut guide = Guide::new(GuidanceConfig::default(), 2.0);
+    let (mut k, mut t) = (0usize, 0.0);
+    c.bench_function("guidance_tick", |b| {
+        b.iter(|| {
+            let i = (k / 10) % walk.len();
+            if k % (10 * walk.len()) == 0 {
+                start(&mut guide, &route, t);
+            }
+            t += 0.2;
+            let message = if k % 10 == 0 {
+                guide.update(&site, "phone", Some(walk[i]), t, t)
+            } else {
+                guide.tick(&site, "phone", t)
+            };
+            k += 1;
             black_box(message.and_then(|m| topics.encode(&Output::Guidance(Box::new(m)))))
         })
     });

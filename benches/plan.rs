@@ -3,6 +3,13 @@
 //! learned route goes through, and, when trained models are in `models/`
 //! (see docs/planning.md), the learned modes themselves. Targets (issue 5):
 //! plan p50 ≤ 100 µs, p99 ≤ 1 ms including repair.
+//!
+//! `scale` (issue 16): desire lines trained and served on open floors with
+//! pillars of ~100, ~1,000 and ~10,000 walkable cells (simulated walks, as
+//! many as a tenth of the cells, at least 200). Prints the training time and
+//! the p50 / p99 of 1,000 random requests per size (A* and Theta* beside
+//! them), and draws them against the number of cells into
+//! `target/criterion/plan-scale.svg` (BENCHMARKS.md, "Planning at scale").
 
 use std::hint::black_box;
 use std::path::Path;
@@ -56,7 +63,11 @@ fn planning(c: &mut Criterion) {
 
     let mut config = PlannerConfig::default();
     config.resolve_paths(root);
-    for mode in [PlannerMode::Rejection, PlannerMode::Conditional] {
+    for mode in [
+        PlannerMode::Rejection,
+        PlannerMode::Conditional,
+        PlannerMode::Desire,
+    ] {
         match plan::build_mode(&config, mode, site.clone()) {
             Ok(planner) => {
                 c.bench_function(&format!("{} place to place", mode.name()), |b| {
@@ -68,5 +79,157 @@ fn planning(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, planning);
+/// An open `side × side` floor with a 2 × 2 pillar every 8 cells.
+fn pillared_site(side: usize) -> Site {
+    let mut map = String::new();
+    for y in 0..side {
+        for x in 0..side {
+            map.push(if x % 8 >= 4 && x % 8 < 6 && y % 8 >= 4 && y % 8 < 6 {
+                '.'
+            } else {
+                '#'
+            });
+        }
+        map.push('\n');
+    }
+    let text = format!("name = \"scale-{side}\"\ncell_m = 1.0\nmap = '''\n{map}'''\n");
+    Site::parse(&text, Path::new("scale.toml")).unwrap()
+}
+
+/// Sorted request times of `planner` over `pairs`, µs.
+fn request_times(
+    planner: &dyn plan::Planner,
+    pairs: &[(gangway::site::Cell, gangway::site::Cell)],
+) -> Vec<f64> {
+    let mut times: Vec<f64> = pairs
+        .iter()
+        .map(|&(a, b)| {
+            let started = std::time::Instant::now();
+            black_box(planner.plan(a, b, Profile::Default)).ok();
+            started.elapsed().as_secs_f64() * 1e6
+        })
+        .collect();
+    times.sort_by(f64::total_cmp);
+    times
+}
+
+fn quantile(sorted: &[f64], q: f64) -> f64 {
+    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+}
+
+fn scale(c: &mut Criterion) {
+    use gangway::model::{Kind, Metadata, export};
+    use gangway::source::simulate::{WalkConfig, simulate_walks};
+    let dir = tempfile::tempdir().unwrap();
+    // (walkable cells, train s, desire p50, p99, A* p99, Theta* p99)
+    let mut rows: Vec<[f64; 6]> = Vec::new();
+    for side in [10, 33, 104] {
+        let site = Arc::new(pillared_site(side));
+        let cells = site.open_cells().len();
+        let walks = simulate_walks(
+            &site,
+            &WalkConfig {
+                walks_per_pair: 0,
+                random_walks: (cells / 10).max(200),
+                ..WalkConfig::default()
+            },
+        );
+        let started = std::time::Instant::now();
+        let trained = gangway::train::desire::train(&site, &walks).unwrap();
+        let train_s = started.elapsed().as_secs_f64();
+        let file = dir.path().join(format!("desire-{side}.onnx"));
+        let meta = Metadata::for_site(Kind::DesireLines, &site);
+        export::write_proto(&file, &trained.model.to_onnx(&meta)).unwrap();
+        let mut config = PlannerConfig::default();
+        config.models.desire_lines = file;
+        let desire = plan::build_mode(&config, PlannerMode::Desire, site.clone()).unwrap();
+        let astar = plan::astar::AStar::new(site.clone(), Connectivity::Eight);
+        let anyangle = plan::anyangle::AnyAngle::new(site.clone());
+        let pairs = gangway::eval::planning::pairs(&site, 1000, 1);
+        let d = request_times(&*desire, &pairs);
+        let a = request_times(&astar, &pairs);
+        let t = request_times(&anyangle, &pairs);
+        eprintln!(
+            "scale: {cells} walkable cells, {} walks: desire lines trained in {train_s:.1} s; \
+             plan p50/p99 desire {:.0}/{:.0} µs, A* {:.0}/{:.0} µs, Theta* {:.0}/{:.0} µs",
+            walks.len(),
+            quantile(&d, 0.5),
+            quantile(&d, 0.99),
+            quantile(&a, 0.5),
+            quantile(&a, 0.99),
+            quantile(&t, 0.5),
+            quantile(&t, 0.99),
+        );
+        rows.push([
+            cells as f64,
+            train_s,
+            quantile(&d, 0.5),
+            quantile(&d, 0.99),
+            quantile(&a, 0.99),
+            quantile(&t, 0.99),
+        ]);
+        let (from, to) = pairs[pairs.len() / 2];
+        c.bench_function(&format!("desire at {cells} cells"), |b| {
+            b.iter(|| black_box(desire.plan(from, to, Profile::Default)))
+        });
+    }
+    draw_scale(&rows);
+}
+
+/// Training seconds and request times against walkable cells, log-log.
+fn draw_scale(rows: &[[f64; 6]]) {
+    use plotters::prelude::*;
+    let out = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/criterion/plan-scale.svg");
+    std::fs::create_dir_all(out.parent().unwrap()).unwrap();
+    let root = SVGBackend::new(&out, (720, 420)).into_drawing_area();
+    root.fill(&WHITE).unwrap();
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "desire lines: cost against walkable cells",
+            ("sans-serif", 18),
+        )
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d((50f64..20_000f64).log_scale(), (1f64..1e8f64).log_scale())
+        .unwrap();
+    chart
+        .configure_mesh()
+        .x_desc("walkable cells")
+        .y_desc("µs")
+        .draw()
+        .unwrap();
+    let series = [
+        ("training (whole run)", 1usize, RED),
+        ("desire plan p50", 2, BLUE),
+        ("desire plan p99", 3, CYAN),
+        ("A* p99", 4, BLACK),
+        ("Theta* p99", 5, MAGENTA),
+    ];
+    for (name, column, colour) in series {
+        let points: Vec<(f64, f64)> = rows
+            .iter()
+            .map(|r| (r[0], if column == 1 { r[1] * 1e6 } else { r[column] }))
+            .collect();
+        chart
+            .draw_series(LineSeries::new(points.clone(), colour.stroke_width(2)))
+            .unwrap()
+            .label(name)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
+        chart
+            .draw_series(points.iter().map(|&p| Circle::new(p, 3, colour.filled())))
+            .unwrap();
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::UpperLeft)
+        .draw()
+        .unwrap();
+    root.present().unwrap();
+    eprintln!("scale: drew {}", out.display());
+}
+
+criterion_group!(benches, planning, scale);
 criterion_main!(benches);

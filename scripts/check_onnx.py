@@ -2,7 +2,7 @@
 """Interop check of gangway's ONNX models.
 
 For every reference file written by `cargo test --test onnx_reference` (two JSON
-per model under models/, a batch and one row, since tract runs one row through
+per model under models/ and for the desire lines that test trains, a batch and one row, since tract runs one row through
 its own plan when the weights are float16: the model path, fixed inputs and
 tract's outputs), this
 runs the official `onnx` checker on the model and runs it in onnxruntime on the

@@ -17,6 +17,7 @@ use crate::mqtt::MqttConfig;
 use crate::plan::PlannerConfig;
 use crate::source::ble::BleConfig;
 use crate::store::StoreConfig;
+use crate::web::WebConfig;
 
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -47,6 +48,9 @@ pub struct Config {
     /// hold or do.
     #[serde(default)]
     pub limits: LimitsConfig,
+    /// `[web]`: the browser UI (live map, site editor, survey).
+    #[serde(default)]
+    pub web: WebConfig,
 }
 
 /// `[limits]` in the gateway config: bounds on per-device state and on the
@@ -237,6 +241,7 @@ impl Config {
         if let Some(path) = &mut config.store.path {
             *path = base.join(&*path);
         }
+        config.web.resolve_paths(base);
         config.validate().map_err(|message| ConfigError::Invalid {
             path: path.to_owned(),
             message,
@@ -245,7 +250,7 @@ impl Config {
     }
 
     fn validate(&self) -> Result<(), String> {
-        if self.gateway_id.is_empty() || !crate::publish::valid_device_id(&self.gateway_id) {
+        if self.gateway_id.is_empty() || !crate::sighting::valid_device_id(&self.gateway_id) {
             return Err(format!(
                 "`gateway_id` {:?} cannot be used in MQTT topics; use letters, digits, '-' or '_'",
                 self.gateway_id

@@ -13,6 +13,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use crate::config::Config;
+use crate::event::{Event, RouteRequest};
 use crate::guide::{GuidanceEvent, Guide};
 use crate::locate::tracker::Tracker;
 use crate::locate::window::{Fingerprint, Orientation, Windows};
@@ -20,10 +21,9 @@ use crate::locate::{self, Localizer};
 use crate::plan::{self, Planner, Profile, Route, RouteErrorCode};
 use crate::publish::{
     ErrorBody, LOCATION_SCHEMA, Location, Output, PATH_SCHEMA, RouteBody, RouteOutcome, RouteReply,
-    valid_device_id,
 };
+use crate::sighting::valid_device_id;
 use crate::site::{Cell, Site};
-use crate::source::{Event, RouteRequest};
 
 /// Counters a gateway reports about its pipeline. A reload adds the
 /// replaced pipeline's to the ones kept (`+=`), so every counter is summed
@@ -209,8 +209,9 @@ impl Pipeline {
         match event {
             Event::Advert(sighting) => {
                 self.stats.sightings += 1;
-                if let Some(fp) = self.windows.push(sighting) {
-                    self.fix(&fp, out);
+                match self.windows.push(sighting) {
+                    Some(fp) => self.fix(&fp, sighting.t, out),
+                    None => self.tick(sighting, out),
                 }
             }
             Event::Request(request) => {
@@ -235,7 +236,7 @@ impl Pipeline {
     /// Closes all open windows (end of a replay).
     pub fn finish(&mut self, out: &mut Vec<Output>) {
         for fp in self.windows.flush() {
-            self.fix(&fp, out);
+            self.fix(&fp, fp.t, out);
         }
     }
 
@@ -256,7 +257,23 @@ impl Pipeline {
         );
     }
 
-    fn fix(&mut self, fp: &Fingerprint, out: &mut Vec<Output>) {
+    /// Guidance between fixes: the sighting's time tells a guided device's
+    /// session where its walker is by now (announcements and arrival need
+    /// not wait for the next fix). Devices are the observers of what they
+    /// hear; a guided advertiser (a tag heard by gateways) is judged at
+    /// its fixes only.
+    fn tick(&mut self, sighting: &crate::sighting::Sighting, out: &mut Vec<Output>) {
+        if self.guide.is_empty() || self.orientation() != Orientation::Observer {
+            return;
+        }
+        if let Some(guidance) = self.guide.tick(&self.site, &sighting.observer, sighting.t) {
+            out.push(Output::Guidance(Box::new(guidance)));
+            self.forgotten_and_finished(out);
+        }
+    }
+
+    /// One fix from the window `fp`, closed by an event at `now`.
+    fn fix(&mut self, fp: &Fingerprint, now: f64, out: &mut Vec<Output>) {
         if fp.heard_count() == 0 {
             return;
         }
@@ -294,7 +311,7 @@ impl Pipeline {
         {
             out.push(Output::Heard(heard));
         }
-        if let Some(guidance) = self.guide.update(&self.site, &fp.entity, cell, fp.t) {
+        if let Some(guidance) = self.guide.update(&self.site, &fp.entity, cell, fp.t, now) {
             let off_route = guidance.event == Some(GuidanceEvent::OffRoute);
             out.push(Output::Guidance(Box::new(guidance)));
             if off_route {

@@ -36,6 +36,15 @@ use uuid::Uuid;
 
 use crate::sighting::BeaconId;
 
+mod doc;
+mod floorplan;
+
+pub use doc::{SiteDoc, write_doc};
+pub use floorplan::{
+    Floorplan, ImageInfo, MAX_IMAGE_BYTES, ReferencePoint, mime_of_bytes,
+    mime_of_name as floorplan_mime_of_name, probe_image,
+};
+
 /// A grid cell, serialized as `[x, y]`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(from = "[u16; 2]", into = "[u16; 2]")]
@@ -188,14 +197,14 @@ impl Mount {
 
 /// How survey labels such as `O02` name cells: a column letter (`A` is x = 0)
 /// followed by a row number (`first_row` is y = 0).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LabelScheme {
     pub first_row: u16,
 }
 
 /// Which way world y runs against the grid's rows.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum YAxis {
     /// World y grows with the row index (row 0 is the smallest y): screen
@@ -239,6 +248,7 @@ pub struct Site {
     labels: Option<LabelScheme>,
     map_hash: String,
     shapes: Shapes,
+    floorplan: Option<Floorplan>,
 }
 
 /// What a site's `obstacles` and `walls` drew onto its grid.
@@ -270,6 +280,19 @@ pub enum SiteError {
     },
 }
 
+impl SiteError {
+    /// Each problem on its own, prefixed with the file as in the message.
+    pub fn problems(&self) -> Vec<String> {
+        match self {
+            SiteError::Invalid { path, problems } => problems
+                .iter()
+                .map(|p| format!("{}: {p}", path.display()))
+                .collect(),
+            other => vec![other.to_string()],
+        }
+    }
+}
+
 /// The site file as written; see `config/sites/README.md` for every key.
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -298,6 +321,8 @@ struct SiteFile {
     gateways: Vec<Spanned<GatewayEntry>>,
     #[serde(default)]
     places: BTreeMap<String, Spanned<Cell>>,
+    #[serde(default)]
+    floorplan: Option<floorplan::FloorplanEntry>,
 }
 
 #[derive(Deserialize)]
@@ -641,6 +666,12 @@ impl Site {
             });
         }
 
+        let floorplan = file.floorplan.as_ref().and_then(|entry| {
+            let dir = path.parent().unwrap_or(Path::new(""));
+            let frame = cell_m_ok.then_some(&frame)?;
+            entry.validate(|m| frame.grid_of_world(m), dir, &line_of, &mut problems)
+        });
+
         let mut places = BTreeMap::new();
         for (name, cell) in &file.places {
             let line = line_of(cell.span());
@@ -693,6 +724,7 @@ impl Site {
             labels: file.labels,
             map_hash,
             shapes,
+            floorplan,
         })
     }
 
@@ -785,6 +817,20 @@ impl Site {
         self.frame.extent_m(self.width, self.height)
     }
 
+    /// The floor-plan image and how its pixels sit on the grid, when the
+    /// site names one (`[floorplan]`).
+    pub fn floorplan(&self) -> Option<&Floorplan> {
+        self.floorplan.as_ref()
+    }
+
+    /// Why the floor-plan image cannot be shown, if the site names one and
+    /// it cannot (missing, unreadable, too large, not what its name says).
+    /// Not a load error: a gateway serves without its picture; `gangway
+    /// check` and the editor report it.
+    pub fn check_floorplan(&self) -> Option<String> {
+        self.floorplan.as_ref()?.probe().err()
+    }
+
     /// What the site's obstacles and walls drew onto the grid.
     pub fn shapes(&self) -> Shapes {
         self.shapes
@@ -813,11 +859,6 @@ impl Site {
             .filter(|&(_, d)| d <= max_cells)
             .min_by(|a, b| a.1.total_cmp(&b.1))
             .map(|(name, _)| name.as_str())
-    }
-
-    /// The beacon with this identity, as an index into [`Site::beacons`].
-    pub fn beacon_index(&self, id: &BeaconId) -> Option<usize> {
-        self.beacons.iter().position(|b| b.beacon == *id)
     }
 
     /// Whether the site names cells with survey labels (`[labels]`).

@@ -2,7 +2,9 @@
 //! fixture (whose simulated walkers ask for routes but do not follow them)
 //! starts a session per served route, sends a guidance message per fix of
 //! a guided walker, notices the walkers leaving their routes and sends them
-//! re-planned routes; every message matches docs/schemas.
+//! re-planned routes; every message matches docs/schemas. And the gate CI
+//! holds on what guidance reached with real localization noise (the real
+//! survey resampled) and the real pace of real people (ETH/UCY walks).
 
 mod common;
 mod mqtt_support;
@@ -58,11 +60,14 @@ fn served_routes_are_guided_and_walkers_who_leave_them_are_re_routed() {
             "guidance" => {
                 check_schema("guidance", payload).unwrap_or_else(|e| panic!("{e}: {m}"));
                 *guided.entry(device.clone()).or_default() += 1;
+                let t = payload["t"].as_f64().unwrap();
                 match payload["event"].as_str() {
                     Some("depart") | Some("rerouted") => departs += 1,
                     Some("off_route") => off_route += 1,
-                    // A progress message follows the fix it is about.
-                    _ => assert_eq!(last_location.get(&device), payload["t"].as_f64().as_ref()),
+                    // A progress message follows the fix it is about…
+                    None => assert_eq!(last_location.get(&device), Some(&t)),
+                    // …and what is said between fixes comes after the last.
+                    Some(_) => assert!(last_location.get(&device).is_some_and(|&l| t >= l)),
                 }
                 assert!(payload["remaining_m"].as_f64().unwrap() >= 0.0);
             }
@@ -98,6 +103,7 @@ fn eval_guidance_reports_every_figure() {
         "false_off_route_per_km",
         "reroutes_per_trip",
         "wrong_turn_detect_fixes_p90",
+        "false_arrivals",
         "max_session_bytes",
     ] {
         assert!(report.get(key).is_some(), "{key}: {report}");
@@ -149,4 +155,59 @@ fn eval_guidance_runs_on_a_second_site_in_two_metre_cells() {
         report["max_session_bytes"].as_u64().unwrap() < 1024,
         "{report}"
     );
+}
+
+/// `gangway eval guidance` on the waldo floor with the shipped config, its
+/// phones hearing the real survey resampled in the walker's cell: its
+/// figures as a JSON object.
+fn eval_on_the_survey(extra: &[&str]) -> Option<Value> {
+    let survey = common::uci_survey()?;
+    let mut args = vec![
+        "eval",
+        "guidance",
+        "--trips",
+        "400",
+        "--json",
+        "--survey",
+        survey.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    Some(serde_json::from_str(gangway_ok(&args).trim()).expect("one JSON object"))
+}
+
+/// The gate: what guidance reached (docs/guidance.md, BENCHMARKS.md
+/// "Guidance") may not slip. Floors a little short of the measured figures;
+/// those not at their targets (wrong-turn p90 4 fixes against 3, the
+/// announcement window 0.78 against 0.90) are held where they are.
+#[test]
+fn guidance_with_real_localization_noise_holds_what_it_reached() {
+    let Some(report) = eval_on_the_survey(&[]) else {
+        return;
+    };
+    let figure = |key: &str| report[key].as_f64().unwrap_or(f64::INFINITY);
+    assert!(figure("false_off_route_per_km") <= 0.5, "{report}");
+    assert!(figure("wrong_turn_detect_fixes_p90") <= 4.0, "{report}");
+    assert!(figure("arrival_detected_share") >= 0.93, "{report}");
+    assert!(figure("announced_in_window_share") >= 0.72, "{report}");
+    assert!(figure("max_session_bytes") < 1024.0, "{report}");
+}
+
+/// The same with walkers at the second-by-second pace of real people.
+#[test]
+fn guidance_at_the_pace_of_real_walks_holds_what_it_reached() {
+    let Some(walks) = common::shared_data("pedestrians/UCY/zara01/obsmat.txt") else {
+        return;
+    };
+    let Some(report) = eval_on_the_survey(&["--walks", walks.to_str().unwrap()]) else {
+        return;
+    };
+    assert!(
+        report["paces_from_walks"].as_u64().unwrap() > 50,
+        "{report}"
+    );
+    let figure = |key: &str| report[key].as_f64().unwrap_or(f64::INFINITY);
+    assert!(figure("false_off_route_per_km") <= 0.5, "{report}");
+    assert!(figure("wrong_turn_detect_fixes_p90") <= 4.0, "{report}");
+    assert!(figure("arrival_detected_share") >= 0.90, "{report}");
+    assert!(figure("announced_in_window_share") >= 0.60, "{report}");
 }

@@ -688,8 +688,9 @@ async fn eventually(what: &str, mut done: impl FnMut() -> bool) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_daemon_recalibrates_from_what_it_heard_and_serves_it() {
     use gangway::daemon::{self, state};
+    use gangway::event::Event;
     use gangway::sighting::{BeaconId, Sighting};
-    use gangway::source::{ChannelSource, Event, Input};
+    use gangway::source::{ChannelSource, Input};
     use std::sync::atomic::Ordering;
 
     let dir = tempfile::tempdir().unwrap();

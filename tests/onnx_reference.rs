@@ -1,4 +1,5 @@
-//! Runs every shipped model (`models/*.onnx`) through tract on fixed inputs,
+//! Runs every shipped model (`models/*.onnx`), and desire lines trained here
+//! on sample walks, through tract on fixed inputs,
 //! a batch and its first row alone, checks what it says, and writes the inputs
 //! and tract's outputs as JSON for `scripts/check_onnx.py`, which runs the
 //! same inputs through onnxruntime.
@@ -59,6 +60,12 @@ fn input_for(
             }
             out
         }
+        // Desire lines: each walk's end cells' centres, as a request asks.
+        "endpoints" => Array2::from_shape_fn((ROWS, width), |(r, j)| {
+            let w = &walks[r];
+            let c = if j < 2 { w.source() } else { w.destination() };
+            f32::from(if j % 2 == 0 { c.x } else { c.y }) + 0.5
+        }),
         "rssi" => Array2::from_shape_fn((ROWS, width), |(i, j)| {
             // Strong, weak, and "not heard" (-200) readings.
             [-200.0, -62.0, -75.0, -88.0, -99.0, -200.0, -50.0][(i + 3 * j) % 7]
@@ -93,6 +100,14 @@ fn shipped_models_run_in_tract_and_write_reference_outputs() {
         models.len() >= 4,
         "models/ should ship the trained models: {models:?}"
     );
+    // Desire lines are trained here, on some of the sample walks (seconds),
+    // so their graph is checked against onnxruntime like the shipped models.
+    let desire = out_dir.join("desire_lines.onnx");
+    let site_arc = std::sync::Arc::new(site.clone());
+    let trained = gangway::train::desire::train(&site_arc, &walks[..300]).unwrap();
+    let meta = gangway::model::Metadata::for_site(Kind::DesireLines, &site);
+    gangway::model::export::write_proto(&desire, &trained.model.to_onnx(&meta)).unwrap();
+    models.push(desire);
     let all = [
         Kind::Generator,
         Kind::ConditionalGenerator,
@@ -100,6 +115,7 @@ fn shipped_models_run_in_tract_and_write_reference_outputs() {
         Kind::ConditionalDiscriminator,
         Kind::PathClassifier,
         Kind::CellClassifier,
+        Kind::DesireLines,
     ];
     for path in &models {
         let model = Model::load(path, &site, &all, Rows::AlsoSingle).unwrap();
@@ -142,6 +158,25 @@ fn shipped_models_run_in_tract_and_write_reference_outputs() {
                     );
                 }
             }
+            Kind::DesireLines => {
+                // From the request's source to its destination, and what the
+                // trainer's own arithmetic gives.
+                let points = out_width / 2;
+                for (r, row) in output.rows().into_iter().enumerate() {
+                    let x = inputs[0].1.row(r);
+                    let line = trained.model.predict([x[0], x[1]], [x[2], x[3]]);
+                    for k in 0..points {
+                        let (px, py) = (row[k], row[points + k]);
+                        assert!(
+                            (px - line[k][0]).abs() < 1e-3 && (py - line[k][1]).abs() < 1e-3,
+                            "row {r} point {k}: tract ({px}, {py}), reference {:?}",
+                            line[k]
+                        );
+                    }
+                    assert!((row[0] - x[0]).abs() < 1e-3 && (row[points] - x[1]).abs() < 1e-3);
+                    assert!((row[points - 1] - x[2]).abs() < 1e-3);
+                }
+            }
             Kind::CellClassifier => {
                 assert_eq!(out_width, site.open_cells().len());
                 for row in output.rows() {
@@ -151,12 +186,16 @@ fn shipped_models_run_in_tract_and_write_reference_outputs() {
             }
         }
         // The shipped generators store float16 weights for exactly this plan.
-        assert_eq!(
-            model.has_single_row_plan(),
-            matches!(kind, Kind::Generator | Kind::ConditionalGenerator),
-            "{}",
-            path.display()
-        );
+        // (Desire lines are no generator: whether tract finds float16-exact
+        // constants in their bank does not matter.)
+        if kind != Kind::DesireLines {
+            assert_eq!(
+                model.has_single_row_plan(),
+                matches!(kind, Kind::Generator | Kind::ConditionalGenerator),
+                "{}",
+                path.display()
+            );
+        }
         // One row runs its own plan when the weights are float16
         // (model::runtime); it must give that row of the batch, and
         // onnxruntime checks it as well.

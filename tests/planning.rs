@@ -213,6 +213,7 @@ fn shipped_models(mode: PlannerMode) -> PlannerConfig {
             generator: models.join("generator.onnx"),
             path_classifier: models.join("path_classifier.onnx"),
             conditional_generator: models.join("conditional_generator.onnx"),
+            desire_lines: models.join("desire_lines.onnx"),
         },
         ..PlannerConfig::default()
     }
@@ -303,4 +304,64 @@ fn a_budget_exhausted_answer_keeps_to_the_public_area() {
         }
     }
     assert!(exhausted > 0, "no request exhausted its budget");
+}
+
+/// Desire lines trained on some of the sample walks answer every place pair
+/// and random pairs, for every profile and both connectivities, with a route
+/// that validates and a line from the source's centre to the destination's;
+/// the route's cells are the line's.
+#[test]
+fn desire_lines_answer_every_pair_with_a_valid_route_along_their_line() {
+    use gangway::model::{Kind, Metadata, export};
+    let site = waldo();
+    let walks = gangway::train::trajectory::read(
+        &common::root().join("fixtures/trajectories/waldo.jsonl"),
+        &site,
+    )
+    .unwrap();
+    let trained = gangway::train::desire::train(&site, &walks[..400]).unwrap();
+    assert!(trained.metrics["bank_lines"] > 0.0);
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("desire_lines.onnx");
+    let meta = Metadata::for_site(Kind::DesireLines, &site);
+    export::write_proto(&file, &trained.model.to_onnx(&meta)).unwrap();
+    let pairs = gangway::eval::planning::pairs(&site, 200, 7);
+    for connectivity in [Connectivity::Eight, Connectivity::Four] {
+        let mut config = PlannerConfig {
+            mode: PlannerMode::Desire,
+            connectivity,
+            ..PlannerConfig::default()
+        };
+        config.models.desire_lines = file.clone();
+        let planner = gangway::plan::build(&config, site.clone()).unwrap();
+        assert_eq!(planner.mode(), "desire");
+        assert!(
+            planner
+                .model_version()
+                .unwrap()
+                .starts_with("desire_lines@")
+        );
+        for &(from, to) in &pairs {
+            for profile in [Profile::Default, Profile::Wheelchair, Profile::LowVision] {
+                let Ok(planned) = planner.plan(from, to, profile) else {
+                    // Only a pair the profile cannot walk may fail.
+                    assert!(
+                        AStar::new(site.clone(), connectivity)
+                            .plan(from, to, profile)
+                            .is_err()
+                    );
+                    continue;
+                };
+                planned
+                    .route
+                    .validate_for(&site, from, to, connectivity, profile)
+                    .unwrap();
+                assert!(matches!(planned.origin, Origin::Frame | Origin::Repaired));
+                let line = planned.line.as_ref().unwrap();
+                let centre = |c: Cell| [f64::from(c.x) + 0.5, f64::from(c.y) + 0.5];
+                assert_eq!(line.first(), Some(&centre(from)));
+                assert_eq!(line.last(), Some(&centre(to)));
+            }
+        }
+    }
 }

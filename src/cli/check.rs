@@ -22,6 +22,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         Ok(config) => match Site::load(&config.site) {
             Err(e) => problems.push(e.to_string()),
             Ok(site) => {
+                problems.extend(site.check_floorplan());
                 let site = Arc::new(site);
                 if let Err(e) = Pipeline::new(&config, site.clone()) {
                     problems.push(format!("{}: {e:#}", args.config.display()));

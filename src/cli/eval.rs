@@ -41,6 +41,13 @@ struct GuidanceArgs {
     /// walker's cell instead of the path-loss model.
     #[arg(long)]
     survey: Option<PathBuf>,
+    /// Recorded walks of real people (`track,t,x,y` CSV or ETH/UCY
+    /// `obsmat.txt`; repeatable): the walkers walk at their second-by-second
+    /// pace, slowing and stopping as people do, instead of a steady speed.
+    #[arg(long)]
+    walks: Vec<PathBuf>,
+    #[command(flatten)]
+    walk_format: super::walks::TrackSource,
     #[arg(long, default_value_t = 100)]
     trips: usize,
     /// Chance that a walker strays at a turn.
@@ -174,10 +181,22 @@ fn guidance(args: GuidanceArgs) -> anyhow::Result<ExitCode> {
         )?),
         None => None,
     };
+    let mut paces = Vec::new();
+    for path in &args.walks {
+        use crate::eval::guidance::{PACE_MIN_S, WALKING_MPS, paces as walked};
+        let walks = walked(&args.walk_format.read(path, None)?);
+        anyhow::ensure!(
+            !walks.is_empty(),
+            "{}: no track walks for {PACE_MIN_S} s or more at {WALKING_MPS} m/s or more; --walks needs recorded walks of people",
+            path.display()
+        );
+        paces.extend(walks);
+    }
     let setup = crate::eval::guidance::Setup {
         trips: args.trips,
         seed: args.seed,
         wrong_turn_probability: args.wrong_turn_probability,
+        paces,
         ..Default::default()
     };
     let report = crate::eval::guidance::evaluate(&config, site, survey.as_ref(), &setup)?;

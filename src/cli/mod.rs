@@ -10,6 +10,7 @@ mod record;
 mod replay;
 mod run;
 mod simulate;
+mod site;
 mod train;
 mod walks;
 
@@ -49,6 +50,8 @@ enum Command {
     Eval(eval::Args),
     /// Real walks in: import recorded tracks onto a site, build a scene's site.
     Walks(walks::Args),
+    /// Site files: edit one over its floor plan in the browser.
+    Site(site::Args),
 }
 
 /// Where `--config` points when it is not given.
@@ -69,6 +72,7 @@ impl Cli {
             Command::Train(args) => train::run(args),
             Command::Eval(args) => eval::run(args),
             Command::Walks(args) => walks::run(args),
+            Command::Site(args) => site::run(args),
         }
     }
 }
@@ -96,12 +100,13 @@ struct PlannerSource {
     #[arg(long)]
     site: Option<PathBuf>,
     /// Serve the models in this directory (`generator.onnx`,
-    /// `path_classifier.onnx`, `conditional_generator.onnx`, as `gangway
-    /// train --out` writes them) instead of the config's `[planner.models]`.
+    /// `path_classifier.onnx`, `conditional_generator.onnx`,
+    /// `desire_lines.onnx`, as `gangway train --out` writes them) instead of
+    /// the config's `[planner.models]`.
     #[arg(long)]
     models: Option<PathBuf>,
     /// The planner mode instead of the config's `[planner] mode`: astar,
-    /// rejection or conditional.
+    /// rejection, conditional or desire.
     #[arg(long, value_parser = parse_mode)]
     mode: Option<crate::plan::PlannerMode>,
 }
@@ -144,6 +149,7 @@ impl PlannerSource {
             planner.models.generator = file(Kind::Generator);
             planner.models.path_classifier = file(Kind::PathClassifier);
             planner.models.conditional_generator = file(Kind::ConditionalGenerator);
+            planner.models.desire_lines = file(Kind::DesireLines);
         }
         if let Some(mode) = self.mode {
             planner.mode = mode;

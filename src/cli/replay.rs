@@ -66,6 +66,11 @@ pub struct Args {
     /// With --score: print the score as one JSON object.
     #[arg(long, requires = "score")]
     json: bool,
+    /// Serve the live map (and route requests from it) at this address while
+    /// the log plays, with --speed 1 as it happened; the replay then ends
+    /// with Ctrl-C, so the map can still be looked at after the log's end.
+    #[arg(long, value_name = "ADDR")]
+    web: Option<std::net::SocketAddr>,
     /// With --score: how far in time (seconds) a truth may be from the fix it
     /// scores; default the fingerprint window length.
     #[arg(long, requires = "score")]
@@ -132,6 +137,16 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             );
         }
         let source = CaptureSource::new(args.log.clone(), reader, args.speed);
+        let mut sources: Vec<Box<dyn crate::source::Source>> = vec![Box::new(source)];
+        if let Some(bind) = args.web {
+            let config = crate::config::Config {
+                web: crate::web::WebConfig { bind, ..config.web.clone() },
+                ..config.clone()
+            };
+            if let Some(web) = crate::web::start(&config, site.clone(), &mut Vec::new()).await {
+                web.add_to(&mut sources, &mut sinks);
+            }
+        }
         let serving = Loaded {
             config,
             site: site.clone(),
@@ -152,7 +167,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         let stats = daemon::run(
             serving,
             options,
-            vec![Box::new(source)],
+            sources,
             sinks,
             interrupted,
             reloads,

@@ -103,6 +103,9 @@ async fn serve(args: Args) -> anyhow::Result<()> {
             }
         }
     }
+    if let Some(web) = crate::web::start(config, site.clone(), &mut fallbacks).await {
+        web.add_to(&mut sources, &mut sinks);
+    }
     if let Some(out) = &args.out {
         sinks.push(Box::new(JsonLines::create(
             Topics::new(config.topic_prefix()),

@@ -68,6 +68,15 @@ pub struct Args {
     /// `OUT/checkpoints/iter-<N>/` (for `gangway eval planning --checkpoints`).
     #[arg(long)]
     checkpoint_every: Option<std::num::NonZeroUsize>,
+    /// Also train the desire lines (`desire_lines.onnx`, the `desire`
+    /// planner) from the walks: settings cross-validated on them, seconds.
+    #[arg(long)]
+    desire: bool,
+    /// Train only the desire lines from the walks (and the cell classifier
+    /// with --survey), not the GAN models: large sites, or walks whose
+    /// endpoints are all distinct pairs.
+    #[arg(long)]
+    desire_only: bool,
     /// Print the summary as JSON instead of text.
     #[arg(long)]
     json: bool,
@@ -127,18 +136,26 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                     tracing::info!(walks = recorded.len(), store = %db.display(), "walks from the learning store");
                     all.extend(recorded);
                 }
-                PathSet::from_trajectories(&site, &recorded::weighted(all), args.min_class_walks)
+                let all = recorded::weighted(all);
+                if args.desire || args.desire_only {
+                    written.push(job::train_desire(
+                        &site, &all, &options, &args.out, &mut bars,
+                    )?);
+                }
+                PathSet::from_trajectories(&site, &all, args.min_class_walks)
             }
         };
         walks = Some((set.walks.len(), set.classes.len()));
-        written.extend(job::train_paths(
-            &site,
-            &set,
-            &options,
-            args.access_weight,
-            &args.out,
-            &mut bars,
-        )?);
+        if !args.desire_only {
+            written.extend(job::train_paths(
+                &site,
+                &set,
+                &options,
+                args.access_weight,
+                &args.out,
+                &mut bars,
+            )?);
+        }
     }
     if let Some(path) = &args.survey {
         let anchors: Vec<String> = site.beacons.iter().map(|b| b.id.clone()).collect();
@@ -153,7 +170,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         .with_context(|| format!("cannot write {}", card.display()))?;
     let failed: Vec<&Trained> = written
         .iter()
-        .filter(|t| !t.passed() && matches!(t.kind, Kind::Generator | Kind::ConditionalGenerator))
+        .filter(|t| {
+            !t.passed()
+                && matches!(
+                    t.kind,
+                    Kind::Generator | Kind::ConditionalGenerator | Kind::DesireLines
+                )
+        })
         .collect();
     if args.json {
         let models: Vec<_> = written
@@ -226,10 +249,16 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         eprintln!("written where planners load them anyway (--accept-failed)");
         return Ok(ExitCode::SUCCESS);
     }
+    let hint = if failed.iter().all(|t| t.kind == Kind::DesireLines) {
+        "Desire lines that do not beat the any-angle route on the training walks' later \
+         folds need more walks (recorded walks of real people, --from-store), or the astar \
+         mode meanwhile"
+    } else {
+        "Try more --iterations, more walks per source/destination pair (or coarser cells: \
+         --cell-m), fewer rare pairs (--min-class-walks), or serve the astar mode meanwhile"
+    };
     eprintln!(
-        "not servable: written to {} instead, see {}. Try more --iterations, more walks per \
-         source/destination pair (or coarser cells: --cell-m), fewer rare pairs \
-         (--min-class-walks), or serve the astar mode meanwhile",
+        "not servable: written to {} instead, see {}. {hint}",
         args.out.join("failed").display(),
         card.display()
     );
@@ -278,12 +307,29 @@ fn model_card(
             args.min_class_walks
         );
     }
-    let _ = writeln!(
-        card,
-        "- iterations {}, batch {}, seed {}
-",
-        args.iterations, args.batch, args.seed
-    );
+    if !args.desire_only {
+        let _ = writeln!(
+            card,
+            "- GAN iterations {}, batch {}, seed {}",
+            args.iterations, args.batch, args.seed
+        );
+    }
+    for t in written.iter().filter(|t| t.kind == Kind::DesireLines) {
+        let m = |k: &str| t.metrics.get(k).copied().unwrap_or(f64::NAN);
+        let _ = writeln!(
+            card,
+            "- `desire_lines.onnx` is no neural network: a kernel regression over the \
+             shapes of {:.0} walks (each both ways) conditioned on the endpoints' coordinates, \
+             shrunk towards the straight line where the neighbouring walks disagree; kernel \
+             width σ {} m and shrinkage {} chosen by {} time-ordered folds of these walks \
+             (docs/planning.md, \"Desire lines\")",
+            m("bank_lines") / 2.0,
+            m("sigma_m"),
+            m("shrink"),
+            crate::train::desire::FOLDS
+        );
+    }
+    let _ = writeln!(card);
     let _ = writeln!(card, "| file | kind | servable | metrics | checks |");
     let _ = writeln!(card, "|---|---|---|---|---|");
     for t in written {

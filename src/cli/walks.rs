@@ -30,7 +30,7 @@ enum What {
 
 /// Where tracks come from and how their numbers become world metres.
 #[derive(clap::Args)]
-struct TrackSource {
+pub(super) struct TrackSource {
     /// `csv` (`track,t,x,y`) or `obsmat` (`frame person x z y vx vz vy`);
     /// guessed from the file name (`obsmat*.txt`) when not given.
     #[arg(long, value_enum)]
@@ -41,7 +41,7 @@ struct TrackSource {
 }
 
 impl TrackSource {
-    fn read(
+    pub(super) fn read(
         &self,
         path: &Path,
         homography: Option<Homography>,

@@ -36,7 +36,7 @@
 //! or a counted refusal, and a source that fails is logged (and, in the
 //! daemon, the rest keeps serving).
 
-pub mod admission;
+mod admission;
 pub mod state;
 
 use std::future::Future;
@@ -58,9 +58,9 @@ use crate::publish::stats::{BleStatus, STATS_SCHEMA, Stats};
 use crate::publish::{FeedbackRefused, Output, RouteOutcome};
 use crate::sighting::{Sighting, unix_now};
 use crate::sink::Sink;
-use crate::source::{
-    Event, Feedback, Inbound, Input, RouteRequest, Shutdown, Source, SourceContext,
-};
+use crate::source::{Input, Shutdown, Source, SourceContext};
+
+use crate::event::{Event, Feedback, Inbound, RouteRequest};
 use crate::throttle::Throttle;
 
 /// How often this gateway's own sightings go out to the other gateways.
@@ -77,8 +77,9 @@ const WARN_EVERY: Duration = Duration::from_secs(10);
 const BACKLOG_POLL: Duration = Duration::from_millis(5);
 /// What an `overloaded` or `rate_limited` reply suggests waiting, seconds.
 const RETRY_AFTER_S: f64 = 1.0;
-/// Batches of own events queued at most.
-const EVENTS_QUEUE: usize = 64;
+/// Batches of own events queued at most (a radio sends one event a batch, a
+/// capture up to `source::playback::BATCH`).
+const EVENTS_QUEUE: usize = 32;
 /// Messages from others queued at most: few, since while the runtime does
 /// not take them the broker holds the rest (unacknowledged).
 const INBOUND_QUEUE: usize = 16;
@@ -180,8 +181,8 @@ pub async fn run(
             _ = watchdog_tick.tick(), if watchdog.is_some() => Step::Watchdog,
             Some(()) = reloads.recv() => Step::Reload,
             Some(()) = requested(&mut recalibrate_requests) => Step::Recalibrate,
-            done = recalibrated(&mut runtime.recalibration) => Step::Recalibrated(done),
-            loaded = join(&mut reload), if reload.is_some() => Step::Reloaded(loaded),
+            done = recalibrated(&mut runtime.recalibration) => Step::Recalibrated(Box::new(done)),
+            loaded = join(&mut reload), if reload.is_some() => Step::Reloaded(Box::new(loaded)),
             Some(joined) = tasks.join_next() => Step::SourceEnded(joined),
         };
         match step {
@@ -195,7 +196,7 @@ pub async fn run(
                 runtime.recalibrate_if_due(false);
             }
             Step::Recalibrate => runtime.recalibrate_if_due(true),
-            Step::Recalibrated(done) => runtime.recalibrated(done),
+            Step::Recalibrated(done) => runtime.recalibrated(*done),
             Step::Stats => {
                 runtime.publish_stats();
                 runtime.notify_status();
@@ -222,7 +223,7 @@ pub async fn run(
             },
             Step::Reloaded(loaded) => {
                 reload = None;
-                runtime.swap(loaded);
+                runtime.swap(*loaded);
                 if std::mem::take(&mut reload_again)
                     && let Some(path) = &options.config_path
                 {
@@ -316,9 +317,11 @@ enum Step {
     RadioChanged,
     Watchdog,
     Reload,
-    Reloaded(anyhow::Result<Loaded>),
+    /// Boxed: a loaded pipeline is large, the other steps small.
+    Reloaded(Box<anyhow::Result<Loaded>>),
     Recalibrate,
-    Recalibrated(anyhow::Result<(Recalibrated, Loaded)>),
+    /// Boxed like `Reloaded`.
+    Recalibrated(Box<anyhow::Result<(Recalibrated, Loaded)>>),
     SourceEnded(Result<(&'static str, anyhow::Result<()>), tokio::task::JoinError>),
 }
 

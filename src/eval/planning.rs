@@ -191,6 +191,8 @@ struct Score {
     frechet_m: f64,
     iou: f64,
     length_ratio: f64,
+    /// The learned frame or line behind the route needed repair.
+    repaired: bool,
 }
 
 /// Scores of the baselines on every held-out walk (`None`: no route, e.g.
@@ -228,6 +230,7 @@ fn score(site: &Site, walk: &Trajectory, cells: &[Cell], line: &Polyline) -> Opt
         } else {
             1.0
         },
+        repaired: false,
     })
 }
 
@@ -244,7 +247,19 @@ fn judge_planner(
                 .plan(w.source(), w.destination(), walk_profile(w))
                 .ok()?;
             let cells = &planned.route.cells;
-            score(site, w, cells, &Polyline::of_cells(site, cells))
+            // A planner that drew a line is judged by it, as any-angle is
+            // by its vertices; else by its cells' centres.
+            let line = match &planned.line {
+                Some(points) => Polyline(
+                    points
+                        .iter()
+                        .map(|&p| plan::anyangle::world_of_point(site, p))
+                        .collect(),
+                ),
+                None => Polyline::of_cells(site, cells),
+            };
+            let repaired = planned.origin == Origin::Repaired;
+            score(site, w, cells, &line).map(|s| Score { repaired, ..s })
         })
         .collect()
 }
@@ -319,6 +334,7 @@ fn summary(scores: &[Option<Score>]) -> Value {
         "frechet_m_median": percentile(&mut column(|s| s.frechet_m), 0.5),
         "iou_mean": mean(&column(|s| s.iou)),
         "length_ratio_mean": mean(&column(|s| s.length_ratio)),
+        "repaired_share": mean(&column(|s| f64::from(u8::from(s.repaired)))),
     })
 }
 
@@ -401,7 +417,9 @@ fn evaluate_mode(
             Origin::Repaired => repaired += 1,
             _ => {}
         }
-        if !matches!(planned.origin, Origin::Untrained) && planned.frame.is_some() {
+        if !matches!(planned.origin, Origin::Untrained)
+            && (planned.frame.is_some() || planned.line.is_some())
+        {
             trained += 1;
         }
     }

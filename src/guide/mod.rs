@@ -6,8 +6,11 @@
 //!
 //! Owns the sessions ([`Guide`], bounded in number and in idle time, since
 //! devices come from the air) and the state machine of one ([`Session`]).
-//! It does no I/O and keeps no clock: the pipeline feeds it fixes and sends
-//! the [`crate::publish::Guidance`] messages it returns. The maneuvers are
+//! It does no I/O and keeps no clock: the pipeline feeds it fixes and the
+//! time of every other event of a guided device ([`Guide::tick`]: progress
+//! is predicted between fixes, so announcements and arrival need not wait
+//! for the next one), and sends the [`crate::publish::Guidance`] messages it
+//! returns. The maneuvers are
 //! the route's own ([`crate::plan::instructions::maneuvers`]), so what is
 //! announced is what the route reply listed.
 //!
@@ -60,11 +63,10 @@ pub struct GuidanceConfig {
     /// strays from the walker's, metres: how much the progress filter
     /// trusts one fix.
     pub fix_spread_m: f64,
-    /// How long ago the walker was where a fix places them, seconds: the
-    /// progress is predicted forward by this at the walker's speed. Default:
-    /// half of `[window] length_s` (a fix stands for the middle of its
-    /// window) plus half of `[window] stride_s` (the tracker settles about
-    /// half a step behind). `gangway eval guidance` reports the lag it
+    /// How long before a fix's time (the end of its window) the walker was
+    /// where it places them, seconds: progress is predicted forward from
+    /// then. Default: half of `[window] length_s` (a fix stands for the
+    /// middle of its window). `gangway eval guidance` reports the lag it
     /// measured (`fix_lag_s_p50`).
     pub fix_lag_s: Option<f64>,
     /// Most sessions kept at once; starting one more ends the least
@@ -84,7 +86,7 @@ impl Default for GuidanceConfig {
             off_route_fixes: 2,
             arrive_m: 2.0,
             arrive_progress_share: 0.5,
-            fix_spread_m: 1.0,
+            fix_spread_m: 2.0,
             fix_lag_s: None,
             max_sessions: 1024,
             expire_after_s: 600.0,
@@ -95,8 +97,7 @@ impl Default for GuidanceConfig {
 impl GuidanceConfig {
     /// `fix_lag_s`, or its default for fixes from `window`.
     pub fn fix_lag_s(&self, window: &crate::locate::window::WindowConfig) -> f64 {
-        self.fix_lag_s
-            .unwrap_or((window.length_s + window.stride_s) / 2.0)
+        self.fix_lag_s.unwrap_or(window.length_s / 2.0)
     }
 
     pub fn validate(&self) -> Result<(), String> {
@@ -264,8 +265,14 @@ impl Guide {
         self.finished.drain(..).collect()
     }
 
-    /// Keeps the adherence of `session` of `device`, ending at `t`.
+    /// Keeps the adherence of `session` of `device`, ending at `t` (a
+    /// session that arrived ends so, however it is then dropped).
     fn finish(&mut self, device: &str, session: &Session, t: f64, ending: Ending) {
+        let ending = if session.state() == SessionState::Arrived {
+            Ending::Arrived
+        } else {
+            ending
+        };
         if let Some(adherence) = session.adherence(device, t, ending) {
             if self.finished.len() >= self.config.max_sessions {
                 self.finished.pop_front();
@@ -347,38 +354,56 @@ impl Guide {
         first
     }
 
-    /// Follows one fix of `device` (`None`: location unknown). Returns a
-    /// message when the device has a session and the fix was known, or
-    /// when the session just expired; a session that arrived or expired
-    /// ends with its message.
+    /// Follows one fix of `device` (`None`: location unknown) of time `t`
+    /// (the end of its window), made at `now` (the event that closed the
+    /// window). Returns a message when the device has a session and the
+    /// fix was known, or when the session just expired; a session that
+    /// expired ends with its message. One that arrived is watched quietly
+    /// for `off_route_fixes` fixes and one more: a walker who walks on off
+    /// the route (told of arriving too soon) gets `off_route`, and a new
+    /// route, like any other.
     pub fn update(
         &mut self,
         site: &Site,
         device: &str,
         cell: Option<Cell>,
         t: f64,
+        now: f64,
     ) -> Option<Guidance> {
         let session = self.sessions.get_mut(device)?;
         if t - session.last_t() > self.config.expire_after_s {
-            let last = session.end(device, t, SessionState::Expired);
+            let last = (session.state() != SessionState::Arrived)
+                .then(|| session.end(device, t, SessionState::Expired));
             let session = self.sessions.remove(device)?;
             self.finish(device, &session, t, Ending::Expired);
-            return Some(last);
+            return last;
         }
-        let message = session.update(site, &self.config, self.fix_lag_s, device, cell, t)?;
-        if message.state == SessionState::Arrived
+        let message = session.update(site, &self.config, self.fix_lag_s, device, cell, t, now);
+        if session.is_over(&self.config)
             && let Some(session) = self.sessions.remove(device)
         {
             self.finish(device, &session, t, Ending::Arrived);
         }
-        Some(message)
+        message
     }
 
-    /// Ends the session of `device`, if it has one.
+    /// Judges the progress of `device` at `now`, the time of one of its
+    /// events between fixes (a sighting): a message only when its session
+    /// has something to say then (an announcement, reassurance, arrival).
+    /// Cheap for a device without a session, and for the many events of
+    /// one moment (judged once).
+    pub fn tick(&mut self, site: &Site, device: &str, now: f64) -> Option<Guidance> {
+        let session = self.sessions.get_mut(device)?;
+        session.tick(site, &self.config, self.fix_lag_s, device, now)
+    }
+
+    /// Ends the session of `device`, if it has one (one that has arrived
+    /// has nothing left to cancel).
     pub fn cancel(&mut self, device: &str, t: f64) -> Option<Guidance> {
         let session = self.sessions.remove(device)?;
         self.finish(device, &session, t, Ending::Cancelled);
-        Some(session.end(device, t, SessionState::Cancelled))
+        (session.state() != SessionState::Arrived)
+            .then(|| session.end(device, t, SessionState::Cancelled))
     }
 }
 
@@ -419,10 +444,19 @@ mod tests {
         )
     }
 
+    /// Where a walker at the profile's pace (1.2 m/s) truly is along
+    /// `route()` at `t`, in metres, and the route cell there.
+    fn walked(t: f64) -> (f64, Cell) {
+        let m = (1.2 * t).clamp(0.0, 35.0);
+        (m, route().cells[m.round() as usize])
+    }
+
     #[test]
-    fn a_walk_along_the_route_is_announced_reassured_and_arrives() {
+    fn a_walk_is_announced_in_time_between_late_fixes_and_arrives() {
         let site = site();
-        let mut guide = Guide::new(GuidanceConfig::default(), 0.0);
+        // Fixes every 2 s showing where the walker was 2 s before; the
+        // device's other events every half second.
+        let mut guide = Guide::new(GuidanceConfig::default(), 2.0);
         let first = start(&mut guide, &site, "p", 0.0);
         assert_eq!(first.event, Some(GuidanceEvent::Depart));
         assert_eq!(
@@ -432,31 +466,78 @@ mod tests {
         assert_eq!(first.remaining_m, 35.0);
         assert!((first.eta_s - 35.0 / 1.2).abs() < 1e-9);
         let mut events = Vec::new();
-        for (i, &cell) in route().cells.iter().enumerate().skip(1) {
-            let m = guide.update(&site, "p", Some(cell), i as f64).unwrap();
+        for k in 1..=80 {
+            let now = 0.5 * f64::from(k);
+            let m = if k % 4 == 0 {
+                let fix = walked(now - 2.0).1;
+                guide.update(&site, "p", Some(fix), now, now)
+            } else {
+                guide.tick(&site, "p", now)
+            };
+            let Some(m) = m else { continue };
             if let Some(e) = m.event {
-                events.push((i, e, m.text.clone().unwrap()));
+                events.push((walked(now).0, e, m.text.clone().unwrap()));
             }
             if m.state == SessionState::Arrived {
                 break;
             }
         }
-        let got: Vec<(usize, GuidanceEvent)> = events.iter().map(|e| (e.0, e.1)).collect();
+        let got: Vec<GuidanceEvent> = events.iter().map(|e| e.1).collect();
         assert_eq!(
             got,
             [
-                (10, GuidanceEvent::Reassure),
-                (14, GuidanceEvent::Announce),
-                (24, GuidanceEvent::Reassure),
-                (29, GuidanceEvent::Announce),
-                (33, GuidanceEvent::Arrived),
+                GuidanceEvent::Reassure,
+                GuidanceEvent::Announce,
+                GuidanceEvent::Reassure,
+                GuidanceEvent::Announce,
+                GuidanceEvent::Arrived,
             ],
             "{events:?}"
         );
+        // Announced when truly 6 m before the turn and the exit (give or
+        // take half a cell: the fixes are whole cells), not up to a fix late.
+        assert!((20.0 - events[1].0 - 6.0).abs() <= 0.5, "{events:?}");
         assert_eq!(events[1].2, "Walk 6 metres, then turn right at desk.");
+        assert!((35.0 - events[3].0 - 6.0).abs() <= 0.5, "{events:?}");
         assert_eq!(events[3].2, "Walk 6 metres; you have arrived at exit.");
+        assert!(events[4].0 >= 35.0 - 0.6, "{events:?}");
         assert_eq!(events[4].2, "You have arrived at exit.");
+        // Watched quietly for a few fixes more (the walker stays), then over.
+        let exit = Some(Cell::new(20, 15));
+        for k in 0..5 {
+            let t = 40.0 + 2.0 * f64::from(k);
+            assert_eq!(guide.update(&site, "p", exit, t, t), None);
+            assert_eq!(guide.tick(&site, "p", t + 1.0), None);
+        }
         assert!(guide.is_empty(), "an arrived session ends");
+        assert_eq!(guide.take_finished()[0].ending, Ending::Arrived);
+    }
+
+    #[test]
+    fn a_walker_told_of_arriving_who_walks_on_is_told_they_left() {
+        let site = site();
+        let mut guide = Guide::new(GuidanceConfig::default(), 0.0);
+        start(&mut guide, &site, "p", 0.0);
+        let mut t = 0.0;
+        let told = loop {
+            t += 1.0;
+            let m = guide.update(&site, "p", Some(walked(t).1), t, t).unwrap();
+            if m.state == SessionState::Arrived {
+                break t;
+            }
+        };
+        // On past the exit, 4 and 4 m off the end of the route.
+        let past = Some(Cell::new(20, 19));
+        assert_eq!(guide.update(&site, "p", past, told + 2.0, told + 2.0), None);
+        let left = guide
+            .update(&site, "p", past, told + 4.0, told + 4.0)
+            .unwrap();
+        assert_eq!(
+            (left.state, left.event),
+            (SessionState::OffRoute, Some(GuidanceEvent::OffRoute))
+        );
+        assert!(left.text.unwrap().contains("past the destination"));
+        assert!(guide.session("p").is_some(), "kept for the new route");
     }
 
     #[test]
@@ -469,23 +550,23 @@ mod tests {
         let state = |m: Option<Guidance>| m.map(|m| (m.state, m.event, m.off_route_fixes));
         // One stray fix, then back: noise, not a wrong turn.
         assert_eq!(
-            state(guide.update(&site, "p", off, 1.0)),
+            state(guide.update(&site, "p", off, 1.0, 1.0)),
             Some((SessionState::Active, None, 1))
         );
         assert_eq!(
-            state(guide.update(&site, "p", on, 2.0)),
+            state(guide.update(&site, "p", on, 2.0, 2.0)),
             Some((SessionState::Active, None, 0))
         );
         // Unknown fixes between stray ones neither count nor reset.
-        guide.update(&site, "p", off, 3.0);
-        assert_eq!(guide.update(&site, "p", None, 4.0), None);
+        guide.update(&site, "p", off, 3.0, 3.0);
+        assert_eq!(guide.update(&site, "p", None, 4.0, 4.0), None);
         assert_eq!(
-            state(guide.update(&site, "p", off, 5.0)),
+            state(guide.update(&site, "p", off, 5.0, 5.0)),
             Some((SessionState::OffRoute, Some(GuidanceEvent::OffRoute), 2))
         );
         // Said once, not on every fix off the route.
         assert_eq!(
-            state(guide.update(&site, "p", off, 6.0)),
+            state(guide.update(&site, "p", off, 6.0, 6.0)),
             Some((SessionState::OffRoute, None, 3))
         );
         // A re-planned route keeps the count of re-routes.
@@ -512,7 +593,7 @@ mod tests {
         );
         start(&mut guide, &site, "a", 0.0);
         start(&mut guide, &site, "b", 1.0);
-        guide.update(&site, "a", Some(Cell::new(1, 0)), 2.0);
+        guide.update(&site, "a", Some(Cell::new(1, 0)), 2.0, 2.0);
         // Full: the least recently updated ("b") makes room.
         start(&mut guide, &site, "c", 3.0);
         assert_eq!(guide.len(), 2);
@@ -522,7 +603,7 @@ mod tests {
         assert_eq!(guide.len(), 2);
         // Not located for longer than expire_after_s: the session ends.
         let last = guide
-            .update(&site, "a", Some(Cell::new(2, 0)), 100.0)
+            .update(&site, "a", Some(Cell::new(2, 0)), 100.0, 100.0)
             .unwrap();
         assert_eq!(
             (last.state, last.event, last.next),
@@ -545,9 +626,14 @@ mod tests {
         start(&mut guide, &site, "p", 0.0);
         for (i, &cell) in route().cells.iter().enumerate().skip(1) {
             let t = i as f64 / 1.2;
-            if guide.update(&site, "p", Some(cell), t).unwrap().state == SessionState::Arrived {
+            if guide.update(&site, "p", Some(cell), t, t).unwrap().state == SessionState::Arrived {
                 break;
             }
+        }
+        assert!(guide.take_finished().is_empty(), "watched after arriving");
+        for k in 1..=5 {
+            let t = 30.0 + f64::from(k);
+            guide.update(&site, "p", Some(Cell::new(20, 15)), t, t);
         }
         let done = guide.take_finished();
         assert_eq!(done.len(), 1);
@@ -558,9 +644,15 @@ mod tests {
         // Strayed off the route, re-routed, then cancelled: detours count,
         // the re-route belongs to the same walk, and the score is low.
         start(&mut guide, &site, "q", 100.0);
-        guide.update(&site, "q", Some(Cell::new(3, 0)), 102.0);
+        guide.update(&site, "q", Some(Cell::new(3, 0)), 102.0, 102.0);
         for k in 0..3 {
-            guide.update(&site, "q", Some(Cell::new(3, 10)), 104.0 + f64::from(k));
+            guide.update(
+                &site,
+                "q",
+                Some(Cell::new(3, 10)),
+                104.0 + f64::from(k),
+                104.0 + f64::from(k),
+            );
         }
         let detour = Route {
             cells: (0..=10).map(|y| Cell::new(3, 10 - y)).collect(),
@@ -578,7 +670,7 @@ mod tests {
         assert!(a.score() < 0.1, "{a:?}");
         // Replaced by a new request, or never located: only the first counts.
         start(&mut guide, &site, "r", 200.0);
-        guide.update(&site, "r", Some(Cell::new(1, 0)), 201.0);
+        guide.update(&site, "r", Some(Cell::new(1, 0)), 201.0, 201.0);
         start(&mut guide, &site, "r", 202.0);
         start(&mut guide, &site, "s", 203.0);
         guide.cancel("s", 204.0);

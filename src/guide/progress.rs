@@ -1,19 +1,25 @@
-//! How far along its route a walker is by now, from the progress of each
-//! located fix: a constant-velocity Kalman filter along the route.
+//! How far along its route a walker is, from the progress of each located
+//! fix: a constant-velocity Kalman filter along the route, predicted to any
+//! moment at the walker's pace.
 //!
-//! A fix is late and noisy: it stands for the middle of a fingerprint window,
-//! the tracker settles behind the walker, and its projection on the route
-//! jumps by metres from one fix to the next. Announcing from the raw
-//! projection came a few metres late and scattered; filtering the progress
-//! and its speed, then predicting forward by the fix's lag at that speed,
-//! places the walker where they are now, so a decision point can be
-//! announced when it truly is about `announce_m` ahead. A walker who stands
-//! still has no speed to predict with, so is not told early.
+//! A fix is late and noisy: it stands for the middle of its fingerprint
+//! window, and the tracker, which would rather a walker stood still, holds
+//! it back for a fix or two after they set off and then lets it jump ahead
+//! (`gangway eval guidance`: a fix's progress lies from 3 m behind to 1 m
+//! ahead of where the walker was half a window earlier, p10 to p90). So
+//! the filter places each fix at the time the walker was there (`t` minus
+//! the fix's lag), trusts it only as far as that spread, and starts a
+//! walker off at their profile's pace: someone who has just been given a
+//! route sets off. Between fixes the progress is predicted forward, so a
+//! decision point can be announced at the moment it truly is about
+//! `announce_m` ahead rather than at the next fix.
 
-/// How quickly a walker changes pace, m/s²: the filter's process noise.
-/// People speed up, slow down and stop within a second or two; this is a
-/// property of walking, not of a site.
-const PACE_CHANGE_MPS2: f64 = 0.5;
+/// How quickly a walker following a route changes pace, m/s²: the filter's
+/// process noise. People keep a steady pace along a route and take a few
+/// seconds to slow down or stop; this is a property of walking, not of a
+/// site. (0.5 m/s² followed the tracker's stalls and jumps: `gangway eval
+/// guidance` put 0.1 m/s² a third nearer the truth, docs/guidance.md.)
+const PACE_CHANGE_MPS2: f64 = 0.1;
 
 /// The filter's state: progress and speed along the route with their
 /// covariance (kept in f32, computed in f64: every guided session holds one).
@@ -26,22 +32,23 @@ pub struct Progress {
     v: f32,
     /// Covariance of (m, v): [mm, mv, vv].
     p: [f32; 3],
-    /// Time of the last fix folded in.
+    /// When the walker was where the last fix folded in placed them.
     t: f64,
 }
 
 impl Progress {
-    /// A walker at the route's start at `t`, standing still but able to
-    /// walk at up to about `speed_mps`; `spread_m` is how far a fix's
-    /// progress strays from the truth (one standard deviation).
+    /// A walker setting off from the route's start at `t` at about
+    /// `speed_mps` (within a quarter of it, one standard deviation);
+    /// `spread_m` is how far a fix's progress strays from the truth.
     pub fn new(t: f64, speed_mps: f64, spread_m: f64) -> Progress {
+        let speed_spread = speed_mps / 4.0;
         Progress {
             m: 0.0,
-            v: 0.0,
+            v: speed_mps as f32,
             p: [
                 (spread_m * spread_m) as f32,
                 0.0,
-                (speed_mps * speed_mps) as f32,
+                (speed_spread * speed_spread) as f32,
             ],
             t,
         }
@@ -49,7 +56,12 @@ impl Progress {
 
     /// Filtered progress predicted to time `t` at the filtered speed.
     pub fn at(&self, t: f64) -> f64 {
-        f64::from(self.m) + f64::from(self.v) * (t - self.t).max(0.0)
+        self.at_speed(t, self.speed_mps())
+    }
+
+    /// Filtered progress predicted to time `t` at `speed_mps`.
+    pub fn at_speed(&self, t: f64, speed_mps: f64) -> f64 {
+        f64::from(self.m) + speed_mps * (t - self.t).max(0.0)
     }
 
     /// Filtered speed along the route, m/s.
@@ -57,10 +69,14 @@ impl Progress {
         f64::from(self.v)
     }
 
-    /// Folds in the progress `z` (metres along the route) of a fix at `t`,
-    /// whose spread is `spread_m`; the speed stays within `0..=max_mps`.
+    /// Folds in the progress `z` (metres along the route) the walker had at
+    /// `t`, as a fix of spread `spread_m` says; the speed stays within
+    /// `0..=max_mps`. A fix from before the last one moves nothing.
     pub fn update(&mut self, t: f64, z: f64, spread_m: f64, max_mps: f64) {
-        let dt = (t - self.t).max(0.0);
+        if t < self.t {
+            return;
+        }
+        let dt = t - self.t;
         self.t = t;
         // Predict: progress moves on at the speed; both grow uncertain by
         // how much the pace may have changed.
@@ -89,24 +105,34 @@ mod tests {
 
     #[test]
     fn learns_the_pace_and_predicts_ahead_of_late_fixes() {
-        // A walker at 1.1 m/s whose fixes, every 2 s, show them 3 s late.
-        let mut progress = Progress::new(0.0, 1.2, 2.0);
-        for k in 1..=15 {
+        // A walker at 0.9 m/s (the profile says 1.2) whose fixes, every
+        // 2 s, show where they were 2 s before, give or take a metre.
+        let mut progress = Progress::new(0.0, 1.2, 1.0);
+        let jitter = [0.8, -0.5, 0.3, -0.9, 0.6, -0.2, 0.9, -0.7, 0.1, -0.4];
+        for k in 1..=30 {
             let t = 2.0 * f64::from(k);
-            progress.update(t, (1.1 * (t - 3.0)).max(0.0), 2.0, 2.4);
+            let was = t - 2.0;
+            progress.update(was, 0.9 * was + jitter[k as usize % 10], 1.0, 2.4);
         }
-        assert!((progress.speed_mps() - 1.1).abs() < 0.1, "{progress:?}");
-        let now = progress.at(30.0 + 3.0);
-        assert!((now - 33.0).abs() < 1.0, "at 30 s with 3 s of lag: {now}");
+        assert!((progress.speed_mps() - 0.9).abs() < 0.1, "{progress:?}");
+        let now = progress.at(60.0);
+        assert!(
+            (now - 54.0).abs() < 1.0,
+            "at 60 s, 2 s after the last fix: {now}"
+        );
     }
 
     #[test]
     fn a_walker_standing_still_is_not_predicted_forward() {
         let mut progress = Progress::new(0.0, 1.2, 2.0);
-        for k in 1..=10 {
+        for k in 1..=20 {
             progress.update(2.0 * f64::from(k), 5.0, 2.0, 2.4);
         }
-        assert!(progress.speed_mps() < 0.1, "{progress:?}");
-        assert!((progress.at(23.0) - 5.0).abs() < 0.5);
+        assert!(progress.speed_mps() < 0.3, "{progress:?}");
+        assert!((progress.at(43.0) - 5.0).abs() < 1.0, "{progress:?}");
+        // Fixes out of order change nothing.
+        let before = progress.at(50.0);
+        progress.update(10.0, 30.0, 2.0, 2.4);
+        assert_eq!(progress.at(50.0), before);
     }
 }

@@ -4,18 +4,33 @@
 //!
 //! Progress is where the walker is by now along the route's polyline of cell
 //! centres ([`RouteLine`]), in metres from the start: each fix's projection
-//! on it, filtered and predicted forward by the fix's lag ([`Progress`]).
-//! Decision points are announced from that, once, at the fix nearest to
-//! `announce_m` before them; a decision point too close after the previous
-//! one to be announced on its own is told with it. The state kept is the
-//! route (8 bytes a cell), its maneuvers and a few numbers: well under 1 KB
-//! for the routes of a floor.
+//! on it, filtered and predicted forward from the moment the walker was
+//! there ([`Progress`]). Announcements and arrival are judged on that at
+//! every event of the device, not only at its fixes (sightings arrive many
+//! times a second, fixes every stride), so a decision point is announced
+//! when it is truly about `announce_m` ahead; a decision point too close
+//! after the previous one to be announced on its own is told with it.
+//!
+//! Leaving the route is judged on fixes only, never on an unknown one: a fix
+//! outside the corridor counts towards it, and so does a fix already a third
+//! of the corridor off that moved away from the route, across the way the
+//! route goes there (a wrong turn shows so a fix or two before the lagging
+//! fixes leave the corridor); a fix stalled off the route neither counts nor
+//! resets, and anything else resets the count.
+//!
+//! The state kept is the route (4 bytes a cell), its maneuvers and a few
+//! numbers: under 1 KB for the routes of a floor.
 
 use super::{Adherence, Ending, GuidanceConfig, GuidanceEvent, Progress, RouteLine, SessionState};
 use crate::plan::instructions::{Maneuver, first_sentence, maneuvers};
 use crate::plan::{Profile, Route};
 use crate::publish::{GUIDANCE_SCHEMA, Guidance, NextManeuver};
 use crate::site::{Cell, Site};
+
+/// Least angle between the way a fix moved and the way the route goes
+/// there for the move to count as turning off it, degrees: what the
+/// maneuvers call a plain turn (a slight bend is under 60°).
+const TURNING_OFF_DEG: f64 = 60.0;
 
 /// What a session has seen of the walk, carried across re-routes: what its
 /// adherence is made of.
@@ -29,6 +44,25 @@ pub(super) struct Walked {
     /// Times the walker left the route.
     detours: u32,
     reroutes: u32,
+}
+
+/// The last located fix: where, how far off the route, when.
+#[derive(Clone, Copy, Debug)]
+struct LastFix {
+    x: f32,
+    y: f32,
+    off_m: f32,
+}
+
+/// What one fix says about leaving the route.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Leaving {
+    /// Outside the corridor, or turned off the route: counts.
+    Yes,
+    /// Off the route but not moving: neither counts nor resets.
+    Stalled,
+    /// On the route, or back towards it: resets the count.
+    No,
 }
 
 #[derive(Clone, Debug)]
@@ -51,8 +85,15 @@ pub struct Session {
     off_route_fixes: u32,
     /// Time of the last fix, known or not.
     last_t: f64,
-    /// Time between the last two fixes, for how far the walker gets per fix.
-    fix_interval_s: f64,
+    /// When progress was last judged (a fix or another event).
+    judged_t: f64,
+    last_fix: Option<LastFix>,
+    /// Located fixes since the walker was told they had arrived: an
+    /// arrival is watched for twice as many fixes as leaving the route
+    /// takes, and one more, in case it was told too soon (the fixes of a
+    /// walker who walked on trail them by a fix or two before they leave
+    /// the corridor: `gangway eval guidance`, docs/guidance.md).
+    since_arrival: u32,
     walked: Walked,
 }
 
@@ -99,7 +140,9 @@ impl Session {
             spoken_at_m: 0.0,
             off_route_fixes: 0,
             last_t: t,
-            fix_interval_s: 0.0,
+            judged_t: t,
+            last_fix: None,
+            since_arrival: 0,
             walked,
         }
     }
@@ -133,10 +176,17 @@ impl Session {
         self.walked
     }
 
-    /// How the walk followed the route, for a session ending at `t`; `None`
-    /// when it was never located (nothing was walked to judge).
+    /// How the walk followed the route, for a session ending at `t` (or
+    /// when it arrived); `None` when it was never located (nothing was
+    /// walked to judge).
     pub(super) fn adherence(&self, device: &str, t: f64, ending: Ending) -> Option<Adherence> {
         let w = &self.walked;
+        // Judged no more once arrived: the moment it arrived.
+        let t = if self.state == SessionState::Arrived {
+            self.judged_t
+        } else {
+            t
+        };
         (w.located_fixes > 0).then(|| Adherence {
             device: device.to_owned(),
             request_id: self.request_id.clone(),
@@ -153,6 +203,12 @@ impl Session {
 
     pub(super) fn last_t(&self) -> f64 {
         self.last_t
+    }
+
+    /// Whether the session is over: arrived, and watched long enough that
+    /// the walker did not walk on off the route.
+    pub(super) fn is_over(&self, config: &GuidanceConfig) -> bool {
+        self.state == SessionState::Arrived && self.since_arrival > 2 * config.off_route_fixes
     }
 
     /// Bytes this session holds, itself and on the heap.
@@ -191,8 +247,10 @@ impl Session {
         message
     }
 
-    /// Follows one fix; `None` for an unknown fix (nothing is concluded
-    /// from it, least of all that the walker left the route).
+    /// Follows one fix of time `fix_t` (the end of its window), arriving at
+    /// `now`; `None` for an unknown fix (nothing is concluded from it, least
+    /// of all that the walker left the route).
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn update(
         &mut self,
         site: &Site,
@@ -200,86 +258,211 @@ impl Session {
         fix_lag_s: f64,
         device: &str,
         cell: Option<Cell>,
-        t: f64,
+        fix_t: f64,
+        now: f64,
     ) -> Option<Guidance> {
-        self.fix_interval_s = t - self.last_t;
-        self.last_t = t;
+        self.last_t = fix_t;
         let cell = cell?;
         let (x, y) = site.metres(cell);
-        let (off_m, along_m) = self
-            .line
-            .project(site, (x, y), self.track.at(t), config.corridor_m);
-        let mut event = None;
-        let mut text = None;
-        let speed = self.profile.walking_speed_mps();
+        // When the walker was where the fix places them (not before the
+        // route was served: they stood at its start).
+        let was_t = (fix_t - fix_lag_s).max(self.walked.started_t);
+        let (off_m, along_m) =
+            self.line
+                .project(site, (x, y), self.track.at(was_t), config.corridor_m);
+        let leaving = self.leaving(site, config, (x, y), off_m, along_m);
+        self.last_fix = Some(LastFix {
+            x: x as f32,
+            y: y as f32,
+            off_m: off_m as f32,
+        });
         self.walked.located_fixes += 1;
-        if off_m > config.corridor_m {
-            self.off_route_fixes += 1;
-            if self.off_route_fixes >= config.off_route_fixes
-                && self.state != SessionState::OffRoute
-            {
-                self.state = SessionState::OffRoute;
-                self.walked.detours += 1;
-                event = Some(GuidanceEvent::OffRoute);
-                text = Some("You have left the route; finding a new one.".to_owned());
-            }
-        } else {
+        if off_m <= config.corridor_m {
             self.walked.in_corridor_fixes += 1;
-            self.off_route_fixes = 0;
+        }
+        match leaving {
+            Leaving::Yes => self.off_route_fixes += 1,
+            Leaving::Stalled => {}
+            Leaving::No => self.off_route_fixes = 0,
+        }
+        let arrived = self.state == SessionState::Arrived;
+        if arrived {
+            self.since_arrival += 1;
+        }
+        if self.off_route_fixes >= config.off_route_fixes {
             if self.state == SessionState::OffRoute {
-                self.state = if self.walked.reroutes > 0 {
-                    SessionState::Rerouted
-                } else {
-                    SessionState::Active
-                };
+                return Some(self.message(device, fix_t, None, None));
             }
+            self.state = SessionState::OffRoute;
+            self.next = self.next.min(self.maneuvers.len().saturating_sub(1));
+            self.walked.detours += 1;
+            let text = if arrived {
+                "You have walked on past the destination; finding the way back.".to_owned()
+            } else {
+                "You have left the route; finding a new one.".to_owned()
+            };
+            return Some(self.message(device, fix_t, Some(GuidanceEvent::OffRoute), Some(text)));
+        }
+        if arrived {
+            // Told; watched quietly until over (`is_over`).
+            return None;
+        }
+        if self.state == SessionState::OffRoute && leaving == Leaving::No {
+            self.state = if self.walked.reroutes > 0 {
+                SessionState::Rerouted
+            } else {
+                SessionState::Active
+            };
+        }
+        if leaving == Leaving::No {
+            let speed = self.profile.walking_speed_mps();
             self.track
-                .update(t, along_m, config.fix_spread_m, 2.0 * speed);
-            let length_m = self.line.length_m();
-            // Predicted forward by the fix's lag at the profile's pace once
-            // the walker is walking (the filtered speed is too noisy to lead
-            // by); not at all while they stand.
-            let pace = self.track.speed_mps();
-            let lead_m = if pace >= speed / 4.0 { speed } else { pace } * fix_lag_s;
-            self.progress_m = (self.track.at(t) + lead_m).clamp(0.0, length_m);
-            while self.next < self.maneuvers.len()
-                // Progress is summed in f32: a millimetre short is there.
-                && self.maneuvers[self.next].along_m <= self.progress_m + 1e-3
-            {
-                self.next += 1;
-            }
-            self.announced = self.announced.max(self.next);
-            // Half the walk until the next fix: the fix nearest a distance
-            // is the one that says so.
-            let half_step_m = self.track.speed_mps() * self.fix_interval_s.max(0.0) / 2.0;
-            let to_destination = site.metres(self.destination());
-            if length_m - self.progress_m <= config.arrive_m.min(half_step_m)
-                || ((to_destination.0 - x).hypot(to_destination.1 - y) <= config.arrive_m
-                    && self.progress_m >= config.arrive_progress_share * length_m)
-            {
-                self.state = SessionState::Arrived;
-                self.next = self.maneuvers.len();
-                event = Some(GuidanceEvent::Arrived);
-                let place = self.maneuvers.last().and_then(|m| m.place.as_ref());
-                text = Some(match place {
+                .update(was_t, along_m, config.fix_spread_m, 2.0 * speed);
+        }
+        let (event, text) = self.judge(site, config, fix_lag_s, now).unzip();
+        Some(self.message(device, fix_t, event, text))
+    }
+
+    /// Judges progress at `now`, an event of the device between fixes: a
+    /// message only when there is something to say (an announcement,
+    /// reassurance, arrival).
+    pub(super) fn tick(
+        &mut self,
+        site: &Site,
+        config: &GuidanceConfig,
+        fix_lag_s: f64,
+        device: &str,
+        now: f64,
+    ) -> Option<Guidance> {
+        if now <= self.judged_t || self.last_fix.is_none() {
+            return None;
+        }
+        let (event, text) = self.judge(site, config, fix_lag_s, now)?;
+        Some(self.message(device, now, Some(event), Some(text)))
+    }
+
+    /// What a located fix at `(x, y)`, `off_m` from the route and
+    /// `along_m` along it, says about leaving the route (see the module).
+    fn leaving(
+        &self,
+        site: &Site,
+        config: &GuidanceConfig,
+        (x, y): (f64, f64),
+        off_m: f64,
+        along_m: f64,
+    ) -> Leaving {
+        if off_m > config.corridor_m {
+            return Leaving::Yes;
+        }
+        // A fix one cell off is the grid's resolution, not a turn.
+        let least_m = (config.corridor_m / 3.0).max(site.cell_m);
+        let Some(last) = self.last_fix else {
+            return Leaving::No;
+        };
+        if off_m <= least_m {
+            return Leaving::No;
+        }
+        let (dx, dy) = (x - f64::from(last.x), y - f64::from(last.y));
+        let moved_m = dx.hypot(dy);
+        // Cells sit a whole number of metres apart: a step of one counts.
+        if moved_m + 1e-6 < least_m {
+            return if self.off_route_fixes > 0 && off_m >= f64::from(last.off_m) - 1e-6 {
+                Leaving::Stalled
+            } else {
+                Leaving::No
+            };
+        }
+        let (ux, uy) = self.line.direction(site, along_m);
+        let across = (dx * ux + dy * uy) <= moved_m * TURNING_OFF_DEG.to_radians().cos();
+        if across && off_m - f64::from(last.off_m) >= least_m / 2.0 {
+            Leaving::Yes
+        } else {
+            Leaving::No
+        }
+    }
+
+    /// Where the walker is at `now`, and what to tell them then, if
+    /// anything: arrival, the next decision point about `announce_m`
+    /// ahead, or reassurance.
+    fn judge(
+        &mut self,
+        site: &Site,
+        config: &GuidanceConfig,
+        fix_lag_s: f64,
+        now: f64,
+    ) -> Option<(GuidanceEvent, String)> {
+        if matches!(self.state, SessionState::OffRoute | SessionState::Arrived) {
+            return None;
+        }
+        let since_s = (now - self.judged_t).max(0.0);
+        self.judged_t = self.judged_t.max(now);
+        let length_m = self.line.length_m();
+        // Predicted on at the profile's pace once the walker is walking
+        // (the filtered speed follows the tracker's stalls and jumps); not
+        // at all while they stand.
+        let pace = self.profile.walking_speed_mps();
+        let filtered = self.track.speed_mps();
+        let speed = if filtered >= pace / 4.0 {
+            pace
+        } else {
+            filtered
+        };
+        self.progress_m = self.track.at_speed(now, speed).clamp(0.0, length_m);
+        while self.next < self.maneuvers.len()
+            // Progress is summed in f32: a millimetre short is there.
+            && self.maneuvers[self.next].along_m <= self.progress_m + 1e-3
+        {
+            self.next += 1;
+        }
+        self.announced = self.announced.max(self.next);
+        let last = self.last_fix?;
+        let (dx, dy) = site.metres(self.destination());
+        let fix_to_destination = (dx - f64::from(last.x)).hypot(dy - f64::from(last.y));
+        // Arrived: predicted at the destination, the last fix as near it as
+        // a fix lags behind and not leaving the route; or a fix at the
+        // destination once enough of the route is walked (a route that
+        // starts or passes near its destination is not over at once).
+        let predicted = self.progress_m >= length_m - 1e-3
+            && fix_to_destination <= config.arrive_m + pace * fix_lag_s
+            && self.off_route_fixes == 0;
+        let at_it = fix_to_destination <= config.arrive_m
+            && self.progress_m >= config.arrive_progress_share * length_m;
+        let said = if predicted || at_it {
+            self.state = SessionState::Arrived;
+            self.next = self.maneuvers.len();
+            let place = self.maneuvers.last().and_then(|m| m.place.as_ref());
+            Some((
+                GuidanceEvent::Arrived,
+                match place {
                     Some(p) => format!("You have arrived at {p}."),
                     None => "You have arrived.".to_owned(),
-                });
-            } else if let Some(m) = self.maneuvers.get(self.next) {
-                let ahead = m.along_m - self.progress_m;
-                if self.announced <= self.next && ahead <= config.announce_m + half_step_m {
-                    event = Some(GuidanceEvent::Announce);
-                    text = Some(self.announcement(config.announce_m));
-                } else if self.progress_m - self.spoken_at_m >= config.reassure_m {
-                    event = Some(GuidanceEvent::Reassure);
-                    text = Some(format!("You are on the route. {}", m.sentence(ahead)));
-                }
+                },
+            ))
+        } else if let Some(m) = self.maneuvers.get(self.next) {
+            let ahead = m.along_m - self.progress_m;
+            // Half the walk until the next judgement (as long again as
+            // since this one): the moment nearest the distance says so.
+            let half_step_m = speed * since_s / 2.0;
+            if self.announced <= self.next && ahead <= config.announce_m + half_step_m {
+                Some((
+                    GuidanceEvent::Announce,
+                    self.announcement(config.announce_m),
+                ))
+            } else if self.progress_m - self.spoken_at_m >= config.reassure_m {
+                Some((
+                    GuidanceEvent::Reassure,
+                    format!("You are on the route. {}", m.sentence(ahead)),
+                ))
+            } else {
+                None
             }
-            if event.is_some() {
-                self.spoken_at_m = self.progress_m;
-            }
+        } else {
+            None
+        };
+        if said.is_some() {
+            self.spoken_at_m = self.progress_m;
         }
-        Some(self.message(device, t, event, text))
+        said
     }
 
     /// Announces the next decision point, and with it those following it

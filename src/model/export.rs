@@ -18,8 +18,32 @@ use tract_onnx::pb::attribute_proto::AttributeType;
 use tract_onnx::pb::tensor_proto::DataType;
 use tract_onnx::prelude::f16;
 
+use ndarray::{ArrayView1, ArrayView2};
+
 use super::Metadata;
-use crate::train::mlp::{Act, LEAKY_SLOPE, Mlp};
+
+/// The slope of LeakyReLU for negative inputs (as in the paper's Keras setup).
+pub const LEAKY_SLOPE: f32 = 0.2;
+
+/// What follows a layer's affine map. Defined here, with the graph that
+/// spells it out, so the file format does not depend on the trainer
+/// ([`crate::train::mlp`] trains layers of these activations).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Act {
+    LeakyRelu,
+    Tanh,
+    /// No nonlinearity: the layer outputs logits, and the loss (or the exported
+    /// graph) applies sigmoid or softmax.
+    Identity,
+}
+
+/// One dense layer as exported: `x·w + b` (`w` is `in × out`), then `act`.
+#[derive(Clone, Copy, Debug)]
+pub struct Layer<'a> {
+    pub w: ArrayView2<'a, f32>,
+    pub b: ArrayView1<'a, f32>,
+    pub act: Act,
+}
 
 /// ONNX operator set the graphs use.
 pub const OPSET: i64 = 13;
@@ -58,7 +82,8 @@ pub enum Weights {
 
 /// A network and how it is presented.
 pub struct Spec<'a> {
-    pub net: &'a Mlp,
+    /// The network's layers, input first.
+    pub layers: Vec<Layer<'a>>,
     pub weights: Weights,
     /// Named inputs with their widths, concatenated in this order.
     pub inputs: &'a [(&'a str, usize)],
@@ -67,12 +92,23 @@ pub struct Spec<'a> {
     pub output: &'a str,
 }
 
+impl Spec<'_> {
+    /// Trainable parameters (weights and biases).
+    pub fn parameters(&self) -> usize {
+        self.layers.iter().map(|l| l.w.len() + l.b.len()).sum()
+    }
+
+    fn outputs(&self) -> usize {
+        self.layers.last().map_or(0, |l| l.w.ncols())
+    }
+}
+
 /// The ONNX model for `spec` with `meta` as its `metadata_props`.
 pub fn to_onnx(spec: &Spec, meta: &Metadata) -> pb::ModelProto {
     let widths: usize = spec.inputs.iter().map(|(_, w)| w).sum();
     assert_eq!(
         widths,
-        spec.net.inputs(),
+        spec.layers.first().map_or(0, |l| l.w.nrows()),
         "inputs must cover the first layer"
     );
     let mut nodes = Vec::new();
@@ -99,8 +135,8 @@ pub fn to_onnx(spec: &Spec, meta: &Metadata) -> pb::ModelProto {
         ));
         x = "clipped".into();
     }
-    for (i, layer) in spec.net.layers.iter().enumerate() {
-        let (mut w, mut b) = (layer.w.clone(), layer.b.clone());
+    for (i, layer) in spec.layers.iter().enumerate() {
+        let (mut w, mut b) = (layer.w.to_owned(), layer.b.to_owned());
         if let (0, Some(norm)) = (i, spec.normalize) {
             // (x + o)·s·W + b = x·(s·W) + (b + o·s·colsum(W))
             b = &b + &(layer.w.sum_axis(ndarray::Axis(0)) * (norm.offset * norm.scale));
@@ -160,16 +196,32 @@ pub fn to_onnx(spec: &Spec, meta: &Metadata) -> pb::ModelProto {
         )),
         Head::LogSoftmax => log_softmax(&mut nodes, &mut initializers, x, spec.output),
     }
+    model_proto(
+        meta,
+        nodes,
+        initializers,
+        spec.inputs
+            .iter()
+            .map(|&(name, width)| value_info(name, width))
+            .collect(),
+        vec![value_info(spec.output, spec.outputs())],
+    )
+}
+
+/// A model of `nodes` over `initializers`, with `meta` as its metadata.
+pub(crate) fn model_proto(
+    meta: &Metadata,
+    nodes: Vec<pb::NodeProto>,
+    initializers: Vec<pb::TensorProto>,
+    input: Vec<pb::ValueInfoProto>,
+    output: Vec<pb::ValueInfoProto>,
+) -> pb::ModelProto {
     let graph = pb::GraphProto {
         name: meta.kind.name().to_owned(),
         node: nodes,
         initializer: initializers,
-        input: spec
-            .inputs
-            .iter()
-            .map(|&(name, width)| value_info(name, width))
-            .collect(),
-        output: vec![value_info(spec.output, spec.net.outputs())],
+        input,
+        output,
         ..Default::default()
     };
     pb::ModelProto {
@@ -198,7 +250,12 @@ pub fn to_onnx(spec: &Spec, meta: &Metadata) -> pb::ModelProto {
 
 /// Writes the model to `path`.
 pub fn write(path: &Path, spec: &Spec, meta: &Metadata) -> std::io::Result<()> {
-    std::fs::write(path, to_onnx(spec, meta).encode_to_vec())
+    write_proto(path, &to_onnx(spec, meta))
+}
+
+/// Writes a model built elsewhere (e.g. [`super::desire::DesireLines::to_onnx`]).
+pub fn write_proto(path: &Path, model: &pb::ModelProto) -> std::io::Result<()> {
+    std::fs::write(path, model.encode_to_vec())
 }
 
 /// `z − max(z) − ln Σ exp(z − max(z))` over the last axis, spelled out: tract
@@ -262,7 +319,7 @@ fn log_softmax(
     ));
 }
 
-fn node(
+pub(crate) fn node(
     op: &str,
     inputs: Vec<String>,
     output: &str,
@@ -278,7 +335,7 @@ fn node(
     }
 }
 
-fn int_attr(name: &str, i: i64) -> pb::AttributeProto {
+pub(crate) fn int_attr(name: &str, i: i64) -> pb::AttributeProto {
     pb::AttributeProto {
         name: name.to_owned(),
         r#type: AttributeType::Int as i32,
@@ -296,7 +353,7 @@ fn float_attr(name: &str, f: f32) -> pb::AttributeProto {
     }
 }
 
-fn tensor(name: &str, dims: &[i64], data: &[f32]) -> pb::TensorProto {
+pub(crate) fn tensor(name: &str, dims: &[i64], data: &[f32]) -> pb::TensorProto {
     pb::TensorProto {
         name: name.to_owned(),
         dims: dims.to_vec(),
@@ -321,7 +378,7 @@ fn half_tensor(name: &str, dims: &[i64], data: &[f32]) -> pb::TensorProto {
 }
 
 /// A float tensor `[N, width]` with a symbolic batch.
-fn value_info(name: &str, width: usize) -> pb::ValueInfoProto {
+pub(crate) fn value_info(name: &str, width: usize) -> pb::ValueInfoProto {
     use pb::tensor_shape_proto::{Dimension, dimension::Value};
     let dim = |value| Dimension {
         value: Some(value),

@@ -13,6 +13,7 @@
 //! - RSSI: dBm, one value per site anchor (see [`CellClassifierInput`]).
 
 pub mod condition;
+pub mod desire;
 pub mod export;
 pub mod runtime;
 
@@ -33,6 +34,7 @@ pub const FORMAT_VERSION: u32 = 1;
 /// | `discriminator` | `frame` [N, W·H] ±1 (+ `condition` when conditional) | `real` [N, 1] probability |
 /// | `path_classifier` | `frame` [N, W·H] 0/1 | `probs` [N, classes] softmax |
 /// | `cell_classifier` | `rssi` [N, anchors] dBm | `log_probs` [N, open cells] log-softmax |
+/// | `desire_lines` | `endpoints` [N, 4] cell units (`ax, ay, bx, by`) | `points` [N, 2·P]: the line's P x then P y ([`desire`]) |
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kind {
     Generator,
@@ -41,6 +43,7 @@ pub enum Kind {
     ConditionalDiscriminator,
     PathClassifier,
     CellClassifier,
+    DesireLines,
 }
 
 impl Kind {
@@ -52,6 +55,7 @@ impl Kind {
             Kind::ConditionalDiscriminator => "conditional_discriminator",
             Kind::PathClassifier => "path_classifier",
             Kind::CellClassifier => "cell_classifier",
+            Kind::DesireLines => "desire_lines",
         }
     }
 
@@ -63,6 +67,7 @@ impl Kind {
             Kind::ConditionalDiscriminator,
             Kind::PathClassifier,
             Kind::CellClassifier,
+            Kind::DesireLines,
         ]
         .into_iter()
         .find(|k| k.name() == s)

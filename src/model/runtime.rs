@@ -415,6 +415,37 @@ impl PathClassifier {
     }
 }
 
+/// Where people walk between two points ([`super::desire`]).
+#[derive(Clone, Debug)]
+pub struct DesireModel(Model);
+
+impl DesireModel {
+    pub fn load(path: &Path, site: &Site) -> Result<DesireModel, ModelError> {
+        let model = Model::load(path, site, &[Kind::DesireLines], Rows::Batches)?;
+        if model.inputs.len() != 1 || model.inputs[0].1 != 4 || model.output.1 % 2 != 0 {
+            return Err(ModelError::Corrupt {
+                path: model.path.clone(),
+                reason: "a desire-line model takes `endpoints` [N, 4] and gives [N, 2·points]"
+                    .into(),
+            });
+        }
+        Ok(DesireModel(model))
+    }
+
+    pub fn model(&self) -> &Model {
+        &self.0
+    }
+
+    /// The learned line from `a` to `b` (cell units), `a` first.
+    pub fn line(&self, a: [f32; 2], b: [f32; 2]) -> Result<Vec<[f32; 2]>, ModelError> {
+        let input = ndarray::arr2(&[[a[0], a[1], b[0], b[1]]]);
+        let out = self.0.run(&[input.view()])?;
+        let row = out.row(0);
+        let points = row.len() / 2;
+        Ok((0..points).map(|k| [row[k], row[points + k]]).collect())
+    }
+}
+
 /// Locates a device from what it hears: a distribution over the site's open cells.
 #[derive(Clone, Debug)]
 pub struct CellClassifier(Model);
@@ -497,7 +528,7 @@ mod tests {
         let file = dir.path().join("g.onnx");
         for weights in [Weights::F16, Weights::F32] {
             let spec = Spec {
-                net: &net,
+                layers: net.layer_views(),
                 weights,
                 inputs: &[("noise", 4)],
                 normalize: None,
@@ -563,7 +594,7 @@ mod tests {
         let meta = Metadata::for_site(Kind::PathClassifier, &s);
         let file = dir.path().join("c.onnx");
         let spec = Spec {
-            net: &net,
+            layers: net.layer_views(),
             weights: Weights::F32,
             inputs: &[("frame", 4)],
             normalize: None,
@@ -602,7 +633,7 @@ mod tests {
             CellClassifierInput::RSSI_CEIL_DBM,
         );
         let spec = Spec {
-            net: &net,
+            layers: net.layer_views(),
             weights: Weights::F32,
             inputs: &[("rssi", 2)],
             normalize: Some(ClipScale {

@@ -38,6 +38,33 @@ pub fn centre(cell: Cell) -> GridPoint {
     [f64::from(cell.x) + 0.5, f64::from(cell.y) + 0.5]
 }
 
+/// `p` (cell units) in world metres through the site's frame.
+pub fn world_of_point(site: &Site, p: GridPoint) -> [f64; 2] {
+    let (origin, step) = frame_steps(site);
+    [
+        origin[0] + (p[0] - 0.5) * step[0],
+        origin[1] + (p[1] - 0.5) * step[1],
+    ]
+}
+
+/// A point in world metres in cell units (the inverse of [`world_of_point`]).
+pub fn point_of_world(site: &Site, w: [f64; 2]) -> GridPoint {
+    let (origin, step) = frame_steps(site);
+    [
+        0.5 + (w[0] - origin[0]) / step[0],
+        0.5 + (w[1] - origin[1]) / step[1],
+    ]
+}
+
+/// The world position of cell (0, 0)'s centre and how far one cell moves it
+/// along each axis (negative for a y axis pointing up): the site's frame is
+/// axis-aligned, so that is all of it.
+fn frame_steps(site: &Site) -> ([f64; 2], [f64; 2]) {
+    let a = site.world_of_cell(Cell::new(0, 0));
+    let b = site.world_of_cell(Cell::new(1, 1));
+    (a, [b[0] - a[0], b[1] - a[1]])
+}
+
 /// The cells a segment passes through, in order, from the cell holding `a`
 /// to the cell holding `b`.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -222,6 +249,30 @@ pub fn without_loops<T>(items: Vec<T>, cell_of: impl Fn(&T) -> Cell) -> Vec<T> {
     out
 }
 
+/// The turning points of a walk pulled taut: from each kept cell, straight on
+/// to the farthest later cell the segment to which is [`clear`] for
+/// `passable`. String-pulling a grid route is the cheap any-angle route: a
+/// grid search plus one line check per cell, against Theta*'s line check per
+/// expanded neighbour.
+pub fn string_pulled(site: &Site, cells: &[Cell], passable: impl Fn(Cell) -> bool) -> Vec<Cell> {
+    let Some(&first) = cells.first() else {
+        return Vec::new();
+    };
+    let mut out = vec![first];
+    let mut anchor = first;
+    for w in cells.windows(2).skip(1) {
+        // w[1] is the next cell; w[0] the last one still in sight.
+        if !clear(site, anchor, w[1], &passable) {
+            anchor = w[0];
+            out.push(anchor);
+        }
+    }
+    if cells.len() > 1 {
+        out.push(*cells.last().expect("not empty"));
+    }
+    out
+}
+
 /// An any-angle route: the polyline (turning points, cell centres) and the
 /// 8-connected cells along it.
 #[derive(Clone, Debug, PartialEq)]
@@ -249,6 +300,10 @@ pub struct AnyAngle {
 impl AnyAngle {
     pub fn new(site: Arc<Site>) -> Self {
         AnyAngle { site }
+    }
+
+    pub fn site(&self) -> &Site {
+        &self.site
     }
 
     /// The straight segment from `from` to `to` when the profile may walk it
@@ -543,5 +598,42 @@ mod tests {
         let c = |x, y| Cell::new(x, y);
         let walk = vec![c(0, 0), c(1, 0), c(1, 1), c(0, 1), c(1, 0), c(2, 0)];
         assert_eq!(without_loops(walk, |&c| c), vec![c(0, 0), c(1, 0), c(2, 0)]);
+    }
+
+    #[test]
+    fn string_pulling_keeps_only_the_corners_and_points_map_to_metres_and_back() {
+        let text = "name = \"t\"\ncell_m = 0.5\norigin_m = [2.0, 9.0]\ny_axis = \"up\"\nmap = '''\n#####\n#....\n#####\n'''\n";
+        let s = Site::parse(text, std::path::Path::new("t.toml")).unwrap();
+        // Down the left column, then along the bottom row.
+        let walk: Vec<Cell> = [
+            (4, 0),
+            (3, 0),
+            (2, 0),
+            (1, 0),
+            (0, 0),
+            (0, 1),
+            (0, 2),
+            (1, 2),
+            (2, 2),
+            (3, 2),
+            (4, 2),
+        ]
+        .map(|(x, y)| Cell::new(x, y))
+        .to_vec();
+        let taut = string_pulled(&s, &walk, |c| s.walkable(c));
+        assert_eq!(taut.first(), Some(&Cell::new(4, 0)));
+        assert_eq!(taut.last(), Some(&Cell::new(4, 2)));
+        assert!(taut.len() <= 4, "{taut:?}");
+        for w in taut.windows(2) {
+            assert!(clear(&s, w[0], w[1], |c| s.walkable(c)), "{taut:?}");
+        }
+        let p = [1.25, 2.75];
+        let w = world_of_point(&s, p);
+        assert!(
+            (w[0] - (2.0 + 1.25 * 0.5)).abs() < 1e-9 && (w[1] - (9.0 - 2.75 * 0.5)).abs() < 1e-9,
+            "{w:?}"
+        );
+        let back = point_of_world(&s, w);
+        assert!((back[0] - p[0]).abs() < 1e-9 && (back[1] - p[1]).abs() < 1e-9);
     }
 }

@@ -128,6 +128,7 @@ impl Planner for Conditional {
                         origin,
                         samples: rows,
                         frame: Some(frame),
+                        line: None,
                         timings,
                     },
                 ));

@@ -89,6 +89,9 @@ pub enum ManeuverType {
     Depart,
     /// A change of direction: a decision point.
     Turn,
+    /// A junction passed straight on (other ways open there): a decision
+    /// point too, where a walker who is not told may take the wrong way.
+    Continue,
     /// The destination.
     Arrive,
 }
@@ -97,6 +100,8 @@ pub enum ManeuverType {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Modifier {
+    /// Straight on, through a junction.
+    Straight,
     SlightRight,
     SlightLeft,
     Right,
@@ -110,6 +115,7 @@ impl Modifier {
     /// The English words for the turn.
     pub fn words(self) -> &'static str {
         match self {
+            Modifier::Straight => "go straight on",
             Modifier::SlightRight => "bear right",
             Modifier::SlightLeft => "bear left",
             Modifier::Right => "turn right",
@@ -176,6 +182,9 @@ impl Maneuver {
         }
         match (self.kind, self.modifier) {
             (ManeuverType::Arrive, _) => format!("{walk}; you have arrived{named}"),
+            (ManeuverType::Continue, Some(m)) if self.place.is_none() => {
+                format!("{walk}, then {} across the junction", m.words())
+            }
             (_, Some(m)) => format!("{walk}, then {}{named}", m.words()),
             (_, None) => format!("{walk}{named}"),
         }
@@ -204,8 +213,14 @@ fn capitalised(clause: &str) -> String {
 /// kept corners before the cell between them becomes a corner too.
 pub const CORNER_TOLERANCE_CELLS: f64 = 1.0;
 
+/// How far around a cell its ways out are counted, metres: beyond the
+/// width of a corridor, so a corridor shows two ways (on and back) and a
+/// junction three or more.
+pub const JUNCTION_RADIUS_M: f64 = 3.0;
+
 /// The maneuvers of `route` on `site` for a walker with `profile`: depart,
-/// a turn per corner, arrive; empty for a route of one cell.
+/// a turn per corner, a continue per junction passed straight on, arrive;
+/// empty for a route of one cell.
 pub fn maneuvers(site: &Site, route: &Route, profile: Profile) -> Vec<Maneuver> {
     let cells = &route.cells;
     if cells.len() < 2 {
@@ -224,6 +239,32 @@ pub fn maneuvers(site: &Site, route: &Route, profile: Profile) -> Vec<Maneuver> 
     };
     // A bend under this is walked on rather than announced.
     let least_turn_deg = if low_vision { 60.0 } else { 30.0 };
+    // The decision points, by index in `cells`: the corners that turn
+    // enough, and the destination…
+    let mut points: Vec<(usize, ManeuverType, Option<Modifier>)> = Vec::new();
+    for k in 1..corners.len() {
+        let (a, b) = (corners[k - 1], corners[k]);
+        match corners.get(k + 1) {
+            None => points.push((b, ManeuverType::Arrive, None)),
+            Some(&c) => {
+                let bend = turn(
+                    bearing(cells[a], cells[b]),
+                    bearing(cells[b], cells[c]),
+                    least_turn_deg,
+                );
+                if let Some(m) = bend {
+                    points.push((b, ManeuverType::Turn, Some(m)));
+                }
+            }
+        }
+    }
+    // …and the junctions walked straight through, away from those.
+    points.extend(
+        junctions(site, cells, &points)
+            .into_iter()
+            .map(|i| (i, ManeuverType::Continue, Some(Modifier::Straight))),
+    );
+    points.sort_by_key(|p| p.0);
     let mut out = vec![Maneuver {
         kind: ManeuverType::Depart,
         modifier: None,
@@ -237,9 +278,9 @@ pub fn maneuvers(site: &Site, route: &Route, profile: Profile) -> Vec<Maneuver> 
     // last maneuver.
     let (mut walked, mut along) = (0.0, 0.0);
     let mut on_the_way = None;
-    for k in 1..corners.len() {
-        let (a, b) = (corners[k - 1], corners[k]);
-        for i in a + 1..=b {
+    let mut from = 0;
+    for (b, kind, modifier) in points {
+        for i in from + 1..=b {
             let step = cells[i - 1].distance(cells[i]) * site.cell_m;
             walked += step;
             along += step;
@@ -247,26 +288,124 @@ pub fn maneuvers(site: &Site, route: &Route, profile: Profile) -> Vec<Maneuver> 
                 on_the_way = Feature::of(site.tile(cells[i])).map(|f| (f, along as f32));
             }
         }
-        let at = cells[b];
-        let (kind, modifier) = match corners.get(k + 1) {
-            None => (ManeuverType::Arrive, None),
-            Some(&c) => match turn(bearing(cells[a], at), bearing(at, cells[c]), least_turn_deg) {
-                None => continue,
-                some => (ManeuverType::Turn, some),
-            },
-        };
+        from = b;
         out.push(Maneuver {
             kind,
             modifier,
             distance_m: walked,
             along_m: along,
-            at,
-            place: place(at),
+            at: cells[b],
+            place: place(cells[b]),
             on_the_way: on_the_way.take(),
         });
         walked = 0.0;
     }
     out
+}
+
+/// Indices in `cells` of the junctions the route passes straight through:
+/// cells with three ways out or more ([`ways_out`]) at least
+/// [`JUNCTION_RADIUS_M`] along the route from its ends and from every
+/// decision point in `points`, one (the middle) per run of such cells.
+fn junctions(
+    site: &Site,
+    cells: &[Cell],
+    points: &[(usize, ManeuverType, Option<Modifier>)],
+) -> Vec<usize> {
+    let radius = (JUNCTION_RADIUS_M / site.cell_m).round().max(2.0) as usize;
+    let clear = |i: usize| {
+        i >= radius
+            && i + radius < cells.len()
+            && points.iter().all(|&(j, _, _)| i.abs_diff(j) >= radius)
+    };
+    let mut found = Vec::new();
+    let mut run: Option<(usize, usize)> = None;
+    for (i, &cell) in cells.iter().enumerate() {
+        let junction = clear(i) && ways_out(site, cell, radius) >= 3;
+        match (&mut run, junction) {
+            (Some((_, end)), true) if *end + 1 == i => *end = i,
+            (_, true) => {
+                if let Some((a, b)) = run.replace((i, i)) {
+                    found.push((a + b) / 2);
+                }
+            }
+            (_, false) => {}
+        }
+    }
+    found.extend(run.map(|(a, b)| (a + b) / 2));
+    found
+}
+
+/// How many separate ways lead out of `centre`: the walkable cells
+/// `radius` cells away (the square ring around it) that can be reached from
+/// it without leaving the square, counted in runs around the ring. A
+/// corridor has two, a junction three or more; an open floor, where the
+/// whole ring is reached, one.
+fn ways_out(site: &Site, centre: Cell, radius: usize) -> usize {
+    let r = radius as i32;
+    let side = 2 * r + 1;
+    let at = |dx: i32, dy: i32| {
+        let (x, y) = (i32::from(centre.x) + dx, i32::from(centre.y) + dy);
+        (x >= 0 && y >= 0 && x <= i32::from(u16::MAX) && y <= i32::from(u16::MAX))
+            .then(|| Cell::new(x as u16, y as u16))
+            .filter(|&c| site.walkable(c))
+    };
+    let index = |dx: i32, dy: i32| ((dy + r) * side + dx + r) as usize;
+    let mut reached = vec![false; (side * side) as usize];
+    let mut queue = std::collections::VecDeque::from([(0, 0)]);
+    reached[index(0, 0)] = true;
+    while let Some((dx, dy)) = queue.pop_front() {
+        let here = Cell::new(
+            (i32::from(centre.x) + dx) as u16,
+            (i32::from(centre.y) + dy) as u16,
+        );
+        for (sx, sy) in [
+            (-1, -1),
+            (0, -1),
+            (1, -1),
+            (-1, 0),
+            (1, 0),
+            (-1, 1),
+            (0, 1),
+            (1, 1),
+        ] {
+            let (nx, ny) = (dx + sx, dy + sy);
+            if nx.abs() > r || ny.abs() > r || reached[index(nx, ny)] {
+                continue;
+            }
+            if let Some(next) = at(nx, ny)
+                && super::Connectivity::Eight.step_ok(site, here, next)
+            {
+                reached[index(nx, ny)] = true;
+                queue.push_back((nx, ny));
+            }
+        }
+    }
+    // The ring clockwise from the top left corner.
+    let mut ring: Vec<bool> = (-r..r)
+        .map(|d| (d, -r))
+        .chain((-r..r).map(|d| (r, d)))
+        .chain((-r..r).map(|d| (-d, r)))
+        .chain((-r..r).map(|d| (-r, -d)))
+        .map(|(dx, dy)| reached[index(dx, dy)])
+        .collect();
+    // A pillar is not a wall between two ways: one blocked cell between
+    // reached ones joins them.
+    let n = ring.len();
+    let pillars: Vec<usize> = (0..n)
+        .filter(|&i| !ring[i] && ring[(i + n - 1) % n] && ring[(i + 1) % n])
+        .collect();
+    for i in pillars {
+        ring[i] = true;
+    }
+    let starts = (0..ring.len())
+        .filter(|&i| ring[i] && !ring[(i + ring.len() - 1) % ring.len()])
+        .count();
+    if starts == 0 && ring.iter().any(|&r| r) {
+        1
+    } else {
+        starts
+    }
 }
 
 /// A low-vision walker's landmark at `cell` when no place is at it: the
@@ -448,6 +587,71 @@ mod tests {
             None,
             "walked on by a low-vision walker"
         );
+    }
+
+    #[test]
+    fn a_junction_walked_straight_through_is_a_continue() {
+        // A corridor crossing another at (5, 4), and an open floor.
+        let mut rows = vec![".....#.....".to_owned(); 9];
+        rows[4] = "#".repeat(11);
+        let site_of = |rows: &[String]| {
+            let text = format!(
+                "name = \"t\"\ncell_m = 1.0\nmap = '''\n{}\n'''\n",
+                rows.join("\n")
+            );
+            Site::parse(&text, Path::new("t.toml")).unwrap()
+        };
+        let east = Route {
+            cells: (0..=10).map(|x| Cell::new(x, 4)).collect(),
+        };
+        let site = site_of(&rows);
+        let kinds: Vec<_> = maneuvers(&site, &east, Profile::Default)
+            .into_iter()
+            .map(|m| (m.kind, m.modifier, m.at))
+            .collect();
+        assert_eq!(
+            kinds,
+            [
+                (ManeuverType::Depart, None, Cell::new(0, 4)),
+                (
+                    ManeuverType::Continue,
+                    Some(Modifier::Straight),
+                    Cell::new(5, 4)
+                ),
+                (ManeuverType::Arrive, None, Cell::new(10, 4)),
+            ]
+        );
+        assert_eq!(
+            texts(&site, &east, Profile::Default),
+            [
+                "Walk 5 metres, then go straight on across the junction.",
+                "Walk 5 metres; you have arrived.",
+            ]
+        );
+        // Turning there is the turn, not a continue as well.
+        let north = Route {
+            cells: (0..=5)
+                .map(|x| Cell::new(x, 4))
+                .chain((0..4).rev().map(|y| Cell::new(5, y)))
+                .collect(),
+        };
+        let turning: Vec<_> = maneuvers(&site, &north, Profile::Default)
+            .into_iter()
+            .map(|m| m.kind)
+            .collect();
+        assert_eq!(
+            turning,
+            [
+                ManeuverType::Depart,
+                ManeuverType::Turn,
+                ManeuverType::Arrive
+            ]
+        );
+        // On an open floor (a pillar in it too) the ways out join all
+        // round: nothing to decide on a straight walk.
+        let mut open = vec!["#".repeat(11); 9];
+        open[1] = "#######.###".to_owned();
+        assert_eq!(maneuvers(&site_of(&open), &east, Profile::Default).len(), 2);
     }
 
     #[test]

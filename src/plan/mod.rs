@@ -6,20 +6,24 @@
 //! a route that [`Route::validate`] accepts, or an error: never an invalid route.
 
 //!
-//! Modes (`[planner] mode`): `astar` (shortest walk, no models), `rejection`
-//! (the paper's Algorithm 1, bounded: [`rejection`]) and `conditional` (the
-//! conditional GAN: [`conditional`]). The learned modes turn frames into
-//! routes with [`frame::route_from_frame`], which repairs what a frame gets
-//! wrong. Profiles ([`Profile`]) change which cells a walker may use and what
+//! Modes (`[planner] mode`): `astar` (shortest walk, no models), `desire`
+//! (the line people walk between the two cells, learned from their walks:
+//! [`desire`]), `rejection` (the paper's Algorithm 1, bounded: [`rejection`])
+//! and `conditional` (the conditional GAN: [`conditional`]). The GAN modes
+//! turn frames into routes with [`frame::route_from_frame`], which repairs
+//! what a frame gets wrong; `desire` repairs its line with the any-angle
+//! search. Profiles ([`Profile`]) change which cells a walker may use and what
 //! they cost, in every mode. [`anyangle`] is the any-angle baseline the
 //! learned modes are judged against (`gangway eval planning`).
 
 pub mod anyangle;
 pub mod astar;
 pub mod conditional;
+pub mod desire;
 mod error_code;
 pub mod frame;
 pub mod instructions;
+pub mod lines;
 pub mod picture;
 mod profile;
 pub mod rejection;
@@ -182,6 +186,7 @@ pub struct ModelPaths {
     pub generator: PathBuf,
     pub path_classifier: PathBuf,
     pub conditional_generator: PathBuf,
+    pub desire_lines: PathBuf,
 }
 
 impl Default for ModelPaths {
@@ -190,6 +195,7 @@ impl Default for ModelPaths {
             generator: "models/generator.onnx".into(),
             path_classifier: "models/path_classifier.onnx".into(),
             conditional_generator: "models/conditional_generator.onnx".into(),
+            desire_lines: "models/desire_lines.onnx".into(),
         }
     }
 }
@@ -202,6 +208,7 @@ impl PlannerConfig {
             &mut m.generator,
             &mut m.path_classifier,
             &mut m.conditional_generator,
+            &mut m.desire_lines,
         ] {
             *p = base.join(&*p);
         }
@@ -218,13 +225,16 @@ pub enum PlannerMode {
     Rejection,
     /// Conditional GAN, any pair of open cells.
     Conditional,
+    /// Learned desire lines, any pair of open cells.
+    Desire,
 }
 
 impl PlannerMode {
-    pub const ALL: [PlannerMode; 3] = [
+    pub const ALL: [PlannerMode; 4] = [
         PlannerMode::Astar,
         PlannerMode::Rejection,
         PlannerMode::Conditional,
+        PlannerMode::Desire,
     ];
 
     pub fn name(self) -> &'static str {
@@ -232,6 +242,7 @@ impl PlannerMode {
             PlannerMode::Astar => "astar",
             PlannerMode::Rejection => "rejection",
             PlannerMode::Conditional => "conditional",
+            PlannerMode::Desire => "desire",
         }
     }
 }
@@ -242,9 +253,10 @@ impl PlannerMode {
 pub enum Origin {
     /// A plain search (the `astar` mode).
     Search,
-    /// Read off a generated frame unchanged.
+    /// Read off a generated frame (or a learned line) unchanged.
     Frame,
-    /// A generated frame with gaps or noise, repaired by the guided search.
+    /// A generated frame with gaps or noise, repaired by the guided search
+    /// (or a learned line repaired round what it crossed).
     Repaired,
     /// Rejection mode ran out of samples or time; the frame the classifier
     /// rated best for the pair was repaired.
@@ -268,8 +280,11 @@ pub struct Planned {
     pub origin: Origin,
     /// Frames generated for this request.
     pub samples: usize,
-    /// The frame the route came from (learned modes).
+    /// The frame the route came from (GAN modes).
     pub frame: Option<Vec<f32>>,
+    /// The line the route follows (cell units, source centre to destination
+    /// centre) when the planner drew one (`desire`); the route is its cells.
+    pub line: Option<Vec<anyangle::GridPoint>>,
     pub timings: Timings,
 }
 
@@ -280,6 +295,7 @@ impl Planned {
             origin: Origin::Search,
             samples: 0,
             frame: None,
+            line: None,
             timings: Timings::default(),
         }
     }
@@ -308,7 +324,7 @@ pub fn build_mode(
     mode: PlannerMode,
     site: Arc<Site>,
 ) -> anyhow::Result<Box<dyn Planner>> {
-    use crate::model::runtime::{PathClassifier, PathGenerator, Rows};
+    use crate::model::runtime::{DesireModel, PathClassifier, PathGenerator, Rows};
     let context = |what: &str| format!("[planner] mode = \"{}\": loading the {what}", mode.name());
     Ok(match mode {
         PlannerMode::Astar => Box::new(astar::AStar::new(site, config.connectivity)),
@@ -344,6 +360,11 @@ pub fn build_mode(
                 )
                 .map_err(anyhow::Error::msg)?,
             )
+        }
+        PlannerMode::Desire => {
+            let model = DesireModel::load(&config.models.desire_lines, &site)
+                .with_context(|| context("desire lines ([planner.models] desire_lines)"))?;
+            Box::new(desire::Desire::new(site, config.connectivity, model))
         }
     })
 }

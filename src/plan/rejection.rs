@@ -231,6 +231,7 @@ impl Planner for Rejection {
                 origin,
                 samples: 0,
                 frame: Some(frame),
+                line: None,
                 timings: Timings::default(),
             });
         }
@@ -266,6 +267,7 @@ impl Planner for Rejection {
                     origin,
                     samples,
                     frame: Some(frame),
+                    line: None,
                     timings,
                 });
             }
@@ -289,6 +291,7 @@ impl Planner for Rejection {
             origin: Origin::BudgetExhausted,
             samples,
             frame: Some(frame),
+            line: None,
             timings,
         })
     }

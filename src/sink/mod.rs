@@ -19,6 +19,7 @@
 //! on a failing disk) counts and logs its failures instead.
 
 pub mod jsonl;
+// Public for the in-process daemon tests that record what the runtime hears.
 pub mod recorder;
 
 use futures::future::BoxFuture;

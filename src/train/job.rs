@@ -33,9 +33,11 @@ use rand_distr::{Distribution, StandardNormal};
 
 use super::cells::CellSet;
 use super::classifier::{self, ClassifierConfig};
+use super::desire;
 use super::gan::{self, GanConfig, GanData, NOISE_DIM};
 use super::mlp::{Adam, Mlp};
 use super::paths::PathSet;
+use super::trajectory::Trajectory;
 use crate::locate::survey::Survey;
 use crate::model::export::{self, ClipScale, Head, Spec, Weights};
 use crate::model::{CellClassifierInput, Kind, Metadata, condition};
@@ -113,11 +115,21 @@ const GENERATOR_CHECKS: [(&str, f64, bool); 3] = [
     ("confident_share", 0.5, false),
 ];
 
-/// The checks of a generator of `kind` on its measured `metrics`.
+/// The bounds desire lines are held to, on what cross-validation over the
+/// training walks measured (`train::desire`): closer to later walkers than
+/// the any-angle route more often than not, and lines that mostly stand as
+/// learned (the bound on repair).
+const DESIRE_CHECKS: [(&str, f64, bool); 2] = [
+    ("cv_closer_than_anyangle", 0.5, false),
+    ("cv_repaired_share", 0.3, true),
+];
+
+/// The checks of a model of `kind` on its measured `metrics`.
 fn checks(kind: Kind, metrics: &BTreeMap<String, f64>) -> Vec<Check> {
     let table: &[(&str, f64, bool)] = match kind {
         Kind::ConditionalGenerator => &CONDITIONAL_CHECKS,
         Kind::Generator => &GENERATOR_CHECKS,
+        Kind::DesireLines => &DESIRE_CHECKS,
         _ => &[],
     };
     table
@@ -229,7 +241,7 @@ pub fn train_paths(
     written.push(write(
         out,
         &Spec {
-            net: &path_classifier,
+            layers: path_classifier.layer_views(),
             weights: Weights::F32,
             inputs: &[("frame", set.frames.ncols())],
             normalize: None,
@@ -341,15 +353,7 @@ fn train_gan(
     let mut metrics = measure(&mut trained.generator);
     metrics.insert("train_seconds".into(), seconds);
     let checks = checks(run.kinds[0], &metrics);
-    let passed = checks.iter().all(Check::passed);
-    let dir = if passed || options.accept_failed {
-        out.to_owned()
-    } else {
-        let dir = out.join("failed");
-        std::fs::create_dir_all(&dir)
-            .with_context(|| format!("cannot create {}", dir.display()))?;
-        dir
-    };
+    let dir = destination(out, &checks, options)?;
     let mut written = write_gan(
         &dir,
         run.kinds,
@@ -364,6 +368,54 @@ fn train_gan(
         t.checks = checks.clone();
     }
     Ok(written)
+}
+
+/// Where a model that was held to `checks` is written: `out` when it passed
+/// them (or `accept_failed`), else `out/failed/`, where planners do not look.
+fn destination(out: &Path, checks: &[Check], options: &Options) -> anyhow::Result<PathBuf> {
+    if checks.iter().all(Check::passed) || options.accept_failed {
+        return Ok(out.to_owned());
+    }
+    let dir = out.join("failed");
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    Ok(dir)
+}
+
+/// Trains the desire lines on `walks` (cross-validating their settings) and
+/// writes `desire_lines.onnx` to `out`, or to `out/failed/` when it fails its
+/// checks (unless `accept_failed`).
+pub fn train_desire(
+    site: &Site,
+    walks: &[Trajectory],
+    options: &Options,
+    out: &Path,
+    progress: &mut dyn Progress,
+) -> anyhow::Result<Trained> {
+    let started = Instant::now();
+    progress.stage("desire lines", 1);
+    let trained = desire::train(&std::sync::Arc::new(site.clone()), walks)?;
+    progress.done();
+    let mut meta = Metadata::for_site(Kind::DesireLines, site);
+    meta.seed = options.seed;
+    meta.metrics = trained.metrics;
+    meta.metrics
+        .insert("train_seconds".into(), started.elapsed().as_secs_f64());
+    let checks = checks(Kind::DesireLines, &meta.metrics);
+    let dir = destination(out, &checks, options)?;
+    let file = dir.join(format!("{}.onnx", Kind::DesireLines.name()));
+    export::write_proto(&file, &trained.model.to_onnx(&meta))
+        .with_context(|| format!("cannot write {}", file.display()))?;
+    let m = &trained.model;
+    Ok(Trained {
+        bytes: std::fs::metadata(&file)?.len(),
+        file,
+        kind: Kind::DesireLines,
+        // Per bank line: 4 endpoint coordinates and the shape's 2 per point.
+        parameters: m.ends.len() * (4 + 2 * crate::model::desire::POINTS) + 2,
+        seconds: started.elapsed().as_secs_f64(),
+        metrics: meta.metrics,
+        checks,
+    })
 }
 
 /// Trains the localization cell classifier on `survey` and writes it to `out`.
@@ -432,7 +484,7 @@ pub fn train_cells(
     write(
         out,
         &Spec {
-            net: &net,
+            layers: net.layer_views(),
             weights: Weights::F32,
             inputs: &[("rssi", survey.anchors.len())],
             normalize: Some(ClipScale {
@@ -523,7 +575,7 @@ fn write_gan(
         write(
             out,
             &Spec {
-                net,
+                layers: net.layer_views(),
                 weights,
                 inputs: &inputs,
                 normalize: None,
@@ -576,7 +628,7 @@ fn write(out: &Path, spec: &Spec, meta: Metadata, started: Instant) -> anyhow::R
         bytes: std::fs::metadata(&file)?.len(),
         file,
         kind: meta.kind,
-        parameters: spec.net.parameters(),
+        parameters: spec.parameters(),
         seconds: started.elapsed().as_secs_f64(),
         metrics: meta.metrics,
         checks: Vec::new(),

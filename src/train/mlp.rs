@@ -24,18 +24,9 @@ use ndarray::{Array1, Array2, ArrayView2, Axis, Zip, s};
 use rand::RngExt;
 use rand::rngs::Xoshiro256PlusPlus;
 
-/// The slope of LeakyReLU for negative inputs (as in the paper's Keras setup).
-pub const LEAKY_SLOPE: f32 = 0.2;
-
-/// What follows a layer's affine map.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Act {
-    LeakyRelu,
-    Tanh,
-    /// No nonlinearity: the layer outputs logits, and the loss (or the exported
-    /// graph) applies sigmoid or softmax.
-    Identity,
-}
+/// The activations and LeakyReLU slope of the exported graphs: the file
+/// format owns them, the trainer implements them.
+pub use crate::model::export::{Act, LEAKY_SLOPE};
 
 /// Adam hyper-parameters.
 #[derive(Clone, Copy, Debug)]
@@ -176,6 +167,18 @@ impl Mlp {
                 .w
                 .mapv_inplace(|v| tract_onnx::prelude::f16::from_f32(v).to_f32());
         }
+    }
+
+    /// The layers as [`crate::model::export`] writes them.
+    pub fn layer_views(&self) -> Vec<crate::model::export::Layer<'_>> {
+        self.layers
+            .iter()
+            .map(|l| crate::model::export::Layer {
+                w: l.w.view(),
+                b: l.b.view(),
+                act: l.act,
+            })
+            .collect()
     }
 
     /// Number of trainable parameters.

@@ -6,6 +6,8 @@
 //!   class; survey readings with their cell);
 //! - [`mlp`]: the dense-network trainer (why it is hand-written: see there);
 //! - [`gan`] and [`classifier`]: the paper's GAN and the softmax classifiers;
+//! - [`desire`]: the desire-line model (the walks' shapes, settings by
+//!   cross-validation);
 //! - [`recorded`]: walks and rated routes from the daemon's learning store;
 //! - [`job`]: what `gangway train` trains, measures and writes.
 //!
@@ -14,6 +16,7 @@
 
 pub mod cells;
 pub mod classifier;
+pub mod desire;
 pub mod frame;
 pub mod gan;
 pub mod job;

@@ -180,7 +180,10 @@ pub fn write_config(path: &Path, gateway_id: &str, site: &Path, broker: &Broker,
     std::fs::write(
         path,
         format!(
-            "gateway_id = \"{gateway_id}\"\nsite = \"{}\"\n{extra}\n[mqtt]\nurl = \"{}\"\n\
+            "gateway_id = \"{gateway_id}\"\nsite = \"{}\"\n{extra}\n\
+             # The web UI on a port of its own, so gateways of tests run at once never\n\
+             # compete for the default one. ([mqtt] stays last: tests append to it.)\n\
+             [web]\nbind = \"127.0.0.1:0\"\n[mqtt]\nurl = \"{}\"\n\
              stats_interval_s = 1\nreconnect_min_s = 0.2\nreconnect_max_s = 1.0\n",
             site.display(),
             broker.url()

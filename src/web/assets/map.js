@@ -1,0 +1,533 @@
+// The live map: the site over its floor plan, every tracked device moving
+// as the gateway locates it (Server-Sent Events from /api/live), its recent
+// trail and a halo sized by its confidence, routes requested by clicking a
+// device and a place, and the gateway's status.
+//
+// Device ids and place names come from the air and the broker: they are
+// only ever set as text (textContent, <title>), never parsed as HTML.
+
+import { api, h, s, fill, Frame, PlanView, drawSite, drawFloorplan, token, setToken } from "/assets/site.js";
+
+const $ = (id) => document.getElementById(id);
+/** Fixes kept per device for its trail. */
+const TRAIL = 20;
+/** Above this many devices only the selected device's trail is drawn. */
+const TRAILS_FOR_ALL = 200;
+/** Share of fixes inside the halo, for a circular normal error whose
+ * chance of being within one cell is the published confidence. */
+const HALO_SHARE = 0.68;
+/** Devices in the list at most (the map shows them all). */
+const LIST_MAX = 200;
+
+let site = null;
+let access = {};
+// Dragging pans, except on a device or a place, which take clicks.
+const view = new PlanView($("plan"), { panWithLeft: (e) => !(e.target.closest && e.target.closest(".device, .place")) });
+const devices = new Map(); // id -> { id, cell, t, confidence, place, trail: [[gx, gy]], node, trailNode, dirty }
+let selected = null; // device id
+let routes = new Map(); // device -> last path payload
+let guidance = new Map(); // device -> last guidance payload
+let pending = []; // fix batches waiting for the next frame
+let frameQueued = false;
+const latencies = []; // ms from the gateway sending a fix to its dot being drawn
+const frameWork = []; // ms of main-thread work (script, style, layout, paint) per drawn frame
+const frameIntervals = []; // ms between frames
+let lastFrame = 0;
+// A message posted during a frame is delivered once that frame is rendered:
+// the time until then is the frame's work.
+const afterPaint = new MessageChannel();
+afterPaint.port1.onmessage = (e) => {
+  frameWork.push(performance.now() - e.data);
+  if (frameWork.length > 600) frameWork.shift();
+};
+let received = 0;
+
+function haloRadius(confidence) {
+  // P(d <= 1 cell) = 1 - exp(-1 / (2 sigma^2)) = confidence.
+  const c = Math.min(Math.max(confidence, 0.01), 0.995);
+  const sigma2 = -1 / (2 * Math.log(1 - c));
+  const r = Math.sqrt(-2 * sigma2 * Math.log(1 - HALO_SHARE));
+  return Math.min(Math.max(r, 0.35), 12);
+}
+
+async function load() {
+  access = await api("/api/access");
+  $("token-box").hidden = !access.needs_token;
+  $("token").value = token();
+  $("edit-link").hidden = !access.editor;
+  $("survey").hidden = !access.survey;
+  site = await api("/api/site");
+  fill($("site-name"), site.name);
+  document.title = `gangway · ${site.name}`;
+  const plan = site.floorplan;
+  drawFloorplan(view.layers.floorplan, plan && plan.url, plan && plan.matrix, plan && plan.width, plan && plan.height);
+  drawSite(view, site, { withPlan: !!plan });
+  view.fit(0, 0, site.width, site.height);
+  fill(
+    $("places"),
+    site.places.map((p) => h("li", {}, h("button", { type: "button", class: "link", onclick: () => pickPlace(p) }, `${p.name}  [${p.cell.join(", ")}]`))),
+  );
+  for (const node of view.layers.places.querySelectorAll(".place")) {
+    node.addEventListener("click", (e) => {
+      if ($("survey-on").checked) return; // a spot to survey, like any cell
+      e.stopPropagation();
+      pickPlace(site.places.find((p) => p.name === node.dataset.place));
+    });
+  }
+  connect();
+  refreshSurvey();
+}
+
+$("token").addEventListener("change", () => setToken($("token").value.trim()));
+
+$("plan").addEventListener("pointermove", (e) => {
+  if (!site) return;
+  const [gx, gy] = view.toGrid(e);
+  fill($("cursor"), `cell [${Math.floor(gx)}, ${Math.floor(gy)}]`);
+});
+
+$("plan").addEventListener("click", (e) => {
+  if (view.lastDragMoved || !site || !selected) return;
+  if (e.target.closest(".device") || (e.target.closest(".place") && !$("survey-on").checked)) return;
+  const [gx, gy] = view.toGrid(e);
+  if ($("survey-on").checked) return surveyAt([gx, gy]);
+  const x = Math.floor(gx);
+  const y = Math.floor(gy);
+  if (x < 0 || y < 0 || x >= site.width || y >= site.height || site.tiles[y * site.width + x] === ".") return;
+  requestRoute([x, y], `cell [${x}, ${y}]`);
+});
+
+// ---- live updates ----
+
+function connect() {
+  const source = new EventSource("/api/live");
+  source.addEventListener("open", () => fill($("connection"), "live"));
+  source.addEventListener("error", () => fill($("connection"), h("span", { class: "bad" }, "reconnecting…")));
+  source.addEventListener("snapshot", (e) => {
+    const snap = JSON.parse(e.data);
+    for (const d of devices.values()) removeDevice(d.id);
+    for (const fix of snap.devices) applyFix(fix, snap.sent_ms, false);
+    routes = new Map(snap.routes.map((r) => [r.device, r]));
+    guidance = new Map(snap.guidance.map((g) => [g.device, g]));
+    schedule();
+    showRoute();
+  });
+  source.addEventListener("fixes", (e) => {
+    pending.push(JSON.parse(e.data));
+    schedule();
+  });
+  source.addEventListener("forget", (e) => {
+    for (const id of JSON.parse(e.data)) removeDevice(id);
+    schedule();
+  });
+  source.addEventListener("path", (e) => {
+    const path = JSON.parse(e.data);
+    routes.set(path.device, path);
+    if (path.device === selected) showRoute();
+  });
+  source.addEventListener("guidance", (e) => {
+    const g = JSON.parse(e.data);
+    guidance.set(g.device, g);
+    if (g.device === selected) showRoute();
+  });
+  source.addEventListener("status", (e) => showStatus(JSON.parse(e.data)));
+}
+
+function schedule() {
+  if (!frameQueued) {
+    frameQueued = true;
+    requestAnimationFrame(frame);
+  }
+}
+
+function frame() {
+  const started = performance.now();
+  afterPaint.port2.postMessage(started);
+  frameQueued = false;
+  const batches = pending;
+  pending = [];
+  for (const batch of batches) {
+    for (const fix of batch.fixes) applyFix(fix, batch.sent_ms, true);
+  }
+  draw();
+  // Drawn in this frame: the time from the gateway sending the batch to now.
+  const drawnAt = Date.now();
+  for (const batch of batches) {
+    received += batch.fixes.length;
+    latencies.push(drawnAt - batch.sent_ms);
+  }
+  if (latencies.length > 2000) latencies.splice(0, latencies.length - 2000);
+}
+
+function applyFix(fix, sentMs, live) {
+  let d = devices.get(fix.device);
+  if (!d) {
+    d = { id: fix.device, trail: [], node: null, trailNode: null };
+    devices.set(fix.device, d);
+    d.listDirty = true;
+  }
+  d.t = fix.t;
+  d.confidence = fix.confidence;
+  noteConfidence(fix);
+  d.place = fix.place;
+  d.unknown = !fix.cell;
+  if (fix.cell) {
+    d.cell = fix.cell;
+    const at = [fix.cell[0] + 0.5, fix.cell[1] + 0.5];
+    const last = d.trail[d.trail.length - 1];
+    if (!last || last[0] !== at[0] || last[1] !== at[1]) d.trail.push(at);
+    if (d.trail.length > TRAIL) d.trail.shift();
+    if (fix.trail && !live) d.trail = fix.trail.map((c) => [c[0] + 0.5, c[1] + 0.5]);
+  }
+  d.dirty = true;
+}
+
+function describe(d) {
+  let title = d.node.querySelector("title");
+  if (!title) d.node.append((title = s("title", {})));
+  title.textContent = `${d.id}: ${d.unknown ? "unknown (last located here)" : d.place || "cell " + d.cell.join(", ")}, confidence ${(d.confidence * 100).toFixed(0)} %`;
+}
+
+function removeDevice(id) {
+  const d = devices.get(id);
+  if (!d) return;
+  if (d.node) d.node.remove();
+  if (d.trailNode) d.trailNode.remove();
+  devices.delete(id);
+  if (selected === id) selected = null;
+  listDirty = true;
+}
+
+let listDirty = true;
+
+function draw() {
+  const allTrails = devices.size <= TRAILS_FOR_ALL;
+  for (const d of devices.values()) {
+    if (d.listDirty) {
+      listDirty = true;
+      d.listDirty = false;
+    }
+    if (!d.dirty) continue;
+    d.dirty = false;
+    if (!d.cell) continue; // never located: in the list only
+    if (!d.node) {
+      d.node = s("g", { class: "device", "data-device": d.id }, s("circle", { class: "halo" }), s("circle", { class: "dot", r: 0.3 }));
+      d.node.addEventListener("click", (e) => {
+        e.stopPropagation();
+        selectDevice(d.id);
+      });
+      // The tooltip is written when the pointer comes, not on every fix.
+      d.node.addEventListener("pointerenter", () => describe(d));
+      view.layers.devices.append(d.node);
+      d.shown = {};
+    }
+    // Only what changed is written: at a thousand fixes a second, every
+    // attribute set costs style and layout work in the next frame.
+    const [x, y] = d.trail[d.trail.length - 1] || [d.cell[0] + 0.5, d.cell[1] + 0.5];
+    const at = `translate(${x} ${y})`;
+    const halo = d.unknown ? 0 : Math.round(haloRadius(d.confidence) * 20) / 20;
+    const state = (d.unknown ? 1 : 0) + (d.id === selected ? 2 : 0);
+    if (d.shown.at !== at) d.node.setAttribute("transform", (d.shown.at = at));
+    if (d.shown.halo !== halo) d.node.firstChild.setAttribute("r", (d.shown.halo = halo));
+    if (d.shown.state !== state) {
+      d.shown.state = state;
+      d.node.classList.toggle("unknown", d.unknown);
+      d.node.classList.toggle("selected", d.id === selected);
+    }
+    const showTrail = (allTrails || d.id === selected) && d.trail.length > 1;
+    if (showTrail) {
+      if (!d.trailNode) {
+        d.trailNode = s("polyline", { class: "trail" });
+        view.layers.trails.append(d.trailNode);
+      }
+      d.trailNode.setAttribute("points", d.trail.map((p) => p.join(",")).join(" "));
+    } else if (d.trailNode) {
+      d.trailNode.remove();
+      d.trailNode = null;
+    }
+  }
+  if (listDirty) {
+    listDirty = false;
+    renderList();
+  }
+  if ($("device-count").textContent !== String(devices.size)) fill($("device-count"), String(devices.size));
+}
+
+$("device-filter").addEventListener("input", () => {
+  listDirty = true;
+  schedule();
+});
+
+let listTimer = 0;
+function renderList() {
+  // The list is text; at most every half second however fast fixes come.
+  if (listTimer) return;
+  listTimer = setTimeout(() => {
+    listTimer = 0;
+    const filter = $("device-filter").value.trim().toLowerCase();
+    const ids = [...devices.keys()].filter((id) => !filter || id.toLowerCase().includes(filter)).sort();
+    const items = ids.slice(0, LIST_MAX).map((id) => {
+      const d = devices.get(id);
+      const where = d.unknown ? "unknown" : d.place || (d.cell ? `[${d.cell.join(", ")}]` : "unknown");
+      return h(
+        "li",
+        { class: id === selected ? "selected" : "" },
+        h("button", { type: "button", class: "link", onclick: () => selectDevice(id) }, id),
+        h("span", { class: d.unknown ? "muted" : "" }, where),
+      );
+    });
+    if (ids.length > LIST_MAX) items.push(h("li", { class: "muted" }, `… and ${ids.length - LIST_MAX} more (filter to find one)`));
+    fill($("devices"), items);
+  }, 500);
+}
+
+// ---- routes ----
+
+function selectDevice(id) {
+  const before = selected && devices.get(selected);
+  selected = id;
+  if (before) before.dirty = true;
+  const d = devices.get(id);
+  if (d) d.dirty = true;
+  listDirty = true;
+  fill($("route-pick"), "device ", h("b", {}, id), ": now click a place");
+  showRoute();
+  schedule();
+}
+
+function pickPlace(place) {
+  if (!place || $("survey-on").checked) return;
+  if (!selected) {
+    fill($("route-pick"), h("span", { class: "bad" }, "click a device first"));
+    return;
+  }
+  requestRoute(place.name, place.name);
+}
+
+async function requestRoute(to, shown) {
+  const device = selected;
+  const body = { device, to };
+  if ($("profile").value) body.profile = $("profile").value;
+  fill($("route-pick"), "asking a route for ", h("b", {}, device), " to ", h("b", {}, shown), "…");
+  try {
+    const reply = await api("/api/route", { method: "POST", json: body });
+    fill($("route-pick"), "route requested for ", h("b", {}, device), " to ", h("b", {}, shown), ` (${reply.request_id})`);
+  } catch (e) {
+    fill($("route-pick"), h("span", { class: "bad" }, e.message));
+  }
+}
+
+function showRoute() {
+  const path = selected && routes.get(selected);
+  const box = $("route");
+  if (!path) {
+    fill(view.layers.route);
+    fill(box);
+    return;
+  }
+  if (path.error) {
+    fill(view.layers.route);
+    fill(box, h("p", { class: "bad" }, `${path.error.code}: ${path.error.message}`));
+    return;
+  }
+  const points = path.waypoints.map((w) => `${w.cell[0] + 0.5},${w.cell[1] + 0.5}`).join(" ");
+  const end = path.waypoints[path.waypoints.length - 1].cell;
+  fill(
+    view.layers.route,
+    s("polyline", { class: "route", points }),
+    s("circle", { class: "route-end", cx: end[0] + 0.5, cy: end[1] + 0.5, r: 0.45 }),
+  );
+  const g = guidance.get(selected);
+  const progress = [];
+  if (g && g.request_id === path.request_id) {
+    const total = g.progress_m + g.remaining_m;
+    progress.push(
+      h("p", {}, h("b", {}, g.state.replace("_", " ")), g.text ? ` · ${g.text}` : ""),
+      h("progress", { max: total > 0 ? total.toFixed(1) : 1, value: g.progress_m.toFixed(1) }),
+      h("p", { class: "muted" }, `${g.progress_m.toFixed(1)} m walked, ${g.remaining_m.toFixed(1)} m to go, about ${Math.round(g.eta_s)} s; reroutes ${g.reroutes}`),
+    );
+  }
+  fill(
+    box,
+    h("p", {}, `${path.length_m.toFixed(1)} m by ${path.planner}, planned in ${(path.latency_us / 1000).toFixed(2)} ms`),
+    progress,
+    h("ol", { class: "instructions" }, path.instructions.map((i) => h("li", {}, i.text))),
+  );
+}
+
+// ---- survey ----
+
+/** The selected device stands at grid point `g`: record its fingerprints there. */
+async function surveyAt(g) {
+  const [x, y] = new Frame(site.cell_m, site.origin_m, site.y_axis).world(g).map((v) => Math.round(v * 100) / 100);
+  const samples = Math.round(Number($("survey-samples").value)) || 10;
+  try {
+    await api("/api/survey", { method: "POST", json: { device: selected, x_m: x, y_m: y, samples } });
+    refreshSurvey();
+  } catch (e) {
+    fill($("survey-status"), h("span", { class: "bad" }, e.message));
+  }
+}
+
+$("survey-stop").addEventListener("click", async () => {
+  try {
+    await api("/api/survey/stop", { method: "POST", json: {} });
+  } catch (e) {
+    fill($("survey-status"), h("span", { class: "bad" }, e.message));
+  }
+  refreshSurvey();
+});
+
+$("survey-on").addEventListener("change", () => {
+  $("plan").dataset.tool = $("survey-on").checked ? "survey" : "pan";
+  refreshSurvey();
+});
+$("heat").addEventListener("change", () => refreshSurvey());
+
+let survey = null;
+async function refreshSurvey() {
+  if (!access.survey) return;
+  try {
+    survey = await api("/api/survey");
+  } catch (e) {
+    fill($("survey-status"), h("span", { class: "bad" }, e.message));
+    return;
+  }
+  const heat = $("heat");
+  const known = new Set([...heat.options].map((o) => o.value));
+  survey.anchors.forEach((id, i) => {
+    if (!known.has("rssi:" + i)) heat.append(h("option", { value: "rssi:" + i }, `RSSI of ${id}`));
+  });
+  const spot = survey.spot;
+  $("survey-stop").hidden = !spot || spot.taken >= spot.wanted;
+  const covered = survey.cells.length;
+  const lines = [`${survey.recorded} windows recorded here; ${covered} cells surveyed in ${survey.file}`];
+  if (spot) lines.unshift(`${spot.device} at ${spot.x_m}, ${spot.y_m} m: ${spot.taken} of ${spot.wanted} windows${spot.taken >= spot.wanted ? " (done)" : "…"}`);
+  if (survey.error) lines.push(survey.error);
+  fill($("survey-status"), lines.map((l) => h("div", {}, l)));
+  drawHeat();
+}
+setInterval(() => {
+  if ($("survey-on").checked || $("heat").value) refreshSurvey();
+}, 2000);
+
+/** Colours from blue (low) to red (high). */
+function ramp(v) {
+  const k = Math.min(1, Math.max(0, v));
+  return `hsl(${Math.round(240 - 240 * k)} 85% 50%)`;
+}
+
+const confidence = new Map(); // "x,y" -> [sum, count] of published confidences
+function noteConfidence(fix) {
+  if (!fix.cell) return;
+  const key = fix.cell.join(",");
+  const c = confidence.get(key) || [0, 0];
+  c[0] += fix.confidence;
+  c[1] += 1;
+  confidence.set(key, c);
+}
+
+function drawHeat() {
+  const mode = $("heat").value;
+  const cells = [];
+  let legend = "";
+  if (mode === "samples" && survey) {
+    const most = Math.max(1, ...survey.cells.map((c) => c.samples));
+    for (const c of survey.cells) cells.push([c.cell, c.samples / most, `${c.samples} windows`]);
+    legend = `blue: few windows, red: ${most}; cells without colour are not surveyed`;
+  } else if (mode.startsWith("rssi:") && survey) {
+    const i = Number(mode.slice(5));
+    for (const c of survey.cells) {
+      const r = c.rssi[i];
+      if (r !== null && r !== undefined) cells.push([c.cell, (r + 100) / 60, `${r.toFixed(0)} dBm`]);
+    }
+    legend = `mean RSSI of ${survey.anchors[i]} where surveyed: blue -100 dBm, red -40 dBm; no colour: not heard`;
+  } else if (mode === "confidence") {
+    for (const [key, [sum, n]] of confidence) cells.push([key.split(",").map(Number), sum / n, `mean confidence ${(sum / n).toFixed(2)} over ${n} fixes`]);
+    legend = "mean published confidence of the fixes in each cell since this page opened: blue 0, red 1";
+  }
+  fill($("heat-legend"), legend);
+  fill(
+    view.layers.heat,
+    cells.map(([cell, v, title]) =>
+      s("rect", { class: "heat", x: cell[0], y: cell[1], width: 1, height: 1, fill: ramp(v) }, s("title", {}, title)),
+    ),
+  );
+}
+
+// ---- status ----
+
+const STATUS_KEYS = [
+  ["mqtt", "broker"],
+  ["ble_state", "radio"],
+  ["tracked", "devices tracked"],
+  ["fixes", "fixes"],
+  ["sightings", "sightings"],
+  ["routes", "routes"],
+  ["request_errors", "request errors"],
+  ["pending_requests", "requests waiting"],
+  ["overloaded", "overloaded"],
+  ["rate_limited", "rate limited"],
+  ["rejected_messages", "messages refused"],
+  ["evicted_devices", "devices forgotten"],
+  ["queue_depth", "queued to the broker"],
+  ["reloads", "reloads"],
+  ["uptime_s", "up"],
+];
+
+function showStatus(stats) {
+  const rows = [];
+  for (const [key, label] of STATUS_KEYS) {
+    let value = key === "ble_state" ? stats.ble && stats.ble.state : stats[key];
+    if (value === undefined || value === null) continue;
+    if (key === "uptime_s") value = `${Math.floor(value / 60)} min`;
+    rows.push(h("dt", {}, label), h("dd", {}, String(value)));
+  }
+  fill($("status"), rows);
+  fill($("fallbacks"), (stats.fallbacks || []).length ? stats.fallbacks.map((f) => h("li", {}, f)) : [h("li", { class: "ok" }, "none")]);
+}
+
+function percentile(values, p) {
+  if (!values.length) return NaN;
+  const sorted = [...values].sort((a, b) => a - b);
+  return sorted[Math.min(sorted.length - 1, Math.floor(p * sorted.length))];
+}
+
+/** This page's own figures: fixes a second, fix-to-screen latency, frame time. */
+function pageStats() {
+  const stats = {
+    fixes_per_s: received / 2,
+    latency_p50_ms: percentile(latencies, 0.5),
+    latency_p99_ms: percentile(latencies, 0.99),
+    frame_p50_ms: percentile(frameWork, 0.5),
+    frame_p99_ms: percentile(frameWork, 0.99),
+    interval_p50_ms: percentile(frameIntervals, 0.5),
+    devices: devices.size,
+  };
+  received = 0;
+  fill(
+    $("page-stats"),
+    h("dt", {}, "devices drawn"), h("dd", {}, String(stats.devices)),
+    h("dt", {}, "fixes a second"), h("dd", {}, stats.fixes_per_s.toFixed(0)),
+    h("dt", {}, "fix → screen p50 / p99"), h("dd", {}, `${stats.latency_p50_ms.toFixed(0)} / ${stats.latency_p99_ms.toFixed(0)} ms`),
+    h("dt", {}, "frame work p50 / p99"), h("dd", {}, `${stats.frame_p50_ms.toFixed(1)} / ${stats.frame_p99_ms.toFixed(1)} ms`),
+    h("dt", {}, "frame interval p50"), h("dd", {}, `${stats.interval_p50_ms.toFixed(1)} ms`),
+  );
+  $("page-stats").dataset.latencyP99 = stats.latency_p99_ms;
+  $("page-stats").dataset.latencyP50 = stats.latency_p50_ms;
+  $("page-stats").dataset.frameP50 = stats.frame_p50_ms;
+  $("page-stats").dataset.frameP99 = stats.frame_p99_ms;
+  $("page-stats").dataset.intervalP50 = stats.interval_p50_ms;
+}
+setInterval(pageStats, 2000);
+
+// Frame times, from the browser's own frame clock.
+function tick(now) {
+  if (lastFrame) frameIntervals.push(now - lastFrame);
+  if (frameIntervals.length > 600) frameIntervals.shift();
+  lastFrame = now;
+  requestAnimationFrame(tick);
+}
+requestAnimationFrame(tick);
+
+load().catch((e) => fill($("connection"), h("span", { class: "bad" }, e.message)));
