@@ -101,9 +101,10 @@ async fn serve(args: Args) -> anyhow::Result<()> {
             }
         }
     }
-    if let Some(web) = crate::web::start(config, site.clone(), &mut fallbacks).await {
-        web.add_to(&mut sources, &mut sinks);
-    }
+    let (shutdown, reload, reloads) = signals()?;
+    // The editor applies a saved site through the same reloads as SIGHUP.
+    let web = crate::web::start(config, site.clone(), &mut fallbacks, Some(reload)).await;
+    let latency = web.map(|web| web.add_to(&mut sources, &mut sinks));
     if let Some(out) = &args.out {
         sinks.push(Box::new(JsonLines::create(
             Topics::new(config.topic_prefix()),
@@ -125,19 +126,25 @@ async fn serve(args: Args) -> anyhow::Result<()> {
         share_sightings: mqtt::sink::shares_sightings(config),
         radio: Some(radio),
         fallbacks,
+        latency,
     };
-    let (shutdown, reloads) = signals()?;
     daemon::run(serving, options, sources, sinks, shutdown, reloads).await?;
     Ok(())
 }
 
 /// SIGTERM and SIGINT as the shutdown future, SIGHUP as reloads (one more
-/// asked while one is pending is the same reload).
-fn signals() -> anyhow::Result<(impl Future<Output = ()>, mpsc::Receiver<()>)> {
+/// asked while one is pending is the same reload), and a sender of more.
+#[allow(clippy::type_complexity)]
+fn signals() -> anyhow::Result<(
+    impl Future<Output = ()>,
+    mpsc::Sender<()>,
+    mpsc::Receiver<()>,
+)> {
     let mut terminate = signal(SignalKind::terminate())?;
     let mut interrupt = signal(SignalKind::interrupt())?;
     let mut hangup = signal(SignalKind::hangup())?;
     let (reload, reloads) = mpsc::channel(1);
+    let sender = reload.clone();
     tokio::spawn(async move {
         while hangup.recv().await.is_some() {
             if let Err(mpsc::error::TrySendError::Closed(())) = reload.try_send(()) {
@@ -151,7 +158,7 @@ fn signals() -> anyhow::Result<(impl Future<Output = ()>, mpsc::Receiver<()>)> {
             _ = interrupt.recv() => {}
         }
     };
-    Ok((shutdown, reloads))
+    Ok((shutdown, sender, reloads))
 }
 
 /// glibc raises its mmap threshold each time a large block is freed; after
