@@ -5,6 +5,14 @@
 //
 // Device ids and place names come from the air and the broker: they are
 // only ever set as text (textContent, <title>), never parsed as HTML.
+//
+// The devices (dots, halos, trails) are an SVG of their own over the plan's,
+// with the same view box, updated once per animation frame that has fixes,
+// and only where a device moved: in the plan's SVG, every moved dot made
+// the browser repaint the plan under it (10,000 cells, beacons, labels),
+// and a canvas redrawn whole each frame cost as much (docs/web.md,
+// "Measured"). The plan changes only on a reload; its labels are laid out
+// around each other (site.js).
 
 import { api, h, s, fill, Frame, PlanView, drawSite, drawFloorplan, token, setToken } from "/assets/site.js";
 
@@ -22,25 +30,49 @@ const LIST_MAX = 200;
 let site = null;
 let access = {};
 // Dragging pans, except on a device or a place, which take clicks.
-const view = new PlanView($("plan"), { panWithLeft: (e) => !(e.target.closest && e.target.closest(".device, .place")) });
-const devices = new Map(); // id -> { id, cell, t, confidence, place, trail: [[gx, gy]], node, trailNode, dirty }
+const view = new PlanView($("plan"), {
+  panWithLeft: (e) => !(e.target.closest && e.target.closest(".device, .place")),
+  overlays: [document.querySelector(".legend"), $("cursor")],
+});
+const devices = new Map(); // id -> { id, cell, t, confidence, place, unknown, trail: [[gx, gy]], shown, dirty }
+const layer = $("devices-layer");
+const layers = { trails: s("g", { class: "trails" }), halos: s("g", {}), dots: s("g", {}) };
+layer.append(layers.trails, layers.halos, layers.dots);
+/** Dots stay at least 3 screen pixels wide, whatever the zoom. */
+view.onChange(() => {
+  layer.setAttribute("viewBox", $("plan").getAttribute("viewBox"));
+  const r = `${Math.max(0.3, 3 * view.unitsPerPixel())}px`;
+  if (layer.style.getPropertyValue("--dot-r") !== r) layer.style.setProperty("--dot-r", r);
+});
 let selected = null; // device id
 let routes = new Map(); // device -> last path payload
 let guidance = new Map(); // device -> last guidance payload
 let pending = []; // fix batches waiting for the next frame
 let frameQueued = false;
-const latencies = []; // ms from the gateway sending a fix to its dot being drawn
+// This page's own figures, since it opened or since "reset".
+const FIGURES_KEPT = 20000;
+const latencies = []; // ms from the gateway's web sink taking a fix to its dot being drawn
 const frameWork = []; // ms of main-thread work (script, style, layout, paint) per drawn frame
 const frameIntervals = []; // ms between frames
 let lastFrame = 0;
+let received = 0; // fixes drawn since the page opened or "reset"
+let moved = 0; // dots that moved, likewise
+let countedSince = performance.now();
+function keep(list, value) {
+  list.push(value);
+  if (list.length > FIGURES_KEPT) list.splice(0, list.length - FIGURES_KEPT);
+}
 // A message posted during a frame is delivered once that frame is rendered:
 // the time until then is the frame's work.
 const afterPaint = new MessageChannel();
-afterPaint.port1.onmessage = (e) => {
-  frameWork.push(performance.now() - e.data);
-  if (frameWork.length > 600) frameWork.shift();
-};
-let received = 0;
+afterPaint.port1.onmessage = (e) => keep(frameWork, performance.now() - e.data);
+$("page-reset").addEventListener("click", () => {
+  for (const list of [latencies, frameWork, frameIntervals]) list.length = 0;
+  received = 0;
+  moved = 0;
+  countedSince = performance.now();
+  pageStats();
+});
 
 function haloRadius(confidence) {
   // P(d <= 1 cell) = 1 - exp(-1 / (2 sigma^2)) = confidence.
@@ -56,13 +88,20 @@ async function load() {
   $("token").value = token();
   $("edit-link").hidden = !access.editor;
   $("survey").hidden = !access.survey;
+  await loadSite(true);
+  connect();
+  refreshSurvey();
+}
+
+/** Draws the site the gateway serves (again after a reload). */
+async function loadSite(first) {
   site = await api("/api/site");
   fill($("site-name"), site.name);
   document.title = `gangway · ${site.name}`;
   const plan = site.floorplan;
   drawFloorplan(view.layers.floorplan, plan && plan.url, plan && plan.matrix, plan && plan.width, plan && plan.height);
   drawSite(view, site, { withPlan: !!plan });
-  view.fit(0, 0, site.width, site.height);
+  if (first) view.fit(0, 0, site.width, site.height);
   fill(
     $("places"),
     site.places.map((p) => h("li", {}, h("button", { type: "button", class: "link", onclick: () => pickPlace(p) }, `${p.name}  [${p.cell.join(", ")}]`))),
@@ -70,12 +109,12 @@ async function load() {
   for (const node of view.layers.places.querySelectorAll(".place")) {
     node.addEventListener("click", (e) => {
       if ($("survey-on").checked) return; // a spot to survey, like any cell
+      if (!selected && deviceAt(e)) return; // a device standing there: pick it first
       e.stopPropagation();
       pickPlace(site.places.find((p) => p.name === node.dataset.place));
     });
   }
-  connect();
-  refreshSurvey();
+  $("plan").dataset.siteHash = site.map_hash;
 }
 
 $("token").addEventListener("change", () => setToken($("token").value.trim()));
@@ -84,11 +123,53 @@ $("plan").addEventListener("pointermove", (e) => {
   if (!site) return;
   const [gx, gy] = view.toGrid(e);
   fill($("cursor"), `cell [${Math.floor(gx)}, ${Math.floor(gy)}]`);
+  showTip(e, devicesAt(e));
 });
+$("plan").addEventListener("pointerleave", () => showTip(null, []));
+
+/** The located devices drawn under a pointer event, nearest first (the
+ * selected one first among equals: it is drawn on top). */
+function devicesAt(e) {
+  if (!site) return [];
+  const [gx, gy] = view.toGrid(e);
+  const reach = Math.max(0.5, 8 * view.unitsPerPixel());
+  const near = [];
+  for (const d of devices.values()) {
+    if (!d.cell) continue;
+    const dd = Math.hypot(d.cell[0] + 0.5 - gx, d.cell[1] + 0.5 - gy);
+    if (dd <= reach) near.push([dd - (d.id === selected ? 1e-6 : 0), d]);
+  }
+  return near.sort((a, b) => a[0] - b[0]).map(([, d]) => d);
+}
+
+function deviceAt(e) {
+  return devicesAt(e)[0] || null;
+}
+
+/** The tooltip of the devices under the pointer (text only). */
+function showTip(e, here) {
+  const tip = $("tip");
+  const d = here[0];
+  if (!d) {
+    tip.hidden = true;
+    return;
+  }
+  const others = here.slice(1, 4).map((o) => o.id);
+  const more = here.length > 4 ? `, … ${here.length - 4} more` : "";
+  tip.textContent =
+    `${d.id}: ${d.unknown ? "unknown (last located here)" : d.place || "cell " + d.cell.join(", ")}, confidence ${(d.confidence * 100).toFixed(0)} %` +
+    (others.length ? ` · also here: ${others.join(", ")}${more}` : "");
+  const frame = $("plan").getBoundingClientRect();
+  tip.style.left = `${e.clientX - frame.left + 12}px`;
+  tip.style.top = `${e.clientY - frame.top + 12}px`;
+  tip.hidden = false;
+}
 
 $("plan").addEventListener("click", (e) => {
-  if (view.lastDragMoved || !site || !selected) return;
-  if (e.target.closest(".device") || (e.target.closest(".place") && !$("survey-on").checked)) return;
+  if (view.lastDragMoved || !site) return;
+  const hit = deviceAt(e);
+  if (hit && !$("survey-on").checked) return selectDevice(hit.id);
+  if (!selected || (e.target.closest(".place") && !$("survey-on").checked)) return;
   const [gx, gy] = view.toGrid(e);
   if ($("survey-on").checked) return surveyAt([gx, gy]);
   const x = Math.floor(gx);
@@ -131,6 +212,8 @@ function connect() {
     if (g.device === selected) showRoute();
   });
   source.addEventListener("status", (e) => showStatus(JSON.parse(e.data)));
+  // The gateway reloaded its site (SIGHUP, or a save in the editor).
+  source.addEventListener("site", () => loadSite(false).catch((e) => fill($("connection"), h("span", { class: "bad" }, e.message))));
 }
 
 function schedule() {
@@ -150,21 +233,20 @@ function frame() {
     for (const fix of batch.fixes) applyFix(fix, batch.sent_ms, true);
   }
   draw();
-  // Drawn in this frame: the time from the gateway sending the batch to now.
+  // Drawn in this frame: the time from the web sink taking the batch's
+  // oldest fix to now.
   const drawnAt = Date.now();
   for (const batch of batches) {
     received += batch.fixes.length;
-    latencies.push(drawnAt - batch.sent_ms);
+    keep(latencies, drawnAt - (batch.taken_ms || batch.sent_ms));
   }
-  if (latencies.length > 2000) latencies.splice(0, latencies.length - 2000);
 }
 
 function applyFix(fix, sentMs, live) {
   let d = devices.get(fix.device);
   if (!d) {
-    d = { id: fix.device, trail: [], node: null, trailNode: null };
+    d = { id: fix.device, trail: [], dot: null, halo: null, trailNode: null, shown: null };
     devices.set(fix.device, d);
-    d.listDirty = true;
   }
   d.t = fix.t;
   d.confidence = fix.confidence;
@@ -182,17 +264,10 @@ function applyFix(fix, sentMs, live) {
   d.dirty = true;
 }
 
-function describe(d) {
-  let title = d.node.querySelector("title");
-  if (!title) d.node.append((title = s("title", {})));
-  title.textContent = `${d.id}: ${d.unknown ? "unknown (last located here)" : d.place || "cell " + d.cell.join(", ")}, confidence ${(d.confidence * 100).toFixed(0)} %`;
-}
-
 function removeDevice(id) {
   const d = devices.get(id);
   if (!d) return;
-  if (d.node) d.node.remove();
-  if (d.trailNode) d.trailNode.remove();
+  for (const node of [d.halo, d.dot, d.trailNode]) if (node) node.remove();
   devices.delete(id);
   if (selected === id) selected = null;
   listDirty = true;
@@ -200,45 +275,47 @@ function removeDevice(id) {
 
 let listDirty = true;
 
+/** Writes what changed since the last frame into the devices' SVG. */
 function draw() {
   const allTrails = devices.size <= TRAILS_FOR_ALL;
   for (const d of devices.values()) {
-    if (d.listDirty) {
-      listDirty = true;
-      d.listDirty = false;
-    }
     if (!d.dirty) continue;
     d.dirty = false;
+    listDirty = true;
     if (!d.cell) continue; // never located: in the list only
-    if (!d.node) {
-      d.node = s("g", { class: "device", "data-device": d.id }, s("circle", { class: "halo" }), s("circle", { class: "dot", r: 0.3 }));
-      d.node.addEventListener("click", (e) => {
-        e.stopPropagation();
-        selectDevice(d.id);
-      });
-      // The tooltip is written when the pointer comes, not on every fix.
-      d.node.addEventListener("pointerenter", () => describe(d));
-      view.layers.devices.append(d.node);
+    if (!d.dot) {
+      d.halo = s("circle", { class: "halo" });
+      // The id as an attribute (set once, never parsed as markup): what
+      // the browser tests find a dot by.
+      d.dot = s("circle", { class: "dot", "data-device": d.id });
+      layers.halos.append(d.halo);
+      layers.dots.append(d.dot);
       d.shown = {};
     }
-    // Only what changed is written: at a thousand fixes a second, every
-    // attribute set costs style and layout work in the next frame.
-    const [x, y] = d.trail[d.trail.length - 1] || [d.cell[0] + 0.5, d.cell[1] + 0.5];
+    // Only what changed is written: every attribute set costs style and
+    // paint work in the next frame.
+    const [x, y] = [d.cell[0] + 0.5, d.cell[1] + 0.5];
     const at = `translate(${x} ${y})`;
     const halo = d.unknown ? 0 : Math.round(haloRadius(d.confidence) * 20) / 20;
-    const state = (d.unknown ? 1 : 0) + (d.id === selected ? 2 : 0);
-    if (d.shown.at !== at) d.node.setAttribute("transform", (d.shown.at = at));
-    if (d.shown.halo !== halo) d.node.firstChild.setAttribute("r", (d.shown.halo = halo));
+    const state = (d.unknown ? "unknown" : "located") + (d.id === selected ? " selected" : "");
+    if (d.shown.at !== at) {
+      if (d.shown.at) moved++;
+      d.halo.setAttribute("transform", at);
+      d.dot.setAttribute("transform", (d.shown.at = at));
+    }
+    if (d.shown.halo !== halo) d.halo.setAttribute("r", (d.shown.halo = halo));
     if (d.shown.state !== state) {
       d.shown.state = state;
-      d.node.classList.toggle("unknown", d.unknown);
-      d.node.classList.toggle("selected", d.id === selected);
+      d.halo.setAttribute("class", "halo " + state);
+      d.dot.setAttribute("class", "dot " + state);
+      // The selected device is drawn over the others.
+      if (d.id === selected) layers.dots.append(d.dot);
     }
     const showTrail = (allTrails || d.id === selected) && d.trail.length > 1;
     if (showTrail) {
       if (!d.trailNode) {
         d.trailNode = s("polyline", { class: "trail" });
-        view.layers.trails.append(d.trailNode);
+        layers.trails.append(d.trailNode);
       }
       d.trailNode.setAttribute("points", d.trail.map((p) => p.join(",")).join(" "));
     } else if (d.trailNode) {
@@ -259,26 +336,39 @@ $("device-filter").addEventListener("input", () => {
 });
 
 let listTimer = 0;
+let listed = { ids: [], rows: new Map(), more: 0 }; // what the list shows
 function renderList() {
-  // The list is text; at most every half second however fast fixes come.
+  // The list is text; at most once a second however fast fixes come, and
+  // rebuilt only when its devices change (otherwise its texts are updated).
   if (listTimer) return;
   listTimer = setTimeout(() => {
     listTimer = 0;
     const filter = $("device-filter").value.trim().toLowerCase();
-    const ids = [...devices.keys()].filter((id) => !filter || id.toLowerCase().includes(filter)).sort();
-    const items = ids.slice(0, LIST_MAX).map((id) => {
+    const all = [...devices.keys()].filter((id) => !filter || id.toLowerCase().includes(filter)).sort();
+    const ids = all.slice(0, LIST_MAX);
+    const more = all.length - ids.length;
+    if (more !== listed.more || ids.length !== listed.ids.length || ids.some((id, i) => id !== listed.ids[i])) {
+      const rows = new Map();
+      const items = ids.map((id) => {
+        const where = h("span", {});
+        const li = h("li", { "data-device": id }, h("button", { type: "button", class: "link", onclick: () => selectDevice(id) }, id), where);
+        rows.set(id, { li, where });
+        return li;
+      });
+      if (more > 0) items.push(h("li", { class: "muted" }, `… and ${more} more (filter to find one)`));
+      fill($("devices"), items);
+      listed = { ids, rows, more };
+    }
+    for (const [id, row] of listed.rows) {
       const d = devices.get(id);
       const where = d.unknown ? "unknown" : d.place || (d.cell ? `[${d.cell.join(", ")}]` : "unknown");
-      return h(
-        "li",
-        { class: id === selected ? "selected" : "" },
-        h("button", { type: "button", class: "link", onclick: () => selectDevice(id) }, id),
-        h("span", { class: d.unknown ? "muted" : "" }, where),
-      );
-    });
-    if (ids.length > LIST_MAX) items.push(h("li", { class: "muted" }, `… and ${ids.length - LIST_MAX} more (filter to find one)`));
-    fill($("devices"), items);
-  }, 500);
+      const cell = d.cell ? d.cell.join(",") : "";
+      if (row.where.textContent !== where) row.where.textContent = where;
+      row.where.classList.toggle("muted", !!d.unknown);
+      row.li.classList.toggle("selected", id === selected);
+      if (row.li.dataset.cell !== cell) row.li.dataset.cell = cell;
+    }
+  }, 1000);
 }
 
 // ---- routes ----
@@ -296,7 +386,12 @@ function selectDevice(id) {
 }
 
 function pickPlace(place) {
-  if (!place || $("survey-on").checked) return;
+  if (!place) return;
+  // In survey mode a place (from the list too, for the keyboard) is a spot.
+  if ($("survey-on").checked) {
+    if (selected) surveyAt([place.cell[0] + 0.5, place.cell[1] + 0.5]);
+    return;
+  }
   if (!selected) {
     fill($("route-pick"), h("span", { class: "bad" }, "click a device first"));
     return;
@@ -489,14 +584,17 @@ function showStatus(stats) {
 
 function percentile(values, p) {
   if (!values.length) return NaN;
-  const sorted = [...values].sort((a, b) => a - b);
+  const sorted = Float64Array.from(values).sort(); // numeric, and fast
   return sorted[Math.min(sorted.length - 1, Math.floor(p * sorted.length))];
 }
 
 /** This page's own figures: fixes a second, fix-to-screen latency, frame time. */
 function pageStats() {
+  const now = performance.now();
+  const seconds = Math.max(0.001, (now - countedSince) / 1000);
   const stats = {
-    fixes_per_s: received / 2,
+    fixes_per_s: received / seconds,
+    moved_per_s: moved / seconds,
     latency_p50_ms: percentile(latencies, 0.5),
     latency_p99_ms: percentile(latencies, 0.99),
     frame_p50_ms: percentile(frameWork, 0.5),
@@ -504,11 +602,11 @@ function pageStats() {
     interval_p50_ms: percentile(frameIntervals, 0.5),
     devices: devices.size,
   };
-  received = 0;
   fill(
     $("page-stats"),
     h("dt", {}, "devices drawn"), h("dd", {}, String(stats.devices)),
     h("dt", {}, "fixes a second"), h("dd", {}, stats.fixes_per_s.toFixed(0)),
+    h("dt", {}, "dots moved a second"), h("dd", {}, stats.moved_per_s.toFixed(0)),
     h("dt", {}, "fix → screen p50 / p99"), h("dd", {}, `${stats.latency_p50_ms.toFixed(0)} / ${stats.latency_p99_ms.toFixed(0)} ms`),
     h("dt", {}, "frame work p50 / p99"), h("dd", {}, `${stats.frame_p50_ms.toFixed(1)} / ${stats.frame_p99_ms.toFixed(1)} ms`),
     h("dt", {}, "frame interval p50"), h("dd", {}, `${stats.interval_p50_ms.toFixed(1)} ms`),
@@ -518,13 +616,16 @@ function pageStats() {
   $("page-stats").dataset.frameP50 = stats.frame_p50_ms;
   $("page-stats").dataset.frameP99 = stats.frame_p99_ms;
   $("page-stats").dataset.intervalP50 = stats.interval_p50_ms;
+  $("page-stats").dataset.fixesPerS = stats.fixes_per_s;
+  $("page-stats").dataset.movedPerS = stats.moved_per_s;
+  $("page-stats").dataset.frames = frameWork.length;
+  $("page-stats").dataset.devices = stats.devices;
 }
 setInterval(pageStats, 2000);
 
 // Frame times, from the browser's own frame clock.
 function tick(now) {
-  if (lastFrame) frameIntervals.push(now - lastFrame);
-  if (frameIntervals.length > 600) frameIntervals.shift();
+  if (lastFrame) keep(frameIntervals, now - lastFrame);
   lastFrame = now;
   requestAnimationFrame(tick);
 }
