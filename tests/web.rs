@@ -164,7 +164,10 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
     assert!(hostile["tip"].to_string().contains("onerror"), "{hostile}");
 
     // Click walker-01's dot, then the help desk: a route and its instructions.
-    browser.click_at(dot_of(browser, "walker-01").await).await;
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while !browser.text("route-pick").await.contains("walker-01") && Instant::now() < deadline {
+        browser.click_at(dot_of(browser, "walker-01").await).await;
+    }
     let desk = browser
         .js("const r = document.querySelector('.place[data-place=\"help desk\"] rect').getBoundingClientRect();
              return [r.x + r.width / 2, r.y + r.height / 2]")
@@ -279,6 +282,16 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
             "return document.getElementById('heat-legend').textContent",
         )
         .await;
+    browser.screenshot("survey-coverage.png").await;
+    // The heat map of localization confidence covers every cell fixes fell in.
+    heat.select_by_value("confidence").await.unwrap();
+    browser
+        .until(
+            "the confidence map",
+            "return document.querySelectorAll('.layer-heat rect').length >= 5",
+            "return document.getElementById('heat-legend').textContent",
+        )
+        .await;
     browser.screenshot("survey.png").await;
 
     let metrics = ureq::get(&format!("{url}/metrics"))
@@ -372,15 +385,16 @@ async fn the_editor_in_the_gateway_applies_a_save(
     assert!(served["places"].to_string().contains("new desk"), "{served}");
 }
 
-/// The centre of a device's dot as drawn now (viewport coordinates).
+/// Where a device's dot is (viewport coordinates), from the cell the list
+/// shows (updated once a second, so callers retry while devices move).
 async fn dot_of(browser: &Browser, device: &str) -> [f64; 2] {
     let script = format!(
-        "const dot = [...document.querySelectorAll('#devices-layer .dot')].find(d => d.dataset.device === {});
-         const r = dot.getBoundingClientRect();
-         return [r.x + r.width / 2, r.y + r.height / 2]",
+        "const li = [...document.querySelectorAll('#devices li[data-device]')].find(l => l.dataset.device === {});
+         return li.dataset.cell.split(',').map(Number)",
         serde_json::to_string(device).unwrap()
     );
-    serde_json::from_value(browser.js(&script).await).unwrap()
+    let cell: [f64; 2] = serde_json::from_value(browser.js(&script).await).unwrap();
+    browser.grid_points(&[[cell[0] + 0.5, cell[1] + 0.5]]).await[0]
 }
 
 /// The value of a Prometheus series without labels.

@@ -6,13 +6,14 @@
 // Device ids and place names come from the air and the broker: they are
 // only ever set as text (textContent, <title>), never parsed as HTML.
 //
-// The devices (dots, halos, trails) are an SVG of their own over the plan's,
-// with the same view box, updated once per animation frame that has fixes,
-// and only where a device moved: in the plan's SVG, every moved dot made
-// the browser repaint the plan under it (10,000 cells, beacons, labels),
-// and a canvas redrawn whole each frame cost as much (docs/web.md,
-// "Measured"). The plan changes only on a reload; its labels are laid out
-// around each other (site.js).
+// The devices (dots, halos, trails) are drawn on a canvas over the plan's
+// SVG, whole, once per animation frame that has fixes: with a thousand
+// devices, an SVG element per dot made every frame re-record and re-raster
+// thousands of elements (frame work p50 31 ms at 1,000 fixes a second),
+// where a canvas draws them in three paths (docs/web.md, "Measured"). The
+// pointer finds devices in the device table (devicesAt), not the DOM. The
+// plan changes only on a reload; its labels are laid out around each other
+// (site.js).
 
 import { api, h, s, fill, Frame, PlanView, drawSite, drawFloorplan, token, setToken } from "/assets/site.js";
 
@@ -36,13 +37,10 @@ const view = new PlanView($("plan"), {
 });
 const devices = new Map(); // id -> { id, cell, t, confidence, place, unknown, trail: [[gx, gy]], shown, dirty }
 const layer = $("devices-layer");
-const layers = { trails: s("g", { class: "trails" }), halos: s("g", {}), dots: s("g", {}) };
-layer.append(layers.trails, layers.halos, layers.dots);
-/** Dots stay at least 3 screen pixels wide, whatever the zoom. */
+let redraw = true; // the canvas is out of date
 view.onChange(() => {
-  layer.setAttribute("viewBox", $("plan").getAttribute("viewBox"));
-  const r = `${Math.max(0.3, 3 * view.unitsPerPixel())}px`;
-  if (layer.style.getPropertyValue("--dot-r") !== r) layer.style.setProperty("--dot-r", r);
+  redraw = true;
+  schedule();
 });
 let selected = null; // device id
 let routes = new Map(); // device -> last path payload
@@ -245,7 +243,7 @@ function frame() {
 function applyFix(fix, sentMs, live) {
   let d = devices.get(fix.device);
   if (!d) {
-    d = { id: fix.device, trail: [], dot: null, halo: null, trailNode: null, shown: null };
+    d = { id: fix.device, trail: [], drawnAt: null };
     devices.set(fix.device, d);
   }
   d.t = fix.t;
@@ -267,62 +265,119 @@ function applyFix(fix, sentMs, live) {
 function removeDevice(id) {
   const d = devices.get(id);
   if (!d) return;
-  for (const node of [d.halo, d.dot, d.trailNode]) if (node) node.remove();
   devices.delete(id);
+  redraw = true;
   if (selected === id) selected = null;
   listDirty = true;
 }
 
 let listDirty = true;
 
-/** Writes what changed since the last frame into the devices' SVG. */
-function draw() {
+/** Paints every device on the canvas: trails, then halos, then dots (the
+ * selected device last, over the others), in grid units through the
+ * plan's view box. */
+function paint() {
+  const ratio = window.devicePixelRatio || 1;
+  const width = layer.clientWidth;
+  const height = layer.clientHeight;
+  if (layer.width !== Math.round(width * ratio) || layer.height !== Math.round(height * ratio)) {
+    layer.width = Math.round(width * ratio);
+    layer.height = Math.round(height * ratio);
+  }
+  const g = layer.getContext("2d");
+  g.setTransform(1, 0, 0, 1, 0, 0);
+  g.clearRect(0, 0, layer.width, layer.height);
+  if (!site) return;
+  const [bx, by, bw] = view.box;
+  const k = (width / bw) * ratio;
+  g.setTransform(k, 0, 0, k, -bx * k, -by * k);
+  const upp = view.unitsPerPixel();
+  // Dots stay at least 3 screen pixels wide, whatever the zoom.
+  const r = Math.max(0.3, 3 * upp);
   const allTrails = devices.size <= TRAILS_FOR_ALL;
+  const located = [];
+  const unknown = [];
+  let chosen = null;
+  for (const d of devices.values()) {
+    if (!d.cell) continue;
+    if (d.id === selected) chosen = d;
+    else (d.unknown ? unknown : located).push(d);
+  }
+  const trails = (list, color) => {
+    g.beginPath();
+    for (const d of list) {
+      if (d.trail.length < 2) continue;
+      g.moveTo(d.trail[0][0], d.trail[0][1]);
+      for (const [x, y] of d.trail.slice(1)) g.lineTo(x, y);
+    }
+    g.strokeStyle = color;
+    g.lineWidth = 0.1;
+    g.lineJoin = "round";
+    g.stroke();
+  };
+  const circles = (list, radius) => {
+    g.beginPath();
+    for (const d of list) {
+      const rr = radius(d);
+      if (rr <= 0) continue;
+      g.moveTo(d.cell[0] + 0.5 + rr, d.cell[1] + 0.5);
+      g.arc(d.cell[0] + 0.5, d.cell[1] + 0.5, rr, 0, 2 * Math.PI);
+    }
+  };
+  const halo = (d) => Math.round(haloRadius(d.confidence) * 20) / 20;
+  const dot = () => r;
+  if (allTrails) trails(located, "rgba(11, 107, 203, 0.35)");
+  circles(located, halo);
+  g.fillStyle = "rgba(11, 107, 203, 0.12)";
+  g.fill();
+  g.strokeStyle = "rgba(11, 107, 203, 0.35)";
+  g.lineWidth = 0.04;
+  g.stroke();
+  circles(unknown, dot);
+  g.fillStyle = "#98a2b3";
+  g.fill();
+  g.setLineDash([0.1, 0.06]);
+  g.strokeStyle = "#475467";
+  g.lineWidth = 0.08;
+  g.stroke();
+  g.setLineDash([]);
+  circles(located, dot);
+  g.fillStyle = "#0b6bcb";
+  g.fill();
+  g.strokeStyle = "#fff";
+  g.stroke();
+  if (chosen) {
+    trails([chosen], "rgba(11, 70, 140, 0.6)"); // not red: routes are
+    if (!chosen.unknown) {
+      circles([chosen], halo);
+      g.fillStyle = "rgba(217, 45, 32, 0.12)";
+      g.fill();
+      g.strokeStyle = "rgba(217, 45, 32, 0.35)";
+      g.lineWidth = 0.04;
+      g.stroke();
+    }
+    circles([chosen], dot);
+    g.fillStyle = chosen.unknown ? "#98a2b3" : "#d92d20";
+    g.fill();
+    g.strokeStyle = chosen.unknown ? "#d92d20" : "#fff";
+    g.lineWidth = 0.08;
+    g.stroke();
+  }
+}
+
+/** Draws the devices if anything changed since the last frame. */
+function draw() {
   for (const d of devices.values()) {
     if (!d.dirty) continue;
     d.dirty = false;
     listDirty = true;
+    redraw = true;
     if (!d.cell) continue; // never located: in the list only
-    if (!d.dot) {
-      d.halo = s("circle", { class: "halo" });
-      // The id as an attribute (set once, never parsed as markup): what
-      // the browser tests find a dot by.
-      d.dot = s("circle", { class: "dot", "data-device": d.id });
-      layers.halos.append(d.halo);
-      layers.dots.append(d.dot);
-      d.shown = {};
-    }
-    // Only what changed is written: every attribute set costs style and
-    // paint work in the next frame.
-    const [x, y] = [d.cell[0] + 0.5, d.cell[1] + 0.5];
-    const at = `translate(${x} ${y})`;
-    const halo = d.unknown ? 0 : Math.round(haloRadius(d.confidence) * 20) / 20;
-    const state = (d.unknown ? "unknown" : "located") + (d.id === selected ? " selected" : "");
-    if (d.shown.at !== at) {
-      if (d.shown.at) moved++;
-      d.halo.setAttribute("transform", at);
-      d.dot.setAttribute("transform", (d.shown.at = at));
-    }
-    if (d.shown.halo !== halo) d.halo.setAttribute("r", (d.shown.halo = halo));
-    if (d.shown.state !== state) {
-      d.shown.state = state;
-      d.halo.setAttribute("class", "halo " + state);
-      d.dot.setAttribute("class", "dot " + state);
-      // The selected device is drawn over the others.
-      if (d.id === selected) layers.dots.append(d.dot);
-    }
-    const showTrail = (allTrails || d.id === selected) && d.trail.length > 1;
-    if (showTrail) {
-      if (!d.trailNode) {
-        d.trailNode = s("polyline", { class: "trail" });
-        layers.trails.append(d.trailNode);
-      }
-      d.trailNode.setAttribute("points", d.trail.map((p) => p.join(",")).join(" "));
-    } else if (d.trailNode) {
-      d.trailNode.remove();
-      d.trailNode = null;
-    }
+    if (d.drawnAt && (d.drawnAt[0] !== d.cell[0] || d.drawnAt[1] !== d.cell[1])) moved++;
+    d.drawnAt = d.cell;
   }
+  if (redraw) paint();
+  redraw = false;
   if (listDirty) {
     listDirty = false;
     renderList();
