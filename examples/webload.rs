@@ -29,8 +29,10 @@
 //!
 //! `--page URL` watches another page instead of the gateway's own, with
 //! `{port}` in the URL replaced by the gateway's web port, and runs only
-//! with the UI on: how the map-library comparison in BENCHMARKS.md was
-//! measured. Loopback only; everything it starts, it stops.
+//! with the UI on: how the map-library comparison in docs/web.md was
+//! measured (`examples/webload-leaflet.html`, a page from the file system,
+//! gets a browser that lets it read the gateway cross-origin). Loopback
+//! only; everything it starts, it stops.
 
 mod support;
 #[path = "../tests/web_support/mod.rs"]
@@ -274,7 +276,8 @@ async fn run(
     let share = (cpu_after - cpu_before) / started.elapsed().as_secs_f64();
     let page = match browser {
         Some(b) => {
-            b.screenshot("webload.png").await;
+            let shot = if args.page.is_some() { "webload-page.png" } else { "webload.png" };
+            b.screenshot(shot).await;
             let figures = b
                 .js("const d = document.getElementById('page-stats').dataset;
                      return { frame_work_ms_p50: +d.frameP50, frame_work_ms_p99: +d.frameP99,
@@ -311,7 +314,15 @@ async fn main() {
     let log = dir.path().join("walk.jsonl");
     std::fs::write(&log, walk_log(&args, args.seconds + 30)).unwrap();
     let shots = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/web-screenshots");
-    let browser = web_support::Browser::start(&shots)
+    // A page from the file system (the Leaflet comparison) reads the
+    // gateway's stream cross-origin, which the gateway grants no page.
+    let extra: &[&str] = match &args.page {
+        Some(page) if page.starts_with("file://") => {
+            &["--disable-web-security", "--allow-file-access-from-files"]
+        }
+        _ => &[],
+    };
+    let browser = web_support::Browser::start_with(&shots, extra)
         .await
         .expect("chromium and chromedriver (Debian: apt install chromium chromium-driver)");
     let mut off = Vec::new();

@@ -52,6 +52,11 @@ pub struct Browser {
 impl Browser {
     /// Starts chromium, saving screenshots in `screenshots`.
     pub async fn start(screenshots: &Path) -> Option<Browser> {
+        Browser::start_with(screenshots, &[]).await
+    }
+
+    /// Starts chromium with `extra` command-line switches.
+    pub async fn start_with(screenshots: &Path, extra: &[&str]) -> Option<Browser> {
         let (chromium, driver) = (
             Path::new("/usr/bin/chromium"),
             Path::new("/usr/bin/chromedriver"),
@@ -79,19 +84,27 @@ impl Browser {
             std::thread::sleep(Duration::from_millis(50));
         }
         let profile = tempfile::tempdir().unwrap();
+        let mut args: Vec<String> = [
+            "--headless=new",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--disable-dev-shm-usage",
+            "--window-size=1500,950",
+        ]
+        .into_iter()
+        .chain(extra.iter().copied())
+        .map(String::from)
+        .collect();
+        args.push(format!("--user-data-dir={}", profile.path().display()));
         let mut caps = serde_json::Map::new();
         caps.insert(
             "goog:chromeOptions".into(),
-            json!({
-                "binary": chromium,
-                "args": [
-                    "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic",
-                    "--no-first-run", "--disable-background-networking",
-                    "--disable-component-update", "--disable-sync",
-                    "--disable-dev-shm-usage", "--window-size=1500,950",
-                    format!("--user-data-dir={}", profile.path().display()),
-                ],
-            }),
+            json!({ "binary": chromium, "args": args }),
         );
         let client = ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
             .capabilities(caps)
