@@ -164,7 +164,10 @@ fn walk_log(args: &Args, seconds: u64) -> String {
     let mut walkers: Vec<Walker> = (0..args.devices)
         .map(|id| {
             let at = loop {
-                let p = [rng.random_range(0.5..side - 0.5), rng.random_range(0.5..side - 0.5)];
+                let p = [
+                    rng.random_range(0.5..side - 0.5),
+                    rng.random_range(0.5..side - 0.5),
+                ];
                 if open(p) {
                     break p;
                 }
@@ -276,7 +279,11 @@ async fn run(
     let share = (cpu_after - cpu_before) / started.elapsed().as_secs_f64();
     let page = match browser {
         Some(b) => {
-            let shot = if args.page.is_some() { "webload-page.png" } else { "webload.png" };
+            let shot = if args.page.is_some() {
+                "webload-page.png"
+            } else {
+                "webload.png"
+            };
             b.screenshot(shot).await;
             let figures = b
                 .js("const d = document.getElementById('page-stats').dataset;
@@ -334,8 +341,10 @@ async fn main() {
         on.push(run(dir.path(), &log, &args, Some(&browser)).await);
     }
     browser.client.close().await.unwrap();
-    let cpu = |runs: &[(f64, f64, Option<serde_json::Value>)]| median(runs.iter().map(|r| r.0).collect());
-    let rss = |runs: &[(f64, f64, Option<serde_json::Value>)]| median(runs.iter().map(|r| r.1).collect());
+    let cpu =
+        |runs: &[(f64, f64, Option<serde_json::Value>)]| median(runs.iter().map(|r| r.0).collect());
+    let rss =
+        |runs: &[(f64, f64, Option<serde_json::Value>)]| median(runs.iter().map(|r| r.1).collect());
     let pages: Vec<&serde_json::Value> = on.iter().filter_map(|r| r.2.as_ref()).collect();
     let page_median = |key: &str| median(pages.iter().filter_map(|p| p[key].as_f64()).collect());
     let keys = [

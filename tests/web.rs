@@ -117,7 +117,8 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
 
     // Every located device is drawn where the list says it is; within 4 s
     // of the walk, some have moved.
-    let positions = "return Object.fromEntries([...document.querySelectorAll('#devices li[data-device]')]
+    let positions =
+        "return Object.fromEntries([...document.querySelectorAll('#devices li[data-device]')]
         .map(d => [d.dataset.device, d.dataset.cell]))";
     let before = browser.js(positions).await;
     tokio::time::sleep(Duration::from_secs(4)).await;
@@ -160,7 +161,10 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
     };
     assert_eq!(hostile["imgs"], 0, "{hostile}");
     assert_eq!(hostile["pwned"], false, "{hostile}");
-    assert!(hostile["listed"].to_string().contains("onerror"), "{hostile}");
+    assert!(
+        hostile["listed"].to_string().contains("onerror"),
+        "{hostile}"
+    );
     assert!(hostile["tip"].to_string().contains("onerror"), "{hostile}");
 
     // Click walker-01's dot, then the help desk: a route and its instructions.
@@ -177,7 +181,9 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
         .await;
     let route_shown = "return document.getElementById('route-pick').textContent.includes('(web-') && document.querySelectorAll('#route .instructions li').length > 0 && !!document.querySelector('.layer-route polyline')";
     let describe_route = "return document.getElementById('route-pick').textContent + ' | ' + document.getElementById('route').textContent";
-    browser.until("the route", route_shown, describe_route).await;
+    browser
+        .until("the route", route_shown, describe_route)
+        .await;
     let pick = browser.text("route-pick").await;
     assert!(
         pick.contains("walker-01") && pick.contains("help desk"),
@@ -198,7 +204,9 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
     // focused button), the same round trip.
     browser
         .client
-        .find(Locator::Css("#devices li[data-device=\"walker-02\"] button"))
+        .find(Locator::Css(
+            "#devices li[data-device=\"walker-02\"] button",
+        ))
         .await
         .unwrap()
         .send_keys("\u{e007}")
@@ -206,7 +214,9 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
         .unwrap();
     browser
         .client
-        .find(Locator::XPath("//ul[@id='places']//button[starts-with(., 'printers')]"))
+        .find(Locator::XPath(
+            "//ul[@id='places']//button[starts-with(., 'printers')]",
+        ))
         .await
         .unwrap()
         .send_keys("\u{e007}")
@@ -229,7 +239,10 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
     let width = browser
         .js("return [document.documentElement.scrollWidth, window.innerWidth]")
         .await;
-    assert!(width[0].as_f64() <= width[1].as_f64(), "scrolls sideways: {width}");
+    assert!(
+        width[0].as_f64() <= width[1].as_f64(),
+        "scrolls sideways: {width}"
+    );
     browser.screenshot("map-phone.png").await;
     browser.client.set_window_size(1500, 950).await.unwrap();
 
@@ -240,7 +253,9 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
     browser.type_into("survey-samples", "2").await;
     browser
         .client
-        .find(Locator::Css("#devices li[data-device=\"walker-01\"] button"))
+        .find(Locator::Css(
+            "#devices li[data-device=\"walker-01\"] button",
+        ))
         .await
         .unwrap()
         .click()
@@ -308,8 +323,14 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
     ] {
         assert!(metrics.contains(series), "{series} missing:\n{metrics}");
     }
-    assert!(series(&metrics, "gangway_route_latency_seconds_count") >= 2.0, "{metrics}");
-    assert!(series(&metrics, "gangway_fix_latency_seconds_count") >= 10.0, "{metrics}");
+    assert!(
+        series(&metrics, "gangway_route_latency_seconds_count") >= 2.0,
+        "{metrics}"
+    );
+    assert!(
+        series(&metrics, "gangway_fix_latency_seconds_count") >= 10.0,
+        "{metrics}"
+    );
 
     the_editor_in_the_gateway_applies_a_save(browser, &url, &site).await;
 }
@@ -340,7 +361,9 @@ async fn the_editor_in_the_gateway_applies_a_save(
     };
 
     browser.type_into("name", "waldo-renamed").await;
-    browser.until("the renamed site's check", checked, summary).await;
+    browser
+        .until("the renamed site's check", checked, summary)
+        .await;
     let status = saved("the refused reload").await;
     assert!(
         status.contains("refused") && status.contains("site name") && status.contains("restart"),
@@ -382,7 +405,10 @@ async fn the_editor_in_the_gateway_applies_a_save(
         .body_mut()
         .read_json()
         .unwrap();
-    assert!(served["places"].to_string().contains("new desk"), "{served}");
+    assert!(
+        served["places"].to_string().contains("new desk"),
+        "{served}"
+    );
 }
 
 /// Where a device's dot is (viewport coordinates), from the cell the list
@@ -725,7 +751,10 @@ fn a_replay_serves_fix_and_route_latency_on_metrics() {
     };
     let fixes = series(&metrics, "gangway_fix_latency_seconds_count");
     assert!(fixes >= 50.0, "{metrics}");
-    assert!(series(&metrics, "gangway_route_latency_seconds_count") >= 6.0, "{metrics}");
+    assert!(
+        series(&metrics, "gangway_route_latency_seconds_count") >= 6.0,
+        "{metrics}"
+    );
     // Buckets are cumulative, up to the count.
     let buckets: Vec<f64> = metrics
         .lines()
@@ -811,7 +840,11 @@ fn a_site_that_cannot_be_written_is_saved_in_the_state_directory() {
     let message = reply["message"].as_str().unwrap();
     assert!(
         message.contains("Read-only file system")
-            && message.contains(&format!("sudo install -m 644 {} {}", instead.display(), site.display())),
+            && message.contains(&format!(
+                "sudo install -m 644 {} {}",
+                instead.display(),
+                site.display()
+            )),
         "{message}"
     );
     let saved = std::fs::read_to_string(&instead).unwrap();
