@@ -203,25 +203,15 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
     // The keyboard alone: a device and a place from the lists (Enter on a
     // focused button), the same round trip.
     browser
-        .client
-        .find(Locator::Css(
+        .enter_on(Locator::Css(
             "#devices li[data-device=\"walker-02\"] button",
         ))
-        .await
-        .unwrap()
-        .send_keys("\u{e007}")
-        .await
-        .unwrap();
+        .await;
     browser
-        .client
-        .find(Locator::XPath(
+        .enter_on(Locator::XPath(
             "//ul[@id='places']//button[starts-with(., 'printers')]",
         ))
-        .await
-        .unwrap()
-        .send_keys("\u{e007}")
-        .await
-        .unwrap();
+        .await;
     browser
         .until(
             "the route asked from the keyboard",

@@ -163,6 +163,12 @@ impl Browser {
             .unwrap();
     }
 
+    /// Presses Enter on the element `locator` finds (the keyboard's click).
+    pub async fn enter_on(&self, locator: Locator<'_>) {
+        let element = self.client.find(locator).await.unwrap();
+        element.send_keys("\u{e007}").await.unwrap();
+    }
+
     pub async fn tool(&self, name: &str) {
         self.client
             .find(Locator::Css(&format!("input[name=tool][value={name}]")))
