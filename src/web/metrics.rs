@@ -11,7 +11,7 @@ use std::fmt::Write;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
-use crate::daemon::latency::Latency;
+use crate::publish::latency::Latency;
 use crate::publish::stats::{COUNTERS, GAUGES, Stats};
 
 pub struct Metrics {

@@ -37,7 +37,7 @@ pub use editor::Editor;
 pub use live::{Live, TRAIL, WebSink, WebSource};
 pub use security::CONTENT_SECURITY_POLICY;
 
-use crate::daemon::latency::Latency;
+use crate::publish::latency::Latency;
 use crate::sink::Sink;
 use crate::site::Site;
 use crate::source::Source;

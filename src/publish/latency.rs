@@ -5,7 +5,8 @@
 //! Wall time on the gateway's own clock, never the events' time, so a
 //! replayed log counts as a live radio does. Shared (atomics) between the
 //! runtime, which observes, and whoever exports them (the web UI's
-//! `/metrics`, as Prometheus histograms).
+//! `/metrics`, as Prometheus histograms); here, beside the stats, because
+//! both sides may import `publish` and neither may import the other.
 
 use std::fmt::Write;
 use std::sync::atomic::{AtomicU64, Ordering};
