@@ -597,6 +597,8 @@ function drawHeat() {
     legend = "mean published confidence of the fixes in each cell since this page opened: blue 0, red 1";
   }
   fill($("heat-legend"), legend);
+  // Place markers go pale over a heat map: a surveyed spot is often a place.
+  $("plan").classList.toggle("heat-on", cells.length > 0);
   fill(
     view.layers.heat,
     cells.map(([cell, v, title]) =>
