@@ -93,7 +93,9 @@ async fn serve(args: Args) -> anyhow::Result<()> {
     // aside (or, if even that fails, the gateway serves without recording).
     if config.store.enabled {
         match Recorder::open(&config.store, unix_now()) {
-            Ok(recorder) => sinks.push(Box::new(recorder)),
+            Ok(recorder) => sinks.push(Box::new(
+                recorder.keep_heard(config.localizer.recalibration.max_windows),
+            )),
             Err(e) => {
                 let why = format!("[store] {e}; serving without recording");
                 tracing::error!("{why}");
@@ -101,7 +103,7 @@ async fn serve(args: Args) -> anyhow::Result<()> {
             }
         }
     }
-    let (shutdown, reload, reloads) = signals()?;
+    let (shutdown, reload, reloads, recalibrate) = signals()?;
     // The editor applies a saved site through the same reloads as SIGHUP.
     let web = crate::web::start(config, site.clone(), &mut fallbacks, Some(reload)).await;
     let latency = web.map(|web| web.add_to(&mut sources, &mut sinks));
@@ -127,38 +129,47 @@ async fn serve(args: Args) -> anyhow::Result<()> {
         radio: Some(radio),
         fallbacks,
         latency,
+        recalibrate: Some(recalibrate),
     };
     daemon::run(serving, options, sources, sinks, shutdown, reloads).await?;
     Ok(())
 }
 
-/// SIGTERM and SIGINT as the shutdown future, SIGHUP as reloads (one more
-/// asked while one is pending is the same reload), and a sender of more.
+/// SIGTERM and SIGINT as the shutdown future, SIGHUP as reloads (and a
+/// sender of more: the editor's saves) and SIGUSR1 as requests to
+/// recalibrate (one more asked while one is pending is the same one).
 #[allow(clippy::type_complexity)]
 fn signals() -> anyhow::Result<(
     impl Future<Output = ()>,
     mpsc::Sender<()>,
     mpsc::Receiver<()>,
+    mpsc::Receiver<()>,
 )> {
     let mut terminate = signal(SignalKind::terminate())?;
     let mut interrupt = signal(SignalKind::interrupt())?;
-    let mut hangup = signal(SignalKind::hangup())?;
-    let (reload, reloads) = mpsc::channel(1);
-    let sender = reload.clone();
-    tokio::spawn(async move {
-        while hangup.recv().await.is_some() {
-            if let Err(mpsc::error::TrySendError::Closed(())) = reload.try_send(()) {
-                return;
-            }
-        }
-    });
+    let (reload, reloads) = requests(signal(SignalKind::hangup())?);
+    let (_, recalibrations) = requests(signal(SignalKind::user_defined1())?);
     let shutdown = async move {
         tokio::select! {
             _ = terminate.recv() => {}
             _ = interrupt.recv() => {}
         }
     };
-    Ok((shutdown, sender, reloads))
+    Ok((shutdown, reload, reloads, recalibrations))
+}
+
+/// Each delivery of a signal as one request, and a sender of more.
+fn requests(mut signal: tokio::signal::unix::Signal) -> (mpsc::Sender<()>, mpsc::Receiver<()>) {
+    let (send, requests) = mpsc::channel(1);
+    let more = send.clone();
+    tokio::spawn(async move {
+        while signal.recv().await.is_some() {
+            if let Err(mpsc::error::TrySendError::Closed(())) = send.try_send(()) {
+                return;
+            }
+        }
+    });
+    (more, requests)
 }
 
 /// glibc raises its mmap threshold each time a large block is freed; after
