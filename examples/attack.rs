@@ -82,7 +82,8 @@ impl Rig {
         std::fs::write(
             &config,
             format!(
-                "gateway_id = \"{GATEWAY}\"\nsite = \"{}\"\n[ble]\nadapter = \"hci-none\"\n{extra}\n\
+                "gateway_id = \"{GATEWAY}\"\nsite = \"{}\"\n[web]\nbind = \"127.0.0.1:0\"\n\
+                 [ble]\nadapter = \"hci-none\"\n{extra}\n\
                  [mqtt]\nurl = \"mqtt://127.0.0.1:{}\"\nstats_interval_s = 1\n",
                 root().join("config/sites/waldo.toml").display(),
                 self.port

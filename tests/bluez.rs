@@ -167,6 +167,7 @@ impl Drop for MockBluez {
 
 /// A gateway on the mock's bus; its log goes to `log`.
 fn gateway(config: &Path, bus: &str, log: &Path) -> Gateway {
+    assert_web_ui_on_a_port_of_its_own(config);
     let child = Command::new(env!("CARGO_BIN_EXE_gangway"))
         .arg("run")
         .arg("--config")

@@ -22,7 +22,8 @@ async fn run_without_a_url_serves_on_an_embedded_broker() {
     std::fs::write(
         &config,
         format!(
-            "gateway_id = \"gw-embedded\"\nsite = \"{}\"\n[mqtt]\nembedded_port = {port}\n",
+            "gateway_id = \"gw-embedded\"\nsite = \"{}\"\n[web]\nbind = \"127.0.0.1:0\"\n\
+             [mqtt]\nembedded_port = {port}\n",
             repo().join("config/sites/waldo.toml").display()
         ),
     )

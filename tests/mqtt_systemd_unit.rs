@@ -73,6 +73,7 @@ fn the_daemon_notifies_readiness_and_pings_the_watchdog() {
     let broker = mqtt_support::Broker::start();
     let site = mqtt_support::repo().join("config/sites/waldo.toml");
     let config = mqtt_support::gateway_config("gw-notify", &site, &broker, "");
+    mqtt_support::assert_web_ui_on_a_port_of_its_own(&config.path);
     let socket_path = config.dir.path().join("notify.sock");
     let socket = UnixDatagram::bind(&socket_path).unwrap();
     socket

@@ -90,7 +90,7 @@ async fn the_gateway_serves_over_mutual_tls_with_a_password() {
         std::fs::write(
             &config,
             format!(
-                "gateway_id = \"gw-tls\"\nsite = \"{}\"\n[mqtt]\nurl = \"{url}\"\nusername = \"gw\"\n\
+                "gateway_id = \"gw-tls\"\nsite = \"{}\"\n[web]\nbind = \"127.0.0.1:0\"\n[mqtt]\nurl = \"{url}\"\nusername = \"gw\"\n\
                  password_file = \"{}\"\nca_file = \"{c}/ca.pem\"\nclient_cert = \"{c}/client.pem\"\n\
                  client_key = \"{c}/client.key\"\nstats_interval_s = 1\nreconnect_min_s = 0.2\n\
                  reconnect_max_s = 0.5\nshutdown_grace_s = 0.5\n",

@@ -59,10 +59,14 @@ async fn the_web_ui_in_a_real_browser() {
     browser.client.close().await.unwrap();
 }
 
-/// `gangway run --replay` with the web UI: the map loads, devices move as
-/// the walk plays, a click on a device and a place asks for a route through
-/// the same admission as MQTT and shows it with its instructions, a device
-/// whose id is markup shows it as text, and /metrics counts it all.
+/// `gangway run --replay` with the web UI: the map loads with every label
+/// readable (no two overlap, none outside the plan, on a desktop and a
+/// phone's width), devices move as the walk plays, a click on a device and a
+/// place asks for a route through the same admission as MQTT and shows it
+/// with its instructions, so does the keyboard alone, a device whose id is
+/// markup shows it as text, survey mode records a spot, /metrics counts it
+/// all, and the editor inside the gateway applies a saved site as a reload
+/// does (and says when the gateway refuses it).
 async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir: &Path) {
     // The sample walk, plus a phone whose id is an HTML attack walking
     // beside walker-02.
@@ -78,49 +82,43 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
         }
     }
     let log_path = common::write(dir, "walk.jsonl", &log);
-    let web_port = free_port();
+    // The gateway's own copy of the site: the editor saves it.
+    let site_path = dir.join("waldo.toml");
+    std::fs::copy(common::root().join("config/sites/waldo.toml"), &site_path).unwrap();
     let config = common::write(
         dir,
         "live.toml",
         &format!(
-            "gateway_id = \"gw-web\"\nsite = \"{}\"\n[planner]\nmode = \"astar\"\n\
-             [mqtt]\nembedded_port = {}\nstats_interval_s = 1\n[web]\nbind = \"127.0.0.1:{web_port}\"\n",
-            common::root().join("config/sites/waldo.toml").display(),
+            "gateway_id = \"gw-web\"\nsite = \"waldo.toml\"\n[planner]\nmode = \"astar\"\n\
+             [mqtt]\nembedded_port = {}\nstats_interval_s = 1\n[web]\nbind = \"127.0.0.1:0\"\n",
             free_port()
         ),
     );
-    let _gateway = Proc(
-        Command::new(env!("CARGO_BIN_EXE_gangway"))
-            .args(["run", "--config"])
-            .arg(&config)
-            .arg("--replay")
-            .arg(&log_path)
-            .args(["--speed", "3"])
-            .env("RUST_LOG", "warn")
-            .stdout(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    let url = format!("http://127.0.0.1:{web_port}");
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while ureq::get(&format!("{url}/healthz")).call().is_err() {
-        assert!(
-            Instant::now() < deadline,
-            "the gateway's web UI did not start"
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    let mut command = Command::new(env!("CARGO_BIN_EXE_gangway"));
+    command
+        .args(["run", "--config"])
+        .arg(&config)
+        .arg("--replay")
+        .arg(&log_path)
+        .args(["--speed", "3"]);
+    let (_gateway, url) = web_support::with_web_ui(command);
     browser.client.goto(&format!("{url}/")).await.unwrap();
+    let listed = "return document.querySelectorAll('#devices li[data-device]').length >= 3";
     browser
         .until(
             "devices on the map",
-            "return document.querySelectorAll('.layer-devices .device').length >= 3",
-            "return document.getElementById('connection').textContent + ' ' + document.querySelectorAll('.device').length",
+            listed,
+            "return document.getElementById('connection').textContent + ' ' + document.getElementById('devices').textContent",
         )
         .await;
+    let labels = browser.label_problems().await;
+    assert_eq!(labels["problems"], json!([]), "{labels}");
+    assert!(labels["shown"].as_u64().unwrap() >= 10, "{labels}");
+
+    // Within 4 s of the walk, some devices have moved.
     let positions =
-        "return Object.fromEntries([...document.querySelectorAll('.layer-devices .device')]
-        .map(d => [d.dataset.device, d.getAttribute('transform')]))";
+        "return Object.fromEntries([...document.querySelectorAll('#devices li[data-device]')]
+        .map(d => [d.dataset.device, d.dataset.cell]))";
     let before = browser.js(positions).await;
     tokio::time::sleep(Duration::from_secs(4)).await;
     let after = browser.js(positions).await;
@@ -132,33 +130,47 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
         .count();
     assert!(moved >= 1, "no device moved in 4 s: {before} then {after}");
 
-    // The hostile id is a device like any other, shown as text.
+    // The hostile id is a device like any other, shown as text: in the
+    // list, and in the tooltip when the pointer is on its dot.
+    let hostile_cell = format!(
+        "const li = [...document.querySelectorAll('#devices li[data-device]')].find(l => l.dataset.device === {});
+         return li && li.dataset.cell ? li.dataset.cell.split(',').map(Number) : null",
+        serde_json::to_string(HOSTILE).unwrap()
+    );
     browser
         .until(
             "the hostile device",
-            &format!("return !!document.querySelector('.device[data-device=\"' + CSS.escape({}) + '\"]')", serde_json::to_string(HOSTILE).unwrap()),
-            "return [...document.querySelectorAll('.device')].map(d => d.dataset.device)",
+            &format!("return (() => {{ {hostile_cell} }})() !== null"),
+            "return document.getElementById('devices').textContent",
         )
         .await;
-    let hostile = browser
-        .js("for (const d of document.querySelectorAll('.device')) d.dispatchEvent(new PointerEvent('pointerenter'));
-             return { imgs: document.querySelectorAll('img').length, pwned: window.__pwned === 1,
-                      titles: [...document.querySelectorAll('.device title')].map(t => t.textContent),
-                      listed: document.getElementById('devices').textContent }")
-        .await;
+    // Devices move while the pointer goes to them: hover again until the
+    // tip is the hostile device's.
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let hostile = loop {
+        browser.move_to(dot_of(browser, HOSTILE).await).await;
+        let hostile = browser
+            .js("return { imgs: document.querySelectorAll('img').length, pwned: window.__pwned === 1,
+                          tip: document.getElementById('tip').textContent,
+                          listed: document.getElementById('devices').textContent }")
+            .await;
+        if hostile["tip"].to_string().contains("onerror") || Instant::now() > deadline {
+            break hostile;
+        }
+    };
     assert_eq!(hostile["imgs"], 0, "{hostile}");
     assert_eq!(hostile["pwned"], false, "{hostile}");
     assert!(
-        hostile["titles"].to_string().contains("onerror"),
+        hostile["listed"].to_string().contains("onerror"),
         "{hostile}"
     );
+    assert!(hostile["tip"].to_string().contains("onerror"), "{hostile}");
 
     // Click walker-01's dot, then the help desk: a route and its instructions.
-    let dot = browser
-        .js("const r = document.querySelector('.device[data-device=\"walker-01\"] .dot').getBoundingClientRect();
-             return [r.x + r.width / 2, r.y + r.height / 2]")
-        .await;
-    browser.click_at(serde_json::from_value(dot).unwrap()).await;
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while !browser.text("route-pick").await.contains("walker-01") && Instant::now() < deadline {
+        browser.click_at(dot_of(browser, "walker-01").await).await;
+    }
     let desk = browser
         .js("const r = document.querySelector('.place[data-place=\"help desk\"] rect').getBoundingClientRect();
              return [r.x + r.width / 2, r.y + r.height / 2]")
@@ -166,12 +178,10 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
     browser
         .click_at(serde_json::from_value(desk.clone()).unwrap())
         .await;
+    let route_shown = "return document.getElementById('route-pick').textContent.includes('(web-') && document.querySelectorAll('#route .instructions li').length > 0 && !!document.querySelector('.layer-route polyline')";
+    let describe_route = "return document.getElementById('route-pick').textContent + ' | ' + document.getElementById('route').textContent";
     browser
-        .until(
-            "the route",
-            "return document.querySelectorAll('#route .instructions li').length > 0 && !!document.querySelector('.layer-route polyline')",
-            "return document.getElementById('route-pick').textContent + ' | ' + document.getElementById('route').textContent",
-        )
+        .until("the route", route_shown, describe_route)
         .await;
     let pick = browser.text("route-pick").await;
     assert!(
@@ -189,18 +199,61 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
         .await;
     browser.screenshot("map.png").await;
 
-    // Survey mode: walker-01 (still selected) stands at the help desk for
-    // two windows; the survey file gets them in the generic layout, which
-    // the gateway's own survey reader takes.
+    // The keyboard alone: a device and a place from the lists (Enter on a
+    // focused button), the same round trip.
+    browser
+        .enter_on(Locator::Css(
+            "#devices li[data-device=\"walker-02\"] button",
+        ))
+        .await;
+    browser
+        .enter_on(Locator::XPath(
+            "//ul[@id='places']//button[starts-with(., 'printers')]",
+        ))
+        .await;
+    browser
+        .until(
+            "the route asked from the keyboard",
+            "const p = document.getElementById('route-pick').textContent;
+             return p.includes('walker-02') && p.includes('printers') && p.includes('(web-')",
+            describe_route,
+        )
+        .await;
+
+    // A phone's width: the map first, the panels below, labels still clear.
+    browser.client.set_window_size(390, 844).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let labels = browser.label_problems().await;
+    assert_eq!(labels["problems"], json!([]), "{labels}");
+    let width = browser
+        .js("return [document.documentElement.scrollWidth, window.innerWidth]")
+        .await;
+    assert!(
+        width[0].as_f64() <= width[1].as_f64(),
+        "scrolls sideways: {width}"
+    );
+    browser.screenshot("map-phone.png").await;
+    browser.client.set_window_size(1500, 950).await.unwrap();
+
+    // Survey mode: walker-01 stands at the help desk for two windows; the
+    // survey file gets them in the generic layout, which the gateway's own
+    // survey reader takes.
+    browser.click_id("survey-on").await;
+    browser.type_into("survey-samples", "2").await;
     browser
         .client
-        .find(Locator::Id("survey-on"))
+        .find(Locator::Css(
+            "#devices li[data-device=\"walker-01\"] button",
+        ))
         .await
         .unwrap()
         .click()
         .await
         .unwrap();
-    browser.type_into("survey-samples", "2").await;
+    let desk = browser
+        .js("const r = document.querySelector('.place[data-place=\"help desk\"] rect').getBoundingClientRect();
+             return [r.x + r.width / 2, r.y + r.height / 2]")
+        .await;
     browser
         .click_at(serde_json::from_value(desk).unwrap())
         .await;
@@ -215,7 +268,7 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
     let text = std::fs::read_to_string(&survey).unwrap();
     assert!(text.starts_with("x_m,y_m,t,b3001,"), "{text}");
     assert_eq!(text.lines().count(), 3, "{text}");
-    let site = gangway::site::Site::load(&common::root().join("config/sites/waldo.toml")).unwrap();
+    let site = gangway::site::Site::load(&site_path).unwrap();
     let anchors: Vec<String> = site.beacons.iter().map(|b| b.id.clone()).collect();
     let read = gangway::locate::survey::Survey::load(&survey, &site, &anchors, -200).unwrap();
     assert_eq!(read.samples.len(), 2);
@@ -233,6 +286,16 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
             "return document.getElementById('heat-legend').textContent",
         )
         .await;
+    browser.screenshot("survey-coverage.png").await;
+    // The heat map of localization confidence covers every cell fixes fell in.
+    heat.select_by_value("confidence").await.unwrap();
+    browser
+        .until(
+            "the confidence map",
+            "return document.querySelectorAll('.layer-heat rect').length >= 5",
+            "return document.getElementById('heat-legend').textContent",
+        )
+        .await;
     browser.screenshot("survey.png").await;
 
     let metrics = ureq::get(&format!("{url}/metrics"))
@@ -244,16 +307,117 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
     for series in [
         "# TYPE gangway_fixes_total counter",
         "# TYPE gangway_tracked gauge",
+        "# TYPE gangway_fix_latency_seconds histogram",
         "# TYPE gangway_route_latency_seconds histogram",
     ] {
         assert!(metrics.contains(series), "{series} missing:\n{metrics}");
     }
-    let routes = metrics
+    assert!(
+        series(&metrics, "gangway_route_latency_seconds_count") >= 2.0,
+        "{metrics}"
+    );
+    assert!(
+        series(&metrics, "gangway_fix_latency_seconds_count") >= 10.0,
+        "{metrics}"
+    );
+
+    the_editor_in_the_gateway_applies_a_save(browser, &url, &site).await;
+}
+
+/// The editor of the gateway's own site: a save the gateway cannot apply
+/// (a new site name needs a restart) says so, and a save it can (a new
+/// place) is served at once, the same reload as SIGHUP.
+async fn the_editor_in_the_gateway_applies_a_save(
+    browser: &Browser,
+    url: &str,
+    site: &gangway::site::Site,
+) {
+    browser.client.goto(&format!("{url}/edit")).await.unwrap();
+    let checked = "return document.getElementById('check-summary').textContent.startsWith('ok:')";
+    let summary = "return document.getElementById('check-summary').textContent";
+    browser.until("the site's check", checked, summary).await;
+    assert!(browser.text("file").await.contains("saving applies it"));
+    let saved = |what: &'static str| async move {
+        browser.click_id("save").await;
+        browser
+            .until(
+                what,
+                "const s = document.getElementById('save-status').textContent; return s.startsWith('saved')",
+                "return document.getElementById('save-status').textContent",
+            )
+            .await;
+        browser.text("save-status").await
+    };
+
+    browser.type_into("name", "waldo-renamed").await;
+    browser
+        .until("the renamed site's check", checked, summary)
+        .await;
+    let status = saved("the refused reload").await;
+    assert!(
+        status.contains("refused") && status.contains("site name") && status.contains("restart"),
+        "{status}"
+    );
+
+    browser.type_into("name", &site.name).await;
+    let free = site
+        .open_cells()
+        .iter()
+        .copied()
+        .find(|c| !site.places().values().any(|p| p == c) && c.y > 2)
+        .unwrap();
+    browser.tool("place").await;
+    browser.type_into("place-name", "new desk").await;
+    let at = browser
+        .grid_points(&[[f64::from(free.x) + 0.5, f64::from(free.y) + 0.5]])
+        .await[0];
+    browser.click_at(at).await;
+    browser
+        .until(
+            "the new place's check",
+            "return document.getElementById('check-summary').textContent.includes(' places') && document.getElementById('places').textContent.includes('new desk')",
+            summary,
+        )
+        .await;
+    browser.until("the site's check", checked, summary).await;
+    let status = saved("the applied reload").await;
+    assert!(
+        status.contains("the gateway reloaded it and serves it now"),
+        "{status}"
+    );
+    let labels = browser.label_problems().await;
+    assert_eq!(labels["problems"], json!([]), "{labels}");
+    browser.screenshot("editor-live.png").await;
+    let served: Value = ureq::get(&format!("{url}/api/site"))
+        .call()
+        .unwrap()
+        .body_mut()
+        .read_json()
+        .unwrap();
+    assert!(
+        served["places"].to_string().contains("new desk"),
+        "{served}"
+    );
+}
+
+/// Where a device's dot is (viewport coordinates), from the cell the list
+/// shows (updated once a second, so callers retry while devices move).
+async fn dot_of(browser: &Browser, device: &str) -> [f64; 2] {
+    let script = format!(
+        "const li = [...document.querySelectorAll('#devices li[data-device]')].find(l => l.dataset.device === {});
+         return li.dataset.cell.split(',').map(Number)",
+        serde_json::to_string(device).unwrap()
+    );
+    let cell: [f64; 2] = serde_json::from_value(browser.js(&script).await).unwrap();
+    browser.grid_points(&[[cell[0] + 0.5, cell[1] + 0.5]]).await[0]
+}
+
+/// The value of a Prometheus series without labels.
+fn series(metrics: &str, name: &str) -> f64 {
+    metrics
         .lines()
-        .find_map(|l| l.strip_prefix("gangway_route_latency_seconds_count "))
-        .and_then(|v| v.parse::<u64>().ok())
-        .unwrap_or(0);
-    assert!(routes >= 1, "{metrics}");
+        .find_map(|l| l.strip_prefix(name)?.strip_prefix(' ')?.parse().ok())
+        .unwrap_or(0.0)
 }
 
 /// A new user, no TOML: open the plan, set the scale, paint the floor,
@@ -534,4 +698,149 @@ fn writes_off_loopback_need_the_token() {
         .call()
         .unwrap();
     assert_eq!(rebound.status().as_u16(), 421);
+}
+
+/// A replay's /metrics has the runtime's latency histograms: wall time on
+/// the gateway's clock, whatever the log's time says.
+#[test]
+fn a_replay_serves_fix_and_route_latency_on_metrics() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = common::write(
+        dir.path(),
+        "gangway.toml",
+        &format!(
+            "gateway_id = \"gw-replay\"\nsite = \"{}\"\n[planner]\nmode = \"astar\"\n[web]\nbind = \"127.0.0.1:0\"\n",
+            common::root().join("config/sites/waldo.toml").display()
+        ),
+    );
+    let mut command = Command::new(env!("CARGO_BIN_EXE_gangway"));
+    command
+        .arg("replay")
+        .arg(common::root().join("fixtures/walk-waldo.jsonl"))
+        .arg("--config")
+        .arg(&config)
+        .args(["--speed", "0", "--web", "127.0.0.1:0"]);
+    let (_replay, url) = web_support::with_web_ui(command);
+    // The log plays as fast as it can; its six requests are routes (and
+    // guidance re-routes walkers who leave theirs: routes too).
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let metrics = loop {
+        let text = ureq::get(&format!("{url}/metrics"))
+            .call()
+            .unwrap()
+            .body_mut()
+            .read_to_string()
+            .unwrap();
+        let played = series(&text, "gangway_route_latency_seconds_count") >= 6.0
+            && series(&text, "gangway_fix_latency_seconds_count") >= 50.0;
+        if played || Instant::now() > deadline {
+            break text;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let fixes = series(&metrics, "gangway_fix_latency_seconds_count");
+    assert!(fixes >= 50.0, "{metrics}");
+    assert!(
+        series(&metrics, "gangway_route_latency_seconds_count") >= 6.0,
+        "{metrics}"
+    );
+    // Buckets are cumulative, up to the count.
+    let buckets: Vec<f64> = metrics
+        .lines()
+        .filter_map(|l| l.strip_prefix("gangway_fix_latency_seconds_bucket{le=\""))
+        .filter_map(|l| l.split_once("} ")?.1.parse().ok())
+        .collect();
+    assert_eq!(buckets.len(), 13, "{metrics}");
+    assert!(buckets.windows(2).all(|w| w[0] <= w[1]), "{metrics}");
+    assert_eq!(buckets.last(), Some(&fixes), "{metrics}");
+    let sum = series(&metrics, "gangway_fix_latency_seconds_sum");
+    assert!(sum > 0.0 && sum / fixes < 0.1, "{metrics}");
+}
+
+/// The packaged unit's /etc/gangway is read-only to the daemon: saving the
+/// site it serves cannot write it, so the editor saves it in the state
+/// directory and says how to put it in place. The site directory is made
+/// read-only here as systemd makes it (a read-only bind mount, in a mount
+/// namespace of the gateway's own).
+#[test]
+fn a_site_that_cannot_be_written_is_saved_in_the_state_directory() {
+    let dir = tempfile::tempdir().unwrap();
+    let etc = dir.path().join("etc");
+    let state = dir.path().join("state");
+    std::fs::create_dir_all(&etc).unwrap();
+    std::fs::create_dir_all(&state).unwrap();
+    let site = etc.join("waldo.toml");
+    std::fs::copy(common::root().join("config/sites/waldo.toml"), &site).unwrap();
+    let config = common::write(
+        &etc,
+        "gangway.toml",
+        &format!(
+            "gateway_id = \"gw-ro\"\nsite = \"waldo.toml\"\n[planner]\nmode = \"astar\"\n\
+             [mqtt]\nembedded_port = {}\n[web]\nbind = \"127.0.0.1:0\"\n",
+            free_port()
+        ),
+    );
+    let read_only = "mount --bind \"$0\" \"$0\" && mount -o remount,bind,ro \"$0\" && exec \"$@\"";
+    let probe = Command::new("unshare")
+        .args(["-r", "-m", "sh", "-c", read_only])
+        .arg(&etc)
+        .args(["sh", "-c", "! touch \"$0/probe\" 2>/dev/null"])
+        .arg(&etc)
+        .status();
+    if !probe.is_ok_and(|s| s.success()) {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "CI needs unshare (util-linux) and mount namespaces"
+        );
+        eprintln!("skipped: cannot make a read-only bind mount here (unshare -r -m)");
+        return;
+    }
+    let mut command = Command::new("unshare");
+    command
+        .args(["-r", "-m", "sh", "-c", read_only])
+        .arg(&etc)
+        .arg(env!("CARGO_BIN_EXE_gangway"))
+        .args(["run", "--config"])
+        .arg(&config)
+        .args(["--replay", "/dev/null"])
+        .env("STATE_DIRECTORY", &state);
+    let (_gateway, url) = web_support::with_web_ui(command);
+    let opened: Value = ureq::get(&format!("{url}/api/editor"))
+        .call()
+        .unwrap()
+        .body_mut()
+        .read_json()
+        .unwrap();
+    assert_eq!(opened["served_by_gateway"], true, "{opened}");
+    let mut doc = opened["doc"].clone();
+    doc["places"]["new desk"] = json!([12, 3]);
+    let mut reply = ureq::put(&format!("{url}/api/editor/site"))
+        .config()
+        .http_status_as_error(false)
+        .build()
+        .send_json(json!({ "doc": doc }))
+        .unwrap();
+    assert_eq!(reply.status().as_u16(), 200);
+    let reply: Value = reply.body_mut().read_json().unwrap();
+    let instead = state.join("waldo.toml");
+    assert_eq!(reply["saved"], instead.display().to_string(), "{reply}");
+    assert_eq!(reply["instead_of"], site.display().to_string(), "{reply}");
+    assert_eq!(reply["applied"], false, "{reply}");
+    let message = reply["message"].as_str().unwrap();
+    assert!(
+        message.contains("Read-only file system")
+            && message.contains(&format!(
+                "sudo install -m 644 {} {}",
+                instead.display(),
+                site.display()
+            )),
+        "{message}"
+    );
+    let saved = std::fs::read_to_string(&instead).unwrap();
+    assert!(saved.contains("\"new desk\" = [12, 3]"), "{saved}");
+    // The original is untouched.
+    assert_eq!(
+        std::fs::read(&site).unwrap(),
+        std::fs::read(common::root().join("config/sites/waldo.toml")).unwrap()
+    );
 }

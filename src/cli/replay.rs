@@ -138,13 +138,14 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         }
         let source = CaptureSource::new(args.log.clone(), reader, args.speed);
         let mut sources: Vec<Box<dyn crate::source::Source>> = vec![Box::new(source)];
+        let mut latency = None;
         if let Some(bind) = args.web {
             let config = crate::config::Config {
                 web: crate::web::WebConfig { bind, ..config.web.clone() },
                 ..config.clone()
             };
-            if let Some(web) = crate::web::start(&config, site.clone(), &mut Vec::new()).await {
-                web.add_to(&mut sources, &mut sinks);
+            if let Some(web) = crate::web::start(&config, site.clone(), &mut Vec::new(), None).await {
+                latency = Some(web.add_to(&mut sources, &mut sinks));
             }
         }
         let serving = Loaded {
@@ -155,6 +156,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         };
         let options = daemon::Options {
             until_sources_end: true,
+            latency,
             ..daemon::Options::default()
         };
         // No reloads: the replay plays one config.

@@ -103,9 +103,10 @@ async fn serve(args: Args) -> anyhow::Result<()> {
             }
         }
     }
-    if let Some(web) = crate::web::start(config, site.clone(), &mut fallbacks).await {
-        web.add_to(&mut sources, &mut sinks);
-    }
+    let (shutdown, reload, reloads, recalibrate) = signals()?;
+    // The editor applies a saved site through the same reloads as SIGHUP.
+    let web = crate::web::start(config, site.clone(), &mut fallbacks, Some(reload)).await;
+    let latency = web.map(|web| web.add_to(&mut sources, &mut sinks));
     if let Some(out) = &args.out {
         sinks.push(Box::new(JsonLines::create(
             Topics::new(config.topic_prefix()),
@@ -120,7 +121,6 @@ async fn serve(args: Args) -> anyhow::Result<()> {
         "gateway {} serving",
         config.gateway_id
     );
-    let (shutdown, reloads, recalibrate) = signals()?;
     let options = daemon::Options {
         config_path: Some(args.config.clone()),
         stats: true,
@@ -128,36 +128,40 @@ async fn serve(args: Args) -> anyhow::Result<()> {
         share_sightings: mqtt::sink::shares_sightings(config),
         radio: Some(radio),
         fallbacks,
+        latency,
         recalibrate: Some(recalibrate),
     };
     daemon::run(serving, options, sources, sinks, shutdown, reloads).await?;
     Ok(())
 }
 
-/// SIGTERM and SIGINT as the shutdown future, SIGHUP as reloads and SIGUSR1
-/// as requests to recalibrate (one more asked while one is pending is the
-/// same one).
+/// SIGTERM and SIGINT as the shutdown future, SIGHUP as reloads (and a
+/// sender of more: the editor's saves) and SIGUSR1 as requests to
+/// recalibrate (one more asked while one is pending is the same one).
+#[allow(clippy::type_complexity)]
 fn signals() -> anyhow::Result<(
     impl Future<Output = ()>,
+    mpsc::Sender<()>,
     mpsc::Receiver<()>,
     mpsc::Receiver<()>,
 )> {
     let mut terminate = signal(SignalKind::terminate())?;
     let mut interrupt = signal(SignalKind::interrupt())?;
-    let reloads = requests(signal(SignalKind::hangup())?);
-    let recalibrations = requests(signal(SignalKind::user_defined1())?);
+    let (reload, reloads) = requests(signal(SignalKind::hangup())?);
+    let (_, recalibrations) = requests(signal(SignalKind::user_defined1())?);
     let shutdown = async move {
         tokio::select! {
             _ = terminate.recv() => {}
             _ = interrupt.recv() => {}
         }
     };
-    Ok((shutdown, reloads, recalibrations))
+    Ok((shutdown, reload, reloads, recalibrations))
 }
 
-/// Each delivery of a signal as one request.
-fn requests(mut signal: tokio::signal::unix::Signal) -> mpsc::Receiver<()> {
+/// Each delivery of a signal as one request, and a sender of more.
+fn requests(mut signal: tokio::signal::unix::Signal) -> (mpsc::Sender<()>, mpsc::Receiver<()>) {
     let (send, requests) = mpsc::channel(1);
+    let more = send.clone();
     tokio::spawn(async move {
         while signal.recv().await.is_some() {
             if let Err(mpsc::error::TrySendError::Closed(())) = send.try_send(()) {
@@ -165,7 +169,7 @@ fn requests(mut signal: tokio::signal::unix::Signal) -> mpsc::Receiver<()> {
             }
         }
     });
-    requests
+    (more, requests)
 }
 
 /// glibc raises its mmap threshold each time a large block is freed; after

@@ -98,6 +98,11 @@ impl Requests {
         None
     }
 
+    /// When the next request was queued.
+    pub fn next_received(&self) -> Option<Instant> {
+        self.queue.front().map(|w| w.received)
+    }
+
     /// The next request, to plan or, if it waited past the deadline, to
     /// answer `overloaded`.
     pub fn take_next(&mut self) -> Option<Admit> {

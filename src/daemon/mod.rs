@@ -41,6 +41,7 @@ pub mod state;
 
 use std::future::Future;
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Duration;
 
 use tokio::sync::{mpsc, watch};
@@ -107,6 +108,8 @@ pub struct Options {
     /// What failed at start-up outside the pipeline (the store), listed in
     /// the stats' fallbacks.
     pub fallbacks: Vec<String>,
+    /// Where to observe how long inputs take to reach the sinks.
+    pub latency: Option<Arc<crate::publish::latency::Latency>>,
     /// Requests to recalibrate now (`[localizer.recalibration]`).
     pub recalibrate: Option<mpsc::Receiver<()>>,
 }
@@ -185,6 +188,7 @@ pub async fn run(
             loaded = join(&mut reload), if reload.is_some() => Step::Reloaded(Box::new(loaded)),
             Some(joined) = tasks.join_next() => Step::SourceEnded(joined),
         };
+        runtime.entered = std::time::Instant::now();
         match step {
             Step::Shutdown => break,
             Step::Input(input) => runtime.input(input),
@@ -446,6 +450,9 @@ struct Runtime {
     /// The last status line given to systemd.
     status: String,
     started: Instant,
+    latency: Option<Arc<crate::publish::latency::Latency>>,
+    /// When the input of this turn entered the runtime.
+    entered: std::time::Instant,
     recalibration: Option<Recalibration>,
 }
 
@@ -475,6 +482,8 @@ impl Runtime {
             fallbacks: options.fallbacks.clone(),
             status: String::new(),
             started: Instant::now(),
+            latency: options.latency.clone(),
+            entered: std::time::Instant::now(),
             recalibration: Recalibration::new(&state),
             state,
         }
@@ -586,6 +595,9 @@ impl Runtime {
     /// Plans the next waiting route request (or answers `overloaded` if it
     /// waited too long).
     fn serve_next(&mut self) {
+        if let Some(received) = self.requests.next_received() {
+            self.entered = received;
+        }
         match self.requests.take_next() {
             // Through the pipeline's event path, so a served route also
             // starts the device's guidance session.
@@ -684,6 +696,18 @@ impl Runtime {
             }
             if let (Output::Heard(_), Some(r)) = (output, &mut self.recalibration) {
                 r.heard += 1;
+            }
+        }
+        if let Some(latency) = &self.latency {
+            let took = self.entered.elapsed();
+            for output in &self.out {
+                match output {
+                    Output::Location(_) => latency.observe_fix(took),
+                    Output::Route(reply) if matches!(reply.outcome, RouteOutcome::Route(_)) => {
+                        latency.observe_route(took)
+                    }
+                    _ => {}
+                }
             }
         }
         for sink in &mut self.sinks {
@@ -892,6 +916,9 @@ impl Runtime {
         if let Some(why) = refused {
             self.counters.reload_failures += 1;
             tracing::error!("reload refused, still serving the previous config: {why}");
+            for sink in &mut self.sinks {
+                sink.reload_refused(&why);
+            }
         }
         self.publish_stats();
         let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);

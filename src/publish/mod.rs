@@ -12,8 +12,10 @@
 //!   its [`RouteErrorCode`], and routes re-planned off route;
 //! - [`Guidance`]: progress along a served route;
 //! - and what the runtime adds: feedback, adherence, forgotten devices, shared
-//!   sightings, the counters ([`stats`]).
+//!   sightings, the counters ([`stats`]) and the runtime's latency
+//!   histograms ([`latency`], which `/metrics` exports).
 
+pub mod latency;
 pub mod stats;
 
 use std::sync::Arc;

@@ -50,6 +50,9 @@ pub trait Sink: Send {
     /// A reload swapped the site (places may have changed).
     fn reload(&mut self, _site: &Site) {}
 
+    /// A reload was refused (`why`): the gateway serves what it served.
+    fn reload_refused(&mut self, _why: &str) {}
+
     /// Adds this sink's counters to the gateway's stats.
     fn report(&self, _stats: &mut Stats) {}
 

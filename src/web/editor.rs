@@ -9,6 +9,13 @@
 //! there is one validation and its messages are the CLI's. A save is refused
 //! while the document has problems, and when the file changed on disk since
 //! it was opened (someone else's edit is never overwritten).
+//!
+//! Inside the daemon the file is the site the gateway serves: a save is
+//! applied as SIGHUP applies it, through the runtime's reloads (the config
+//! and site loaded whole off the event loop and swapped in, or refused
+//! whole), and the reply says which. Where the file cannot be written (the
+//! packaged unit's read-only `/etc/gangway`), the site is saved in the
+//! state directory instead and the reply says how to put it in place.
 
 use std::collections::BTreeSet;
 use std::path::{Component, Path, PathBuf};
@@ -20,7 +27,9 @@ use axum::extract::{Query, State};
 use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use serde::Deserialize;
+use tokio::sync::{mpsc, watch};
 
+use super::live::Reloaded;
 use super::security::error;
 use super::view::SiteView;
 use crate::site::{MAX_IMAGE_BYTES, Site, SiteDoc, mime_of_bytes, probe_image, write_doc};
@@ -28,6 +37,8 @@ use crate::site::{MAX_IMAGE_BYTES, Site, SiteDoc, mime_of_bytes, probe_image, wr
 /// URL the editor fetches a floor-plan image from (`?name=` relative to the
 /// site file's directory).
 const IMAGE_URL: &str = "/api/editor/image";
+/// How long a save waits for the gateway to apply it (models may load).
+const APPLY_WAIT: std::time::Duration = std::time::Duration::from_secs(20);
 
 pub struct Editor {
     /// The site file, absolute.
@@ -35,6 +46,17 @@ pub struct Editor {
     /// Its directory, where floor-plan names resolve.
     dir: PathBuf,
     opened: Mutex<Opened>,
+    /// Where a site that cannot be written is saved instead
+    /// (`$STATE_DIRECTORY`, writable under systemd).
+    fallback_dir: Option<PathBuf>,
+    /// The gateway serving the file, when it runs in one.
+    gateway: Option<Gateway>,
+}
+
+/// The gateway serving the edited file: its reloads, and what became of them.
+struct Gateway {
+    reload: mpsc::Sender<()>,
+    reloaded: watch::Receiver<Reloaded>,
 }
 
 struct Opened {
@@ -81,6 +103,9 @@ impl Editor {
                 Some(name)
             }
         };
+        let fallback_dir = std::env::var_os("STATE_DIRECTORY")
+            .and_then(|dirs| std::env::split_paths(&dirs).next())
+            .filter(|d| d.is_dir() && *d != dir);
         Ok(Editor {
             path,
             dir,
@@ -89,7 +114,20 @@ impl Editor {
                 images,
                 suggested,
             }),
+            fallback_dir,
+            gateway: None,
         })
+    }
+
+    /// Saves apply to the gateway serving the file: `reload` asks for a
+    /// reload (as SIGHUP does), `reloaded` tells how it went.
+    pub(super) fn served_by(
+        mut self,
+        reload: mpsc::Sender<()>,
+        reloaded: watch::Receiver<Reloaded>,
+    ) -> Editor {
+        self.gateway = Some(Gateway { reload, reloaded });
+        self
     }
 
     pub fn path(&self) -> &Path {
@@ -185,6 +223,7 @@ pub async fn get(State(editor): State<Arc<Editor>>) -> Response {
         "doc": doc,
         "open_error": open_error,
         "image": image,
+        "served_by_gateway": editor.gateway.is_some(),
     }))
     .into_response()
 }
@@ -212,37 +251,135 @@ pub async fn check(State(editor): State<Arc<Editor>>, Json(body): Json<DocBody>)
     .into_response()
 }
 
-/// `PUT /api/editor/site`: saves a document without problems.
+/// `PUT /api/editor/site`: saves a document without problems and, in a
+/// gateway, applies it. The reply: `saved` (where), `applied` (true: the
+/// gateway serves it now; false: it does not; null: no gateway serves this
+/// file here) and `message`, what the page shows.
 pub async fn save(State(editor): State<Arc<Editor>>, Json(body): Json<DocBody>) -> Response {
     let (toml, result) = editor.check(&body.doc);
     if let Err(problems) = result {
         let message = format!("not saved: {}", problems.join("; "));
         return error(StatusCode::UNPROCESSABLE_ENTITY, "invalid_site", message);
     }
-    let mut opened = editor.lock();
-    let on_disk = std::fs::read_to_string(&editor.path).ok();
-    if on_disk != opened.text {
-        return error(
-            StatusCode::CONFLICT,
-            "changed_on_disk",
-            format!(
-                "{} changed on disk since the editor opened it; reload the editor to see it \
-                 (nothing was saved)",
-                editor.path.display()
-            ),
-        );
+    let path = editor.path.display().to_string();
+    let written = {
+        let mut opened = editor.lock();
+        let on_disk = std::fs::read_to_string(&editor.path).ok();
+        if on_disk != opened.text {
+            return error(
+                StatusCode::CONFLICT,
+                "changed_on_disk",
+                format!(
+                    "{path} changed on disk since the editor opened it; reload the editor to see \
+                     it (nothing was saved)"
+                ),
+            );
+        }
+        let written = write_atomically(&editor.path, toml.as_bytes());
+        if written.is_ok() {
+            opened.text = Some(toml.clone());
+        }
+        written
+    };
+    if let Err(e) = written {
+        return editor.save_elsewhere(&toml, &e);
     }
-    if let Err(e) = write_atomically(&editor.path, toml.as_bytes()) {
-        return error(
+    tracing::info!(path, "site saved from the editor");
+    let (applied, message) = match &editor.gateway {
+        None => (
+            serde_json::Value::Null,
+            format!(
+                "saved {path}; a gateway serving this file applies it when it reloads \
+                 (`systemctl reload gangway`)"
+            ),
+        ),
+        Some(gateway) => match gateway.apply().await {
+            Ok(()) => (
+                true.into(),
+                format!("saved {path}; the gateway reloaded it and serves it now"),
+            ),
+            Err(why) => (false.into(), format!("saved {path}, but {why}")),
+        },
+    };
+    Json(serde_json::json!({
+        "saved": path,
+        "toml": toml,
+        "applied": applied,
+        "message": message,
+    }))
+    .into_response()
+}
+
+impl Editor {
+    /// The site file cannot be written (`why`): saves the site in the state
+    /// directory instead, or, without one, says where it must go.
+    fn save_elsewhere(&self, toml: &str, why: &std::io::Error) -> Response {
+        let path = self.path.display();
+        let file_name = self.path.file_name().unwrap_or_default();
+        let put = |from: &str| {
+            format!(
+                "to serve it, put it in place as root: `sudo install -m 644 {from} {path} && sudo \
+                 systemctl reload gangway`"
+            )
+        };
+        if let Some(dir) = &self.fallback_dir {
+            let instead = dir.join(file_name);
+            match write_atomically(&instead, toml.as_bytes()) {
+                Ok(()) => {
+                    tracing::warn!(%path, instead = %instead.display(), "cannot write the site file ({why}); saved it in the state directory");
+                    let shown = instead.display().to_string();
+                    let message = format!(
+                        "cannot write {path} ({why}); saved to {shown} instead; {}",
+                        put(&shown)
+                    );
+                    return Json(serde_json::json!({
+                        "saved": shown,
+                        "instead_of": path.to_string(),
+                        "toml": toml,
+                        "applied": false,
+                        "message": message,
+                    }))
+                    .into_response();
+                }
+                Err(e) => tracing::warn!("cannot save in {} either: {e}", dir.display()),
+            }
+        }
+        error(
             StatusCode::INTERNAL_SERVER_ERROR,
             "write_failed",
-            format!("{}: cannot save: {e}", editor.path.display()),
-        );
+            format!(
+                "cannot write {path} ({why}); nothing was saved. Download the site file (below) \
+                 and {}",
+                put("<downloaded file>")
+            ),
+        )
     }
-    tracing::info!(path = %editor.path.display(), "site saved from the editor");
-    opened.text = Some(toml.clone());
-    Json(serde_json::json!({ "saved": editor.path.display().to_string(), "toml": toml }))
-        .into_response()
+}
+
+impl Gateway {
+    /// Asks the gateway to reload and waits for how it went.
+    async fn apply(&self) -> Result<(), String> {
+        let mut reloaded = self.reloaded.clone();
+        let before = reloaded.borrow_and_update().count;
+        // A full queue is a reload not started yet: it reads the new file.
+        if let Err(mpsc::error::TrySendError::Closed(())) = self.reload.try_send(()) {
+            return Err("the gateway is stopping: it did not reload it".into());
+        }
+        match tokio::time::timeout(APPLY_WAIT, reloaded.wait_for(|r| r.count > before)).await {
+            Ok(Ok(r)) => match &r.refused {
+                None => Ok(()),
+                Some(why) => Err(format!(
+                    "the gateway refused to reload it and still serves the previous site: {why}"
+                )),
+            },
+            Ok(Err(_)) => Err("the gateway is stopping: it did not reload it".into()),
+            Err(_) => Err(format!(
+                "the gateway has not finished reloading after {} s (models may still be \
+                 loading); the map shows the new site once it has",
+                APPLY_WAIT.as_secs()
+            )),
+        }
+    }
 }
 
 /// Replaces `path` by `bytes` all at once: a reader (the gateway on
@@ -346,7 +483,12 @@ pub async fn upload(
                 return error(
                     StatusCode::INTERNAL_SERVER_ERROR,
                     "write_failed",
-                    format!("{}: {e}", path.display()),
+                    format!(
+                        "cannot store the image as {} ({e}): copy it there as root (`sudo install \
+                         -m 644 {name} {}`) and open the editor again",
+                        path.display(),
+                        path.display()
+                    ),
                 );
             }
         }

@@ -29,12 +29,12 @@ use axum::response::{IntoResponse, Response};
 use futures::future::BoxFuture;
 use futures::stream;
 use serde::{Deserialize, Serialize};
-use tokio::sync::{broadcast, mpsc};
+use tokio::sync::{broadcast, mpsc, watch};
 
 use super::metrics::Metrics;
 use super::security::error;
 use crate::plan::Destination;
-use crate::publish::{Output, RouteOutcome};
+use crate::publish::Output;
 use crate::sink::Sink;
 use crate::site::{Cell, Site};
 use crate::source::{Source, SourceContext};
@@ -80,6 +80,16 @@ struct Tables {
     /// Fixes not yet sent, and devices forgotten since the last batch.
     pending: Vec<FixView>,
     forgotten: Vec<Arc<str>>,
+    /// When the oldest pending fix was taken (ms since the epoch).
+    pending_since_ms: Option<f64>,
+}
+
+/// What became of the reloads so far: how many there were, and why the
+/// last was refused if it was.
+#[derive(Clone, Debug, Default)]
+pub struct Reloaded {
+    pub count: u64,
+    pub refused: Option<String>,
 }
 
 /// What the pages stream from; shared by the sink, the source and the server.
@@ -93,6 +103,7 @@ pub struct Live {
     requests: mpsc::Sender<Inbound>,
     request_ids: AtomicU64,
     pub(super) metrics: Metrics,
+    pub(super) reloaded: watch::Sender<Reloaded>,
 }
 
 /// One event for the pages, encoded once for all of them.
@@ -105,7 +116,11 @@ struct Frame {
 impl Live {
     /// The live state, the sink that feeds it and the source that carries
     /// the pages' requests.
-    pub fn new(site: Arc<Site>, max_devices: usize) -> (Arc<Live>, WebSink, WebSource) {
+    pub fn new(
+        site: Arc<Site>,
+        max_devices: usize,
+        latency: Arc<crate::publish::latency::Latency>,
+    ) -> (Arc<Live>, WebSink, WebSource) {
         let (events, _) = broadcast::channel(STREAM_QUEUE);
         let (requests, rx) = mpsc::channel(REQUEST_QUEUE);
         let live = Arc::new(Live {
@@ -116,7 +131,8 @@ impl Live {
             max_devices: max_devices.max(1),
             requests,
             request_ids: AtomicU64::new(0),
-            metrics: Metrics::default(),
+            metrics: Metrics::new(latency),
+            reloaded: watch::Sender::new(Reloaded::default()),
         });
         (
             live.clone(),
@@ -140,7 +156,7 @@ impl Live {
         for output in outputs {
             match output {
                 Output::Location(l) => {
-                    self.metrics.observe_fix(l.t);
+                    t.pending_since_ms.get_or_insert_with(unix_ms);
                     let device: Arc<str> = l.device.as_str().into();
                     if !t.devices.contains_key(&device) && t.devices.len() >= self.max_devices {
                         let oldest = t
@@ -176,9 +192,6 @@ impl Live {
                     t.pending.push(view);
                 }
                 Output::Route(reply) => {
-                    if let RouteOutcome::Route(body) = &reply.outcome {
-                        self.metrics.observe_route(body.latency_us);
-                    }
                     let json = serde_json::to_value(reply).expect("plain data serializes");
                     let device: Arc<str> = reply.device.as_str().into();
                     if t.routes.len() < self.max_devices || t.routes.contains_key(&device) {
@@ -209,11 +222,12 @@ impl Live {
 
     /// Sends the fixes taken since the last batch, in one event.
     fn send_batch(&self) {
-        let (fixes, forgotten) = {
+        let (fixes, forgotten, taken_ms) = {
             let mut t = self.lock();
             (
                 std::mem::take(&mut t.pending),
                 std::mem::take(&mut t.forgotten),
+                t.pending_since_ms.take(),
             )
         };
         if !forgotten.is_empty() {
@@ -226,7 +240,14 @@ impl Live {
         if fixes.is_empty() {
             return;
         }
-        let data = serde_json::json!({ "sent_ms": unix_ms(), "fixes": fixes }).to_string();
+        // `taken_ms`: when the oldest of these fixes reached this sink, so
+        // the page measures fix to screen for the slowest fix of a batch.
+        let data = serde_json::json!({
+            "sent_ms": unix_ms(),
+            "taken_ms": taken_ms,
+            "fixes": fixes,
+        })
+        .to_string();
         self.metrics.batches.fetch_add(1, Ordering::Relaxed);
         self.broadcast("fixes", data);
     }
@@ -303,6 +324,17 @@ impl Sink for WebSink {
     fn reload(&mut self, site: &Site) {
         *self.live.site.write().unwrap_or_else(|e| e.into_inner()) = Arc::new(site.clone());
         self.live.broadcast("site", String::from("{}"));
+        self.live.reloaded.send_modify(|r| {
+            r.count += 1;
+            r.refused = None;
+        });
+    }
+
+    fn reload_refused(&mut self, why: &str) {
+        self.live.reloaded.send_modify(|r| {
+            r.count += 1;
+            r.refused = Some(why.to_owned());
+        });
     }
 
     fn shutdown(self: Box<Self>) -> BoxFuture<'static, anyhow::Result<()>> {

@@ -30,12 +30,14 @@ use axum::extract::{DefaultBodyLimit, State};
 use axum::response::{IntoResponse, Redirect, Response};
 use axum::routing::get;
 use tokio::net::TcpListener;
+use tokio::sync::mpsc;
 
 pub use config::WebConfig;
 pub use editor::Editor;
 pub use live::{Live, TRAIL, WebSink, WebSource};
 pub use security::CONTENT_SECURITY_POLICY;
 
+use crate::publish::latency::Latency;
 use crate::sink::Sink;
 use crate::site::Site;
 use crate::source::Source;
@@ -80,31 +82,40 @@ pub struct Web {
     sink: WebSink,
     source: WebSource,
     survey: Option<Arc<survey::Survey>>,
+    latency: Arc<Latency>,
 }
 
 impl Web {
     /// Adds the UI to the runtime's sources and sinks: its sink (the live
     /// map), its source (route requests from the pages), and survey mode's
-    /// view of the sightings of every source already there.
-    pub fn add_to(self, sources: &mut Vec<Box<dyn Source>>, sinks: &mut Vec<Box<dyn Sink>>) {
+    /// view of the sightings of every source already there. Returns the
+    /// latency histograms `/metrics` serves, for the runtime to observe.
+    pub fn add_to(
+        self,
+        sources: &mut Vec<Box<dyn Source>>,
+        sinks: &mut Vec<Box<dyn Sink>>,
+    ) -> Arc<Latency> {
         if let Some(survey) = &self.survey {
             let tapped = std::mem::take(sources).into_iter().map(|s| survey.tap(s));
             sources.extend(tapped);
         }
         sources.push(Box::new(self.source));
         sinks.push(Box::new(self.sink));
+        self.latency
     }
 }
 
 /// Starts the web UI of a running gateway (`[web]` of `gateway`): serves the
 /// live map of `site`, the editor of the site file and survey mode for as
-/// long as the runtime lives. A UI that cannot start never stops the
-/// gateway: why is logged and added to `fallbacks`, and the gateway serves
-/// without it.
+/// long as the runtime lives. With `reload` (the runtime's reloads), a site
+/// saved in the editor is applied as SIGHUP applies it. A UI that cannot
+/// start never stops the gateway: why is logged and added to `fallbacks`,
+/// and the gateway serves without it.
 pub async fn start(
     gateway: &crate::config::Config,
     site: Arc<Site>,
     fallbacks: &mut Vec<String>,
+    reload: Option<mpsc::Sender<()>>,
 ) -> Option<Web> {
     let config = &gateway.web;
     if !config.enabled {
@@ -137,7 +148,12 @@ pub async fn start(
             }
         }
     });
-    let (live, sink, source) = Live::new(site, gateway.limits.max_devices);
+    let latency = Arc::new(Latency::default());
+    let (live, sink, source) = Live::new(site, gateway.limits.max_devices, latency.clone());
+    let editor = match (editor, reload) {
+        (Some(editor), Some(reload)) => Some(editor.served_by(reload, live.reloaded.subscribe())),
+        (editor, _) => editor,
+    };
     tracing::info!(addr = %server.addr(), "web UI at http://{}/", server.addr());
     let ui = Ui {
         live: Some(live),
@@ -153,6 +169,7 @@ pub async fn start(
         sink,
         source,
         survey,
+        latency,
     })
 }
 

@@ -192,6 +192,38 @@ pub fn write_config(path: &Path, gateway_id: &str, site: &Path, broker: &Broker,
     .unwrap();
 }
 
+/// Tests run at once: a gateway's web UI must be off or on port 0, never
+/// on the default port, which two gateways would compete for (the loser
+/// would serve without its UI, listed in its fallbacks).
+pub fn assert_web_ui_on_a_port_of_its_own(config: &Path) {
+    let text = std::fs::read_to_string(config).unwrap();
+    let config: toml::Table = toml::from_str(&text).unwrap();
+    let web = config.get("web").and_then(|w| w.as_table());
+    let enabled = web
+        .and_then(|w| w.get("enabled"))
+        .and_then(|e| e.as_bool())
+        .unwrap_or(true);
+    let bind = web.and_then(|w| w.get("bind")).and_then(|b| b.as_str());
+    assert!(
+        !enabled || bind.is_some_and(|b| b.ends_with(":0")),
+        "a test gateway's [web] must be `enabled = false` or `bind = \"127.0.0.1:0\"`:\n{text}"
+    );
+}
+
+/// No stats message lists the web UI among its fallbacks (it failed to start).
+fn check_no_web_fallback(m: &Received) {
+    if m.topic.ends_with("/stats") {
+        let stats = m.json();
+        let fallbacks = stats["fallbacks"].as_array().cloned().unwrap_or_default();
+        assert!(
+            !fallbacks
+                .iter()
+                .any(|f| f.as_str().is_some_and(|f| f.starts_with("[web]"))),
+            "the web UI fell back: {stats}"
+        );
+    }
+}
+
 /// Gateway logs go to the test's stderr with GANGWAY_TEST_LOGS=1.
 fn test_logs() -> Stdio {
     if std::env::var_os("GANGWAY_TEST_LOGS").is_some() {
@@ -224,6 +256,7 @@ impl Gateway {
     }
 
     fn spawn(config: &Path, args: &[&str], filter: &str, stderr: Stdio) -> Gateway {
+        assert_web_ui_on_a_port_of_its_own(config);
         let child = Command::new(env!("CARGO_BIN_EXE_gangway"))
             .arg("run")
             .arg("--config")
@@ -360,6 +393,7 @@ impl Client {
     /// Moves everything received so far into `seen`, without waiting.
     pub fn drain(&mut self) {
         while let Ok(m) = self.rx.try_recv() {
+            check_no_web_fallback(&m);
             self.seen.push(m);
         }
     }
@@ -377,6 +411,7 @@ impl Client {
         loop {
             match tokio::time::timeout_at(deadline, self.rx.recv()).await {
                 Ok(Some(m)) => {
+                    check_no_web_fallback(&m);
                     self.seen.push(m.clone());
                     if pred(&m) {
                         return m;

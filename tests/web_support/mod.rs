@@ -52,6 +52,11 @@ pub struct Browser {
 impl Browser {
     /// Starts chromium, saving screenshots in `screenshots`.
     pub async fn start(screenshots: &Path) -> Option<Browser> {
+        Browser::start_with(screenshots, &[]).await
+    }
+
+    /// Starts chromium with `extra` command-line switches.
+    pub async fn start_with(screenshots: &Path, extra: &[&str]) -> Option<Browser> {
         let (chromium, driver) = (
             Path::new("/usr/bin/chromium"),
             Path::new("/usr/bin/chromedriver"),
@@ -79,19 +84,27 @@ impl Browser {
             std::thread::sleep(Duration::from_millis(50));
         }
         let profile = tempfile::tempdir().unwrap();
+        let mut args: Vec<String> = [
+            "--headless=new",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--disable-dev-shm-usage",
+            "--window-size=1500,950",
+        ]
+        .into_iter()
+        .chain(extra.iter().copied())
+        .map(String::from)
+        .collect();
+        args.push(format!("--user-data-dir={}", profile.path().display()));
         let mut caps = serde_json::Map::new();
         caps.insert(
             "goog:chromeOptions".into(),
-            json!({
-                "binary": chromium,
-                "args": [
-                    "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic",
-                    "--no-first-run", "--disable-background-networking",
-                    "--disable-component-update", "--disable-sync",
-                    "--disable-dev-shm-usage", "--window-size=1500,950",
-                    format!("--user-data-dir={}", profile.path().display()),
-                ],
-            }),
+            json!({ "binary": chromium, "args": args }),
         );
         let client = ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
             .capabilities(caps)
@@ -148,6 +161,12 @@ impl Browser {
             .click()
             .await
             .unwrap();
+    }
+
+    /// Presses Enter on the element `locator` finds (the keyboard's click).
+    pub async fn enter_on(&self, locator: Locator<'_>) {
+        let element = self.client.find(locator).await.unwrap();
+        element.send_keys("\u{e007}").await.unwrap();
     }
 
     pub async fn tool(&self, name: &str) {
@@ -239,4 +258,84 @@ pub fn free_port() -> u16 {
         .local_addr()
         .unwrap()
         .port()
+}
+
+/// Spawns a gateway (`gangway run` or `replay --web`) whose web UI binds
+/// port 0, and returns it with the UI's base URL, read from its log (the
+/// rest of the log is drained so the gateway never blocks on it).
+pub fn with_web_ui(mut command: Command) -> (Proc, String) {
+    use std::io::{BufRead, BufReader};
+    let mut child = command
+        .env("RUST_LOG", "warn,gangway::web=info")
+        .env("NO_COLOR", "1")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("gangway runs");
+    let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
+    let mut seen = Vec::new();
+    let url = loop {
+        let Some(Ok(line)) = lines.next() else {
+            let _ = child.kill();
+            panic!("the gateway ended before its web UI started: {seen:#?}");
+        };
+        if let Some(at) = line.find("web UI at http://") {
+            let url = line[at + "web UI at ".len()..]
+                .split_whitespace()
+                .next()
+                .unwrap()
+                .trim_end_matches('/')
+                .to_owned();
+            break url;
+        }
+        seen.push(line);
+    };
+    std::thread::spawn(move || for _ in lines {});
+    (Proc(child), url)
+}
+
+impl Browser {
+    /// Viewport coordinates of grid points of the plan (`#plan`, in grid units).
+    pub async fn grid_points(&self, points: &[[f64; 2]]) -> Vec<[f64; 2]> {
+        let script = format!(
+            "const m = document.getElementById('plan').getScreenCTM();
+             return {}.map(p => {{ const q = new DOMPoint(p[0], p[1]).matrixTransform(m); return [q.x, q.y]; }});",
+            serde_json::to_string(points).unwrap()
+        );
+        serde_json::from_value(self.js(&script).await).unwrap()
+    }
+
+    /// The plan's visible labels (place names, beacon ids) that overlap
+    /// another or stand out of the plan, as text, and how many are visible.
+    pub async fn label_problems(&self) -> Value {
+        self.js(
+            "const plan = document.getElementById('plan').getBoundingClientRect();
+             const shown = [...document.querySelectorAll('#plan .label')]
+               .filter(l => l.getAttribute('visibility') !== 'hidden')
+               .map(l => [l.textContent, l.getBoundingClientRect()]);
+             const problems = [];
+             shown.forEach(([a, r], i) => {
+               if (r.left < plan.left || r.top < plan.top || r.right > plan.right || r.bottom > plan.bottom)
+                 problems.push(`${a} out of the plan`);
+               for (const [b, q] of shown.slice(i + 1))
+                 if (r.left < q.right && q.left < r.right && r.top < q.bottom && q.top < r.bottom)
+                   problems.push(`${a} overlaps ${b}`);
+             });
+             return { shown: shown.length, problems };",
+        )
+        .await
+    }
+}
+
+impl Browser {
+    /// Moves the pointer to `[x, y]` (viewport coordinates).
+    pub async fn move_to(&self, [x, y]: [f64; 2]) {
+        let mouse = MouseActions::new("mouse".into()).then(PointerAction::MoveTo {
+            duration: None,
+            x: x.round(),
+            y: y.round(),
+        });
+        self.client.perform_actions(mouse).await.unwrap();
+        self.client.release_actions().await.unwrap();
+    }
 }

@@ -4,7 +4,7 @@
 // does; its problems are shown as they are. Nothing here writes TOML.
 
 import {
-  api, h, s, fill, Frame, similarity, applyMatrix, invertMatrix, tilePaths, gridLines, PlanView, drawFloorplan, token, setToken,
+  api, h, s, fill, Frame, similarity, applyMatrix, invertMatrix, tilePaths, gridLines, PlanView, drawFloorplan, token, setToken, anchorMarker, placeMarker,
 } from "/assets/site.js";
 
 const $ = (id) => document.getElementById(id);
@@ -21,6 +21,7 @@ let draft = []; // world points of the obstacle or wall being drawn
 let selected = null; // { kind, key }
 let lastView = null; // the last valid site view from the check
 let access = { read_only: false, needs_token: false };
+let served = false; // the file is the site of the gateway serving this page
 let checkTimer = 0;
 let checkSeq = 0;
 let painting = null;
@@ -83,7 +84,9 @@ async function load() {
   $("token").value = token();
   $("save").disabled = access.read_only;
   const opened = await api("/api/editor");
-  fill($("file"), opened.exists ? `editing ${opened.path}` : `new file ${opened.path}`);
+  served = opened.served_by_gateway;
+  fill($("file"), opened.exists ? `editing ${opened.path}` : `new file ${opened.path}`, served ? " (the site this gateway serves: saving applies it)" : "");
+  $("download").download = opened.path.split("/").pop();
   doc = opened.doc || { name: "new-site", cell_m: 1 };
   image = opened.image;
   if (opened.open_error) showProblems([opened.open_error + " (the file cannot be opened as a site; saving replaces it)"]);
@@ -689,30 +692,19 @@ function render() {
     for (const a of doc[kind] || []) {
       const at = beaconGrid(a);
       if (!at) continue;
-      const isSel = selected && selected.kind === kind && selected.key === a.id;
-      anchors.push(
-        s(
-          "g",
-          { class: `anchor ${kind}` + (isSel ? " selected" : ""), "data-kind": kind, "data-key": a.id, transform: `translate(${at[0]} ${at[1]})` },
-          s("circle", { r: 0.32 }),
-          s("text", { class: "anchor-id", y: -0.45 }, a.id),
-        ),
-      );
+      const marker = anchorMarker(kind, a.id, at, { "data-kind": kind, "data-key": a.id }, s("title", {}, `${kind} ${a.id}`));
+      if (selected && selected.kind === kind && selected.key === a.id) marker.node.classList.add("selected");
+      anchors.push(marker);
     }
   }
-  fill(view.layers.anchors, anchors);
-  fill(
-    view.layers.places,
-    Object.entries(doc.places || {}).map(([name, cell]) => {
-      const isSel = selected && selected.kind === "place" && selected.key === name;
-      return s(
-        "g",
-        { class: "place" + (isSel ? " selected" : ""), "data-kind": "place", "data-key": name, transform: `translate(${cell[0] + 0.5} ${cell[1] + 0.5})` },
-        s("rect", { x: -0.42, y: -0.42, width: 0.84, height: 0.84, rx: 0.15 }),
-        s("text", { class: "place-name", y: 1.05 }, name),
-      );
-    }),
-  );
+  const places = Object.entries(doc.places || {}).map(([name, cell]) => {
+    const marker = placeMarker(name, cell, { "data-kind": "place", "data-key": name }, s("title", {}, name));
+    if (selected && selected.kind === "place" && selected.key === name) marker.node.classList.add("selected");
+    return marker;
+  });
+  fill(view.layers.anchors, anchors.map((a) => a.node));
+  fill(view.layers.places, places.map((p) => p.node));
+  view.labels.set([...places, ...anchors].map((m) => m.label));
   const draftParts = [];
   if (measure.length) {
     const pts = measure.map((p) => applyMatrix(m, p));
@@ -770,7 +762,7 @@ async function check() {
   try {
     const result = await api("/api/editor/check", { method: "POST", json: { doc } });
     if (seq !== checkSeq) return;
-    fill($("toml"), result.toml);
+    showToml(result.toml);
     if (result.ok) {
       lastView = result.view;
       const v = result.view;
@@ -794,13 +786,29 @@ function showSaveStatus(message, bad = false) {
   fill($("save-status"), h("span", { class: bad ? "bad" : "ok" }, message));
 }
 
+/** The site file as it would be saved, shown and offered as a download. */
+let downloadUrl = "";
+function showToml(toml) {
+  fill($("toml"), toml);
+  if (downloadUrl) URL.revokeObjectURL(downloadUrl);
+  downloadUrl = URL.createObjectURL(new Blob([toml], { type: "application/toml" }));
+  $("download").href = downloadUrl;
+}
+
 $("save").addEventListener("click", async () => {
+  $("save").disabled = true;
+  showSaveStatus(served ? "saving, then reloading the gateway…" : "saving…");
   try {
     const result = await api("/api/editor/site", { method: "PUT", json: { doc } });
-    fill($("toml"), result.toml);
-    showSaveStatus(`saved ${result.saved}`);
+    showToml(result.toml);
+    // `applied`: true, the gateway serves it now; false, it does not
+    // (refused, or saved elsewhere); null, no gateway serves this file here.
+    showSaveStatus(result.message, result.applied === false);
   } catch (e) {
     showSaveStatus(e.message, true);
+    $("toml").closest("details").open = true;
+  } finally {
+    $("save").disabled = access.read_only;
   }
 });
 

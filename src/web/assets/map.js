@@ -5,6 +5,15 @@
 //
 // Device ids and place names come from the air and the broker: they are
 // only ever set as text (textContent, <title>), never parsed as HTML.
+//
+// The devices (dots, halos, trails) are drawn on a canvas over the plan's
+// SVG, whole, once per animation frame that has fixes: with a thousand
+// devices, an SVG element per dot made every frame re-record and re-raster
+// thousands of elements (frame work p50 31 ms at 1,000 fixes a second),
+// where a canvas draws them in three paths (docs/web.md, "Measured"). The
+// pointer finds devices in the device table (devicesAt), not the DOM. The
+// plan changes only on a reload; its labels are laid out around each other
+// (site.js).
 
 import { api, h, s, fill, Frame, PlanView, drawSite, drawFloorplan, token, setToken } from "/assets/site.js";
 
@@ -22,25 +31,46 @@ const LIST_MAX = 200;
 let site = null;
 let access = {};
 // Dragging pans, except on a device or a place, which take clicks.
-const view = new PlanView($("plan"), { panWithLeft: (e) => !(e.target.closest && e.target.closest(".device, .place")) });
-const devices = new Map(); // id -> { id, cell, t, confidence, place, trail: [[gx, gy]], node, trailNode, dirty }
+const view = new PlanView($("plan"), {
+  panWithLeft: (e) => !(e.target.closest && e.target.closest(".device, .place")),
+  overlays: [document.querySelector(".legend"), $("cursor")],
+});
+const devices = new Map(); // id -> { id, cell, t, confidence, place, unknown, trail: [[gx, gy]], shown, dirty }
+const layer = $("devices-layer");
+let redraw = true; // the canvas is out of date
+view.onChange(() => {
+  redraw = true;
+  schedule();
+});
 let selected = null; // device id
 let routes = new Map(); // device -> last path payload
 let guidance = new Map(); // device -> last guidance payload
 let pending = []; // fix batches waiting for the next frame
 let frameQueued = false;
-const latencies = []; // ms from the gateway sending a fix to its dot being drawn
+// This page's own figures, since it opened or since "reset".
+const FIGURES_KEPT = 20000;
+const latencies = []; // ms from the gateway's web sink taking a fix to its dot being drawn
 const frameWork = []; // ms of main-thread work (script, style, layout, paint) per drawn frame
 const frameIntervals = []; // ms between frames
 let lastFrame = 0;
+let received = 0; // fixes drawn since the page opened or "reset"
+let moved = 0; // dots that moved, likewise
+let countedSince = performance.now();
+function keep(list, value) {
+  list.push(value);
+  if (list.length > FIGURES_KEPT) list.splice(0, list.length - FIGURES_KEPT);
+}
 // A message posted during a frame is delivered once that frame is rendered:
 // the time until then is the frame's work.
 const afterPaint = new MessageChannel();
-afterPaint.port1.onmessage = (e) => {
-  frameWork.push(performance.now() - e.data);
-  if (frameWork.length > 600) frameWork.shift();
-};
-let received = 0;
+afterPaint.port1.onmessage = (e) => keep(frameWork, performance.now() - e.data);
+$("page-reset").addEventListener("click", () => {
+  for (const list of [latencies, frameWork, frameIntervals]) list.length = 0;
+  received = 0;
+  moved = 0;
+  countedSince = performance.now();
+  pageStats();
+});
 
 function haloRadius(confidence) {
   // P(d <= 1 cell) = 1 - exp(-1 / (2 sigma^2)) = confidence.
@@ -56,13 +86,20 @@ async function load() {
   $("token").value = token();
   $("edit-link").hidden = !access.editor;
   $("survey").hidden = !access.survey;
+  await loadSite(true);
+  connect();
+  refreshSurvey();
+}
+
+/** Draws the site the gateway serves (again after a reload). */
+async function loadSite(first) {
   site = await api("/api/site");
   fill($("site-name"), site.name);
   document.title = `gangway · ${site.name}`;
   const plan = site.floorplan;
   drawFloorplan(view.layers.floorplan, plan && plan.url, plan && plan.matrix, plan && plan.width, plan && plan.height);
   drawSite(view, site, { withPlan: !!plan });
-  view.fit(0, 0, site.width, site.height);
+  if (first) view.fit(0, 0, site.width, site.height);
   fill(
     $("places"),
     site.places.map((p) => h("li", {}, h("button", { type: "button", class: "link", onclick: () => pickPlace(p) }, `${p.name}  [${p.cell.join(", ")}]`))),
@@ -70,12 +107,12 @@ async function load() {
   for (const node of view.layers.places.querySelectorAll(".place")) {
     node.addEventListener("click", (e) => {
       if ($("survey-on").checked) return; // a spot to survey, like any cell
+      if (!selected && deviceAt(e)) return; // a device standing there: pick it first
       e.stopPropagation();
       pickPlace(site.places.find((p) => p.name === node.dataset.place));
     });
   }
-  connect();
-  refreshSurvey();
+  $("plan").dataset.siteHash = site.map_hash;
 }
 
 $("token").addEventListener("change", () => setToken($("token").value.trim()));
@@ -84,11 +121,53 @@ $("plan").addEventListener("pointermove", (e) => {
   if (!site) return;
   const [gx, gy] = view.toGrid(e);
   fill($("cursor"), `cell [${Math.floor(gx)}, ${Math.floor(gy)}]`);
+  showTip(e, devicesAt(e));
 });
+$("plan").addEventListener("pointerleave", () => showTip(null, []));
+
+/** The located devices drawn under a pointer event, nearest first (the
+ * selected one first among equals: it is drawn on top). */
+function devicesAt(e) {
+  if (!site) return [];
+  const [gx, gy] = view.toGrid(e);
+  const reach = Math.max(0.5, 8 * view.unitsPerPixel());
+  const near = [];
+  for (const d of devices.values()) {
+    if (!d.cell) continue;
+    const dd = Math.hypot(d.cell[0] + 0.5 - gx, d.cell[1] + 0.5 - gy);
+    if (dd <= reach) near.push([dd - (d.id === selected ? 1e-6 : 0), d]);
+  }
+  return near.sort((a, b) => a[0] - b[0]).map(([, d]) => d);
+}
+
+function deviceAt(e) {
+  return devicesAt(e)[0] || null;
+}
+
+/** The tooltip of the devices under the pointer (text only). */
+function showTip(e, here) {
+  const tip = $("tip");
+  const d = here[0];
+  if (!d) {
+    tip.hidden = true;
+    return;
+  }
+  const others = here.slice(1, 4).map((o) => o.id);
+  const more = here.length > 4 ? `, … ${here.length - 4} more` : "";
+  tip.textContent =
+    `${d.id}: ${d.unknown ? "unknown (last located here)" : d.place || "cell " + d.cell.join(", ")}, confidence ${(d.confidence * 100).toFixed(0)} %` +
+    (others.length ? ` · also here: ${others.join(", ")}${more}` : "");
+  const frame = $("plan").getBoundingClientRect();
+  tip.style.left = `${e.clientX - frame.left + 12}px`;
+  tip.style.top = `${e.clientY - frame.top + 12}px`;
+  tip.hidden = false;
+}
 
 $("plan").addEventListener("click", (e) => {
-  if (view.lastDragMoved || !site || !selected) return;
-  if (e.target.closest(".device") || (e.target.closest(".place") && !$("survey-on").checked)) return;
+  if (view.lastDragMoved || !site) return;
+  const hit = deviceAt(e);
+  if (hit && !$("survey-on").checked) return selectDevice(hit.id);
+  if (!selected || (e.target.closest(".place") && !$("survey-on").checked)) return;
   const [gx, gy] = view.toGrid(e);
   if ($("survey-on").checked) return surveyAt([gx, gy]);
   const x = Math.floor(gx);
@@ -131,6 +210,8 @@ function connect() {
     if (g.device === selected) showRoute();
   });
   source.addEventListener("status", (e) => showStatus(JSON.parse(e.data)));
+  // The gateway reloaded its site (SIGHUP, or a save in the editor).
+  source.addEventListener("site", () => loadSite(false).catch((e) => fill($("connection"), h("span", { class: "bad" }, e.message))));
 }
 
 function schedule() {
@@ -150,21 +231,20 @@ function frame() {
     for (const fix of batch.fixes) applyFix(fix, batch.sent_ms, true);
   }
   draw();
-  // Drawn in this frame: the time from the gateway sending the batch to now.
+  // Drawn in this frame: the time from the web sink taking the batch's
+  // oldest fix to now.
   const drawnAt = Date.now();
   for (const batch of batches) {
     received += batch.fixes.length;
-    latencies.push(drawnAt - batch.sent_ms);
+    keep(latencies, drawnAt - (batch.taken_ms || batch.sent_ms));
   }
-  if (latencies.length > 2000) latencies.splice(0, latencies.length - 2000);
 }
 
 function applyFix(fix, sentMs, live) {
   let d = devices.get(fix.device);
   if (!d) {
-    d = { id: fix.device, trail: [], node: null, trailNode: null };
+    d = { id: fix.device, trail: [], drawnAt: null };
     devices.set(fix.device, d);
-    d.listDirty = true;
   }
   d.t = fix.t;
   d.confidence = fix.confidence;
@@ -182,70 +262,122 @@ function applyFix(fix, sentMs, live) {
   d.dirty = true;
 }
 
-function describe(d) {
-  let title = d.node.querySelector("title");
-  if (!title) d.node.append((title = s("title", {})));
-  title.textContent = `${d.id}: ${d.unknown ? "unknown (last located here)" : d.place || "cell " + d.cell.join(", ")}, confidence ${(d.confidence * 100).toFixed(0)} %`;
-}
-
 function removeDevice(id) {
   const d = devices.get(id);
   if (!d) return;
-  if (d.node) d.node.remove();
-  if (d.trailNode) d.trailNode.remove();
   devices.delete(id);
+  redraw = true;
   if (selected === id) selected = null;
   listDirty = true;
 }
 
 let listDirty = true;
 
-function draw() {
+/** Paints every device on the canvas: trails, then halos, then dots (the
+ * selected device last, over the others), in grid units through the
+ * plan's view box. */
+function paint() {
+  const ratio = window.devicePixelRatio || 1;
+  const width = layer.clientWidth;
+  const height = layer.clientHeight;
+  if (layer.width !== Math.round(width * ratio) || layer.height !== Math.round(height * ratio)) {
+    layer.width = Math.round(width * ratio);
+    layer.height = Math.round(height * ratio);
+  }
+  const g = layer.getContext("2d");
+  g.setTransform(1, 0, 0, 1, 0, 0);
+  g.clearRect(0, 0, layer.width, layer.height);
+  if (!site) return;
+  const [bx, by, bw] = view.box;
+  const k = (width / bw) * ratio;
+  g.setTransform(k, 0, 0, k, -bx * k, -by * k);
+  const upp = view.unitsPerPixel();
+  // Dots stay at least 3 screen pixels wide, whatever the zoom.
+  const r = Math.max(0.3, 3 * upp);
   const allTrails = devices.size <= TRAILS_FOR_ALL;
+  const located = [];
+  const unknown = [];
+  let chosen = null;
   for (const d of devices.values()) {
-    if (d.listDirty) {
-      listDirty = true;
-      d.listDirty = false;
+    if (!d.cell) continue;
+    if (d.id === selected) chosen = d;
+    else (d.unknown ? unknown : located).push(d);
+  }
+  const trails = (list, color) => {
+    g.beginPath();
+    for (const d of list) {
+      if (d.trail.length < 2) continue;
+      g.moveTo(d.trail[0][0], d.trail[0][1]);
+      for (const [x, y] of d.trail.slice(1)) g.lineTo(x, y);
     }
+    g.strokeStyle = color;
+    g.lineWidth = 0.1;
+    g.lineJoin = "round";
+    g.stroke();
+  };
+  const circles = (list, radius) => {
+    g.beginPath();
+    for (const d of list) {
+      const rr = radius(d);
+      if (rr <= 0) continue;
+      g.moveTo(d.cell[0] + 0.5 + rr, d.cell[1] + 0.5);
+      g.arc(d.cell[0] + 0.5, d.cell[1] + 0.5, rr, 0, 2 * Math.PI);
+    }
+  };
+  const halo = (d) => Math.round(haloRadius(d.confidence) * 20) / 20;
+  const dot = () => r;
+  if (allTrails) trails(located, "rgba(11, 107, 203, 0.35)");
+  circles(located, halo);
+  g.fillStyle = "rgba(11, 107, 203, 0.12)";
+  g.fill();
+  g.strokeStyle = "rgba(11, 107, 203, 0.35)";
+  g.lineWidth = 0.04;
+  g.stroke();
+  circles(unknown, dot);
+  g.fillStyle = "#98a2b3";
+  g.fill();
+  g.setLineDash([0.1, 0.06]);
+  g.strokeStyle = "#475467";
+  g.lineWidth = 0.08;
+  g.stroke();
+  g.setLineDash([]);
+  circles(located, dot);
+  g.fillStyle = "#0b6bcb";
+  g.fill();
+  g.strokeStyle = "#fff";
+  g.stroke();
+  if (chosen) {
+    trails([chosen], "rgba(11, 70, 140, 0.6)"); // not red: routes are
+    if (!chosen.unknown) {
+      circles([chosen], halo);
+      g.fillStyle = "rgba(217, 45, 32, 0.12)";
+      g.fill();
+      g.strokeStyle = "rgba(217, 45, 32, 0.35)";
+      g.lineWidth = 0.04;
+      g.stroke();
+    }
+    circles([chosen], dot);
+    g.fillStyle = chosen.unknown ? "#98a2b3" : "#d92d20";
+    g.fill();
+    g.strokeStyle = chosen.unknown ? "#d92d20" : "#fff";
+    g.lineWidth = 0.08;
+    g.stroke();
+  }
+}
+
+/** Draws the devices if anything changed since the last frame. */
+function draw() {
+  for (const d of devices.values()) {
     if (!d.dirty) continue;
     d.dirty = false;
+    listDirty = true;
+    redraw = true;
     if (!d.cell) continue; // never located: in the list only
-    if (!d.node) {
-      d.node = s("g", { class: "device", "data-device": d.id }, s("circle", { class: "halo" }), s("circle", { class: "dot", r: 0.3 }));
-      d.node.addEventListener("click", (e) => {
-        e.stopPropagation();
-        selectDevice(d.id);
-      });
-      // The tooltip is written when the pointer comes, not on every fix.
-      d.node.addEventListener("pointerenter", () => describe(d));
-      view.layers.devices.append(d.node);
-      d.shown = {};
-    }
-    // Only what changed is written: at a thousand fixes a second, every
-    // attribute set costs style and layout work in the next frame.
-    const [x, y] = d.trail[d.trail.length - 1] || [d.cell[0] + 0.5, d.cell[1] + 0.5];
-    const at = `translate(${x} ${y})`;
-    const halo = d.unknown ? 0 : Math.round(haloRadius(d.confidence) * 20) / 20;
-    const state = (d.unknown ? 1 : 0) + (d.id === selected ? 2 : 0);
-    if (d.shown.at !== at) d.node.setAttribute("transform", (d.shown.at = at));
-    if (d.shown.halo !== halo) d.node.firstChild.setAttribute("r", (d.shown.halo = halo));
-    if (d.shown.state !== state) {
-      d.shown.state = state;
-      d.node.classList.toggle("unknown", d.unknown);
-      d.node.classList.toggle("selected", d.id === selected);
-    }
-    const showTrail = (allTrails || d.id === selected) && d.trail.length > 1;
-    if (showTrail) {
-      if (!d.trailNode) {
-        d.trailNode = s("polyline", { class: "trail" });
-        view.layers.trails.append(d.trailNode);
-      }
-      d.trailNode.setAttribute("points", d.trail.map((p) => p.join(",")).join(" "));
-    } else if (d.trailNode) {
-      d.trailNode.remove();
-      d.trailNode = null;
-    }
+    if (d.drawnAt && (d.drawnAt[0] !== d.cell[0] || d.drawnAt[1] !== d.cell[1])) moved++;
+    d.drawnAt = d.cell;
   }
+  if (redraw) paint();
+  redraw = false;
   if (listDirty) {
     listDirty = false;
     renderList();
@@ -259,26 +391,39 @@ $("device-filter").addEventListener("input", () => {
 });
 
 let listTimer = 0;
+let listed = { ids: [], rows: new Map(), more: 0 }; // what the list shows
 function renderList() {
-  // The list is text; at most every half second however fast fixes come.
+  // The list is text; at most once a second however fast fixes come, and
+  // rebuilt only when its devices change (otherwise its texts are updated).
   if (listTimer) return;
   listTimer = setTimeout(() => {
     listTimer = 0;
     const filter = $("device-filter").value.trim().toLowerCase();
-    const ids = [...devices.keys()].filter((id) => !filter || id.toLowerCase().includes(filter)).sort();
-    const items = ids.slice(0, LIST_MAX).map((id) => {
+    const all = [...devices.keys()].filter((id) => !filter || id.toLowerCase().includes(filter)).sort();
+    const ids = all.slice(0, LIST_MAX);
+    const more = all.length - ids.length;
+    if (more !== listed.more || ids.length !== listed.ids.length || ids.some((id, i) => id !== listed.ids[i])) {
+      const rows = new Map();
+      const items = ids.map((id) => {
+        const where = h("span", {});
+        const li = h("li", { "data-device": id }, h("button", { type: "button", class: "link", onclick: () => selectDevice(id) }, id), where);
+        rows.set(id, { li, where });
+        return li;
+      });
+      if (more > 0) items.push(h("li", { class: "muted" }, `… and ${more} more (filter to find one)`));
+      fill($("devices"), items);
+      listed = { ids, rows, more };
+    }
+    for (const [id, row] of listed.rows) {
       const d = devices.get(id);
       const where = d.unknown ? "unknown" : d.place || (d.cell ? `[${d.cell.join(", ")}]` : "unknown");
-      return h(
-        "li",
-        { class: id === selected ? "selected" : "" },
-        h("button", { type: "button", class: "link", onclick: () => selectDevice(id) }, id),
-        h("span", { class: d.unknown ? "muted" : "" }, where),
-      );
-    });
-    if (ids.length > LIST_MAX) items.push(h("li", { class: "muted" }, `… and ${ids.length - LIST_MAX} more (filter to find one)`));
-    fill($("devices"), items);
-  }, 500);
+      const cell = d.cell ? d.cell.join(",") : "";
+      if (row.where.textContent !== where) row.where.textContent = where;
+      row.where.classList.toggle("muted", !!d.unknown);
+      row.li.classList.toggle("selected", id === selected);
+      if (row.li.dataset.cell !== cell) row.li.dataset.cell = cell;
+    }
+  }, 1000);
 }
 
 // ---- routes ----
@@ -296,7 +441,12 @@ function selectDevice(id) {
 }
 
 function pickPlace(place) {
-  if (!place || $("survey-on").checked) return;
+  if (!place) return;
+  // In survey mode a place (from the list too, for the keyboard) is a spot.
+  if ($("survey-on").checked) {
+    if (selected) surveyAt([place.cell[0] + 0.5, place.cell[1] + 0.5]);
+    return;
+  }
   if (!selected) {
     fill($("route-pick"), h("span", { class: "bad" }, "click a device first"));
     return;
@@ -447,6 +597,8 @@ function drawHeat() {
     legend = "mean published confidence of the fixes in each cell since this page opened: blue 0, red 1";
   }
   fill($("heat-legend"), legend);
+  // Place markers go pale over a heat map: a surveyed spot is often a place.
+  $("plan").classList.toggle("heat-on", cells.length > 0);
   fill(
     view.layers.heat,
     cells.map(([cell, v, title]) =>
@@ -489,14 +641,17 @@ function showStatus(stats) {
 
 function percentile(values, p) {
   if (!values.length) return NaN;
-  const sorted = [...values].sort((a, b) => a - b);
+  const sorted = Float64Array.from(values).sort(); // numeric, and fast
   return sorted[Math.min(sorted.length - 1, Math.floor(p * sorted.length))];
 }
 
 /** This page's own figures: fixes a second, fix-to-screen latency, frame time. */
 function pageStats() {
+  const now = performance.now();
+  const seconds = Math.max(0.001, (now - countedSince) / 1000);
   const stats = {
-    fixes_per_s: received / 2,
+    fixes_per_s: received / seconds,
+    moved_per_s: moved / seconds,
     latency_p50_ms: percentile(latencies, 0.5),
     latency_p99_ms: percentile(latencies, 0.99),
     frame_p50_ms: percentile(frameWork, 0.5),
@@ -504,11 +659,11 @@ function pageStats() {
     interval_p50_ms: percentile(frameIntervals, 0.5),
     devices: devices.size,
   };
-  received = 0;
   fill(
     $("page-stats"),
     h("dt", {}, "devices drawn"), h("dd", {}, String(stats.devices)),
     h("dt", {}, "fixes a second"), h("dd", {}, stats.fixes_per_s.toFixed(0)),
+    h("dt", {}, "dots moved a second"), h("dd", {}, stats.moved_per_s.toFixed(0)),
     h("dt", {}, "fix → screen p50 / p99"), h("dd", {}, `${stats.latency_p50_ms.toFixed(0)} / ${stats.latency_p99_ms.toFixed(0)} ms`),
     h("dt", {}, "frame work p50 / p99"), h("dd", {}, `${stats.frame_p50_ms.toFixed(1)} / ${stats.frame_p99_ms.toFixed(1)} ms`),
     h("dt", {}, "frame interval p50"), h("dd", {}, `${stats.interval_p50_ms.toFixed(1)} ms`),
@@ -518,13 +673,16 @@ function pageStats() {
   $("page-stats").dataset.frameP50 = stats.frame_p50_ms;
   $("page-stats").dataset.frameP99 = stats.frame_p99_ms;
   $("page-stats").dataset.intervalP50 = stats.interval_p50_ms;
+  $("page-stats").dataset.fixesPerS = stats.fixes_per_s;
+  $("page-stats").dataset.movedPerS = stats.moved_per_s;
+  $("page-stats").dataset.frames = frameWork.length;
+  $("page-stats").dataset.devices = stats.devices;
 }
 setInterval(pageStats, 2000);
 
 // Frame times, from the browser's own frame clock.
 function tick(now) {
-  if (lastFrame) frameIntervals.push(now - lastFrame);
-  if (frameIntervals.length > 600) frameIntervals.shift();
+  if (lastFrame) keep(frameIntervals, now - lastFrame);
   lastFrame = now;
   requestAnimationFrame(tick);
 }

@@ -148,12 +148,14 @@ export function gridLines(width, height) {
  * button (or the left one when `panWithLeft()` says so) to pan; the wheel
  * zooms about the pointer. */
 export class PlanView {
-  constructor(svg, { panWithLeft = () => true } = {}) {
+  constructor(svg, { panWithLeft = () => true, overlays = [] } = {}) {
     this.svg = svg;
     this.box = [0, 0, 10, 10];
     this.panWithLeft = panWithLeft;
+    this.labels = new Labels(this, overlays);
+    this.listeners = [];
     this.layers = {};
-    for (const name of ["floorplan", "tiles", "overlay", "grid", "shapes", "heat", "route", "trails", "anchors", "places", "devices", "draft"]) {
+    for (const name of ["floorplan", "tiles", "overlay", "grid", "shapes", "heat", "route", "anchors", "places", "draft"]) {
       this.layers[name] = s("g", { class: "layer-" + name });
       svg.append(this.layers[name]);
     }
@@ -192,6 +194,22 @@ export class PlanView {
       { passive: false },
     );
     new ResizeObserver(() => this.setBox(this.box)).observe(svg);
+    // The keyboard: arrows pan, + and - zoom about the centre.
+    svg.setAttribute("tabindex", "0");
+    svg.addEventListener("keydown", (e) => {
+      const [x, y, w, hh] = this.box;
+      const step = w / 8;
+      const moves = { ArrowLeft: [-step, 0], ArrowRight: [step, 0], ArrowUp: [0, -step], ArrowDown: [0, step] };
+      if (moves[e.key]) {
+        this.setBox([x + moves[e.key][0], y + moves[e.key][1], w, hh]);
+      } else if (e.key === "+" || e.key === "=" || e.key === "-") {
+        const k = e.key === "-" ? 1.25 : 0.8;
+        this.setBox([x + (w * (1 - k)) / 2, y + (hh * (1 - k)) / 2, w * k, hh * k]);
+      } else {
+        return;
+      }
+      e.preventDefault();
+    });
   }
 
   setBox([x, y, w, hh]) {
@@ -200,6 +218,13 @@ export class PlanView {
     hh = w * aspect;
     this.box = [x, y, w, hh];
     this.svg.setAttribute("viewBox", `${x} ${y} ${w} ${hh}`);
+    this.labels.schedule();
+    for (const listener of this.listeners) listener();
+  }
+
+  /** Calls `listener` whenever the view pans, zooms or resizes. */
+  onChange(listener) {
+    this.listeners.push(listener);
   }
 
   /** Shows the rectangle [x0, y0]..[x1, y1] (grid units) whole. */
@@ -236,6 +261,31 @@ export function drawFloorplan(layer, url, matrix, width, height) {
   );
 }
 
+/** Marker sizes, grid units: a place's square (half side) and an anchor's circle. */
+export const PLACE_HALF = 0.42;
+export const ANCHOR_R = 0.32;
+
+/** A beacon or gateway marker at `at` (grid units), its id as a label. */
+export function anchorMarker(kind, id, at, attrs = {}, ...children) {
+  const label = s("text", { class: "anchor-id label" }, id);
+  const node = s("g", { class: "anchor " + kind, transform: `translate(${at[0]} ${at[1]})`, ...attrs }, s("circle", { r: ANCHOR_R }), label, ...children);
+  return { node, label: { node: label, at, r: ANCHOR_R, px: 11, weight: 400, rank: kind === "gateway" ? 1 : 2 } };
+}
+
+/** A place marker on `cell`, its name as a label. */
+export function placeMarker(name, cell, attrs = {}, ...children) {
+  const at = [cell[0] + 0.5, cell[1] + 0.5];
+  const label = s("text", { class: "place-name label" }, name);
+  const node = s(
+    "g",
+    { class: "place", transform: `translate(${at[0]} ${at[1]})`, ...attrs },
+    s("rect", { x: -PLACE_HALF, y: -PLACE_HALF, width: 2 * PLACE_HALF, height: 2 * PLACE_HALF, rx: 0.15 }),
+    label,
+    ...children,
+  );
+  return { node, label: { node: label, at, r: PLACE_HALF, px: 13, weight: 600, rank: 0 } };
+}
+
 /** Draws a site view (`/api/site`, `/api/editor/check`): tiles, grid lines,
  * beacons, gateways and places. `withPlan` tints the tiles so the plan
  * shows through. */
@@ -250,28 +300,169 @@ export function drawSite(view, site, { withPlan = false } = {}) {
   ]) {
     for (const a of list) {
       if (!a.grid) continue;
-      anchors.push(
-        s(
-          "g",
-          { class: "anchor " + kind, transform: `translate(${a.grid[0]} ${a.grid[1]})` },
-          s("circle", { r: 0.32 }),
-          s("text", { class: "anchor-id", y: -0.45 }, a.id),
-          s("title", {}, `${kind} ${a.id} at ${a.m[0].toFixed(2)}, ${a.m[1].toFixed(2)} m`),
-        ),
-      );
+      anchors.push(anchorMarker(kind, a.id, a.grid, {}, s("title", {}, `${kind} ${a.id} at ${a.m[0].toFixed(2)}, ${a.m[1].toFixed(2)} m`)));
     }
   }
-  fill(view.layers.anchors, anchors);
-  fill(
-    view.layers.places,
-    site.places.map((p) =>
-      s(
-        "g",
-        { class: "place", "data-place": p.name, transform: `translate(${p.cell[0] + 0.5} ${p.cell[1] + 0.5})` },
-        s("rect", { x: -0.42, y: -0.42, width: 0.84, height: 0.84, rx: 0.15 }),
-        s("text", { class: "place-name", y: 1.05 }, p.name),
-        s("title", {}, p.label ? `${p.name} (${p.label})` : p.name),
-      ),
-    ),
-  );
+  const places = site.places.map((p) => placeMarker(p.name, p.cell, { "data-place": p.name }, s("title", {}, p.label ? `${p.name} (${p.label})` : p.name)));
+  fill(view.layers.anchors, anchors.map((a) => a.node));
+  fill(view.layers.places, places.map((p) => p.node));
+  view.labels.set([...places, ...anchors].map((m) => m.label));
+}
+
+/** Where a label may go around its marker, as unit offsets (x, y) of the
+ * gap: below, above, right, left, then the diagonals. */
+const LABEL_SPOTS = [[0, 1], [0, -1], [1, 0], [-1, 0], [1, 1], [-1, 1], [1, -1], [-1, -1]];
+
+/** Labels of the plan's markers (place names, beacon ids), laid out in
+ * screen pixels at a constant size whatever the zoom: each goes to the
+ * first spot around its marker that overlaps no other label, no marker and
+ * no overlay (the legend), and stays inside the view; farther out with a
+ * leader line if the near spots are taken; hidden if none is free (a
+ * hidden beacon id shows on hover, in the marker's title, and when zoomed
+ * in). Places first, then gateways, then beacons. */
+class Labels {
+  constructor(view, overlays) {
+    this.view = view;
+    this.overlays = overlays;
+    this.items = [];
+    this.queued = false;
+    this.widths = new Map();
+    this.context = document.createElement("canvas").getContext("2d");
+  }
+
+  set(items) {
+    this.items = items.slice().sort((a, b) => a.rank - b.rank);
+    this.schedule();
+  }
+
+  schedule() {
+    if (this.queued) return;
+    this.queued = true;
+    requestAnimationFrame(() => {
+      this.queued = false;
+      this.layout();
+    });
+  }
+
+  width(text, px, weight) {
+    const key = `${weight} ${px} ${text}`;
+    let w = this.widths.get(key);
+    if (w === undefined) {
+      if (!this.family) this.family = getComputedStyle(this.view.svg).fontFamily || "sans-serif";
+      this.context.font = `${weight} ${px}px ${this.family}`;
+      w = this.context.measureText(text).width;
+      this.widths.set(key, w);
+    }
+    return w;
+  }
+
+  layout() {
+    const svg = this.view.svg;
+    const width = svg.clientWidth;
+    const height = svg.clientHeight;
+    if (!width || !height) return;
+    const upp = this.view.unitsPerPixel();
+    const [bx, by] = this.view.box;
+    const taken = new BoxIndex(64);
+    const frame = svg.getBoundingClientRect();
+    for (const overlay of this.overlays) {
+      const r = overlay.getBoundingClientRect();
+      if (r.width && r.height) taken.add([r.left - frame.left, r.top - frame.top, r.right - frame.left, r.bottom - frame.top]);
+    }
+    const screen = this.items.map((it) => [(it.at[0] - bx) / upp, (it.at[1] - by) / upp, Math.max(it.r / upp, 3)]);
+    for (const [x, y, r] of screen) {
+      if (x > -r && y > -r && x < width + r && y < height + r) taken.add([x - r, y - r, x + r, y + r]);
+    }
+    this.items.forEach((it, i) => {
+      const [x, y, r] = screen[i];
+      const text = it.node.textContent;
+      const w = this.width(text, it.px, it.weight) + 2;
+      const h = it.px * 1.2;
+      let spot = null;
+      if (text && x >= 0 && y >= 0 && x <= width && y <= height) {
+        for (const far of [0, 1]) {
+          for (const [dx, dy] of LABEL_SPOTS) {
+            const gap = far ? 2.5 * h : 3;
+            const cx = x + dx * (r + gap + w / 2);
+            const cy = y + dy * (r + gap + h / 2);
+            const box = [cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2];
+            if (box[0] < 1 || box[1] < 1 || box[2] > width - 1 || box[3] > height - 1 || taken.hits(box)) continue;
+            spot = { cx, cy, box, far };
+            break;
+          }
+          if (spot) break;
+        }
+      }
+      const node = it.node;
+      if (!spot) {
+        setAttr(node, "visibility", "hidden");
+        this.leader(it, null);
+        return;
+      }
+      taken.add(spot.box);
+      setAttr(node, "visibility", "visible");
+      setAttr(node, "x", round((spot.cx - x) * upp));
+      setAttr(node, "y", round((spot.cy - y) * upp));
+      setAttr(node, "font-size", round(it.px * upp));
+      this.leader(it, spot.far ? [(spot.cx - x) * upp, (spot.cy - y) * upp, r * upp] : null);
+    });
+  }
+
+  /** The line from a marker to a label placed away from it (relative units). */
+  leader(it, to) {
+    if (!to) {
+      if (it.line) it.line.setAttribute("visibility", "hidden");
+      return;
+    }
+    if (!it.line) {
+      it.line = s("line", { class: "leader" });
+      it.node.before(it.line);
+    }
+    const [lx, ly, r] = to;
+    const d = Math.hypot(lx, ly) || 1;
+    setAttr(it.line, "visibility", "visible");
+    setAttr(it.line, "x1", round((lx / d) * r));
+    setAttr(it.line, "y1", round((ly / d) * r));
+    setAttr(it.line, "x2", round(lx * 0.8));
+    setAttr(it.line, "y2", round(ly * 0.8));
+    setAttr(it.line, "stroke-width", round(this.view.unitsPerPixel()));
+  }
+}
+
+function round(v) {
+  return String(Math.round(v * 1000) / 1000);
+}
+
+/** Sets an attribute only when it changes (each set costs style work). */
+function setAttr(node, name, value) {
+  if (node.getAttribute(name) !== value) node.setAttribute(name, value);
+}
+
+/** Boxes [x0, y0, x1, y1] in a grid of buckets, for overlap tests. */
+class BoxIndex {
+  constructor(size) {
+    this.size = size;
+    this.buckets = new Map();
+  }
+  *keys([x0, y0, x1, y1]) {
+    const k = this.size;
+    for (let i = Math.floor(x0 / k); i <= Math.floor(x1 / k); i++) {
+      for (let j = Math.floor(y0 / k); j <= Math.floor(y1 / k); j++) yield i * 100003 + j;
+    }
+  }
+  add(box) {
+    for (const key of this.keys(box)) {
+      let list = this.buckets.get(key);
+      if (!list) this.buckets.set(key, (list = []));
+      list.push(box);
+    }
+  }
+  hits(box) {
+    for (const key of this.keys(box)) {
+      for (const b of this.buckets.get(key) || []) {
+        if (box[0] < b[2] && b[0] < box[2] && box[1] < b[3] && b[1] < box[3]) return true;
+      }
+    }
+    return false;
+  }
 }
