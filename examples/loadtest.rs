@@ -7,7 +7,8 @@
 //!
 //! It starts mosquitto (Debian package `mosquitto`) on a free loopback port,
 //! simulates `--devices` walkers on the sample site whose phones scan once a
-//! second (`gangway simulate`), runs the gateway on that log in real time
+//! second and hear every beacon (`gangway simulate`), runs the gateway on that
+//! log in real time
 //! (`gangway run --replay … --speed 1`), and publishes `--rate` route requests a
 //! second to random devices for `--seconds`, to the site's named places in
 //! turn (site, planner and topics come from `--config`). It prints one JSON object:
@@ -28,7 +29,7 @@ use gangway::config::Config;
 use gangway::mqtt::topics::Topics;
 use gangway::site::Site;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
-use support::{Guard, gangway, mosquitto, percentile, usage};
+use support::{Guard, gangway, mosquitto, percentile, simulate_busy_walk, usage};
 
 #[derive(Parser)]
 struct Args {
@@ -69,26 +70,14 @@ async fn main() {
     // The walk: enough for warm-up, the measured span and a tail.
     let log = dir.path().join("load.jsonl");
     let total = args.seconds + 20;
-    let status = Command::new(gangway())
-        .current_dir(root)
-        .args(["simulate", "--requests", "0", "--dropout", "0", "--site"])
-        .arg(&config.site)
-        .args([
-            "--walkers",
-            &args.devices.to_string(),
-            "--duration",
-            &total.to_string(),
-        ])
-        .arg("--out")
-        .arg(&log)
-        .env("RUST_LOG", "warn")
-        .status()
-        .unwrap();
-    assert!(status.success());
-    let adverts = std::fs::read_to_string(&log)
-        .unwrap()
-        .matches("\"advert\"")
-        .count();
+    let adverts = simulate_busy_walk(
+        dir.path(),
+        &config.site,
+        args.devices,
+        total,
+        &["--dropout", "0"],
+        &log,
+    );
 
     // The gateway, playing the walk in real time.
     let gateway = Guard(

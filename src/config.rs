@@ -250,7 +250,7 @@ impl Config {
     }
 
     fn validate(&self) -> Result<(), String> {
-        if self.gateway_id.is_empty() || !crate::publish::valid_device_id(&self.gateway_id) {
+        if self.gateway_id.is_empty() || !crate::sighting::valid_device_id(&self.gateway_id) {
             return Err(format!(
                 "`gateway_id` {:?} cannot be used in MQTT topics; use letters, digits, '-' or '_'",
                 self.gateway_id

@@ -13,6 +13,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use crate::config::Config;
+use crate::event::{Event, RouteRequest};
 use crate::guide::{GuidanceEvent, Guide};
 use crate::locate::tracker::Tracker;
 use crate::locate::window::{Fingerprint, Orientation, Windows};
@@ -20,10 +21,9 @@ use crate::locate::{self, Localizer};
 use crate::plan::{self, Planner, Profile, Route, RouteErrorCode};
 use crate::publish::{
     ErrorBody, LOCATION_SCHEMA, Location, Output, PATH_SCHEMA, RouteBody, RouteOutcome, RouteReply,
-    valid_device_id,
 };
+use crate::sighting::valid_device_id;
 use crate::site::{Cell, Site};
-use crate::source::{Event, RouteRequest};
 
 /// Counters a gateway reports about its pipeline. A reload adds the
 /// replaced pipeline's to the ones kept (`+=`), so every counter is summed

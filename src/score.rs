@@ -24,10 +24,10 @@ use futures::future::BoxFuture;
 use serde::Serialize;
 use tokio::sync::oneshot;
 
+use crate::event::Truth;
 use crate::publish::{Location, Output};
 use crate::sink::Sink;
 use crate::site::{Cell, Site};
-use crate::source::Truth;
 
 /// Collects truths and fixes during a replay.
 #[derive(Debug)]
@@ -245,7 +245,6 @@ impl std::fmt::Display for Score {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::publish::LOCATION_SCHEMA;
     use std::path::Path;
 
     fn site() -> Site {
@@ -254,18 +253,7 @@ mod tests {
     }
 
     fn fix(device: &str, t: f64, cell: Cell) -> Location {
-        Location {
-            schema: LOCATION_SCHEMA,
-            device: device.into(),
-            t,
-            cell: Some(cell),
-            label: None,
-            x_m: Some(0.0),
-            y_m: Some(0.0),
-            place: None,
-            confidence: 0.5,
-            anchors_heard: 1,
-        }
+        Location::sample(device, t, Some(cell), None)
     }
 
     fn truth(device: &str, t: f64, cell: Cell) -> Truth {

@@ -49,3 +49,31 @@ pub fn unix_now() -> f64 {
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0.0, |d| d.as_secs_f64())
 }
+
+/// Whether a device id (an observer, a tag, a phone) can stand as one MQTT
+/// topic level: non-empty, at most 128 bytes, and free of `+`, `#`, `/` and
+/// control characters. Checked where ids come in (logs, the broker, the
+/// config), so no later stage meets one that cannot be published.
+pub fn valid_device_id(id: &str) -> bool {
+    !id.is_empty()
+        && id.len() <= 128
+        && !id
+            .chars()
+            .any(|c| matches!(c, '+' | '#' | '/') || c.is_control())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn device_ids_that_break_topics_are_refused() {
+        assert!(valid_device_id("phone-7"));
+        assert!(valid_device_id(
+            "5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84-1-3001"
+        ));
+        for bad in ["", "a/b", "a+", "#", "tab\there", &"x".repeat(129)] {
+            assert!(!valid_device_id(bad), "{bad:?}");
+        }
+    }
+}

@@ -861,11 +861,6 @@ impl Site {
             .map(|(name, _)| name.as_str())
     }
 
-    /// The beacon with this identity, as an index into [`Site::beacons`].
-    pub fn beacon_index(&self, id: &BeaconId) -> Option<usize> {
-        self.beacons.iter().position(|b| b.beacon == *id)
-    }
-
     /// Whether the site names cells with survey labels (`[labels]`).
     pub fn has_labels(&self) -> bool {
         self.labels.is_some()

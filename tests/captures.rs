@@ -6,8 +6,8 @@ use std::path::Path;
 
 use common::{gangway, gangway_ok, root};
 
+use gangway::event::Event;
 use gangway::sighting::Sighting;
-use gangway::source::Event;
 use gangway::source::btsnoop::{BtsnoopWriter, Datalink};
 use gangway::source::ibeacon::{self, IBeacon};
 use gangway::source::log::{LogReader, LogWriter};

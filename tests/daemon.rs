@@ -18,7 +18,9 @@ use gangway::publish::stats::Stats;
 use gangway::publish::{Output, RouteOutcome};
 use gangway::sighting::{BeaconId, Sighting};
 use gangway::sink::Sink;
-use gangway::source::{ChannelSource, Event, Feedback, Inbound, Input, RouteRequest};
+use gangway::source::{ChannelSource, Input};
+
+use gangway::event::{Event, Feedback, Inbound, RouteRequest};
 use tokio::sync::{Notify, mpsc, oneshot};
 
 const WAIT: Duration = Duration::from_secs(30);

@@ -9,6 +9,7 @@ mod mqtt_support;
 use std::sync::Arc;
 
 use gangway::config::Config;
+use gangway::event::{Event, Inbound};
 use gangway::mqtt::inbound::Inbox;
 use gangway::mqtt::sightings;
 use gangway::mqtt::topics::Topics;
@@ -17,7 +18,6 @@ use gangway::plan::RouteErrorCode;
 use gangway::publish::Output;
 use gangway::site::Site;
 use gangway::source::log::LogReader;
-use gangway::source::{Event, Inbound};
 use mqtt_support::{check_schema, repo, schema_of};
 use serde_json::json;
 
@@ -62,9 +62,10 @@ fn replayed_locations_routes_and_errors_match_their_schemas() {
     let (mut locations, mut routes) = (0, 0);
     for m in &out {
         let name = schema_of(&m.topic).unwrap_or_else(|| panic!("no schema for {}", m.topic));
-        check_schema(name, &m.payload).unwrap();
+        let payload = m.value();
+        check_schema(name, &payload).unwrap();
         locations += usize::from(name == "location");
-        routes += usize::from(name == "path" && m.payload.get("waypoints").is_some());
+        routes += usize::from(name == "path" && payload.get("waypoints").is_some());
     }
     assert!(
         locations > 100 && routes > 0,
@@ -72,7 +73,7 @@ fn replayed_locations_routes_and_errors_match_their_schemas() {
     );
 
     // A payload the schema must refuse: a location without its cell.
-    let mut broken = out[0].payload.clone();
+    let mut broken = out[0].value();
     broken.as_object_mut().unwrap().remove("cell");
     assert!(check_schema("location", &broken).is_err());
 }

@@ -1,6 +1,7 @@
 //! Shared by the example programs that drive a real gateway through a real
-//! mosquitto (`loadtest`, `attack`): the broker, the built binary, process
-//! usage from /proc, percentiles. Everything started is stopped on drop.
+//! mosquitto (`loadtest`, `attack`, `throughput`): the broker, the built
+//! binary, a simulated walk, process usage from /proc, percentiles.
+//! Everything started is stopped on drop.
 
 #![allow(dead_code)] // each example uses a different part of this module
 
@@ -100,4 +101,52 @@ pub fn percentile(sorted: &[f64], p: f64) -> f64 {
         return f64::NAN;
     }
     sorted[((sorted.len() as f64 * p).ceil() as usize).clamp(1, sorted.len()) - 1]
+}
+
+/// Simulates `walkers` phones on `site` for `seconds` (no route requests,
+/// `extra` arguments to `gangway simulate`) into `log`, each phone hearing
+/// every beacon of the site in every window (a radio with a 1 km range,
+/// nothing too weak to report), so the load is that of a BLE scan reporting
+/// every advert, as gateways on a busy floor see it; returns how many adverts
+/// the log holds.
+pub fn simulate_busy_walk(
+    dir: &Path,
+    site: &Path,
+    walkers: usize,
+    seconds: u64,
+    extra: &[&str],
+    log: &Path,
+) -> usize {
+    let radio = dir.join("hear-every-beacon.toml");
+    std::fs::write(
+        &radio,
+        format!(
+            "gateway_id = \"sim\"\nsite = \"{}\"\n[localizer.pathloss]\n\
+             range_m = 1000.0\nmax_detection = 1.0\nsensitivity_dbm = -127.0\n",
+            site.display()
+        ),
+    )
+    .unwrap();
+    let status = Command::new(gangway())
+        .args(["simulate", "--requests", "0", "--site"])
+        .arg(site)
+        .arg("--config")
+        .arg(&radio)
+        .args([
+            "--walkers",
+            &walkers.to_string(),
+            "--duration",
+            &seconds.to_string(),
+        ])
+        .args(extra)
+        .arg("--out")
+        .arg(log)
+        .env("RUST_LOG", "warn")
+        .status()
+        .unwrap();
+    assert!(status.success());
+    std::fs::read_to_string(log)
+        .unwrap()
+        .matches("\"advert\"")
+        .count()
 }

@@ -9,10 +9,10 @@ use std::sync::Arc;
 
 use anyhow::Context;
 
+use crate::event::Event;
 use crate::locate::calibrate::{Window, fit};
 use crate::locate::pathloss::anchors;
 use crate::locate::window::{Windows, anchor_ids};
-use crate::source::Event;
 use crate::source::capture::{CaptureReader, Format, ReadOptions};
 
 #[derive(clap::Args)]

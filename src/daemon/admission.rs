@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use foldhash::HashMap;
 
-use crate::source::RouteRequest;
+use crate::event::RouteRequest;
 
 /// Counts per key within the current second of event time: a fixed window,
 /// emptied every second, so it holds only the keys of the last second.

@@ -32,7 +32,7 @@
 //! or a counted refusal, and a source that fails is logged (and, in the
 //! daemon, the rest keeps serving).
 
-pub mod admission;
+mod admission;
 pub mod state;
 
 use std::future::Future;
@@ -53,9 +53,9 @@ use crate::publish::stats::{BleStatus, STATS_SCHEMA, Stats};
 use crate::publish::{FeedbackRefused, Output, RouteOutcome};
 use crate::sighting::{Sighting, unix_now};
 use crate::sink::Sink;
-use crate::source::{
-    Event, Feedback, Inbound, Input, RouteRequest, Shutdown, Source, SourceContext,
-};
+use crate::source::{Input, Shutdown, Source, SourceContext};
+
+use crate::event::{Event, Feedback, Inbound, RouteRequest};
 use crate::throttle::Throttle;
 
 /// How often this gateway's own sightings go out to the other gateways.
@@ -72,8 +72,9 @@ const WARN_EVERY: Duration = Duration::from_secs(10);
 const BACKLOG_POLL: Duration = Duration::from_millis(5);
 /// What an `overloaded` or `rate_limited` reply suggests waiting, seconds.
 const RETRY_AFTER_S: f64 = 1.0;
-/// Batches of own events queued at most.
-const EVENTS_QUEUE: usize = 64;
+/// Batches of own events queued at most (a radio sends one event a batch, a
+/// capture up to `source::playback::BATCH`).
+const EVENTS_QUEUE: usize = 32;
 /// Messages from others queued at most: few, since while the runtime does
 /// not take them the broker holds the rest (unacknowledged).
 const INBOUND_QUEUE: usize = 16;

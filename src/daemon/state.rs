@@ -25,7 +25,7 @@ pub struct Loaded {
 
 /// Loads the config, its site and everything the pipeline needs; any failure
 /// is an error (a reload keeps the old state).
-pub fn load(config_path: &Path) -> anyhow::Result<Loaded> {
+pub(crate) fn load(config_path: &Path) -> anyhow::Result<Loaded> {
     load_with(config_path, false)
 }
 
@@ -59,7 +59,7 @@ fn load_with(config_path: &Path, fall_back: bool) -> anyhow::Result<Loaded> {
 /// Why `new` cannot replace `old` without a restart: settings the live MQTT
 /// connection and subscriptions were built from, and the limits the daemon's
 /// queues and rate limiters were.
-pub fn restart_needed(old: &Loaded, new: &Loaded) -> Option<&'static str> {
+pub(crate) fn restart_needed(old: &Loaded, new: &Loaded) -> Option<&'static str> {
     if old.config.gateway_id != new.config.gateway_id {
         Some("`gateway_id` changed")
     } else if old.config.mqtt != new.config.mqtt {

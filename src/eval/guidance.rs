@@ -30,6 +30,7 @@ use serde::Serialize;
 
 use crate::config::Config;
 use crate::eval::planning::percentile;
+use crate::event::{Event, RouteRequest};
 use crate::guide::{GuidanceEvent, RouteLine};
 use crate::locate::survey::Survey;
 use crate::pipeline::Pipeline;
@@ -37,7 +38,6 @@ use crate::plan::{Connectivity, Destination, Route, astar};
 use crate::publish::{Output, RouteOutcome, RouteReply};
 use crate::site::{Cell, Site};
 use crate::source::simulate::{Phone, SimConfig};
-use crate::source::{Event, RouteRequest};
 use crate::walks::Track;
 
 /// What to simulate.

@@ -89,11 +89,7 @@ impl Discovery {
     }
 
     fn config(&self, component: &str, object: &str, payload: serde_json::Value) -> Message {
-        Message {
-            topic: self.config_topic(component, object),
-            payload,
-            retain: true,
-        }
+        Message::json(self.config_topic(component, object), &payload, true)
     }
 
     /// The gateway's own entities: connectivity, counters and one occupancy
@@ -249,7 +245,6 @@ fn occupancy_object_id(place: &str, all: &[&str]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::publish::LOCATION_SCHEMA;
     use crate::site::Cell;
 
     fn discovery() -> Discovery {
@@ -269,32 +264,21 @@ mod tests {
         assert_eq!(m.topic, d.tracker_config_topic("phone 7"));
         assert!(m.retain);
         assert_eq!(
-            m.payload["state_topic"],
+            m.value()["state_topic"],
             "gangway/gw.1/devices/phone 7/presence"
         );
-        assert!(m.payload.get("value_template").is_none());
+        assert!(m.value().get("value_template").is_none());
         assert_eq!(
-            m.payload["json_attributes_topic"],
+            m.value()["json_attributes_topic"],
             "gangway/gw.1/devices/phone 7/location"
         );
-        assert!(m.payload["name"].is_null());
-        assert_eq!(m.payload["device"]["name"], "phone 7");
-        assert_eq!(m.payload["availability"][0]["topic"], "gangway/gw.1/status");
+        assert!(m.value()["name"].is_null());
+        assert_eq!(m.value()["device"]["name"], "phone 7");
+        assert_eq!(m.value()["availability"][0]["topic"], "gangway/gw.1/status");
     }
 
     fn location(place: Option<&str>, cell: Option<Cell>) -> Location {
-        Location {
-            schema: LOCATION_SCHEMA,
-            device: "phone 7".into(),
-            t: 1.0,
-            cell,
-            label: None,
-            x_m: None,
-            y_m: None,
-            place: place.map(str::to_owned),
-            confidence: 0.5,
-            anchors_heard: 3,
-        }
+        Location::sample("phone 7", 1.0, cell, place)
     }
 
     #[test]
@@ -331,9 +315,9 @@ mod tests {
             desk.topic,
             "homeassistant/sensor/gw_1/occupancy_help_desk/config"
         );
-        assert_eq!(desk.payload["state_topic"], "gangway/gw.1/occupancy");
+        assert_eq!(desk.value()["state_topic"], "gangway/gw.1/occupancy");
         assert_eq!(
-            desk.payload["value_template"],
+            desk.value()["value_template"],
             "{{ value_json.places[\"help desk\"] | default(0) }}"
         );
         assert_eq!(d.occupancy_config_topic("moon"), None);

@@ -18,10 +18,10 @@ use uuid::Uuid;
 
 use super::sightings;
 use super::topics::Topics;
+use crate::event::{Feedback, Inbound, RouteRequest};
 use crate::plan::{Destination, RouteErrorCode};
-use crate::publish::valid_device_id;
+use crate::sighting::valid_device_id;
 use crate::sighting::{BeaconId, Sighting};
-use crate::source::{Feedback, Inbound, RouteRequest};
 
 /// Why a message was not used; the daemon logs it and counts it.
 #[derive(Debug, PartialEq, thiserror::Error)]

@@ -28,11 +28,12 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
 use bytes::Bytes;
+use foldhash::HashMap;
 use rumqttc::{
     AsyncClient, ConnectionError, Event, EventLoop, LastWill, MqttOptions, Outgoing as Out, Packet,
     Publish, QoS,
 };
-use tokio::sync::{mpsc, oneshot};
+use tokio::sync::{Notify, mpsc, oneshot};
 use tokio::time::Instant;
 
 use super::queue::{OfflineQueue, Outgoing};
@@ -40,6 +41,9 @@ use super::queue::{OfflineQueue, Outgoing};
 /// Capacity of a session's rumqttc request channel; the link never hands over
 /// more than this many unacknowledged messages at once.
 const SESSION_WINDOW: usize = 256;
+
+/// Session events handled at most in one turn of the link's loop.
+const EVENT_BURST: usize = 1024;
 
 /// Largest packet MQTT allows (a 268,435,455-byte remaining length and its
 /// 5-byte fixed header). The client accepts all of them, so a big message is
@@ -75,6 +79,11 @@ pub struct LinkSettings {
     pub reconnect_max: Duration,
     /// How long [`Link::shutdown`] waits for queued and in-flight messages.
     pub shutdown_grace: Duration,
+    /// Send each message at once (TCP_NODELAY): what a gateway answering
+    /// requests wants. Without it the kernel gathers small messages into
+    /// fewer packets while earlier ones are unacknowledged (Nagle): what a
+    /// replay publishing as fast as it can wants.
+    pub low_latency: bool,
     /// Capacity of the channel of received messages.
     pub inbound_capacity: usize,
     /// Received payloads larger than this reach the daemon empty, with their
@@ -115,14 +124,18 @@ pub struct LinkStats {
     /// Whether the connection was lost [`FLAP_COUNT`] times within
     /// [`FLAP_WINDOW`]: the gateway cannot stay connected.
     pub flapping: AtomicBool,
-    /// Publish commands taken in, and messages queued or in flight: with the
-    /// handle's count of commands sent, what [`Link::wait_for_room`] needs.
+    /// Messages taken in, and messages queued or in flight: with the
+    /// handle's count of messages sent, what [`Link::wait_for_room`] needs.
     commands_taken: AtomicU64,
     outstanding: AtomicU64,
+    /// Woken whenever the link took messages in or the broker acknowledged
+    /// some, for [`Link::wait_for_room`].
+    progress: Notify,
 }
 
 enum Command {
-    Publish(Outgoing),
+    /// Messages to publish, in order.
+    Publish(Vec<Outgoing>),
     /// Replaces the birth messages sent after each connect; sends them now too
     /// when the flag is set.
     Birth(Vec<Outgoing>, bool),
@@ -138,7 +151,7 @@ pub struct Link {
     stats: Arc<LinkStats>,
     task: tokio::task::JoinHandle<()>,
     qos: QoS,
-    /// Publish commands sent.
+    /// Messages sent to the link task.
     submitted: AtomicU64,
     queue_max_messages: usize,
 }
@@ -177,38 +190,41 @@ impl Link {
         !self.task.is_finished()
     }
 
-    /// Queues a JSON message; never blocks.
-    pub fn publish(&self, message: &super::topics::Message) {
-        self.publish_raw(
-            message.topic.clone(),
-            serde_json::to_vec(&message.payload).expect("JSON values serialize"),
-            message.retain,
-        );
-    }
-
-    pub fn publish_raw(&self, topic: String, payload: Vec<u8>, retain: bool) {
-        self.submitted.fetch_add(1, Ordering::Relaxed);
-        let _ = self.commands.send(Command::Publish(Outgoing {
-            topic,
-            payload,
-            qos: self.qos,
-            retain,
-        }));
+    /// Queues messages, in order, in one hand-over to the link task; never
+    /// blocks.
+    pub fn publish_batch(&self, messages: Vec<super::topics::Message>) {
+        if messages.is_empty() {
+            return;
+        }
+        self.submitted
+            .fetch_add(messages.len() as u64, Ordering::Relaxed);
+        let batch = messages
+            .into_iter()
+            .map(|m| Outgoing {
+                topic: m.topic,
+                payload: m.payload,
+                qos: self.qos,
+                retain: m.retain,
+            })
+            .collect();
+        let _ = self.commands.send(Command::Publish(batch));
     }
 
     /// Waits until at most half the queue bound is waiting or in flight. A
     /// producer that must not lose messages (`replay` at full speed) calls it
-    /// between publications; the daemon does not, so that it keeps locating
-    /// while the broker is away (it checks [`Link::has_room`] before taking
-    /// requests instead).
+    /// between publications, handing over at most [`Link::room`] at a time;
+    /// the daemon does not, so that it keeps locating while the broker is
+    /// away (it checks [`Link::has_room`] before taking requests instead).
     pub async fn wait_for_room(&self) {
         loop {
+            let progress = self.stats.progress.notified();
             if self.has_room() {
                 return;
             }
-            // Polling a counter is simpler than a wake-up protocol with the
-            // link task, and a replay waiting on the broker can spare 2 ms.
-            tokio::time::sleep(Duration::from_millis(2)).await;
+            // Woken by the link task as it takes messages in and the broker
+            // acknowledges them; the timeout only guards against a wake-up
+            // lost to a race with the counters.
+            let _ = tokio::time::timeout(Duration::from_millis(50), progress).await;
         }
     }
 
@@ -217,11 +233,20 @@ impl Link {
     /// request while it is not: replies it could not send would push older
     /// ones out of the queue, so the broker holds the requests instead.
     pub fn has_room(&self) -> bool {
+        self.room() > 0
+    }
+
+    /// How many more messages fit under half the queue bound (all of them
+    /// when the link is gone, and waiting would be forever).
+    pub fn room(&self) -> usize {
+        if self.task.is_finished() {
+            return usize::MAX;
+        }
         let limit = (self.queue_max_messages / 2).max(1) as u64;
         let backlog = self.submitted.load(Ordering::Relaxed)
             - self.stats.commands_taken.load(Ordering::Relaxed)
             + self.stats.outstanding.load(Ordering::Relaxed);
-        backlog < limit || self.task.is_finished()
+        limit.saturating_sub(backlog) as usize
     }
 
     /// Adds (or replaces, by topic) messages sent (before the queue) after
@@ -232,7 +257,7 @@ impl Link {
             .iter()
             .map(|m| Outgoing {
                 topic: m.topic.clone(),
-                payload: serde_json::to_vec(&m.payload).expect("JSON values serialize"),
+                payload: m.payload.clone(),
                 qos: self.qos,
                 retain: m.retain,
             })
@@ -291,6 +316,8 @@ struct Controller {
     /// Written with this packet id, awaiting PUBACK; the sequence number
     /// keeps their original order for redelivery.
     awaiting: BTreeMap<u64, (u16, Outgoing)>,
+    /// The sequence number in `awaiting` of each packet id.
+    awaiting_pkid: HashMap<u16, u64>,
     next_seq: u64,
     backoff: Duration,
     ever_connected: bool,
@@ -317,6 +344,7 @@ impl Controller {
             acks: VecDeque::new(),
             handed: VecDeque::new(),
             awaiting: BTreeMap::new(),
+            awaiting_pkid: HashMap::default(),
             next_seq: 0,
             ever_connected: false,
             conn: Conn::Down {
@@ -339,19 +367,23 @@ impl Controller {
             let deadline = self.shutdown.as_ref().map(|(_, d)| *d);
             // A sender of our own, so that waiting for room does not borrow
             // the controller the branches below change.
-            let inbound = self.inbound.clone();
             let holding = !self.held.is_empty();
+            let inbound = holding.then(|| self.inbound.clone());
             tokio::select! {
-                Ok(permit) = inbound.reserve(), if holding => {
+                Ok(permit) = reserve(inbound.as_ref()), if holding => {
                     if let Some((received, publish)) = self.held.pop_front() {
                         permit.send(received);
                         self.ack(&publish);
                     }
                 }
                 command = commands.recv(), if self.shutdown.is_none() => match command {
-                    Some(Command::Publish(m)) => {
-                        self.stats.commands_taken.fetch_add(1, Ordering::Relaxed);
-                        self.queue.push(m);
+                    Some(Command::Publish(batch)) => {
+                        self.stats
+                            .commands_taken
+                            .fetch_add(batch.len() as u64, Ordering::Relaxed);
+                        for m in batch {
+                            self.queue.push(m);
+                        }
                         self.flush();
                     }
                     Some(Command::Birth(birth, send_now)) => {
@@ -383,9 +415,18 @@ impl Controller {
                     }
                 },
                 Some((session, event)) = self.events_rx.recv() => {
-                    if self.current_session() == Some(session) && self.on_event(event) {
+                    let mut done = self.current_session() == Some(session) && self.on_event(event);
+                    // What else the session reported meanwhile (a burst of
+                    // acknowledgements), before handing over more once.
+                    let mut more = EVENT_BURST;
+                    while !done && more > 0 && let Ok((session, event)) = self.events_rx.try_recv() {
+                        done = self.current_session() == Some(session) && self.on_event(event);
+                        more -= 1;
+                    }
+                    if done {
                         break;
                     }
+                    self.flush();
                 }
                 _ = sleep_until(retry_at), if retry_at.is_some() => self.connect(),
                 _ = sleep_until(deadline), if deadline.is_some() => {
@@ -466,13 +507,17 @@ impl Controller {
         }
         // Acknowledged only once the daemon's channel takes them (`deliver`).
         options.set_manual_acks(true);
+        // As many unacknowledged publications on the wire as the link hands
+        // over (rumqttc's default, 100, would hold the rest back a round
+        // trip when the broker is slow to acknowledge).
+        options.set_inflight(SESSION_WINDOW as u16);
         // Room for a full window of publications and as many acknowledgements.
         let (client, mut eventloop) = AsyncClient::new(options, 2 * SESSION_WINDOW);
         // Route replies are small and wanted now: without TCP_NODELAY, Nagle's
         // algorithm holds a reply until the broker acknowledges the last
         // packet, which with delayed ACKs cost tens of milliseconds per reply.
         let mut network = eventloop.network_options();
-        network.set_tcp_nodelay(true);
+        network.set_tcp_nodelay(self.settings.low_latency);
         eventloop.set_network_options(network);
         let id = self.next_session;
         self.next_session += 1;
@@ -485,6 +530,7 @@ impl Controller {
     }
 
     /// Handles one event of the current session; true when the link is done.
+    /// The caller hands over more messages ([`Controller::flush`]) after.
     fn on_event(&mut self, event: Result<Event, ConnectionError>) -> bool {
         match event {
             Ok(Event::Incoming(Packet::ConnAck(_))) => self.on_connected(),
@@ -496,6 +542,10 @@ impl Controller {
                     self.stats.published.fetch_add(1, Ordering::Relaxed);
                     if m.qos != QoS::AtMostOnce {
                         self.awaiting.insert(self.next_seq, (pkid, m));
+                        // A packet id the broker never acknowledged and
+                        // rumqttc reused: the older message is redelivered
+                        // with the rest if the session fails.
+                        self.awaiting_pkid.insert(pkid, self.next_seq);
                         self.next_seq += 1;
                     }
                 }
@@ -504,7 +554,6 @@ impl Controller {
             Ok(_) => {}
             Err(e) => self.on_lost(e),
         }
-        self.flush();
         false
     }
 
@@ -578,12 +627,7 @@ impl Controller {
     }
 
     fn acked(&mut self, pkid: u16) {
-        let seq = self
-            .awaiting
-            .iter()
-            .find(|(_, (p, _))| *p == pkid)
-            .map(|(&s, _)| s);
-        if let Some(seq) = seq {
+        if let Some(seq) = self.awaiting_pkid.remove(&pkid) {
             self.awaiting.remove(&seq);
         }
     }
@@ -629,6 +673,7 @@ impl Controller {
     /// The session failed: take back what it had not delivered and wait.
     fn on_lost(&mut self, error: ConnectionError) {
         let was_connected = self.is_connected();
+        self.awaiting_pkid.clear();
         let undelivered: Vec<Outgoing> = std::mem::take(&mut self.awaiting)
             .into_values()
             .map(|(_, m)| m)
@@ -725,6 +770,7 @@ impl Controller {
             .store(self.queue.bytes() as u64, Ordering::Relaxed);
         s.queue_dropped
             .store(self.queue.dropped(), Ordering::Relaxed);
+        s.progress.notify_waiters();
     }
 }
 
@@ -752,6 +798,16 @@ async fn poll_session(
         if events.send((id, event)).is_err() || last {
             return;
         }
+    }
+}
+
+/// Room in the daemon's channel, when there is a channel to wait for.
+async fn reserve(
+    inbound: Option<&mpsc::Sender<Received>>,
+) -> Result<mpsc::Permit<'_, Received>, mpsc::error::SendError<()>> {
+    match inbound {
+        Some(inbound) => inbound.reserve().await,
+        None => std::future::pending().await,
     }
 }
 

@@ -16,22 +16,22 @@
 //! - [`discovery`]: Home Assistant MQTT discovery;
 //! - [`broker`]: the embedded broker used when no url is configured.
 
-pub mod broker;
-pub mod config;
-pub mod discovery;
+pub(crate) mod broker;
+pub(crate) mod config;
+pub(crate) mod discovery;
 pub mod inbound;
-pub mod link;
-pub mod occupancy;
-pub mod queue;
+pub(crate) mod link;
+pub(crate) mod occupancy;
+pub(crate) mod queue;
 pub mod sightings;
-pub mod sink;
-pub mod source;
+pub(crate) mod sink;
+pub(crate) mod source;
 pub mod topics;
 
 use std::time::Duration;
 
 pub use config::{MqttConfig, MqttError};
-pub use link::{Link, LinkSettings, LinkStats, Received};
+pub(crate) use link::{Link, LinkSettings, LinkStats, Received};
 
 /// The broker to use: `override_url`, else `[mqtt] url`, else an embedded
 /// broker started now on 127.0.0.1.
@@ -49,13 +49,15 @@ pub fn broker_url(config: &MqttConfig, override_url: Option<String>) -> anyhow::
 }
 
 /// Link settings for `url` from `[mqtt]`; `status` is `Some(topic)` for a
-/// gateway that announces itself (retained `online`, last will `offline`).
+/// gateway that announces itself (retained `online`, last will `offline`);
+/// `low_latency` sends each message at once (see [`LinkSettings`]).
 pub fn link_settings(
     config: &MqttConfig,
     url: &str,
     client_id: &str,
     status: Option<String>,
     subscriptions: Vec<String>,
+    low_latency: bool,
 ) -> Result<LinkSettings, MqttError> {
     Ok(LinkSettings {
         options: config.options(url, client_id)?,
@@ -67,6 +69,7 @@ pub fn link_settings(
         reconnect_min: Duration::from_secs_f64(config.reconnect_min_s),
         reconnect_max: Duration::from_secs_f64(config.reconnect_max_s),
         shutdown_grace: Duration::from_secs_f64(config.shutdown_grace_s),
+        low_latency,
         inbound_capacity: 1024,
         max_inbound_payload: config.max_payload_bytes,
     })

@@ -105,38 +105,27 @@ impl Occupancy {
             .zip(&self.counts)
             .map(|(place, &n)| (place.clone(), n.into()))
             .collect();
-        Some(Message {
-            topic: topics.occupancy(),
-            payload: json!({"schema": OCCUPANCY_SCHEMA, "t": t, "places": places}),
-            retain: true,
-        })
+        Some(Message::json(
+            topics.occupancy(),
+            &json!({"schema": OCCUPANCY_SCHEMA, "t": t, "places": places}),
+            true,
+        ))
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::publish::LOCATION_SCHEMA;
     use crate::site::Cell;
 
     fn location(device: &str, place: Option<&str>, cell: serde_json::Value) -> Location {
-        Location {
-            schema: LOCATION_SCHEMA,
-            device: device.into(),
-            t: 1.0,
-            cell: serde_json::from_value::<Option<Cell>>(cell).unwrap(),
-            label: None,
-            x_m: None,
-            y_m: None,
-            place: place.map(str::to_owned),
-            confidence: 0.5,
-            anchors_heard: 3,
-        }
+        let cell = serde_json::from_value::<Option<Cell>>(cell).unwrap();
+        Location::sample(device, 1.0, cell, place)
     }
 
     fn counts(o: &mut Occupancy) -> Option<serde_json::Value> {
         o.update(&Topics::new("gangway/gw"), 1.0)
-            .map(|m| m.payload["places"].clone())
+            .map(|m| m.value()["places"].clone())
     }
 
     #[test]

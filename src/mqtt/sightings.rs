@@ -56,11 +56,7 @@ pub fn encode(site_prefix: &str, gateway: &str, sightings: &[Sighting]) -> Messa
             })
             .collect(),
     };
-    Message {
-        topic: topic(site_prefix, gateway),
-        payload: serde_json::to_value(batch).expect("plain data serializes"),
-        retain: false,
-    }
+    Message::json(topic(site_prefix, gateway), &batch, false)
 }
 
 /// Reads another gateway's batch; `gateway` is the topic's last level and must
@@ -121,7 +117,7 @@ mod tests {
         };
         let m = encode("gangway/sites/x", "gw-a", std::slice::from_ref(&s));
         assert_eq!(m.topic, "gangway/sites/x/sightings/gw-a");
-        let bytes = serde_json::to_vec(&m.payload).unwrap();
+        let bytes = m.payload.clone();
         assert_eq!(decode("gw-a", &bytes).unwrap(), vec![s]);
         let err = decode("gw-b", &bytes).unwrap_err();
         assert!(err.contains("differs"), "{err}");

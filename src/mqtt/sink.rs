@@ -50,7 +50,7 @@ pub struct MqttSink {
     occupancy: Option<Occupancy>,
     /// Wait for room rather than let the offline queue drop (a replay).
     lossless: bool,
-    /// Messages waiting for room (lossless only).
+    /// Messages to hand to the link at the next flush, in one batch.
     pending: Vec<Message>,
 }
 
@@ -85,6 +85,7 @@ pub fn gateway(config: &Config, site: &Site, url: &str) -> anyhow::Result<(MqttS
         &config.client_id(),
         Some(topics.status()),
         inbox.subscriptions(),
+        true,
     )?;
     let (link, inbound) = Link::start(settings);
     let mut sink = MqttSink::new(config, site_prefix, link, topics, false);
@@ -102,7 +103,8 @@ pub fn gateway(config: &Config, site: &Site, url: &str) -> anyhow::Result<(MqttS
 /// rather than drop any; no status, no subscriptions, no discovery.
 pub fn publisher(config: &Config, site: &Site, url: &str) -> Result<MqttSink, MqttError> {
     let client_id = format!("{}-replay", config.client_id());
-    let settings = super::link_settings(&config.mqtt, url, &client_id, None, Vec::new())?;
+    // Nobody waits for a reply: let the kernel gather messages into packets.
+    let settings = super::link_settings(&config.mqtt, url, &client_id, None, Vec::new(), false)?;
     let (link, _) = Link::start(settings);
     let topics = Topics::new(config.topic_prefix());
     Ok(MqttSink::new(
@@ -152,23 +154,23 @@ impl MqttSink {
         )
     }
 
-    fn publish(&mut self, message: Message) {
-        if self.lossless {
-            self.pending.push(message);
-        } else {
-            self.link.publish(&message);
-        }
+    /// Hands what is pending to the link now (before a command that must
+    /// come after it).
+    fn hand_over(&mut self) {
+        self.link.publish_batch(std::mem::take(&mut self.pending));
     }
 
     /// Notes a location of `device` at `t`; the first one announces it.
     fn announce(&mut self, device: &str, t: f64) {
-        let Some(discovery) = &self.discovery else {
+        if self.discovery.is_none() {
             return;
-        };
+        }
         if let Some(seen) = self.announced.get_mut(device) {
             *seen = seen.max(t);
             return;
         }
+        self.hand_over();
+        let discovery = self.discovery.as_ref().expect("checked above");
         let mut forgotten = Vec::new();
         let full = self.announced.len() >= self.announced_bounds.max();
         self.announced_bounds.make_room(
@@ -196,9 +198,9 @@ impl MqttSink {
         if let Some(occupancy) = &mut self.occupancy {
             occupancy.forget(device);
         }
-        if let Some(discovery) = &self.discovery
-            && self.announced.remove(device).is_some()
-        {
+        if self.discovery.is_some() && self.announced.remove(device).is_some() {
+            self.hand_over();
+            let discovery = self.discovery.as_ref().expect("checked above");
             self.link
                 .clear_retained(discovery.tracker_config_topic(device));
         }
@@ -211,7 +213,7 @@ impl MqttSink {
             .as_mut()
             .and_then(|o| o.update(&self.topics, unix_now()))
         {
-            self.publish(counts);
+            self.pending.push(counts);
         }
     }
 }
@@ -237,7 +239,11 @@ impl Sink for MqttSink {
                             .as_ref()
                             .expect("checked above")
                             .presence(location);
-                        self.link.publish_raw(topic, state.into_bytes(), false);
+                        self.pending.push(Message {
+                            topic,
+                            payload: state.into_bytes(),
+                            retain: false,
+                        });
                     }
                     if let Some(occupancy) = &mut self.occupancy {
                         occupancy.observe(location);
@@ -246,23 +252,32 @@ impl Sink for MqttSink {
                 Output::Forgotten(device) => self.withdraw(device),
                 Output::Sightings(batch) => {
                     let message = sightings::encode(&self.site_prefix, &self.gateway_id, batch);
-                    self.publish(message);
+                    self.pending.push(message);
                 }
                 _ => {}
             }
             if let Some(message) = self.topics.encode(output) {
-                self.publish(message);
+                self.pending.push(message);
             }
         }
         self.publish_occupancy();
         Ok(())
     }
 
+    /// Hands the messages of the last outputs to the link in one batch; a
+    /// lossless sink hands over only what fits under the link's bound at a
+    /// time, waiting for the broker in between.
     fn flush(&mut self) -> BoxFuture<'_, anyhow::Result<()>> {
         Box::pin(async move {
-            for message in std::mem::take(&mut self.pending) {
+            if !self.lossless {
+                self.hand_over();
+                return Ok(());
+            }
+            while !self.pending.is_empty() {
                 self.link.wait_for_room().await;
-                self.link.publish(&message);
+                let n = self.link.room().min(self.pending.len());
+                let batch: Vec<Message> = self.pending.drain(..n).collect();
+                self.link.publish_batch(batch);
             }
             Ok(())
         })

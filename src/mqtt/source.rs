@@ -12,7 +12,9 @@ use tokio::sync::mpsc;
 use super::Received;
 use super::inbound::{Inbox, Rejected};
 use crate::sighting::unix_now;
-use crate::source::{Inbound, Source, SourceContext};
+use crate::source::{Source, SourceContext};
+
+use crate::event::Inbound;
 use crate::throttle::Throttle;
 
 /// At most one line per this period about refused messages.

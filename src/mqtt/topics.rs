@@ -18,23 +18,80 @@
 
 use serde::Serialize;
 
-use crate::publish::Output;
+use crate::publish::{Location, Output};
+use crate::site::Cell;
 
-/// One outgoing message.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+/// One outgoing message, its payload already written.
+#[derive(Clone, Debug, PartialEq)]
 pub struct Message {
     pub topic: String,
-    pub payload: serde_json::Value,
-    #[serde(skip)]
+    /// JSON (or plain text: presence, status).
+    pub payload: Vec<u8>,
     pub retain: bool,
 }
 
 impl Message {
-    fn of(topic: String, payload: &impl Serialize, retain: bool) -> Message {
+    /// A JSON message. Keys come out sorted at every level (through
+    /// `serde_json::Value`), as every payload has been since the first
+    /// version, so a payload's bytes do not change with field order.
+    pub fn json(topic: String, payload: &impl Serialize, retain: bool) -> Message {
+        let value = serde_json::to_value(payload).expect("plain data serializes");
         Message {
             topic,
-            payload: serde_json::to_value(payload).expect("plain data serializes"),
+            payload: serde_json::to_vec(&value).expect("JSON values serialize"),
             retain,
+        }
+    }
+
+    /// The payload read back as JSON (tests, tools); `Null` if it is not JSON.
+    pub fn value(&self) -> serde_json::Value {
+        serde_json::from_slice(&self.payload).unwrap_or_default()
+    }
+}
+
+/// A location as [`Message::json`] would write it, written directly: the
+/// gateway's most frequent message, so it skips building a JSON tree. Fields
+/// in sorted order, and the confidence widened to `f64` as a JSON tree holds
+/// it, so the bytes are the same (checked in the tests below).
+#[derive(Serialize)]
+struct LocationPayload<'a> {
+    anchors_heard: usize,
+    cell: Option<Cell>,
+    confidence: f64,
+    device: &'a str,
+    label: &'a Option<String>,
+    place: &'a Option<String>,
+    schema: &'static str,
+    t: f64,
+    x_m: Option<f64>,
+    y_m: Option<f64>,
+}
+
+impl LocationPayload<'_> {
+    fn of(l: &Location) -> LocationPayload<'_> {
+        let Location {
+            schema,
+            device,
+            t,
+            cell,
+            label,
+            x_m,
+            y_m,
+            place,
+            confidence,
+            anchors_heard,
+        } = l;
+        LocationPayload {
+            anchors_heard: *anchors_heard,
+            cell: *cell,
+            confidence: f64::from(*confidence),
+            device,
+            label,
+            place,
+            schema,
+            t: *t,
+            x_m: *x_m,
+            y_m: *y_m,
         }
     }
 }
@@ -115,13 +172,23 @@ impl Topics {
     /// devices are not published).
     pub fn encode(&self, output: &Output) -> Option<Message> {
         Some(match output {
-            Output::Location(l) => Message::of(self.location(&l.device), l, false),
-            Output::Route(r) => Message::of(self.path(&r.device), &**r, false),
-            Output::Guidance(g) => Message::of(self.guidance(&g.device), &**g, false),
-            Output::FeedbackRefused(f) => {
-                Message::of(format!("{}/error", self.feedback(&f.device)), f, false)
+            Output::Location(l) => {
+                // A location is about 250 bytes: one allocation, no growing.
+                let mut payload = Vec::with_capacity(320);
+                serde_json::to_writer(&mut payload, &LocationPayload::of(l))
+                    .expect("plain data serializes");
+                Message {
+                    topic: self.location(&l.device),
+                    payload,
+                    retain: false,
+                }
             }
-            Output::Stats(s) => Message::of(self.stats(), &**s, true),
+            Output::Route(r) => Message::json(self.path(&r.device), &**r, false),
+            Output::Guidance(g) => Message::json(self.guidance(&g.device), &**g, false),
+            Output::FeedbackRefused(f) => {
+                Message::json(format!("{}/error", self.feedback(&f.device)), f, false)
+            }
+            Output::Stats(s) => Message::json(self.stats(), &**s, true),
             Output::Truth(_)
             | Output::Forgotten(_)
             | Output::Adherence(_)
@@ -156,9 +223,41 @@ mod tests {
             .encode(&Output::Route(Box::new(reply)))
             .unwrap();
         assert_eq!(msg.topic, "gangway/gw/devices/d/path");
-        assert_eq!(msg.payload["error"]["code"], "unknown_place");
-        assert!(msg.payload["error"].get("retry_after_s").is_none());
-        assert_eq!(msg.payload["request_id"], "r1");
-        assert!(msg.payload.get("waypoints").is_none());
+        let payload = msg.value();
+        assert_eq!(payload["error"]["code"], "unknown_place");
+        assert!(payload["error"].get("retry_after_s").is_none());
+        assert_eq!(payload["request_id"], "r1");
+        assert!(payload.get("waypoints").is_none());
+    }
+
+    fn location(device: &str, cell: Option<Cell>, confidence: f32) -> Location {
+        Location {
+            schema: crate::publish::LOCATION_SCHEMA,
+            device: device.into(),
+            t: 1_767_225_600.593,
+            cell,
+            label: cell.map(|_| "L03".into()),
+            x_m: cell.map(|c| f64::from(c.x) + 0.5),
+            y_m: cell.map(|c| f64::from(c.y) + 0.5),
+            place: cell.map(|_| "north \"stacks\" \u{e9}\n".into()),
+            confidence,
+            anchors_heard: 2,
+        }
+    }
+
+    #[test]
+    fn a_location_is_written_as_its_json_tree_would_be() {
+        for l in [
+            location("walker-03", Some(Cell::new(11, 2)), 0.242_959_9),
+            location("ph\u{f6}ne \"7\"", None, 1.0 / 3.0),
+            location("x", Some(Cell::new(0, 0)), f32::NAN),
+        ] {
+            let direct = Topics::new("gangway/gw").encode(&Output::Location(l.clone()));
+            let tree = Message::json("gangway/gw/devices/x/location".into(), &l, false);
+            assert_eq!(
+                String::from_utf8(direct.unwrap().payload).unwrap(),
+                String::from_utf8(tree.payload).unwrap()
+            );
+        }
     }
 }

@@ -41,7 +41,7 @@ pub enum Output {
     Guidance(Box<Guidance>),
     /// Where a device really was (a replayed log's `truth`), passed through
     /// the pipeline untouched for scoring.
-    Truth(crate::source::Truth),
+    Truth(crate::event::Truth),
     /// A device whose track was forgotten (`[limits]`): sinks drop what they
     /// keep about it.
     Forgotten(Arc<str>),
@@ -49,7 +49,7 @@ pub enum Output {
     /// feedback for the learning store).
     Adherence(crate::guide::Adherence),
     /// A score for a route this gateway gave.
-    Feedback(crate::source::Feedback),
+    Feedback(crate::event::Feedback),
     /// Feedback refused: no such route was given to the device.
     FeedbackRefused(FeedbackRefused),
     /// This gateway's own sightings, for the other gateways of its site
@@ -83,6 +83,30 @@ pub struct Location {
     pub confidence: f32,
     /// How many anchors were heard in the window.
     pub anchors_heard: usize,
+}
+
+#[cfg(test)]
+impl Location {
+    /// A fix for tests: `device` at `cell` (unknown when `None`), near `place`.
+    pub(crate) fn sample(
+        device: &str,
+        t: f64,
+        cell: Option<Cell>,
+        place: Option<&str>,
+    ) -> Location {
+        Location {
+            schema: LOCATION_SCHEMA,
+            device: device.into(),
+            t,
+            cell,
+            label: None,
+            x_m: None,
+            y_m: None,
+            place: place.map(str::to_owned),
+            confidence: 0.5,
+            anchors_heard: 3,
+        }
+    }
 }
 
 /// The answer to a route request: a route or an error, never both.
@@ -231,7 +255,7 @@ pub struct FeedbackError {
 }
 
 impl FeedbackRefused {
-    pub fn new(feedback: &crate::source::Feedback) -> FeedbackRefused {
+    pub fn new(feedback: &crate::event::Feedback) -> FeedbackRefused {
         FeedbackRefused {
             schema: FEEDBACK_ERROR_SCHEMA,
             device: feedback.device.clone(),
@@ -242,32 +266,6 @@ impl FeedbackRefused {
                 message: "feedback is taken once for a route this gateway gave the device \
                           recently; this request id is not one of them",
             },
-        }
-    }
-}
-
-/// Whether a device id can stand as one MQTT topic level: non-empty, at most 128
-/// bytes, and free of `+`, `#`, `/` and control characters.
-pub fn valid_device_id(id: &str) -> bool {
-    !id.is_empty()
-        && id.len() <= 128
-        && !id
-            .chars()
-            .any(|c| matches!(c, '+' | '#' | '/') || c.is_control())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn device_ids_that_break_topics_are_refused() {
-        assert!(valid_device_id("phone-7"));
-        assert!(valid_device_id(
-            "5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84-1-3001"
-        ));
-        for bad in ["", "a/b", "a+", "#", "tab\there", &"x".repeat(129)] {
-            assert!(!valid_device_id(bad), "{bad:?}");
         }
     }
 }

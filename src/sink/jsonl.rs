@@ -13,7 +13,7 @@ use anyhow::Context;
 use futures::future::BoxFuture;
 
 use super::Sink;
-use crate::mqtt::topics::Topics;
+use crate::mqtt::topics::{Message, Topics};
 use crate::publish::Output;
 
 /// JSON Lines of the published messages, to any writer.
@@ -32,6 +32,18 @@ impl<W: Write + Send> JsonLines<W> {
             out: BufWriter::new(out),
             target: target.to_owned(),
         }
+    }
+}
+
+impl<W: Write + Send> JsonLines<W> {
+    /// `{"topic":…,"payload":…}` and a newline: a JSON string, then the
+    /// payload as written for the broker.
+    fn write(&mut self, message: &Message) -> std::io::Result<()> {
+        self.out.write_all(b"{\"topic\":")?;
+        serde_json::to_writer(&mut self.out, &message.topic)?;
+        self.out.write_all(b",\"payload\":")?;
+        self.out.write_all(&message.payload)?;
+        self.out.write_all(b"}\n")
     }
 }
 
@@ -59,10 +71,8 @@ impl<W: Write + Send + 'static> Sink for JsonLines<W> {
     fn send(&mut self, outputs: &[Output]) -> anyhow::Result<()> {
         for output in outputs {
             if let Some(message) = self.topics.encode(output) {
-                let written = serde_json::to_writer(&mut self.out, &message)
-                    .map_err(std::io::Error::from)
-                    .and_then(|()| self.out.write_all(b"\n"));
-                written.with_context(|| format!("writing to {}", self.target))?;
+                self.write(&message)
+                    .with_context(|| format!("writing to {}", self.target))?;
             }
         }
         Ok(())

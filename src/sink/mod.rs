@@ -19,7 +19,7 @@
 //! on a failing disk) counts and logs its failures instead.
 
 pub mod jsonl;
-pub mod recorder;
+pub(crate) mod recorder;
 
 use futures::future::BoxFuture;
 

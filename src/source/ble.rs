@@ -34,7 +34,9 @@ use tokio::sync::watch;
 use tokio::time::Instant;
 
 use super::ibeacon::{self, APPLE_COMPANY_ID, IBeacon};
-use super::{Event, Shutdown, Source, SourceContext};
+use super::{Shutdown, Source, SourceContext};
+
+use crate::event::Event;
 use crate::publish::stats::BleStatus;
 use crate::sighting::{Sighting, unix_now};
 

@@ -19,11 +19,11 @@ use std::io::{self, BufReader, BufWriter, Read};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use super::Event;
 use super::btsnoop::{BtsnoopError, BtsnoopReader, BtsnoopWriter, Datalink, MAGIC};
 use super::csvlog::{CsvLog, CsvOptions};
 use super::log::{LogError, LogReader, LogWriter};
 use super::pcap::{self, PcapError, PcapReader};
+use crate::event::Event;
 use crate::locate::survey::SurveyError;
 use crate::site::Site;
 
@@ -276,9 +276,9 @@ impl CaptureWriter {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::event::Truth;
     use crate::sighting::{BeaconId, Sighting};
     use crate::site::Cell;
-    use crate::source::Truth;
 
     fn site() -> Site {
         let text = "name = \"t\"\ncell_m = 1.0\nmap = '''\n##\n'''\n";

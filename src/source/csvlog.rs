@@ -23,7 +23,7 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use super::{Event, Truth};
+use crate::event::{Event, Truth};
 use crate::locate::survey::{Row, SurveyError, SurveyRows};
 use crate::sighting::Sighting;
 use crate::site::Site;

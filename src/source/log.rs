@@ -26,9 +26,9 @@ use std::sync::Arc;
 use serde::{Deserialize, Serialize};
 use uuid::Uuid;
 
-use super::{Event, RouteRequest, Truth};
+use crate::event::{Event, RouteRequest, Truth};
 use crate::plan::Destination;
-use crate::publish::valid_device_id;
+use crate::sighting::valid_device_id;
 use crate::sighting::{BeaconId, Sighting};
 use crate::site::Cell;
 use crate::throttle::Throttle;

@@ -25,106 +25,22 @@
 //! - [`capture`]: picks one of those formats for a file and opens it;
 //! - [`simulate`]: walkers on a site, heard through a path-loss model or a survey.
 
-pub mod adverts;
-pub mod ble;
+pub(crate) mod adverts;
+pub(crate) mod ble;
 pub mod btsnoop;
 pub mod capture;
-pub mod csvlog;
+pub(crate) mod csvlog;
 pub mod ibeacon;
 pub mod log;
 pub mod pcap;
-pub mod pcap_link;
+pub(crate) mod pcap_link;
 pub mod playback;
 pub mod simulate;
 
 use futures::future::BoxFuture;
-use serde::{Deserialize, Serialize};
 use tokio::sync::{mpsc, watch};
 
-use crate::plan::{Destination, RouteErrorCode};
-use crate::sighting::Sighting;
-use crate::site::Cell;
-
-/// One thing that happened, in time order.
-#[derive(Clone, Debug, PartialEq)]
-pub enum Event {
-    /// An advert was heard.
-    Advert(Sighting),
-    /// A device asked for a route (served exactly like an MQTT `route/set`).
-    Request(RouteRequest),
-    /// Where a device really was: the ground truth of a recorded or simulated walk.
-    Truth(Truth),
-}
-
-impl Event {
-    pub fn t(&self) -> f64 {
-        match self {
-            Event::Advert(s) => s.t,
-            Event::Request(r) => r.t,
-            Event::Truth(g) => g.t,
-        }
-    }
-}
-
-/// A route request: from the device's current location to `to`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct RouteRequest {
-    pub t: f64,
-    pub device: String,
-    pub to: Destination,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub profile: Option<String>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub request_id: Option<String>,
-}
-
-/// Ground truth: `device` was in `cell` at `t`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Truth {
-    pub t: f64,
-    pub device: String,
-    pub cell: Cell,
-}
-
-/// A message from someone else (a phone, a client, another gateway), read:
-/// what the runtime serves besides its own events. Today they come over MQTT
-/// (`mqtt::inbound` reads them); any other front end makes the same.
-#[derive(Debug, PartialEq)]
-pub enum Inbound {
-    /// A route request, admitted (rate limits, a bounded queue) before it is planned.
-    Route(RouteRequest),
-    /// A route request that could not be read; it still gets an error reply.
-    BadRoute {
-        device: String,
-        request_id: Option<String>,
-        code: RouteErrorCode,
-        message: String,
-    },
-    /// End the guidance session of `device` (received at `t`).
-    Cancel {
-        device: String,
-        t: f64,
-    },
-    Feedback(Feedback),
-    /// A phone's scan: sightings with the phone as observer.
-    Scan(Vec<Sighting>),
-    /// Another gateway's sightings.
-    Shared(Vec<Sighting>),
-    /// A message refused before it could be read (its source logged why);
-    /// counted.
-    Refused {
-        oversized: bool,
-    },
-}
-
-/// A score for a route the gateway gave.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Feedback {
-    pub t: f64,
-    pub device: String,
-    pub request_id: String,
-    pub score: u8,
-}
+use crate::event::{Event, Inbound};
 
 /// A source of events: a task of the runtime that sends what it reads
 /// through its [`SourceContext`] until it is done or told to shut down.

@@ -14,10 +14,12 @@ use futures::future::BoxFuture;
 use tokio::time::Instant;
 
 use super::capture::{CaptureError, CaptureReader};
-use super::{Event, Source, SourceContext};
+use super::{Source, SourceContext};
+
+use crate::event::Event;
 
 /// Most events handed to the runtime at once.
-pub const BATCH: usize = 512;
+pub const BATCH: usize = 256;
 
 /// When each event of a played log is due.
 #[derive(Debug)]

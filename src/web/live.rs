@@ -37,7 +37,9 @@ use crate::plan::Destination;
 use crate::publish::{Output, RouteOutcome};
 use crate::sink::Sink;
 use crate::site::{Cell, Site};
-use crate::source::{Inbound, RouteRequest, Source, SourceContext};
+use crate::source::{Source, SourceContext};
+
+use crate::event::{Inbound, RouteRequest};
 
 /// Fixes kept per device for its trail.
 pub const TRAIL: usize = 20;
@@ -395,7 +397,7 @@ pub struct RouteBody {
 }
 
 pub async fn route(State(live): State<Arc<Live>>, Json(body): Json<RouteBody>) -> Response {
-    if !crate::publish::valid_device_id(&body.device) {
+    if !crate::sighting::valid_device_id(&body.device) {
         return error(
             StatusCode::BAD_REQUEST,
             "invalid_request",

@@ -27,7 +27,9 @@ use super::security::error;
 use crate::locate::window::{Orientation, Windows, anchor_ids};
 use crate::sighting::Sighting;
 use crate::site::{Cell, Site};
-use crate::source::{Event, Inbound, Input, Source, SourceContext};
+use crate::source::{Input, Source, SourceContext};
+
+use crate::event::{Event, Inbound};
 
 /// One recorded window: the spot's cell and metres, the window's end, and
 /// each anchor's reading (none: not heard).
@@ -344,7 +346,7 @@ pub struct SpotBody {
 
 /// `POST /api/survey`: record `device` standing at (`x_m`, `y_m`).
 pub async fn start(State(survey): State<Arc<Survey>>, Json(body): Json<SpotBody>) -> Response {
-    if !crate::publish::valid_device_id(&body.device) {
+    if !crate::sighting::valid_device_id(&body.device) {
         return error(
             StatusCode::BAD_REQUEST,
             "invalid_request",
