@@ -111,6 +111,9 @@ impl Session {
         rerouted_from: Option<Walked>,
     ) -> Session {
         let line = RouteLine::new(site, route);
+        // Held as long as the session: no room spare.
+        let mut maneuvers = maneuvers(site, route, profile);
+        maneuvers.shrink_to_fit();
         let walked = match rerouted_from {
             Some(before) => Walked {
                 reroutes: before.reroutes + 1,
@@ -130,7 +133,7 @@ impl Session {
             request_id,
             profile,
             line,
-            maneuvers: maneuvers(site, route, profile),
+            maneuvers,
             next: 1,
             announced: 1,
             state: if reroutes > 0 {
