@@ -273,6 +273,21 @@ impl Config {
             .pathloss
             .validate()
             .map_err(|e| format!("[localizer.pathloss] {e}"))?;
+        self.localizer
+            .knn
+            .validate()
+            .map_err(|e| format!("[localizer.knn] {e}"))?;
+        self.localizer
+            .recalibration
+            .validate()
+            .map_err(|e| format!("[localizer.recalibration] {e}"))?;
+        if self.localizer.recalibration.enabled && !self.store.enabled {
+            return Err(
+                "[localizer.recalibration] `enabled` keeps what is heard in the learning \
+                        store: set [store] enabled = true too"
+                    .into(),
+            );
+        }
         self.guidance.validate()?;
         self.ble.validate()?;
         self.mqtt.validate().map_err(|e| e.to_string())?;

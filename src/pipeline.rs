@@ -80,6 +80,8 @@ pub struct Pipeline {
     log_likelihood: Vec<f32>,
     /// Published confidence under which a fix is published as unknown.
     min_confidence: f32,
+    /// The anchors' ids when what is heard is kept for recalibration.
+    heard_ids: Option<Vec<String>>,
     stats: Stats,
 }
 
@@ -161,8 +163,13 @@ impl Pipeline {
                 config.guidance.fix_lag_s(&config.window),
             ),
             log_likelihood: vec![0.0; site.open_cells().len()],
-            site,
             min_confidence: config.localizer.min_confidence,
+            heard_ids: config
+                .localizer
+                .recalibration
+                .enabled
+                .then(|| locate::window::anchor_ids(&site, config.window.orientation)),
+            site,
             stats: Stats::default(),
         };
         Ok((pipeline, fallbacks))
@@ -297,6 +304,13 @@ impl Pipeline {
             anchors_heard: fp.heard_count(),
         };
         out.push(Output::Location(location));
+        if let Some(heard) = self
+            .heard_ids
+            .as_ref()
+            .and_then(|ids| locate::recalibrate::Heard::of(fp, ids))
+        {
+            out.push(Output::Heard(heard));
+        }
         if let Some(guidance) = self.guide.update(&self.site, &fp.entity, cell, fp.t, now) {
             let off_route = guidance.event == Some(GuidanceEvent::OffRoute);
             out.push(Output::Guidance(Box::new(guidance)));

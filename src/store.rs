@@ -6,7 +6,9 @@
 //! nothing is installed) in the state directory, with bounded retention.
 //!
 //! The daemon writes through [`Store::write`]; training reads through
-//! [`Store::trajectories`] and [`Store::routes`] (`gangway train --from-store`).
+//! [`Store::trajectories`] and [`Store::routes`] (`gangway train --from-store`),
+//! recalibration of the radio model through [`Store::heard`] (what each device
+//! heard per fingerprint window, [`crate::locate::recalibrate`]).
 //!
 //! What goes in comes from the air and the broker, so the store is bounded in
 //! rows and bytes, in total and per device ([`Store::enforce_quotas`]), and a
@@ -134,6 +136,21 @@ pub enum Record {
         score: u8,
     },
     Adherence(Adherence),
+    /// One fingerprint window: the anchors a device heard (by id) and how
+    /// loud, for recalibrating the radio model.
+    Heard {
+        device: String,
+        t: f64,
+        readings: Vec<(String, f32)>,
+    },
+}
+
+/// One stored fingerprint window ([`Record::Heard`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct HeardRow {
+    pub device: String,
+    pub t: f64,
+    pub readings: Vec<(String, f32)>,
 }
 
 /// A device's walk: fixes in time order, without a gap longer than asked for.
@@ -163,7 +180,7 @@ pub struct Store {
 }
 
 /// The tables, each with its time column `t` and `device`.
-const TABLES: [&str; 4] = ["fixes", "routes", "feedback", "adherence"];
+const TABLES: [&str; 5] = ["fixes", "routes", "feedback", "adherence", "heard"];
 
 impl Store {
     /// Opens (creating if needed, readable by its owner only) a store for
@@ -262,7 +279,10 @@ impl Store {
                      t REAL NOT NULL, ending TEXT NOT NULL, in_corridor_share REAL NOT NULL,
                      detours INTEGER NOT NULL, arrived INTEGER NOT NULL,
                      expected_s REAL NOT NULL, taken_s REAL NOT NULL);
-                 CREATE INDEX IF NOT EXISTS adherence_by_device ON adherence (device, t);",
+                 CREATE INDEX IF NOT EXISTS adherence_by_device ON adherence (device, t);
+                 CREATE TABLE IF NOT EXISTS heard (
+                     device TEXT NOT NULL, t REAL NOT NULL, readings TEXT NOT NULL);
+                 CREATE INDEX IF NOT EXISTS heard_by_time ON heard (t);",
             )
             .map_err(|e| sql(&self.path, e))?;
         let version: i64 = self
@@ -346,6 +366,18 @@ impl Store {
                         a.arrived,
                         a.expected_s,
                         a.taken_s
+                    ],
+                ),
+                Record::Heard {
+                    device,
+                    t,
+                    readings,
+                } => tx.execute(
+                    "INSERT INTO heard (device, t, readings) VALUES (?1, ?2, ?3)",
+                    params![
+                        device,
+                        t,
+                        serde_json::to_string(readings).expect("readings serialize")
                     ],
                 ),
             };
@@ -440,7 +472,7 @@ impl Store {
                 .map_err(err)?;
             let over_rows = u64::try_from(rows).unwrap_or(0) > config.max_rows;
             let over_bytes = u64::try_from(used * page).unwrap_or(0) > config.max_bytes;
-            let (largest, table) = counts.into_iter().max().expect("four tables");
+            let (largest, table) = counts.into_iter().max().expect("five tables");
             if !(over_rows || over_bytes) || largest == 0 {
                 break;
             }
@@ -554,6 +586,54 @@ impl Store {
             });
         }
         Ok(out)
+    }
+
+    /// The newest `max_rows` fingerprint windows, by device then time.
+    pub fn heard(&self, max_rows: usize) -> Result<Vec<HeardRow>, StoreError> {
+        let mut stmt = self
+            .conn
+            .prepare(
+                "SELECT device, t, readings FROM \
+                 (SELECT device, t, readings FROM heard ORDER BY t DESC LIMIT ?1) \
+                 ORDER BY device, t",
+            )
+            .map_err(|e| sql(&self.path, e))?;
+        let rows = stmt
+            .query_map([i64::try_from(max_rows).unwrap_or(i64::MAX)], |r| {
+                Ok((
+                    r.get::<_, String>(0)?,
+                    r.get::<_, f64>(1)?,
+                    r.get::<_, String>(2)?,
+                ))
+            })
+            .map_err(|e| sql(&self.path, e))?;
+        let mut out = Vec::new();
+        for row in rows {
+            let (device, t, readings) = row.map_err(|e| sql(&self.path, e))?;
+            // Written by `write`; a row edited by hand is skipped.
+            let Ok(readings) = serde_json::from_str(&readings) else {
+                tracing::warn!(%device, "{}: a heard row with unreadable readings, skipped", self.path.display());
+                continue;
+            };
+            out.push(HeardRow {
+                device,
+                t,
+                readings,
+            });
+        }
+        Ok(out)
+    }
+
+    /// Deletes all but the newest `max_rows` fingerprint windows. Returns
+    /// the number deleted.
+    pub fn keep_newest_heard(&mut self, max_rows: usize) -> Result<usize, StoreError> {
+        self.conn
+            .execute(
+                "DELETE FROM heard WHERE rowid IN \
+                 (SELECT rowid FROM heard ORDER BY t DESC LIMIT -1 OFFSET ?1)",
+                [i64::try_from(max_rows).unwrap_or(i64::MAX)],
+            )
+            .map_err(|e| sql(&self.path, e))
     }
 
     /// Every guided walk's adherence, oldest first.
@@ -780,5 +860,38 @@ mod tests {
             .unwrap();
         let err = Store::open_read_only(&path).err().unwrap().to_string();
         assert!(err.contains("s.sqlite") && err.contains("99"), "{err}");
+    }
+
+    #[test]
+    fn heard_windows_read_back_newest_and_are_kept_bounded() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.sqlite");
+        let mut store = Store::open(&path).unwrap();
+        let heard = |device: &str, t: f64| Record::Heard {
+            device: device.into(),
+            t,
+            readings: vec![("b1".into(), -70.5), ("b2".into(), -81.0)],
+        };
+        store
+            .write(&[
+                heard("b", 3.0),
+                heard("a", 1.0),
+                heard("a", 2.0),
+                heard("b", 0.5),
+            ])
+            .unwrap();
+        // The newest three, by device then time.
+        let read = Store::open_read_only(&path).unwrap().heard(3).unwrap();
+        let keys: Vec<(&str, f64)> = read.iter().map(|r| (r.device.as_str(), r.t)).collect();
+        assert_eq!(keys, [("a", 1.0), ("a", 2.0), ("b", 3.0)]);
+        assert_eq!(
+            read[0].readings,
+            [("b1".to_owned(), -70.5), ("b2".to_owned(), -81.0)]
+        );
+        assert_eq!(store.keep_newest_heard(2).unwrap(), 2);
+        assert_eq!(store.heard(10).unwrap().len(), 2);
+        // Retention covers the table like the others.
+        assert_eq!(store.prune(10.0, 6.5, u64::MAX).unwrap(), 2);
+        assert!(store.heard(10).unwrap().is_empty());
     }
 }

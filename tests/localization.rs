@@ -47,25 +47,34 @@ fn the_real_survey_stays_at_or_above_the_reached_targets() {
             "within_2"
         ]
     );
+    // k-NN + hmm: 1.056 / 0.793 measured.
     assert!(
-        figure(&session, "mean_error_cells") <= 1.45,
+        figure(&session, "mean_error_cells") <= 1.10,
         "session split: {session}"
     );
     assert!(
-        figure(&session, "within_2") >= 0.76,
+        figure(&session, "within_2") >= 0.78,
         "session split: {session}"
     );
 
+    // 1.118 / 0.804 / 0.396 measured.
     let random = eval(&["--site", site, "--survey", survey, "--split", "random"]);
     assert!(
-        figure(&random, "mean_error_cells") <= 1.50,
+        figure(&random, "mean_error_cells") <= 1.20,
         "random split: {random}"
     );
     assert!(
-        figure(&random, "within_2") >= 0.75,
+        figure(&random, "within_2") >= 0.78,
         "random split: {random}"
     );
-    assert!(figure(&random, "exact") >= 0.35, "random split: {random}");
+    assert!(figure(&random, "exact") >= 0.37, "random split: {random}");
+
+    // The shipped default with a survey: 1.032 / 0.805 / 0.439 measured
+    // (issue #14's targets: ≤ 1.05, ≥ 0.80, ≥ 0.45).
+    let auto = eval(&["--site", site, "--survey", survey, "--method", "auto"]);
+    assert!(figure(&auto, "mean_error_cells") <= 1.06, "auto: {auto}");
+    assert!(figure(&auto, "within_2") >= 0.79, "auto: {auto}");
+    assert!(figure(&auto, "exact") >= 0.42, "auto: {auto}");
 }
 
 /// The survey-free model calibrated on the crowd-sourced file alone (no
@@ -79,23 +88,34 @@ fn calibration_and_the_radio_map_hold_their_figures() {
     let unlabelled = survey.with_file_name("iBeacon_RSSI_Unlabeled.csv");
     let site = "config/sites/waldo.toml";
     let survey = survey.to_str().unwrap();
-    let calibrated = eval(&[
-        "--site",
-        site,
-        "--survey",
-        survey,
-        "--method",
-        "pathloss",
-        "--calibrate",
-        unlabelled.to_str().unwrap(),
-    ]);
+    // The survey-free model calibrated on `from` first (`extra` flags too),
+    // its mean error and within-2 share.
+    let calibrated = |from: &str, extra: &[&str]| {
+        let base = [
+            "--site",
+            site,
+            "--survey",
+            survey,
+            "--method",
+            "pathloss",
+            "--calibrate",
+            from,
+        ];
+        let m = eval(&[&base[..], extra].concat());
+        (figure(&m, "mean_error_cells"), figure(&m, "within_2"))
+    };
+    // On the crowd file: 1.718 / 0.626 measured.
+    let (mean, within_2) = calibrated(unlabelled.to_str().unwrap(), &[]);
     assert!(
-        figure(&calibrated, "mean_error_cells") <= 1.80,
-        "calibrated pathloss: {calibrated}"
+        mean <= 1.80 && within_2 >= 0.60,
+        "calibrated on the crowd file: {mean} / {within_2}"
     );
+    // On the survey's own scans, their labels unused, with a radio map
+    // refined per cell: 1.645 / 0.635 measured.
+    let (mean, within_2) = calibrated(survey, &["--calibrate-cells"]);
     assert!(
-        figure(&calibrated, "within_2") >= 0.60,
-        "calibrated pathloss: {calibrated}"
+        mean <= 1.70 && within_2 >= 0.61,
+        "self-calibrated with cells: {mean} / {within_2}"
     );
     let map = eval(&["--site", site, "--survey", survey, "--method", "radiomap"]);
     assert!(figure(&map, "mean_error_cells") <= 1.40, "radiomap: {map}");
@@ -113,20 +133,23 @@ fn calibration_and_the_radio_map_hold_their_figures() {
         unlabelled.to_str().unwrap(),
         "--out",
         file.to_str().unwrap(),
+        "--cells",
         "--json",
     ]);
     let report: Value = serde_json::from_str(out.trim()).expect("one JSON object");
     assert_eq!(report["anchors"].as_array().unwrap().len(), 13, "{report}");
-    // The shipped config, its relative paths made absolute, with the file.
+    assert!(report["cells"]["cells"].as_u64().unwrap() > 50, "{report}");
+    // The shipped config, its relative paths made absolute, with the file
+    // in place of the shipped calibration (`check` refuses one that does
+    // not load).
     let root = common::root();
-    let config = std::fs::read_to_string(root.join("config/gangway.toml"))
-        .unwrap()
+    let shipped = std::fs::read_to_string(root.join("config/gangway.toml")).unwrap();
+    let calibration = "\"sites/waldo-calibration.toml\"";
+    assert!(shipped.contains(calibration));
+    let config = shipped
+        .replace(calibration, &format!("\"{}\"", file.display()))
         .replace("\"../", &format!("\"{}/", root.display()))
-        .replace("\"sites/", &format!("\"{}/config/sites/", root.display()))
-        .replace(
-            "# calibration = \"",
-            &format!("calibration = \"{}\" # ", file.display()),
-        );
+        .replace("\"sites/", &format!("\"{}/config/sites/", root.display()));
     let config = write(dir.path(), "gangway.toml", &config);
     gangway_ok(&["check", "--config", config.to_str().unwrap()]);
 }
@@ -407,12 +430,13 @@ fn depot_centre(cx: i64, cy: i64) -> (f64, f64) {
 /// Nothing tuned to the sample floor: on `METRIC_SITE`, a survey in metres
 /// (`x_m`,`y_m`, points anywhere on the walkable floor, not cell centres)
 /// simulated with drop-outs and shadowing, split by rows into fixed files,
-/// the radio map beats a plain kNN regressor computed here on the same split
+/// the radio map and the default surveyed method (`auto`) beat a plain kNN
+/// regressor computed here on the same split
 /// (the scikit-learn default: 5 neighbours, uniform weights, Euclidean
 /// distance on raw RSSI with "not heard" as a floor value, mean position).
 /// Both are scored in metres against where each row was really taken.
 #[test]
-fn the_radio_map_beats_a_plain_knn_regressor_on_a_metric_site() {
+fn the_surveyed_methods_beat_a_plain_knn_regressor_on_a_metric_site() {
     use rand::{RngExt, SeedableRng};
     let dir = tempfile::tempdir().unwrap();
     let site_file = write(dir.path(), "depot.toml", METRIC_SITE);
@@ -485,43 +509,48 @@ fn the_radio_map_beats_a_plain_knn_regressor_on_a_metric_site() {
     let test: Vec<_> = test.into_iter().map(|(_, r)| r).collect();
     let train_file = write(dir.path(), "train.csv", &csv(&train, 0));
     let test_file = write(dir.path(), "test.csv", &csv(&test, train.len()));
-    let per_row = dir.path().join("rows.csv");
-    eval(&[
-        "--site",
-        site,
-        "--train",
-        train_file.to_str().unwrap(),
-        "--test",
-        test_file.to_str().unwrap(),
-        "--method",
-        "radiomap",
-        "--tracker",
-        "none",
-        "--rows",
-        per_row.to_str().unwrap(),
-    ]);
-    // The radio map's fix is a cell: its centre in world metres against the
-    // row's true position.
-    let fixes = std::fs::read_to_string(&per_row).unwrap();
-    let mut lines = fixes.lines();
-    let columns: Vec<&str> = lines.next().unwrap().split(',').collect();
-    let col = |name: &str| columns.iter().position(|c| *c == name).unwrap();
-    let (row_col, x_col, y_col) = (col("row"), col("x"), col("y"));
-    let mut map_error = 0.0;
-    let mut fixed = 0;
-    for line in lines {
-        let f: Vec<&str> = line.split(',').collect();
-        // Rows count through the training file, then the test file.
-        let i = f[row_col].parse::<usize>().unwrap() - train.len();
-        let (tx, ty) = test[i].0;
-        let (cx, cy) = (f[x_col].parse().unwrap(), f[y_col].parse().unwrap());
-        assert!(!blocked((cx, cy)), "a fix on a blocked cell: {line}");
-        let (x, y) = depot_centre(cx, cy);
-        map_error += (x - tx).hypot(y - ty);
-        fixed += 1;
-    }
-    assert_eq!(fixed, test.len(), "one fix per held-out row");
-    map_error /= fixed as f64;
+    // A surveyed method's mean error in metres: its fix is a cell, whose
+    // centre in world metres is set against the row's true position.
+    let surveyed_error = |method: &str| -> f64 {
+        let per_row = dir.path().join(format!("rows-{method}.csv"));
+        eval(&[
+            "--site",
+            site,
+            "--train",
+            train_file.to_str().unwrap(),
+            "--test",
+            test_file.to_str().unwrap(),
+            "--method",
+            method,
+            "--tracker",
+            "none",
+            "--rows",
+            per_row.to_str().unwrap(),
+        ]);
+        let fixes = std::fs::read_to_string(&per_row).unwrap();
+        let mut lines = fixes.lines();
+        let columns: Vec<&str> = lines.next().unwrap().split(',').collect();
+        let col = |name: &str| columns.iter().position(|c| *c == name).unwrap();
+        let (row_col, x_col, y_col) = (col("row"), col("x"), col("y"));
+        let mut error = 0.0;
+        let mut fixed = 0;
+        for line in lines {
+            let f: Vec<&str> = line.split(',').collect();
+            // Rows count through the training file, then the test file.
+            let i = f[row_col].parse::<usize>().unwrap() - train.len();
+            let (tx, ty) = test[i].0;
+            let (cx, cy) = (f[x_col].parse().unwrap(), f[y_col].parse().unwrap());
+            assert!(
+                !blocked((cx, cy)),
+                "{method}: a fix on a blocked cell: {line}"
+            );
+            let (x, y) = depot_centre(cx, cy);
+            error += (x - tx).hypot(y - ty);
+            fixed += 1;
+        }
+        assert_eq!(fixed, test.len(), "{method}: one fix per held-out row");
+        error / fixed as f64
+    };
 
     // The plain regressor on the same split.
     let value = |v: i32| if v == -200 { -105.0 } else { f64::from(v) };
@@ -547,11 +576,16 @@ fn the_radio_map_beats_a_plain_knn_regressor_on_a_metric_site() {
         knn_error += (x - tx).hypot(y - ty);
     }
     knn_error /= test.len() as f64;
-    assert!(
-        map_error < knn_error,
-        "radio map {map_error:.3} m against a plain kNN regressor {knn_error:.3} m"
-    );
-    eprintln!("radio map {map_error:.3} m, plain kNN regressor {knn_error:.3} m");
+    // The radio map, and the shipped default (`auto`: the k-NN vote for
+    // fingerprints the survey recorded, the map for the others).
+    for method in ["radiomap", "auto"] {
+        let error = surveyed_error(method);
+        assert!(
+            error < knn_error,
+            "{method} {error:.3} m against a plain kNN regressor {knn_error:.3} m"
+        );
+        eprintln!("{method} {error:.3} m, plain kNN regressor {knn_error:.3} m");
+    }
 }
 
 /// The whole pipeline on the metric site: walkers simulated with the beacons'
@@ -612,4 +646,151 @@ fn a_metric_site_publishes_world_coordinates() {
         );
     }
     assert!(known > 10, "only {known} located fixes:\n{out}");
+}
+
+/// A sink that counts the pipeline swaps the runtime announces (reloads and
+/// recalibrations both swap the whole pipeline).
+#[derive(Clone, Default)]
+struct Swaps(std::sync::Arc<std::sync::atomic::AtomicUsize>);
+
+impl gangway::sink::Sink for Swaps {
+    fn name(&self) -> &'static str {
+        "swaps"
+    }
+
+    fn send(&mut self, _: &[gangway::publish::Output]) -> anyhow::Result<()> {
+        Ok(())
+    }
+
+    fn reload(&mut self, _: &gangway::site::Site) {
+        self.0.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+    }
+
+    fn shutdown(self: Box<Self>) -> futures::future::BoxFuture<'static, anyhow::Result<()>> {
+        Box::pin(std::future::ready(Ok(())))
+    }
+}
+
+/// Polls `done` every 50 ms for up to 60 s.
+async fn eventually(what: &str, mut done: impl FnMut() -> bool) {
+    for _ in 0..1200 {
+        if done() {
+            return;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    panic!("no {what} within 60 s");
+}
+
+/// The daemon gathers what it hears into the learning store and, asked to,
+/// recalibrates the survey-free model from it off the event loop, writes the
+/// file and serves it (swapped in like a reload); a restart serves it too.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_daemon_recalibrates_from_what_it_heard_and_serves_it() {
+    use gangway::daemon::{self, state};
+    use gangway::event::Event;
+    use gangway::sighting::{BeaconId, Sighting};
+    use gangway::source::{ChannelSource, Input};
+    use std::sync::atomic::Ordering;
+
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "workshop.toml", SMALL_SITE);
+    let store = dir.path().join("learning.sqlite");
+    let config = write(
+        dir.path(),
+        "gangway.toml",
+        &format!(
+            "gateway_id = \"gw-w\"\nsite = \"workshop.toml\"\n[planner]\nmode = \"astar\"\n\
+             [store]\nenabled = true\npath = \"{}\"\n\
+             [localizer.recalibration]\nenabled = true\nevery_h = 0\nmin_windows = 100\n",
+            store.display()
+        ),
+    );
+    let serving = state::load_at_start(&config).unwrap();
+    // Heard in the last minutes: the store prunes what is older than its
+    // retention.
+    let now = gangway::sighting::unix_now();
+    let recorder = gangway::sink::recorder::Recorder::open(&serving.config.store, now)
+        .unwrap()
+        .keep_heard(serving.config.localizer.recalibration.max_windows);
+    let swaps = Swaps::default();
+    let (feed, source) = ChannelSource::new(64);
+    let (ask, asked) = tokio::sync::mpsc::channel(1);
+    let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+    let (_reload, reloads) = tokio::sync::mpsc::channel(1);
+    let options = daemon::Options {
+        recalibrate: Some(asked),
+        ..daemon::Options::default()
+    };
+    let daemon = tokio::spawn(daemon::run(
+        serving,
+        options,
+        vec![Box::new(source)],
+        vec![Box::new(recorder), Box::new(swaps.clone())],
+        async {
+            let _ = stopped.await;
+        },
+        reloads,
+    ));
+
+    // Two phones pacing the workshop's corridors, each beacon heard once a
+    // second when near enough, louder when nearer.
+    let uuid = uuid::Uuid::parse_str("0b1c2d3e-4f50-6172-8394-a5b6c7d8e9f0").unwrap();
+    let beacons = [(0.0, 0.0), (7.0, 0.0), (0.0, 4.0), (7.0, 4.0)];
+    for phone in ["phone-a", "phone-b"] {
+        let observer: std::sync::Arc<str> = phone.into();
+        let mut events = Vec::new();
+        for s in 0..400u32 {
+            let x = f64::from((s / 8 + u32::from(phone == "phone-b") * 3) % 8);
+            let y = if (s / 64) % 2 == 0 { 0.0 } else { 4.0 };
+            for (minor, (bx, by)) in (1u16..).zip(beacons) {
+                let d = 2.0 * ((x - bx) * (x - bx) + (y - by) * (y - by)).sqrt();
+                if d > 9.0 || (s + u32::from(minor)) % 3 == 0 {
+                    continue;
+                }
+                events.push(Event::Advert(Sighting {
+                    t: now - 1_000.0 + f64::from(s),
+                    observer: observer.clone(),
+                    advertiser: BeaconId {
+                        uuid,
+                        major: 7,
+                        minor,
+                    },
+                    tx_power: None,
+                    rssi: (-66.0 - 25.0 * d.max(0.5).log10()) as i16,
+                }));
+            }
+        }
+        for batch in events.chunks(64) {
+            feed.send(Input::Events(batch.to_vec())).await.unwrap();
+        }
+    }
+    let heard = || {
+        gangway::store::Store::open_read_only(&store)
+            .and_then(|s| s.heard(10_000))
+            .map_or(0, |rows| rows.len())
+    };
+    eventually("heard windows in the store", || heard() >= 300).await;
+
+    ask.send(()).await.unwrap();
+    eventually("the recalibrated pipeline", || {
+        swaps.0.load(Ordering::SeqCst) == 1
+    })
+    .await;
+    let file = dir.path().join("calibration.toml");
+    let site = gangway::site::Site::load(&dir.path().join("workshop.toml")).unwrap();
+    let calibration = gangway::locate::calibrate::Calibration::load(&file, &site).unwrap();
+    assert_eq!(calibration.anchors.len(), 4);
+    assert!(calibration.windows >= 300, "{}", calibration.windows);
+    assert!(!calibration.cells.is_empty(), "cells refined by default");
+
+    stop.send(()).unwrap();
+    let stats = daemon.await.unwrap().unwrap();
+    assert_eq!(stats.reload_failures, 0);
+    // A restart serves what was learned.
+    let restarted = state::load_at_start(&config).unwrap();
+    assert_eq!(
+        restarted.config.localizer.pathloss.calibration.as_deref(),
+        Some(file.as_path())
+    );
 }

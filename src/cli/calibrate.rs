@@ -10,7 +10,7 @@ use std::sync::Arc;
 use anyhow::Context;
 
 use crate::event::Event;
-use crate::locate::calibrate::{Window, fit};
+use crate::locate::calibrate::{FitOptions, Window, fit};
 use crate::locate::pathloss::anchors;
 use crate::locate::window::{Windows, anchor_ids};
 use crate::source::capture::{CaptureReader, Format, ReadOptions};
@@ -36,6 +36,14 @@ pub struct Args {
     /// EM iterations.
     #[arg(long, default_value_t = crate::eval::localization::CALIBRATION_ITERATIONS)]
     iterations: usize,
+    /// Then refine a radio map per cell by EM, for this many iterations
+    /// (default 8 when given without a value): for captures of the phones and
+    /// floor area the gateway will localize, not of other ones.
+    #[arg(long, num_args = 0..=1, default_missing_value = "8")]
+    cells: Option<usize>,
+    /// Weight of the per-anchor model in each refined cell, in readings.
+    #[arg(long, default_value_t = crate::locate::calibrate::DEFAULT_CELL_PRIOR_READINGS)]
+    cell_prior_readings: f64,
     /// Print the report as one JSON object.
     #[arg(long)]
     json: bool,
@@ -59,13 +67,18 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let pathloss = &config.localizer.pathloss;
     let start = anchors(&site, orientation, pathloss, None);
     let started = std::time::Instant::now();
+    let options = FitOptions {
+        iterations: args.iterations,
+        cell_iterations: args.cells.unwrap_or(0),
+        cell_prior_readings: args.cell_prior_readings,
+    };
     let fitted = fit(
         &site,
         &ids,
         &start,
         &config.tracker,
         &trajectories,
-        args.iterations,
+        &options,
     )?;
     let seconds = started.elapsed().as_secs_f64();
     let text = format!(
@@ -90,6 +103,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             "seconds": seconds,
             "log_likelihood_per_window": fitted.log_likelihood_per_window,
             "anchors": fitted.changes,
+            "cells": fitted.cells,
         });
         println!("{report}");
     } else {
@@ -114,6 +128,12 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 r.max_detection,
                 c.rssi_shift_db,
                 c.detection_shift
+            );
+        }
+        if let Some(cells) = &fitted.cells {
+            println!(
+                "refined the radio map of {} cells: detection moved {:.3} on average, mean RSSI {:.1} dB",
+                cells.cells, cells.detection_shift, cells.rssi_shift_db
             );
         }
     }

@@ -150,6 +150,11 @@ struct LocalizationArgs {
     /// calibrate` does. Only `--method pathloss` uses them.
     #[arg(long)]
     calibrate: Option<PathBuf>,
+    /// With `--calibrate`: then refine a radio map per cell by EM for this
+    /// many iterations (8 when given without a value), as `gangway calibrate
+    /// --cells` does.
+    #[arg(long, requires = "calibrate", num_args = 0..=1, default_missing_value = "8")]
+    calibrate_cells: Option<usize>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
@@ -319,6 +324,7 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
         },
         smooth_lag: args.smooth_lag,
         calibrate_from: calibrate_from.clone(),
+        calibrate_cells: args.calibrate_cells.unwrap_or(0),
     };
     let outcome = evaluate(&site, &survey, &setup(args.method, args.tracker))?;
     if let Some(path) = &args.rows {

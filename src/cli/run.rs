@@ -93,7 +93,9 @@ async fn serve(args: Args) -> anyhow::Result<()> {
     // aside (or, if even that fails, the gateway serves without recording).
     if config.store.enabled {
         match Recorder::open(&config.store, unix_now()) {
-            Ok(recorder) => sinks.push(Box::new(recorder)),
+            Ok(recorder) => sinks.push(Box::new(
+                recorder.keep_heard(config.localizer.recalibration.max_windows),
+            )),
             Err(e) => {
                 let why = format!("[store] {e}; serving without recording");
                 tracing::error!("{why}");
@@ -118,6 +120,7 @@ async fn serve(args: Args) -> anyhow::Result<()> {
         "gateway {} serving",
         config.gateway_id
     );
+    let (shutdown, reloads, recalibrate) = signals()?;
     let options = daemon::Options {
         config_path: Some(args.config.clone()),
         stats: true,
@@ -125,33 +128,44 @@ async fn serve(args: Args) -> anyhow::Result<()> {
         share_sightings: mqtt::sink::shares_sightings(config),
         radio: Some(radio),
         fallbacks,
+        recalibrate: Some(recalibrate),
     };
-    let (shutdown, reloads) = signals()?;
     daemon::run(serving, options, sources, sinks, shutdown, reloads).await?;
     Ok(())
 }
 
-/// SIGTERM and SIGINT as the shutdown future, SIGHUP as reloads (one more
-/// asked while one is pending is the same reload).
-fn signals() -> anyhow::Result<(impl Future<Output = ()>, mpsc::Receiver<()>)> {
+/// SIGTERM and SIGINT as the shutdown future, SIGHUP as reloads and SIGUSR1
+/// as requests to recalibrate (one more asked while one is pending is the
+/// same one).
+fn signals() -> anyhow::Result<(
+    impl Future<Output = ()>,
+    mpsc::Receiver<()>,
+    mpsc::Receiver<()>,
+)> {
     let mut terminate = signal(SignalKind::terminate())?;
     let mut interrupt = signal(SignalKind::interrupt())?;
-    let mut hangup = signal(SignalKind::hangup())?;
-    let (reload, reloads) = mpsc::channel(1);
-    tokio::spawn(async move {
-        while hangup.recv().await.is_some() {
-            if let Err(mpsc::error::TrySendError::Closed(())) = reload.try_send(()) {
-                return;
-            }
-        }
-    });
+    let reloads = requests(signal(SignalKind::hangup())?);
+    let recalibrations = requests(signal(SignalKind::user_defined1())?);
     let shutdown = async move {
         tokio::select! {
             _ = terminate.recv() => {}
             _ = interrupt.recv() => {}
         }
     };
-    Ok((shutdown, reloads))
+    Ok((shutdown, reloads, recalibrations))
+}
+
+/// Each delivery of a signal as one request.
+fn requests(mut signal: tokio::signal::unix::Signal) -> mpsc::Receiver<()> {
+    let (send, requests) = mpsc::channel(1);
+    tokio::spawn(async move {
+        while signal.recv().await.is_some() {
+            if let Err(mpsc::error::TrySendError::Closed(())) = send.try_send(()) {
+                return;
+            }
+        }
+    });
+    requests
 }
 
 /// glibc raises its mmap threshold each time a large block is freed; after

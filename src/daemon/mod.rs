@@ -23,6 +23,10 @@
 //!   nothing from others is taken while a sink is backed up;
 //! - reloads ([`state`]): the new config, site and pipeline are built off the
 //!   event loop and swapped in whole, or refused whole;
+//! - recalibration (`[localizer.recalibration]`, [`crate::locate::recalibrate`]):
+//!   on its schedule or on request, the survey-free model is refitted from
+//!   what the store gathered, on a blocking thread, and the pipeline built
+//!   with it is swapped in like a reload;
 //! - the gateway's counters, summed in one place ([`Runtime::stats`]);
 //! - systemd readiness, watchdog and status line (no-ops without systemd);
 //! - the order of shutdown: sources stop first (a scan stops discovering),
@@ -46,6 +50,7 @@ use tokio::time::{Instant, MissedTickBehavior};
 use admission::{Admit, Issued, PerSecond, Requests};
 use state::Loaded;
 
+use crate::locate::recalibrate::{self, Job, Recalibrated, Schedule};
 use crate::locate::window::Orientation;
 use crate::pipeline;
 use crate::plan::RouteErrorCode;
@@ -102,6 +107,8 @@ pub struct Options {
     /// What failed at start-up outside the pipeline (the store), listed in
     /// the stats' fallbacks.
     pub fallbacks: Vec<String>,
+    /// Requests to recalibrate now (`[localizer.recalibration]`).
+    pub recalibrate: Option<mpsc::Receiver<()>>,
 }
 
 /// Runs the gateway until `shutdown` completes (or, with
@@ -115,6 +122,8 @@ pub async fn run(
     shutdown: impl Future<Output = ()>,
     mut reloads: mpsc::Receiver<()>,
 ) -> anyhow::Result<Stats> {
+    let mut options = options;
+    let mut recalibrate_requests = options.recalibrate.take();
     let (events_tx, mut events) = mpsc::channel(EVENTS_QUEUE);
     let (inbound_tx, mut inbound) = mpsc::channel(INBOUND_QUEUE);
     let (stop_sources, sources_shutdown) = Shutdown::new();
@@ -171,6 +180,8 @@ pub async fn run(
             Ok(()) = changed(&mut radio) => Step::RadioChanged,
             _ = watchdog_tick.tick(), if watchdog.is_some() => Step::Watchdog,
             Some(()) = reloads.recv() => Step::Reload,
+            Some(()) = requested(&mut recalibrate_requests) => Step::Recalibrate,
+            done = recalibrated(&mut runtime.recalibration) => Step::Recalibrated(Box::new(done)),
             loaded = join(&mut reload), if reload.is_some() => Step::Reloaded(Box::new(loaded)),
             Some(joined) = tasks.join_next() => Step::SourceEnded(joined),
         };
@@ -180,7 +191,12 @@ pub async fn run(
             Step::Idle => {}
             Step::ServeRequest => runtime.serve_next(),
             Step::Share => runtime.share_sightings(),
-            Step::Tick => runtime.tick(),
+            Step::Tick => {
+                runtime.tick();
+                runtime.recalibrate_if_due(false);
+            }
+            Step::Recalibrate => runtime.recalibrate_if_due(true),
+            Step::Recalibrated(done) => runtime.recalibrated(*done),
             Step::Stats => {
                 runtime.publish_stats();
                 runtime.notify_status();
@@ -303,6 +319,9 @@ enum Step {
     Reload,
     /// Boxed: a loaded pipeline is large, the other steps small.
     Reloaded(Box<anyhow::Result<Loaded>>),
+    Recalibrate,
+    /// Boxed like `Reloaded`.
+    Recalibrated(Box<anyhow::Result<(Recalibrated, Loaded)>>),
     SourceEnded(Result<(&'static str, anyhow::Result<()>), tokio::task::JoinError>),
 }
 
@@ -312,6 +331,63 @@ async fn changed(
     match radio {
         Some(radio) => radio.changed().await,
         None => std::future::pending().await,
+    }
+}
+
+async fn requested(requests: &mut Option<mpsc::Receiver<()>>) -> Option<()> {
+    match requests {
+        Some(requests) => requests.recv().await,
+        None => std::future::pending().await,
+    }
+}
+
+/// The end of the running recalibration, if one runs.
+async fn recalibrated(
+    recalibration: &mut Option<Recalibration>,
+) -> anyhow::Result<(Recalibrated, Loaded)> {
+    match recalibration.as_mut().and_then(|r| r.task.as_mut()) {
+        Some(task) => {
+            let done = task
+                .await
+                .unwrap_or_else(|e| Err(anyhow::anyhow!("the recalibration failed: {e}")));
+            if let Some(r) = recalibration.as_mut() {
+                r.task = None;
+                r.schedule.finished();
+            }
+            done
+        }
+        None => std::future::pending().await,
+    }
+}
+
+/// Recalibration of the survey-free model from what the store gathered.
+struct Recalibration {
+    schedule: Schedule,
+    /// Windows heard since start.
+    heard: u64,
+    task: Option<JoinHandle<anyhow::Result<(Recalibrated, Loaded)>>>,
+}
+
+impl Recalibration {
+    /// When `state`'s config recalibrates what it serves.
+    fn new(state: &Loaded) -> Option<Recalibration> {
+        let localizer = &state.config.localizer;
+        if !localizer.recalibration.enabled {
+            return None;
+        }
+        if !recalibrate::applies(localizer) {
+            tracing::warn!(
+                method = localizer.method.name(),
+                "[localizer.recalibration] is on, but the localizer is surveyed: \
+                 what is heard is kept, nothing is recalibrated"
+            );
+            return None;
+        }
+        Some(Recalibration {
+            schedule: Schedule::new(&localizer.recalibration, unix_now()),
+            heard: 0,
+            task: None,
+        })
     }
 }
 
@@ -370,6 +446,7 @@ struct Runtime {
     /// The last status line given to systemd.
     status: String,
     started: Instant,
+    recalibration: Option<Recalibration>,
 }
 
 impl Runtime {
@@ -398,6 +475,7 @@ impl Runtime {
             fallbacks: options.fallbacks.clone(),
             status: String::new(),
             started: Instant::now(),
+            recalibration: Recalibration::new(&state),
             state,
         }
     }
@@ -604,6 +682,9 @@ impl Runtime {
             {
                 self.issued.insert(&reply.device, id);
             }
+            if let (Output::Heard(_), Some(r)) = (output, &mut self.recalibration) {
+                r.heard += 1;
+            }
         }
         for sink in &mut self.sinks {
             sink.send(&self.out)
@@ -717,6 +798,63 @@ impl Runtime {
 
     /// Starts loading the config anew, off the event loop (models take a
     /// while to load); the gateway serves from the old state meanwhile.
+    /// Starts a recalibration on a blocking thread when one is due (or,
+    /// with `now`, asked for).
+    fn recalibrate_if_due(&mut self, asked: bool) {
+        let Some(r) = &mut self.recalibration else {
+            if asked {
+                tracing::warn!(
+                    "recalibration asked for, but [localizer.recalibration] is off \
+                     (or the localizer is surveyed)"
+                );
+            }
+            return;
+        };
+        if asked {
+            r.schedule.request();
+        }
+        let now = unix_now();
+        if !r.schedule.due(now, r.heard) {
+            return;
+        }
+        r.schedule.started(now, r.heard);
+        let (config, site) = (self.state.config.clone(), self.state.site.clone());
+        let job = Job::new(
+            &site,
+            config.window.orientation,
+            &config.localizer,
+            &config.tracker,
+            &config.store.resolved_path(),
+        );
+        tracing::info!(
+            heard = r.heard,
+            "recalibrating the radio model from what was heard"
+        );
+        r.task = Some(tokio::task::spawn_blocking(move || {
+            let done = recalibrate::run(&job)?;
+            let loaded = state::recalibrated(&config, &site, &done.path)?;
+            Ok((done, loaded))
+        }));
+    }
+
+    /// A recalibration ended: its pipeline is swapped in like a reload.
+    fn recalibrated(&mut self, done: anyhow::Result<(Recalibrated, Loaded)>) {
+        match done {
+            Ok((done, loaded)) => {
+                tracing::info!(
+                    windows = done.windows,
+                    trajectories = done.trajectories,
+                    seconds = done.seconds,
+                    file = %done.path.display(),
+                    cells = done.cells.as_ref().map_or(0, |c| c.cells),
+                    "recalibrated the radio model; serving it"
+                );
+                self.swap(Ok(loaded));
+            }
+            Err(e) => tracing::error!("recalibration failed, serving the previous model: {e:#}"),
+        }
+    }
+
     fn start_reload(&self, path: PathBuf) -> JoinHandle<anyhow::Result<Loaded>> {
         let _ = sd_notify::notify(&[sd_notify::NotifyState::Reloading]);
         tokio::task::spawn_blocking(move || state::load(&path))
@@ -732,6 +870,12 @@ impl Runtime {
                 None => {
                     let old = std::mem::replace(&mut self.state, new);
                     self.retired += old.pipeline.stats();
+                    let (before, after) = (&old.config.localizer, &self.state.config.localizer);
+                    if before.recalibration != after.recalibration
+                        || recalibrate::applies(before) != recalibrate::applies(after)
+                    {
+                        self.recalibration = Recalibration::new(&self.state);
+                    }
                     tracing::info!(
                         site = self.state.site.name,
                         site_hash = self.state.site.map_hash(),

@@ -11,6 +11,7 @@ use std::sync::Arc;
 use anyhow::Context;
 
 use crate::config::Config;
+use crate::locate::recalibrate;
 use crate::pipeline::Pipeline;
 use crate::site::Site;
 
@@ -37,8 +38,10 @@ pub fn load_at_start(config_path: &Path) -> anyhow::Result<Loaded> {
 }
 
 fn load_with(config_path: &Path, fall_back: bool) -> anyhow::Result<Loaded> {
-    let config = Config::load(config_path)?;
+    let mut config = Config::load(config_path)?;
     let site = Arc::new(Site::load(&config.site)?);
+    // What an earlier recalibration learned outlives restarts and reloads.
+    config.localizer = recalibrate::serving(&config.localizer, &config.store, &site);
     let context = || format!("{}", config_path.display());
     let (pipeline, fallbacks) = if fall_back {
         Pipeline::with_fallbacks(&config, site.clone()).with_context(context)?
@@ -53,6 +56,21 @@ fn load_with(config_path: &Path, fall_back: bool) -> anyhow::Result<Loaded> {
         site,
         pipeline,
         fallbacks,
+    })
+}
+
+/// The state of `config` on `site` with the survey-free model's calibration
+/// read from `path` (a recalibration's file), built whole or refused whole
+/// like a reload.
+pub fn recalibrated(config: &Config, site: &Arc<Site>, path: &Path) -> anyhow::Result<Loaded> {
+    let mut config = config.clone();
+    config.localizer = recalibrate::with_calibration(&config.localizer, path);
+    let pipeline = Pipeline::new(&config, site.clone())?;
+    Ok(Loaded {
+        config,
+        site: site.clone(),
+        pipeline,
+        fallbacks: Vec::new(),
     })
 }
 

@@ -19,9 +19,11 @@ use rand::rngs::Xoshiro256PlusPlus;
 use rand::seq::SliceRandom;
 use serde::Serialize;
 
+use crate::locate::calibrate::{Calibration, DEFAULT_CELL_PRIOR_READINGS, FitOptions, Window, fit};
 use crate::locate::knn::Knn;
 use crate::locate::onnx::Onnx;
 use crate::locate::pathloss::PathLoss;
+use crate::locate::pathloss::anchors;
 use crate::locate::radiomap::RadioMap;
 use crate::locate::strongest::Strongest;
 use crate::locate::survey::{Sample, Survey, sessions};
@@ -67,6 +69,8 @@ pub struct Setup {
     pub smooth_lag: usize,
     /// Unlabelled scans the survey-free model is calibrated on first.
     pub calibrate_from: Option<UnlabelledRows>,
+    /// EM iterations refining a radio map per cell in that calibration (0: none).
+    pub calibrate_cells: usize,
 }
 
 /// The figures, averaged over seeds, and the reliability of the published
@@ -214,7 +218,7 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
     // Survey-free with calibration: fitted once, on unlabelled rows only, so
     // it is the same for every split.
     let calibrated = match (&setup.calibrate_from, setup.method) {
-        (Some(rows), Method::Pathloss) => Some(calibrated_anchors(site, survey, setup, rows)?),
+        (Some(rows), Method::Pathloss) => Some(calibration(site, survey, setup, rows)?),
         _ => None,
     };
 
@@ -289,7 +293,12 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
                 setup.window.orientation,
             )?),
             Method::Pathloss => match &calibrated {
-                Some(anchors) => Box::new(PathLoss::with_anchors(site, anchors)?),
+                Some(calibration) => Box::new(PathLoss::calibrated(
+                    site,
+                    setup.window.orientation,
+                    &setup.localizer.pathloss,
+                    Some(calibration),
+                )?),
                 None => Box::new(PathLoss::new(
                     &setup.localizer.pathloss,
                     site,
@@ -399,16 +408,14 @@ pub struct UnlabelledRows {
     pub rows: Vec<(f64, Vec<Option<i16>>)>,
 }
 
-/// The survey-free anchors fitted by EM to unlabelled rows (whole sessions,
+/// The survey-free model fitted by EM to unlabelled rows (whole sessions,
 /// positions unknown), starting from the configured model.
-fn calibrated_anchors(
+fn calibration(
     site: &Arc<Site>,
     survey: &Survey,
     setup: &Setup,
     unlabelled: &UnlabelledRows,
-) -> Result<Vec<crate::locate::pathloss::Anchor>, EvalError> {
-    use crate::locate::calibrate::{Window, fit};
-    use crate::locate::pathloss::anchors;
+) -> Result<Calibration, EvalError> {
     let times: Vec<f64> = unlabelled.rows.iter().map(|r| r.0).collect();
     let trajectories: Vec<Vec<Window>> = Sessions::of(&times, setup.session_gap_s)
         .sequences()
@@ -433,20 +440,20 @@ fn calibrated_anchors(
         &setup.localizer.pathloss,
         None,
     );
+    let options = FitOptions {
+        iterations: CALIBRATION_ITERATIONS,
+        cell_iterations: setup.calibrate_cells,
+        cell_prior_readings: DEFAULT_CELL_PRIOR_READINGS,
+    };
     let fitted = fit(
         site,
         &survey.anchors,
         &start,
         &setup.tracker,
         &trajectories,
-        CALIBRATION_ITERATIONS,
+        &options,
     )?;
-    Ok(anchors(
-        site,
-        setup.window.orientation,
-        &setup.localizer.pathloss,
-        Some(&fitted.calibration),
-    ))
+    Ok(fitted.calibration)
 }
 
 /// EM iterations of `--calibrate` (as `gangway calibrate`'s default).

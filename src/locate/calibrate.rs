@@ -15,13 +15,24 @@
 //!
 //! Detection is fitted on a histogram over distance (0.25 m bins), so the cost
 //! of a refit does not grow with the site; the E-step is one smoothing pass.
+//!
+//! Distance is not the building: shelves, walls and bodies make a beacon
+//! louder on one side than the other, which no per-anchor curve can say.
+//! With [`FitOptions::cell_iterations`], EM goes on to refine a radio map per
+//! cell (each anchor's chance of being heard there and its mean RSSI), each
+//! cell's estimate shrunk towards the per-anchor model by
+//! [`FitOptions::cell_prior_readings`] readings' weight, so cells the walks
+//! rarely reach keep the physics. It pays when the scans come from the phones
+//! and the part of the floor that will be localized (what a gateway gathers
+//! itself); scans of other phones or of other rooms teach the map their
+//! quirks instead (measured on the UCI floor, `BENCHMARKS.md`).
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
-use super::pathloss::{Anchor, PathLoss, Radio};
+use super::pathloss::{Anchor, DETECTION_BOUNDS, PathLoss, Radio};
 use super::tracker::{Tracker, TrackerConfig};
 use super::{Localizer, LocalizerError};
 use crate::site::{Cell, Site};
@@ -52,6 +63,51 @@ pub struct Calibration {
     pub iterations: usize,
     #[serde(rename = "anchor")]
     pub anchors: Vec<AnchorCalibration>,
+    /// Cells whose radio map EM refined (`gangway calibrate --cells`); the
+    /// others follow the anchors' models.
+    #[serde(rename = "cell", default, skip_serializing_if = "Vec::is_empty")]
+    pub cells: Vec<CellCalibration>,
+}
+
+/// What [`fit`] fits.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FitOptions {
+    /// EM iterations of the per-anchor models.
+    pub iterations: usize,
+    /// EM iterations refining a radio map per cell afterwards (0: none).
+    pub cell_iterations: usize,
+    /// Weight of the per-anchor model in a refined cell, in readings.
+    pub cell_prior_readings: f64,
+}
+
+impl FitOptions {
+    /// Per-anchor models only.
+    pub fn anchors(iterations: usize) -> FitOptions {
+        FitOptions {
+            iterations,
+            cell_iterations: 0,
+            cell_prior_readings: DEFAULT_CELL_PRIOR_READINGS,
+        }
+    }
+}
+
+/// Default of [`FitOptions::cell_prior_readings`]: one reading's weight, so
+/// a cell the walks stood on a few times is mostly what was heard there.
+pub const DEFAULT_CELL_PRIOR_READINGS: f64 = 1.0;
+
+/// Cells whose refinement rests on less belief than this (in windows) are
+/// not written: they are the anchors' models anyway.
+const MIN_CELL_WEIGHT: f64 = 0.5;
+
+/// One cell's refined radio map: per anchor of [`Calibration::anchors`], in
+/// that order, the chance it is heard in a window there and its mean RSSI.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CellCalibration {
+    /// The cell, `[x, y]` on the site's grid.
+    pub at: [u16; 2],
+    pub detection: Vec<f64>,
+    pub rssi_dbm: Vec<f64>,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -98,6 +154,30 @@ impl Calibration {
                 .validate()
                 .map_err(|e| invalid(format!("anchor `{}`: {e}", a.id)))?;
         }
+        let n = calibration.anchors.len();
+        for c in &calibration.cells {
+            let cell = Cell::new(c.at[0], c.at[1]);
+            let fail = |what: &str| {
+                invalid(format!(
+                    "cell {cell}: {what}; recalibrate for this site (`gangway calibrate --cells`)"
+                ))
+            };
+            if !site.walkable(cell) {
+                return Err(fail("not a walkable cell of the site"));
+            }
+            if c.detection.len() != n || c.rssi_dbm.len() != n {
+                return Err(fail(&format!(
+                    "`detection` and `rssi_dbm` need one value per [[anchor]] ({n})"
+                )));
+            }
+            if !c.detection.iter().all(|p| (0.0..=1.0).contains(p))
+                || !c.rssi_dbm.iter().all(|r| r.is_finite())
+            {
+                return Err(fail(
+                    "a detection outside 0–1 or an RSSI that is not a number",
+                ));
+            }
+        }
         Ok(calibration)
     }
 
@@ -130,35 +210,56 @@ pub struct Fitted {
     pub changes: Vec<Change>,
     /// Mean log-likelihood per window under the final model.
     pub log_likelihood_per_window: f64,
+    /// How far the refined cells moved from the anchors' models, when cells
+    /// were refined.
+    pub cells: Option<CellChange>,
+}
+
+/// How far the per-cell refinement moved the radio map.
+#[derive(Clone, Debug, Serialize)]
+pub struct CellChange {
+    /// Cells refined (and written).
+    pub cells: usize,
+    /// Mean |change| of the detection probability over those cells and anchors.
+    pub detection_shift: f64,
+    /// Mean |change| of the mean RSSI where the anchor is heard, dB,
+    /// weighted by how often it is heard there.
+    pub rssi_shift_db: f64,
 }
 
 /// Fits every positioned anchor's radio model to `trajectories` (each in time
 /// order), starting from `start` (in the orientation's anchor order, with the
-/// anchors' ids in `ids`).
+/// anchors' ids in `ids`), and then, if asked, a radio map per cell.
 pub fn fit(
     site: &Arc<Site>,
     ids: &[String],
     start: &[Anchor],
     tracker: &TrackerConfig,
     trajectories: &[Vec<Window>],
-    iterations: usize,
+    options: &FitOptions,
 ) -> Result<Fitted, LocalizerError> {
     let mut anchors = start.to_vec();
     initialise(site, &mut anchors, trajectories);
-    let tracker = Tracker::new(tracker.clone(), site.clone());
-    let cells = site.open_cells();
-    // Distance from every open cell to every anchor, metres, [cell][anchor].
-    let distance: Vec<f64> = cells
-        .iter()
-        .flat_map(|&c| {
-            let here = site.world_of_cell(c);
-            anchors
-                .iter()
-                .map(move |a| a.map_or(f64::NAN, |(mount, _)| mount.distance_m(here)))
-        })
-        .collect();
-    let n_anchors = anchors.len();
-    let bins = distance
+    let em = Em {
+        site,
+        tracker: Tracker::new(tracker.clone(), site.clone()),
+        trajectories,
+        // Distance from every open cell to every anchor, metres, [cell][anchor].
+        distance: site
+            .open_cells()
+            .iter()
+            .flat_map(|&c| {
+                let here = site.world_of_cell(c);
+                anchors
+                    .iter()
+                    .map(move |a| a.map_or(f64::NAN, |(mount, _)| mount.distance_m(here)))
+            })
+            .collect(),
+        n_anchors: anchors.len(),
+    };
+    let n_anchors = em.n_anchors;
+    let bins = em
+        .distance
         .iter()
         .filter(|d| d.is_finite())
         .fold(0.0f64, |m, &d| m.max(d))
@@ -166,57 +267,17 @@ pub fn fit(
         + 1;
     let windows: usize = trajectories.iter().map(Vec::len).sum();
     let mut log_likelihood_per_window = f64::NAN;
-    for _ in 0..iterations.max(1) {
+    for _ in 0..options.iterations.max(1) {
         let mut stats = vec![Stats::new(bins); n_anchors];
         let mut localizer = PathLoss::with_anchors(site, &anchors)?;
-        let mut total_ll = 0.0;
-        let mut rssi = vec![0.0f32; n_anchors];
-        let mut heard = vec![false; n_anchors];
-        for trajectory in trajectories {
-            let lls: Vec<(f64, Vec<f32>)> = trajectory
-                .iter()
-                .map(|w| {
-                    for (a, r) in w.rssi.iter().enumerate() {
-                        heard[a] = r.is_some();
-                        rssi[a] = r.unwrap_or(0.0);
-                    }
-                    let mut ll = vec![0.0f32; cells.len()];
-                    localizer.log_likelihood(&rssi, &heard, &mut ll);
-                    if let Some(i) = w.cell.and_then(|c| site.open_index(c)) {
-                        // A known position: all belief there.
-                        ll.iter_mut().enumerate().for_each(|(j, v)| {
-                            if j != i {
-                                *v = f32::NEG_INFINITY;
-                            }
-                        });
-                    }
-                    (w.t, ll)
-                })
-                .collect();
-            let posteriors = tracker.posteriors(&lls);
-            for ((w, (_, ll)), belief) in trajectory.iter().zip(&lls).zip(&posteriors) {
-                total_ll += belief
-                    .iter()
-                    .zip(ll)
-                    .filter(|(b, _)| **b > 0.0)
-                    .map(|(b, l)| f64::from(*b) * f64::from(*l))
-                    .sum::<f64>();
-                for (c, &b) in belief.iter().enumerate() {
-                    // Cells holding almost none of the belief add nothing.
-                    if b < 1e-5 {
-                        continue;
-                    }
-                    let b = f64::from(b);
-                    let row = &distance[c * n_anchors..(c + 1) * n_anchors];
-                    for (a, stat) in stats.iter_mut().enumerate() {
-                        if row[a].is_finite() {
-                            stat.add(row[a], w.rssi[a], b);
-                        }
-                    }
+        log_likelihood_per_window = em.e_step(&mut localizer, |w, c, b| {
+            let row = &em.distance[c * n_anchors..(c + 1) * n_anchors];
+            for (a, stat) in stats.iter_mut().enumerate() {
+                if row[a].is_finite() {
+                    stat.add(row[a], w.rssi[a], b);
                 }
             }
-        }
-        log_likelihood_per_window = total_ll / windows.max(1) as f64;
+        }) / windows.max(1) as f64;
         for (anchor, stat) in anchors.iter_mut().zip(&stats) {
             if let Some((_, radio)) = anchor
                 && stat.heard >= MIN_HEARD
@@ -224,6 +285,14 @@ pub fn fit(
                 *radio = stat.refit(radio);
             }
         }
+    }
+    let mut cells = Vec::new();
+    let mut cell_change = None;
+    if options.cell_iterations > 0 {
+        let (refined, change, ll) = em.refine_cells(&anchors, options)?;
+        cells = refined;
+        cell_change = Some(change);
+        log_likelihood_per_window = ll / windows.max(1) as f64;
     }
     let heard: Vec<usize> = (0..n_anchors)
         .map(|a| {
@@ -251,12 +320,156 @@ pub fn fit(
         calibration: Calibration {
             site: site.name.clone(),
             windows,
-            iterations,
+            iterations: options.iterations,
             anchors: entries,
+            cells,
         },
         changes,
         log_likelihood_per_window,
+        cells: cell_change,
     })
+}
+
+/// What every EM pass shares: the trajectories, the tracker that smooths
+/// them and the cell–anchor distances.
+struct Em<'a> {
+    site: &'a Arc<Site>,
+    tracker: Tracker,
+    trajectories: &'a [Vec<Window>],
+    /// Metres, `[cell][anchor]`; NaN for anchors without a position.
+    distance: Vec<f64>,
+    n_anchors: usize,
+}
+
+impl Em<'_> {
+    /// Localizes every trajectory with `localizer` through the smoother and
+    /// calls `visit(window, cell, belief)` for every cell holding some of a
+    /// window's belief; returns the belief-weighted log-likelihood summed
+    /// over windows. Windows of known position keep all belief there.
+    fn e_step(&self, localizer: &mut PathLoss, mut visit: impl FnMut(&Window, usize, f64)) -> f64 {
+        let n_cells = self.site.open_cells().len();
+        let mut rssi = vec![0.0f32; self.n_anchors];
+        let mut heard = vec![false; self.n_anchors];
+        let mut total_ll = 0.0;
+        for trajectory in self.trajectories {
+            let lls: Vec<(f64, Vec<f32>)> = trajectory
+                .iter()
+                .map(|w| {
+                    for (a, r) in w.rssi.iter().enumerate() {
+                        heard[a] = r.is_some();
+                        rssi[a] = r.unwrap_or(0.0);
+                    }
+                    let mut ll = vec![0.0f32; n_cells];
+                    localizer.log_likelihood(&rssi, &heard, &mut ll);
+                    if let Some(i) = w.cell.and_then(|c| self.site.open_index(c)) {
+                        ll.iter_mut().enumerate().for_each(|(j, v)| {
+                            if j != i {
+                                *v = f32::NEG_INFINITY;
+                            }
+                        });
+                    }
+                    (w.t, ll)
+                })
+                .collect();
+            let posteriors = self.tracker.posteriors(&lls);
+            for ((w, (_, ll)), belief) in trajectory.iter().zip(&lls).zip(&posteriors) {
+                for (c, (&b, &l)) in belief.iter().zip(ll).enumerate() {
+                    // Cells holding almost none of the belief add nothing.
+                    if b < 1e-5 {
+                        continue;
+                    }
+                    total_ll += f64::from(b) * f64::from(l);
+                    visit(w, c, f64::from(b));
+                }
+            }
+        }
+        total_ll
+    }
+
+    /// EM over a radio map per cell, from the anchors' models: each
+    /// iteration localizes with the current map and re-estimates every
+    /// cell's detection and mean RSSI per anchor from the belief-weighted
+    /// windows, shrunk towards the anchors' models.
+    fn refine_cells(
+        &self,
+        anchors: &[Anchor],
+        options: &FitOptions,
+    ) -> Result<(Vec<CellCalibration>, CellChange, f64), LocalizerError> {
+        let cells = self.site.open_cells();
+        let n = self.n_anchors;
+        let base = PathLoss::with_anchors(self.site, anchors)?;
+        let (prior_mu, prior_p) = base.tables();
+        let inv_sigma = base.inv_sigma().to_vec();
+        let (mut mu, mut p) = (prior_mu.clone(), prior_p.clone());
+        let kappa = options.cell_prior_readings.max(0.0);
+        let mut weight = vec![0.0f64; cells.len()];
+        let mut ll = 0.0;
+        for _ in 0..options.cell_iterations {
+            let mut localizer =
+                PathLoss::from_probabilities(cells.len(), &mu, &p, inv_sigma.clone());
+            weight.fill(0.0);
+            let mut hits = vec![0.0f64; cells.len() * n];
+            let mut sums = vec![0.0f64; cells.len() * n];
+            ll = self.e_step(&mut localizer, |w, c, b| {
+                weight[c] += b;
+                for (a, r) in w.rssi.iter().enumerate() {
+                    if let Some(r) = r {
+                        hits[c * n + a] += b;
+                        sums[c * n + a] += b * f64::from(*r);
+                    }
+                }
+            });
+            for (c, &w) in weight.iter().enumerate() {
+                for a in 0..n {
+                    let i = c * n + a;
+                    if prior_mu[i].is_nan() {
+                        continue;
+                    }
+                    let (p0, mu0) = (prior_p[i], prior_mu[i]);
+                    p[i] = ((hits[i] + kappa * p0) / (w + kappa))
+                        .clamp(DETECTION_BOUNDS.0, DETECTION_BOUNDS.1);
+                    mu[i] = (sums[i] + kappa * p0 * mu0) / (hits[i] + kappa * p0);
+                }
+            }
+        }
+        // Written per positioned anchor, in the calibration's anchor order.
+        let positioned: Vec<usize> = (0..n).filter(|&a| anchors[a].is_some()).collect();
+        let mut refined = Vec::new();
+        let (mut dp, mut dmu, mut dmu_weight) = (0.0, 0.0, 0.0);
+        for (c, cell) in cells.iter().enumerate() {
+            if weight[c] < MIN_CELL_WEIGHT {
+                continue;
+            }
+            for &a in &positioned {
+                let i = c * n + a;
+                dp += (p[i] - prior_p[i]).abs();
+                dmu += p[i] * (mu[i] - prior_mu[i]).abs();
+                dmu_weight += p[i];
+            }
+            refined.push(CellCalibration {
+                at: [cell.x, cell.y],
+                detection: positioned
+                    .iter()
+                    .map(|&a| round_to(p[c * n + a], 1e-4))
+                    .collect(),
+                rssi_dbm: positioned
+                    .iter()
+                    .map(|&a| round_to(mu[c * n + a], 1e-2))
+                    .collect(),
+            });
+        }
+        let change = CellChange {
+            cells: refined.len(),
+            detection_shift: dp / (refined.len() * positioned.len()).max(1) as f64,
+            rssi_shift_db: dmu / dmu_weight.max(f64::MIN_POSITIVE),
+        };
+        Ok((refined, change, ll))
+    }
+}
+
+/// `v` rounded to a multiple of `step`: the file need not carry f64 noise.
+fn round_to(v: f64, step: f64) -> f64 {
+    (v / step).round() * step
 }
 
 /// A start for EM read off the data alone, so that it does not depend on how

@@ -16,8 +16,23 @@ use super::tracker::{Tracker, TrackerConfig};
 use super::{Localizer, LocalizerError};
 use crate::site::Site;
 
-/// Folds of the cross-validation.
-const FOLDS: usize = 3;
+/// How the survey's rows are split for cross-validation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Folds {
+    /// Whole walking sessions in this many folds (rows in turn when the
+    /// survey has no times): cheap, for choosing between settings.
+    Sessions(usize),
+    /// Each walking session held out in turn, the model built from all the
+    /// others, in at most [`MAX_FOLDS`] folds (sessions dealt round-robin
+    /// beyond that, and rows without times): held-out fixes from models
+    /// nearly as large as the final one, for fitting its confidence.
+    EachSession,
+}
+
+/// Folds of [`Folds::EachSession`] at most: each trains on ≥ 95% of the
+/// survey, and a survey of a thousand one-row sessions is not rebuilt a
+/// thousand times.
+const MAX_FOLDS: usize = 20;
 
 /// The chosen candidate, its mean held-out error (cells) and the confidence
 /// map of its held-out fixes.
@@ -31,18 +46,24 @@ pub struct Chosen<C> {
 /// some survey rows; anchors not heard read `missing_dbm`, as in a window.
 pub fn choose<C: Clone, L: Localizer>(
     candidates: &[C],
+    how: Folds,
     site: &Arc<Site>,
     tracker: &TrackerConfig,
     samples: &[&Sample],
     missing_dbm: f32,
     build: impl Fn(&C, &[&Sample]) -> Result<L, LocalizerError>,
 ) -> Result<Chosen<C>, LocalizerError> {
-    let folds = folds(samples);
+    let (folds, n_folds) = folds(samples, how);
     let mut best: Option<(Chosen<C>, Vec<HeldOutFix>)> = None;
     for candidate in candidates {
-        let fixes = held_out_fixes(site, tracker, samples, &folds, missing_dbm, |rows| {
-            build(candidate, rows)
-        })?;
+        let fixes = held_out_fixes(
+            site,
+            tracker,
+            samples,
+            (&folds, n_folds),
+            missing_dbm,
+            |rows| build(candidate, rows),
+        )?;
         let error = fixes.iter().map(|f| f.1).sum::<f64>() / fixes.len().max(1) as f64;
         if best.as_ref().is_none_or(|b| error < b.0.error_cells) {
             best = Some((
@@ -60,15 +81,25 @@ pub fn choose<C: Clone, L: Localizer>(
     Ok(chosen)
 }
 
-/// The fold of each row: whole walking sessions when the survey has times
-/// (the honest split: a held-out session is a new visitor), else rows in turn.
-fn folds(samples: &[&Sample]) -> Vec<usize> {
+/// The fold of each row and the number of folds: whole walking sessions
+/// when the survey has times (the honest split: a held-out session is a new
+/// visitor), else rows in turn.
+fn folds(samples: &[&Sample], how: Folds) -> (Vec<usize>, usize) {
     let times: Option<Vec<f64>> = samples.iter().map(|s| s.t).collect();
     let Some(times) = times else {
-        return (0..samples.len()).map(|i| i % FOLDS).collect();
+        let n = match how {
+            Folds::Sessions(n) => n,
+            Folds::EachSession => MAX_FOLDS,
+        };
+        return ((0..samples.len()).map(|i| i % n).collect(), n);
     };
-    let (_, session) = sessions(&times, SESSION_GAP_S);
-    session.into_iter().map(|s| s % FOLDS).collect()
+    let (order, session) = sessions(&times, SESSION_GAP_S);
+    let count = order.last().map_or(0, |&i| session[i] + 1);
+    let n = match how {
+        Folds::Sessions(n) => n,
+        Folds::EachSession => count.clamp(1, MAX_FOLDS),
+    };
+    (session.into_iter().map(|s| s % n).collect(), n)
 }
 
 /// (raw confidence, error in cells) of one held-out row.
@@ -80,7 +111,7 @@ fn held_out_fixes<L: Localizer>(
     site: &Arc<Site>,
     tracker: &TrackerConfig,
     samples: &[&Sample],
-    folds: &[usize],
+    (folds, n_folds): (&[usize], usize),
     missing_dbm: f32,
     build: impl Fn(&[&Sample]) -> Result<L, LocalizerError>,
 ) -> Result<Vec<HeldOutFix>, LocalizerError> {
@@ -89,7 +120,7 @@ fn held_out_fixes<L: Localizer>(
     let mut rssi = vec![0.0f32; n_anchors];
     let mut heard = vec![false; n_anchors];
     let mut ll = vec![0.0f32; site.open_cells().len()];
-    for fold in 0..FOLDS {
+    for fold in 0..n_folds {
         let in_fold = |want: bool| -> Vec<&Sample> {
             samples
                 .iter()

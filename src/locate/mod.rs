@@ -14,6 +14,7 @@ pub mod knn;
 pub mod onnx;
 pub mod pathloss;
 pub mod radiomap;
+pub mod recalibrate;
 pub mod reliability;
 pub mod strongest;
 pub mod survey;
@@ -54,6 +55,7 @@ impl Default for LocalizerConfig {
             knn: Default::default(),
             radiomap: Default::default(),
             onnx: Default::default(),
+            recalibration: Default::default(),
         }
     }
 }
@@ -80,6 +82,10 @@ pub struct LocalizerConfig {
     /// `[localizer.onnx]`: the trained cell classifier.
     #[serde(default)]
     pub onnx: onnx::OnnxConfig,
+    /// `[localizer.recalibration]`: refitting the survey-free model from what
+    /// the gateway hears.
+    #[serde(default)]
+    pub recalibration: recalibrate::RecalibrationConfig,
 }
 
 fn default_min_confidence() -> f32 {

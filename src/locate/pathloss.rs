@@ -218,10 +218,46 @@ impl PathLoss {
             Some(path) => Some(super::calibrate::Calibration::load(path, site)?),
             None => None,
         };
-        Self::with_anchors(
-            site,
-            &anchors(site, orientation, config, calibration.as_ref()),
-        )
+        Self::calibrated(site, orientation, config, calibration.as_ref())
+    }
+
+    /// The model of the config's anchors with a calibration applied: its
+    /// per-anchor models, then its refined cells.
+    pub fn calibrated(
+        site: &Site,
+        orientation: Orientation,
+        config: &PathLossConfig,
+        calibration: Option<&super::calibrate::Calibration>,
+    ) -> Result<Self, LocalizerError> {
+        let mut model = Self::with_anchors(site, &anchors(site, orientation, config, calibration))?;
+        let Some(calibration) = calibration else {
+            return Ok(model);
+        };
+        // The calibration's anchors in the orientation's order.
+        let ids = super::window::anchor_ids(site, orientation);
+        let slots: Vec<Option<usize>> = calibration
+            .anchors
+            .iter()
+            .map(|a| ids.iter().position(|id| *id == a.id))
+            .collect();
+        let n = model.n_anchors;
+        for cell in &calibration.cells {
+            let Some(c) = site.open_index(crate::site::Cell::new(cell.at[0], cell.at[1])) else {
+                continue;
+            };
+            for (j, slot) in slots.iter().enumerate() {
+                let Some(a) = *slot else { continue };
+                let i = c * n + a;
+                if model.expected[i].is_nan() {
+                    continue;
+                }
+                let p = cell.detection[j].clamp(DETECTION_BOUNDS.0, DETECTION_BOUNDS.1);
+                model.expected[i] = cell.rssi_dbm[j] as f32;
+                model.log_hit[i] = p.ln() as f32;
+                model.log_miss[i] = (1.0 - p).ln() as f32;
+            }
+        }
+        Ok(model)
     }
 
     /// The model for given anchors (calibration and evaluation build these).
@@ -270,6 +306,45 @@ impl PathLoss {
 }
 
 impl PathLoss {
+    /// Expected RSSI and detection probability per cell and anchor,
+    /// `[cell][anchor]`; NaN expected RSSI for anchors without a position.
+    pub(crate) fn tables(&self) -> (Vec<f64>, Vec<f64>) {
+        (
+            self.expected.iter().map(|&v| f64::from(v)).collect(),
+            self.log_hit.iter().map(|&v| f64::from(v).exp()).collect(),
+        )
+    }
+
+    /// 1/σ per anchor.
+    pub(crate) fn inv_sigma(&self) -> &[f32] {
+        &self.inv_sigma
+    }
+
+    /// The model of given expected RSSI and detection tables, `[cell][anchor]`
+    /// (as [`PathLoss::tables`] returns them).
+    pub(crate) fn from_probabilities(
+        n_cells: usize,
+        expected: &[f64],
+        detection: &[f64],
+        inv_sigma: Vec<f32>,
+    ) -> Self {
+        // An anchor without a position (NaN) weighs nothing, heard or not.
+        let log = |f: fn(f64) -> f64| -> Vec<f32> {
+            expected
+                .iter()
+                .zip(detection)
+                .map(|(e, &p)| if e.is_nan() { 0.0 } else { f(p).ln() as f32 })
+                .collect()
+        };
+        Self::from_tables(
+            n_cells,
+            expected.iter().map(|&v| v as f32).collect(),
+            log(|p| p),
+            log(|p| 1.0 - p),
+            inv_sigma,
+        )
+    }
+
     /// Likelihood tables made elsewhere (the radio map), `[cell][anchor]`.
     pub(crate) fn from_tables(
         n_cells: usize,

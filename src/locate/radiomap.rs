@@ -21,8 +21,8 @@ use std::sync::Arc;
 
 use serde::Deserialize;
 
-use super::calibrate::{Window, fit};
-use super::crossval::choose;
+use super::calibrate::{FitOptions, Window, fit};
+use super::crossval::{Folds, choose};
 use super::pathloss::{Anchor, DETECTION_BOUNDS, PathLoss, PathLossConfig, anchors};
 use super::reliability::ConfidenceMap;
 use super::survey::{Sample, Survey};
@@ -125,6 +125,7 @@ impl RadioMap {
         // The map reads only what was heard: the "not heard" value is moot.
         let chosen = choose(
             &candidates,
+            Folds::Sessions(3),
             site,
             tracker,
             samples,
@@ -223,7 +224,7 @@ fn survey_free(
             })
             .collect(),
     ];
-    let fitted = fit(site, ids, &start, tracker, &known, 2)?;
+    let fitted = fit(site, ids, &start, tracker, &known, &FitOptions::anchors(2))?;
     Ok(anchors(
         site,
         orientation,

@@ -193,7 +193,8 @@ impl Topics {
             | Output::Forgotten(_)
             | Output::Adherence(_)
             | Output::Feedback(_)
-            | Output::Sightings(_) => return None,
+            | Output::Sightings(_)
+            | Output::Heard(_) => return None,
         })
     }
 }

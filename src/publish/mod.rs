@@ -57,6 +57,9 @@ pub enum Output {
     Sightings(Vec<crate::sighting::Sighting>),
     /// The gateway's counters.
     Stats(Box<stats::Stats>),
+    /// What a device heard in one fingerprint window, for recalibrating the
+    /// radio model (`[localizer.recalibration]`; the learning store keeps it).
+    Heard(crate::locate::recalibrate::Heard),
 }
 
 /// A device's position after a fix. When the evidence was too weak to name a

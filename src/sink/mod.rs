@@ -19,7 +19,8 @@
 //! on a failing disk) counts and logs its failures instead.
 
 pub mod jsonl;
-pub(crate) mod recorder;
+// Public for the in-process daemon tests that record what the runtime hears.
+pub mod recorder;
 
 use futures::future::BoxFuture;
 

@@ -1,6 +1,8 @@
 //! The learning store ([`crate::store`]) as a sink: every known location is
 //! a point of a device's smoothed trajectory, every route a route given, plus
-//! the feedback accepted and each finished guidance session's adherence.
+//! the feedback accepted, each finished guidance session's adherence and,
+//! with recalibration on, what was heard per window (the newest
+//! [`Recorder::keep_heard`] kept).
 //! Records are buffered and written once a second in one transaction; a
 //! failing disk is logged and counted, and never stops the daemon (the buffer
 //! is dropped, so memory stays bounded). A store that cannot be opened is moved aside and started afresh
@@ -34,6 +36,8 @@ pub struct Recorder {
     written: u64,
     /// Rows deleted to stay within the quotas.
     quota_deleted: u64,
+    /// Heard windows kept at most ([`Recorder::keep_heard`]).
+    max_heard: Option<usize>,
 }
 
 impl Recorder {
@@ -58,8 +62,16 @@ impl Recorder {
             errors: 0,
             written: 0,
             quota_deleted: 0,
+            max_heard: None,
         };
         Ok(recorder)
+    }
+
+    /// Keeps at most the newest `max` heard windows (recalibration's
+    /// `max_windows`), checked with the quotas.
+    pub fn keep_heard(mut self, max: usize) -> Recorder {
+        self.max_heard = Some(max);
+        self
     }
 
     /// What an output teaches, if anything.
@@ -90,6 +102,11 @@ impl Recorder {
                 score: f.score,
             },
             Output::Adherence(a) => Record::Adherence(a.clone()),
+            Output::Heard(h) => Record::Heard {
+                device: h.device.clone(),
+                t: h.t,
+                readings: h.readings.clone(),
+            },
             _ => return None,
         })
     }
@@ -114,6 +131,12 @@ impl Recorder {
         }
         if now - self.last_quota >= QUOTA_EVERY_S {
             self.last_quota = now;
+            if let Some(max) = self.max_heard
+                && let Err(e) = self.store.keep_newest_heard(max)
+            {
+                self.errors += 1;
+                tracing::error!("learning store: {e}");
+            }
             match self.store.enforce_quotas(&self.config) {
                 Ok(0) => {}
                 Ok(n) => {
