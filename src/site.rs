@@ -383,6 +383,13 @@ impl Site {
         Site::parse(&text, path)
     }
 
+    /// A site of 1 m cells with only `map`'s rows (unit tests' small sites).
+    #[cfg(test)]
+    pub(crate) fn of_map(map: &str) -> Site {
+        let text = format!("name = \"t\"\ncell_m = 1.0\nmap = '''\n{map}\n'''\n");
+        Site::parse(&text, Path::new("t.toml")).expect("a valid test map")
+    }
+
     /// Parses and validates site TOML; `path` is only used in messages.
     pub fn parse(text: &str, path: &Path) -> Result<Site, SiteError> {
         let file: SiteFile = toml::from_str(text).map_err(|source| SiteError::Toml {

@@ -66,12 +66,41 @@ fn input_for(
             let c = if j < 2 { w.source() } else { w.destination() };
             f32::from(if j % 2 == 0 { c.x } else { c.y }) + 0.5
         }),
+        // ... and the planner's prior between them (its any-angle route,
+        // evenly resampled), x then y.
+        "prior" => {
+            let mut out = Array2::zeros((ROWS, width));
+            for (r, walk) in walks.iter().take(ROWS).enumerate() {
+                let prior = desire_prior(site, walk);
+                for (k, p) in prior.iter().enumerate() {
+                    out[[r, k]] = p[0];
+                    out[[r, prior.len() + k]] = p[1];
+                }
+            }
+            out
+        }
         "rssi" => Array2::from_shape_fn((ROWS, width), |(i, j)| {
             // Strong, weak, and "not heard" (-200) readings.
             [-200.0, -62.0, -75.0, -88.0, -99.0, -200.0, -50.0][(i + 3 * j) % 7]
         }),
         other => panic!("no reference input for `{other}`"),
     }
+}
+
+/// The prior the desire planner passes for `walk`'s ends.
+fn desire_prior(site: &Site, walk: &trajectory::Trajectory) -> Vec<[f32; 2]> {
+    use gangway::plan::desire::{prior_line, resample};
+    let line = prior_line(
+        site,
+        gangway::plan::Profile::Default,
+        walk.source(),
+        walk.destination(),
+    )
+    .unwrap();
+    resample(&line, gangway::model::desire::POINTS)
+        .into_iter()
+        .map(|p| [p[0] as f32, p[1] as f32])
+        .collect()
 }
 
 fn tensor_json(name: &str, a: &Array2<f32>) -> serde_json::Value {
@@ -160,11 +189,19 @@ fn shipped_models_run_in_tract_and_write_reference_outputs() {
             }
             Kind::DesireLines => {
                 // From the request's source to its destination, and what the
-                // trainer's own arithmetic gives.
+                // trainer's own arithmetic gives, the walks' share included.
                 let points = out_width / 2;
                 for (r, row) in output.rows().into_iter().enumerate() {
                     let x = inputs[0].1.row(r);
-                    let line = trained.model.predict([x[0], x[1]], [x[2], x[3]]);
+                    let prior = desire_prior(&site, &walks[r]);
+                    let answer = trained.model.predict([x[0], x[1]], [x[2], x[3]], &prior);
+                    let line = &answer.points;
+                    assert!(
+                        (row[2 * points] - answer.learned).abs() < 1e-4,
+                        "row {r}: tract's share {}, reference {}",
+                        row[2 * points],
+                        answer.learned
+                    );
                     for k in 0..points {
                         let (px, py) = (row[k], row[points + k]);
                         assert!(

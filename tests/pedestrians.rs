@@ -5,10 +5,10 @@
 //! `--site/--models` by `gangway plan` and `gangway eval planning`. Bounded:
 //! the GANs train for a few hundred iterations, so their figures are only
 //! checked for shape and sense. The desire lines train fully in seconds, so
-//! on both scenes they are held to a floor below what they reach
-//! (BENCHMARKS.md, "Planning on real walks": closer than any-angle on 64 %
-//! of seq_eth's and 67 % of students03's held-out walks, lower median DTW,
-//! higher IoU).
+//! on both scenes they are held to what they reach (BENCHMARKS.md,
+//! "Planning on real walks": closer than any-angle on 65 % of seq_eth's and
+//! 74 % of students03's held-out walks, lower median DTW and Fréchet and
+//! higher IoU than A* and any-angle, 1–2 % of random pairs repaired).
 
 mod common;
 
@@ -123,21 +123,45 @@ fn check_judges(report: &Value, learned: &[&str]) {
     }
 }
 
+/// `gangway eval planning` of the `models` served on `site`, judged on the
+/// `heldout` walks and 20 random pairs.
+fn judged(site: &Path, models: &Path, heldout: &Path) -> Value {
+    serde_json::from_str(&gangway_ok(&[
+        "eval",
+        "planning",
+        "--site",
+        text(site),
+        "--models",
+        text(models),
+        "--random-pairs",
+        "20",
+        "--heldout-walks",
+        text(heldout),
+        "--json",
+    ]))
+    .unwrap()
+}
+
 /// The quality floor of the desire lines on a real scene: a gate on what
-/// they reach, set below the measured figures.
+/// they reach (the targets, met on both scenes).
 fn desire_beats_the_baselines(report: &Value, scene: &str) {
     let desire = &report["modes"]["desire"]["heldout"];
     let closer = desire["closer_than"]["anyangle"]["share"].as_f64().unwrap();
-    assert!(closer >= 0.55, "{scene}: closer than any-angle on {closer}");
+    assert!(closer >= 0.6, "{scene}: closer than any-angle on {closer}");
     let closer_astar = desire["closer_than"]["astar"]["share"].as_f64().unwrap();
     assert!(
         closer_astar >= 0.6,
         "{scene}: closer than A* on {closer_astar}"
     );
-    let median = |v: &Value| v["dtw_m_median"].as_f64().unwrap();
+    let median = |v: &Value, m: &str| v[m].as_f64().unwrap();
     for baseline in ["anyangle", "astar"] {
         let b = &report["baselines"][baseline];
-        assert!(median(desire) < median(b), "{scene}: DTW vs {baseline}");
+        for m in ["dtw_m_median", "frechet_m_median"] {
+            assert!(
+                median(desire, m) < median(b, m),
+                "{scene}: {m} vs {baseline}"
+            );
+        }
         assert!(
             desire["iou_mean"].as_f64().unwrap() > b["iou_mean"].as_f64().unwrap(),
             "{scene}: IoU vs {baseline}"
@@ -147,6 +171,14 @@ fn desire_beats_the_baselines(report: &Value, scene: &str) {
     assert!(
         repaired <= 0.2,
         "{scene}: {repaired} of held-out routes repaired"
+    );
+    // Random pairs no walker asked for: their learned lines stand too.
+    let repaired = report["modes"]["desire"]["repaired_share_all"]
+        .as_f64()
+        .unwrap();
+    assert!(
+        repaired <= 0.1,
+        "{scene}: {repaired} of random pairs' routes repaired"
     );
 }
 
@@ -187,20 +219,7 @@ fn real_walks_are_imported_and_judged_and_a_trained_directory_is_served() {
         "--desire-only",
         "--json",
     ]);
-    let report: Value = serde_json::from_str(&gangway_ok(&[
-        "eval",
-        "planning",
-        "--site",
-        text(&site),
-        "--models",
-        text(&models),
-        "--random-pairs",
-        "20",
-        "--heldout-walks",
-        text(&heldout),
-        "--json",
-    ]))
-    .unwrap();
+    let report = judged(&site, &models, &heldout);
     check_judges(&report, &["desire"]);
     desire_beats_the_baselines(&report, "seq_eth");
 
@@ -228,20 +247,7 @@ fn real_walks_are_imported_and_judged_and_a_trained_directory_is_served() {
         "--json",
     ]);
     assert!(models.join("MODEL_CARD.md").is_file());
-    let report: Value = serde_json::from_str(&gangway_ok(&[
-        "eval",
-        "planning",
-        "--site",
-        text(&site),
-        "--models",
-        text(&models),
-        "--random-pairs",
-        "20",
-        "--heldout-walks",
-        text(&heldout),
-        "--json",
-    ]))
-    .unwrap();
+    let report = judged(&site, &models, &heldout);
     check_judges(&report, &["conditional", "rejection", "desire"]);
     desire_beats_the_baselines(&report, "students03");
     let walk = &trajectory::read(&heldout, &Site::load(&site).unwrap()).unwrap()[0];

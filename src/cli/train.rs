@@ -320,12 +320,15 @@ fn model_card(
             card,
             "- `desire_lines.onnx` is no neural network: a kernel regression over the \
              shapes of {:.0} walks (each both ways) conditioned on the endpoints' coordinates, \
-             shrunk towards the straight line where the neighbouring walks disagree; kernel \
-             width σ {} m and shrinkage {} chosen by {} time-ordered folds of these walks \
+             blended into the profile's any-angle route and shrunk towards it where the \
+             neighbouring walks disagree; kernel width σ {} m, shrinkage {}, prior weight {} \
+             and evidence threshold {} chosen by {} time-ordered folds of these walks \
              (docs/planning.md, \"Desire lines\")",
             m("bank_lines") / 2.0,
             m("sigma_m"),
             m("shrink"),
+            m("prior_weight"),
+            m("min_mass"),
             crate::train::desire::FOLDS
         );
     }

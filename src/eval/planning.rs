@@ -193,6 +193,9 @@ struct Score {
     length_ratio: f64,
     /// The learned frame or line behind the route needed repair.
     repaired: bool,
+    /// The planner served its fallback instead of what it learned
+    /// (`few_walks`, `profile_costs`).
+    fallback: bool,
 }
 
 /// Scores of the baselines on every held-out walk (`None`: no route, e.g.
@@ -231,6 +234,7 @@ fn score(site: &Site, walk: &Trajectory, cells: &[Cell], line: &Polyline) -> Opt
             1.0
         },
         repaired: false,
+        fallback: false,
     })
 }
 
@@ -259,7 +263,12 @@ fn judge_planner(
                 None => Polyline::of_cells(site, cells),
             };
             let repaired = planned.origin == Origin::Repaired;
-            score(site, w, cells, &line).map(|s| Score { repaired, ..s })
+            let fallback = planned.origin.is_fallback();
+            score(site, w, cells, &line).map(|s| Score {
+                repaired,
+                fallback,
+                ..s
+            })
         })
         .collect()
 }
@@ -335,7 +344,20 @@ fn summary(scores: &[Option<Score>]) -> Value {
         "iou_mean": mean(&column(|s| s.iou)),
         "length_ratio_mean": mean(&column(|s| s.length_ratio)),
         "repaired_share": mean(&column(|s| f64::from(u8::from(s.repaired)))),
+        "fallback_share": mean(&column(|s| f64::from(u8::from(s.fallback)))),
+        "repaired_share_learned": repaired_among_learned(&answered),
     })
+}
+
+/// The share of the routes served from what the planner learned (not its
+/// fallback) that needed repair.
+fn repaired_among_learned(scores: &[Score]) -> Option<f64> {
+    let learned: Vec<f64> = scores
+        .iter()
+        .filter(|s| !s.fallback)
+        .map(|s| f64::from(u8::from(s.repaired)))
+        .collect();
+    mean(&learned)
 }
 
 /// Wins, losses and ties by DTW of `mode` against `baseline` over the walks
@@ -377,12 +399,14 @@ fn evaluate_mode(
     let (mut valid, mut ratios, mut deviations) = (0usize, Vec::new(), Vec::new());
     let (mut plan_us, mut gen_us, mut classify_us) = (Vec::new(), Vec::new(), Vec::new());
     let (mut trained, mut accepted, mut repaired) = (0usize, 0usize, 0usize);
+    let (mut answered, mut fallback) = (0usize, 0usize);
     let mut novelty = Vec::new();
     for &(from, to) in pairs {
         let started = Instant::now();
         let answer = planner.plan(from, to, Profile::Default);
         plan_us.push(started.elapsed().as_secs_f64() * 1e6);
         let Ok(planned) = answer else { continue };
+        answered += 1;
         if planned
             .route
             .validate(site, from, to, config.connectivity)
@@ -415,9 +439,11 @@ fn evaluate_mode(
         match planned.origin {
             Origin::Frame => accepted += 1,
             Origin::Repaired => repaired += 1,
+            origin if origin.is_fallback() => fallback += 1,
             _ => {}
         }
         if !matches!(planned.origin, Origin::Untrained)
+            && !planned.origin.is_fallback()
             && (planned.frame.is_some() || planned.line.is_some())
         {
             trained += 1;
@@ -455,6 +481,8 @@ fn evaluate_mode(
         "rejection_acceptance_rate": acceptance,
         "learned_pairs": trained,
         "repaired_share": (trained > 0).then(|| repaired as f64 / trained as f64),
+        "fallback_share": (learned && answered > 0).then(|| fallback as f64 / answered as f64),
+        "repaired_share_all": (learned && answered > 0).then(|| repaired as f64 / answered as f64),
         "model_version": planner.model_version(),
         "gen_us_p50": percentile(&mut gen_us, 0.5),
         "classify_us_p50": percentile(&mut classify_us, 0.5),

@@ -333,11 +333,9 @@ fn json(value: &impl serde::Serialize) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::path::Path;
 
     fn site(map: &str) -> Site {
-        let text = format!("name = \"t\"\ncell_m = 1.0\nmap = '''\n{map}\n'''\n");
-        Site::parse(&text, Path::new("t.toml")).unwrap()
+        Site::of_map(map)
     }
 
     #[test]

@@ -421,12 +421,19 @@ pub struct DesireModel(Model);
 
 impl DesireModel {
     pub fn load(path: &Path, site: &Site) -> Result<DesireModel, ModelError> {
+        use super::desire::POINTS;
         let model = Model::load(path, site, &[Kind::DesireLines], Rows::Batches)?;
-        if model.inputs.len() != 1 || model.inputs[0].1 != 4 || model.output.1 % 2 != 0 {
+        let widths: Vec<usize> = model.inputs.iter().map(|i| i.1).collect();
+        if widths != [4, 2 * POINTS] || model.output.1 != 2 * POINTS + 1 {
             return Err(ModelError::Corrupt {
                 path: model.path.clone(),
-                reason: "a desire-line model takes `endpoints` [N, 4] and gives [N, 2·points]"
-                    .into(),
+                reason: format!(
+                    "a desire-line model takes `endpoints` [N, 4] and `prior` [N, {}] and gives \
+                     `line` [N, {}]; a model from an older gangway must be retrained \
+                     (`gangway train`)",
+                    2 * POINTS,
+                    2 * POINTS + 1
+                ),
             });
         }
         Ok(DesireModel(model))
@@ -436,13 +443,26 @@ impl DesireModel {
         &self.0
     }
 
-    /// The learned line from `a` to `b` (cell units), `a` first.
-    pub fn line(&self, a: [f32; 2], b: [f32; 2]) -> Result<Vec<[f32; 2]>, ModelError> {
-        let input = ndarray::arr2(&[[a[0], a[1], b[0], b[1]]]);
-        let out = self.0.run(&[input.view()])?;
+    /// The learned line from `a` to `b` (cell units), `a` first, blended
+    /// into `prior` ([`super::desire::POINTS`] points from `a` to `b`), and
+    /// the walks' share of it (0: the prior alone answered).
+    pub fn line(
+        &self,
+        a: [f32; 2],
+        b: [f32; 2],
+        prior: &[[f32; 2]],
+    ) -> Result<(Vec<[f32; 2]>, f32), ModelError> {
+        let ends = ndarray::arr2(&[[a[0], a[1], b[0], b[1]]]);
+        let prior = ndarray::Array2::from_shape_fn((1, 2 * prior.len()), |(_, j)| {
+            prior[j % prior.len()][j / prior.len()]
+        });
+        let out = self.0.run(&[ends.view(), prior.view()])?;
         let row = out.row(0);
         let points = row.len() / 2;
-        Ok((0..points).map(|k| [row[k], row[points + k]]).collect())
+        Ok((
+            (0..points).map(|k| [row[k], row[points + k]]).collect(),
+            row[2 * points],
+        ))
     }
 }
 

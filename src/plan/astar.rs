@@ -275,11 +275,9 @@ fn heuristic(a: Cell, b: Cell, connectivity: Connectivity) -> f64 {
 mod tests {
     use super::*;
     use crate::plan::RouteErrorCode;
-    use std::path::Path;
 
     fn site(map: &str) -> Arc<Site> {
-        let text = format!("name = \"t\"\ncell_m = 1.0\nmap = '''\n{map}\n'''\n");
-        Arc::new(Site::parse(&text, Path::new("t.toml")).unwrap())
+        Arc::new(Site::of_map(map))
     }
 
     #[test]

@@ -264,6 +264,22 @@ pub enum Origin {
     /// Rejection mode: the pair is not one of the classifier's classes, so
     /// the profile's plain search answered.
     Untrained,
+    /// Desire lines: the training walks say too little about these
+    /// endpoints (the model's kernel mass at most its threshold), so the
+    /// profile's any-angle route was served.
+    FewWalks,
+    /// Desire lines: the learned route cost the profile more in what it pays
+    /// beyond length (narrow cells, doors, turns for low vision) than its
+    /// any-angle route, which was served instead.
+    ProfileCosts,
+}
+
+impl Origin {
+    /// Whether a learned planner served its fallback instead of what it
+    /// learned.
+    pub fn is_fallback(self) -> bool {
+        matches!(self, Origin::FewWalks | Origin::ProfileCosts)
+    }
 }
 
 /// Time spent in the models for one request, microseconds.

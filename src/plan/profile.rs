@@ -57,6 +57,15 @@ impl Profile {
         }
     }
 
+    /// Whether some cell or turn costs this walker more than its length
+    /// ([`Profile::cell_cost`], [`Profile::turn_cost`]).
+    pub fn has_costs(self) -> bool {
+        match self {
+            Profile::LowVision => true,
+            Profile::Default | Profile::Wheelchair => false,
+        }
+    }
+
     /// Typical walking speed, m/s, for the arrival times guidance gives:
     /// 1.2 m/s is a common indoor pedestrian design speed; wheelchair users
     /// and people walking with a cane or a guide dog indoors are often slower.
