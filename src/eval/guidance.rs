@@ -555,14 +555,24 @@ pub fn paces(tracks: &[Track]) -> Vec<Vec<f64>> {
         .collect()
 }
 
-/// A walker at `from` setting off along `served`: to its first cell, then
-/// along it.
+/// A walker at `from` setting off along `served`: to the route's cell
+/// nearest to them (the first of those as near), then along it. A person
+/// told the way from where the gateway placed them, a cell or two from
+/// where they stand, joins the route where it is, as any walker would; they
+/// do not walk back to the cell the fix put them in.
 fn follow(site: &Site, from: Cell, served: &Served) -> Walker {
     let cells = served.line.cells();
-    let mut plan = astar::search(site, Connectivity::Eight, from, cells[0], |_| 1.0)
+    let join = (0..cells.len())
+        .min_by(|&a, &b| {
+            from.distance(cells[a])
+                .total_cmp(&from.distance(cells[b]))
+                .then(a.cmp(&b))
+        })
+        .unwrap_or(0);
+    let mut plan = astar::search(site, Connectivity::Eight, from, cells[join], |_| 1.0)
         .map(|r| r.cells)
         .unwrap_or_else(|_| vec![from]);
-    plan.extend_from_slice(&cells[1..]);
+    plan.extend_from_slice(&cells[join + 1..]);
     Walker::new(site, plan)
 }
 

@@ -14,9 +14,11 @@
 //! Leaving the route is judged on fixes only, never on an unknown one: a fix
 //! outside the corridor counts towards it, and so does a fix already a third
 //! of the corridor off that moved away from the route, across the way the
-//! route goes there (a wrong turn shows so a fix or two before the lagging
-//! fixes leave the corridor); a fix stalled off the route neither counts nor
-//! resets, and anything else resets the count.
+//! route goes there or so that its move, carried on for the fix's lag (as
+//! far as the move stands out of the fixes' noise), leaves the corridor (a
+//! wrong turn shows so a fix or two before the lagging fixes leave the
+//! corridor); a fix stalled off the route neither counts nor resets, and
+//! anything else resets the count.
 //!
 //! The state kept is the route (4 bytes a cell), its maneuvers and a few
 //! numbers: under 1 KB for the routes of a floor.
@@ -46,12 +48,13 @@ pub(super) struct Walked {
     reroutes: u32,
 }
 
-/// The last located fix: where, how far off the route, when.
+/// The last located fix: where, how far off the route, when (its time).
 #[derive(Clone, Copy, Debug)]
 struct LastFix {
     x: f32,
     y: f32,
     off_m: f32,
+    t: f64,
 }
 
 /// What one fix says about leaving the route.
@@ -108,6 +111,9 @@ impl Session {
         rerouted_from: Option<Walked>,
     ) -> Session {
         let line = RouteLine::new(site, route);
+        // Held as long as the session: no room spare.
+        let mut maneuvers = maneuvers(site, route, profile);
+        maneuvers.shrink_to_fit();
         let walked = match rerouted_from {
             Some(before) => Walked {
                 reroutes: before.reroutes + 1,
@@ -127,7 +133,7 @@ impl Session {
             request_id,
             profile,
             line,
-            maneuvers: maneuvers(site, route, profile),
+            maneuvers,
             next: 1,
             announced: 1,
             state: if reroutes > 0 {
@@ -270,11 +276,12 @@ impl Session {
         let (off_m, along_m) =
             self.line
                 .project(site, (x, y), self.track.at(was_t), config.corridor_m);
-        let leaving = self.leaving(site, config, (x, y), off_m, along_m);
+        let leaving = self.leaving(site, config, fix_lag_s, (x, y, fix_t), off_m, along_m);
         self.last_fix = Some(LastFix {
             x: x as f32,
             y: y as f32,
             off_m: off_m as f32,
+            t: fix_t,
         });
         self.walked.located_fixes += 1;
         if off_m <= config.corridor_m {
@@ -347,7 +354,8 @@ impl Session {
         &self,
         site: &Site,
         config: &GuidanceConfig,
-        (x, y): (f64, f64),
+        fix_lag_s: f64,
+        (x, y, t): (f64, f64, f64),
         off_m: f64,
         along_m: f64,
     ) -> Leaving {
@@ -371,6 +379,25 @@ impl Session {
             } else {
                 Leaving::No
             };
+        }
+        // Where this fix's own move, carried on for the fix's lag, puts the
+        // walker by now: a walker who missed a turn is already outside the
+        // corridor while the lagging fix is inside it. The move between two
+        // fixes is itself noisy (each is `fix_spread_m` off), so it is
+        // trusted as far as a walk at the profile's pace stands out of
+        // that noise: the weight a least-squares estimate gives it.
+        let gap_s = t - last.t;
+        if off_m > f64::from(last.off_m) && gap_s > 0.0 {
+            let walk_m = self.profile.walking_speed_mps() * gap_s;
+            let noise = 2.0 * config.fix_spread_m * config.fix_spread_m;
+            let trust = walk_m * walk_m / (walk_m * walk_m + noise);
+            let k = (trust * fix_lag_s / gap_s).min(1.0);
+            let (ahead_off_m, _) =
+                self.line
+                    .project(site, (x + dx * k, y + dy * k), along_m, config.corridor_m);
+            if ahead_off_m > config.corridor_m {
+                return Leaving::Yes;
+            }
         }
         let (ux, uy) = self.line.direction(site, along_m);
         let across = (dx * ux + dy * uy) <= moved_m * TURNING_OFF_DEG.to_radians().cos();
