@@ -11,7 +11,7 @@
 //! ```
 //!
 //! Prints one JSON object per attack, with each figure beside its target.
-//! The bounded versions of the same attacks are tests (`tests/mqtt_hostile.rs`);
+//! The bounded versions of the same attacks are tests (`tests/it/mqtt_hostile.rs`);
 //! this is where their sizes are real. Everything it starts, it stops.
 
 mod support;

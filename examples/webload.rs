@@ -35,7 +35,8 @@
 //! only; everything it starts, it stops.
 
 mod support;
-#[path = "../tests/web_support/mod.rs"]
+#[path = "../tests/it/web_support/mod.rs"]
+#[allow(dead_code)] // the load uses the browser, not the test helpers
 mod web_support;
 
 use std::fmt::Write as _;

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Interop check of gangway's ONNX models.
 
-For every reference file written by `cargo test --test onnx_reference` (two JSON
+For every reference file written by `cargo test --test it onnx_reference::` (two JSON
 per model under models/ and for the desire lines that test trains, a batch and one row, since tract runs one row through
 its own plan when the weights are float16: the model path, fixed inputs and
 tract's outputs), this
@@ -56,7 +56,7 @@ def main() -> int:
         return 2
     refs = sorted(pathlib.Path(sys.argv[1]).glob("*.json"))
     if not refs:
-        print(f"no reference files in {sys.argv[1]}; run `cargo test --test onnx_reference` first",
+        print(f"no reference files in {sys.argv[1]}; run `cargo test --test it onnx_reference::` first",
               file=sys.stderr)
         return 2
     failed = 0

@@ -1,0 +1,218 @@
+//! `gangway check` loads a config with its site and names every problem.
+
+use crate::common;
+
+use crate::common::{gangway, write};
+
+const SITE: &str = r#"name = "t"
+cell_m = 1.0
+map = '''
+###
+#.#
+'''
+[[beacon]]
+id = "b1"
+uuid = "5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84"
+major = 1
+minor = 1
+cell = [0, 0]
+
+[places]
+desk = [2, 1]
+"#;
+
+const CONFIG: &str = "gateway_id = \"gw\"\nsite = \"site.toml\"\n";
+
+/// Runs `check` on a config and site written to a temp dir; returns (ok, stderr).
+fn check(config: &str, site: &str) -> (bool, String) {
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "site.toml", site);
+    let config = write(dir.path(), "gangway.toml", config);
+    let out = gangway(&["check", "--config", config.to_str().unwrap()]);
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn rejects(config: &str, site: &str, expected: &[&str]) {
+    let (ok, stderr) = check(config, site);
+    assert!(!ok, "accepted a bad config/site");
+    for e in expected {
+        assert!(stderr.contains(e), "expected {e:?} in:\n{stderr}");
+    }
+}
+
+#[test]
+fn the_shipped_config_is_valid() {
+    let out = gangway(&["check", "--config", "config/gangway.toml"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).contains("117 walkable"));
+}
+
+#[test]
+fn the_metric_sample_site_is_valid() {
+    let site = std::fs::read_to_string(common::root().join("config/sites/depot.toml")).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "site.toml", &site);
+    let config = write(dir.path(), "gangway.toml", CONFIG);
+    let out = gangway(&["check", "--config", config.to_str().unwrap()]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("16×10 cells, 144 walkable, 6 beacons")
+            && stdout.contains(
+                "frame: 0.9 m cells, origin [250, 120] m, y up; extent x 250 to 264.4 m, y 111 \
+                 to 120 m; 1 obstacles and 1 walls blocked 16 cells"
+            ),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn prints_the_frame_of_a_site_in_metres() {
+    let site = r#"name = "m"
+cell_m = 0.5
+origin_m = [-3.0, 8.0]
+y_axis = "up"
+width_m = 4.0
+height_m = 2.0
+[[obstacles]]
+polygon = [[-2.0, 7.0], [-1.0, 7.0], [-1.0, 6.5], [-2.0, 6.5]]
+[[walls]]
+line = [[0.0, 8.0], [0.0, 7.0]]
+[[beacon]]
+id = "b1"
+uuid = "5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84"
+major = 1
+minor = 1
+pos = [-1.5, 6.75]
+height_m = 2.4
+"#;
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "site.toml", site);
+    let config = write(dir.path(), "gangway.toml", CONFIG);
+    let out = gangway(&["check", "--config", config.to_str().unwrap()]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("8×4 cells, 26 walkable, 1 beacons"),
+        "{stdout}"
+    );
+    // The obstacle covers 2 × 1 cell centres; the wall runs along the edge
+    // between columns 5 and 6 for two rows: 4 cells.
+    assert!(
+        stdout.contains(
+            "frame: 0.5 m cells, origin [-3, 8] m, y up; extent x -3 to 1 m, y 6 to 8 m; \
+             1 obstacles and 1 walls blocked 6 cells"
+        ),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn a_good_small_site_passes() {
+    let (ok, stderr) = check(CONFIG, SITE);
+    assert!(ok, "{stderr}");
+}
+
+#[test]
+fn names_each_kind_of_site_problem() {
+    rejects(
+        CONFIG,
+        &SITE.replace("#.#", "#."),
+        &["site.toml", "`map`", "row 1 has 2 cells but row 0 has 3"],
+    );
+    rejects(
+        CONFIG,
+        &SITE.replace("desk = [2, 1]", "desk = [5, 1]"),
+        &["line 15: place `desk` is at [5, 1], off the 3×2 grid"],
+    );
+    rejects(
+        CONFIG,
+        &SITE.replace("desk = [2, 1]", "desk = [1, 1]"),
+        &["place `desk` is at [1, 1], a blocked cell"],
+    );
+    rejects(
+        CONFIG,
+        &SITE.replace("cell = [0, 0]", "cell = [1, 1]"),
+        &["beacon `b1` is at [1, 1], a blocked cell"],
+    );
+    let duplicate = SITE.replace("[places]", "[[beacon]]\nid = \"b2\"\nuuid = \"5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84\"\nmajor = 1\nminor = 1\n\n[places]");
+    rejects(
+        CONFIG,
+        &duplicate,
+        &["beacon `b2` has the same uuid/major/minor", "line 7"],
+    );
+    rejects(
+        CONFIG,
+        &SITE.replace("major = 1", "major = \"one\""),
+        &["site.toml", "line 10, column 9", "expected u16"],
+    );
+    rejects(
+        CONFIG,
+        &SITE.replace("###\n#.#", "###\n#?#"),
+        &["unknown glyph '?'"],
+    );
+    // Several problems at once are all reported.
+    let two = SITE
+        .replace("desk = [2, 1]", "desk = [1, 1]")
+        .replace("cell = [0, 0]", "cell = [9, 9]");
+    rejects(
+        CONFIG,
+        &two,
+        &["place `desk`", "beacon `b1` is at [9, 9], off the"],
+    );
+}
+
+#[test]
+fn names_each_kind_of_config_problem() {
+    rejects(
+        "site = \"site.toml\"\n",
+        SITE,
+        &["gangway.toml", "missing field `gateway_id`"],
+    );
+    rejects(
+        "gateway_id = \"gw\"\nsite = \"nope.toml\"\n",
+        SITE,
+        &["nope.toml", "cannot read the site file"],
+    );
+    rejects(
+        &format!("{CONFIG}[window]\nlength_s = 0\n"),
+        SITE,
+        &["[window]", "positive"],
+    );
+    rejects(
+        &format!("{CONFIG}[window]\naggregate = \"mode\"\n"),
+        SITE,
+        &["unknown variant `mode`", "median"],
+    );
+    rejects(
+        &format!("{CONFIG}[tracker]\nspeed = 1\n"),
+        SITE,
+        &["unknown field `speed`"],
+    );
+    rejects(
+        "gateway_id = \"gw/1\"\nsite = \"site.toml\"\n",
+        SITE,
+        &["gateway_id", "MQTT topics"],
+    );
+    let no_cells = SITE.replace("cell = [0, 0]\n", "");
+    rejects(
+        CONFIG,
+        &no_cells,
+        &["pathloss localizer needs anchor positions"],
+    );
+}

@@ -1,0 +1,796 @@
+//! Localization quality: the gate CI holds on the real survey, and a made-up
+//! site showing that nothing assumes the sample site's grid or anchors.
+
+use crate::common;
+
+use std::fmt::Write;
+
+use crate::common::{gangway_ok, write};
+use serde_json::Value;
+
+fn eval(args: &[&str]) -> Value {
+    let out = gangway_ok(&[&["eval", "localization", "--json"], args].concat());
+    serde_json::from_str(out.trim()).expect("one JSON object")
+}
+
+fn figure(v: &Value, key: &str) -> f64 {
+    v[key].as_f64().unwrap_or_else(|| panic!("no {key} in {v}"))
+}
+
+/// The targets this project has reached on ../shared/data/uci-ble-rssi; the
+/// evaluation is deterministic (fixed seeds), so a drop is a real regression.
+#[test]
+fn the_real_survey_stays_at_or_above_the_reached_targets() {
+    let Some(survey) = common::uci_survey() else {
+        return;
+    };
+    let survey = survey.to_str().unwrap();
+    let site = "config/sites/waldo.toml";
+
+    let session = eval(&["--site", site, "--survey", survey, "--split", "session"]);
+    assert_eq!(
+        session.as_object().unwrap().keys().collect::<Vec<_>>(),
+        [
+            "confidence_gap_max",
+            "exact",
+            "mean_error_cells",
+            "mean_error_m",
+            "median_error_cells",
+            "median_error_m",
+            "p75_error_cells",
+            "p75_error_m",
+            "p90_error_cells",
+            "p90_error_m",
+            "reliability",
+            "us_per_fix",
+            "within_1",
+            "within_2"
+        ]
+    );
+    // k-NN + hmm: 1.056 / 0.793 measured.
+    assert!(
+        figure(&session, "mean_error_cells") <= 1.10,
+        "session split: {session}"
+    );
+    assert!(
+        figure(&session, "within_2") >= 0.78,
+        "session split: {session}"
+    );
+
+    // 1.118 / 0.804 / 0.396 measured.
+    let random = eval(&["--site", site, "--survey", survey, "--split", "random"]);
+    assert!(
+        figure(&random, "mean_error_cells") <= 1.20,
+        "random split: {random}"
+    );
+    assert!(
+        figure(&random, "within_2") >= 0.78,
+        "random split: {random}"
+    );
+    assert!(figure(&random, "exact") >= 0.37, "random split: {random}");
+
+    // The shipped default with a survey: 1.032 / 0.805 / 0.439 measured
+    // (issue #14's targets: ≤ 1.05, ≥ 0.80, ≥ 0.45).
+    let auto = eval(&["--site", site, "--survey", survey, "--method", "auto"]);
+    assert!(figure(&auto, "mean_error_cells") <= 1.06, "auto: {auto}");
+    assert!(figure(&auto, "within_2") >= 0.79, "auto: {auto}");
+    assert!(figure(&auto, "exact") >= 0.42, "auto: {auto}");
+}
+
+/// The survey-free model calibrated on the crowd-sourced file alone (no
+/// position known) and the cross-validated radio map hold what they reached
+/// on the real floor; the radio map's published confidence stays honest.
+#[test]
+fn calibration_and_the_radio_map_hold_their_figures() {
+    let Some(survey) = common::uci_survey() else {
+        return;
+    };
+    let unlabelled = survey.with_file_name("iBeacon_RSSI_Unlabeled.csv");
+    let site = "config/sites/waldo.toml";
+    let survey = survey.to_str().unwrap();
+    // The survey-free model calibrated on `from` first (`extra` flags too),
+    // its mean error and within-2 share.
+    let calibrated = |from: &str, extra: &[&str]| {
+        let base = [
+            "--site",
+            site,
+            "--survey",
+            survey,
+            "--method",
+            "pathloss",
+            "--calibrate",
+            from,
+        ];
+        let m = eval(&[&base[..], extra].concat());
+        (figure(&m, "mean_error_cells"), figure(&m, "within_2"))
+    };
+    // On the crowd file: 1.718 / 0.626 measured.
+    let (mean, within_2) = calibrated(unlabelled.to_str().unwrap(), &[]);
+    assert!(
+        mean <= 1.80 && within_2 >= 0.60,
+        "calibrated on the crowd file: {mean} / {within_2}"
+    );
+    // On the survey's own scans, their labels unused, with a radio map
+    // refined per cell: 1.645 / 0.635 measured.
+    let (mean, within_2) = calibrated(survey, &["--calibrate-cells"]);
+    assert!(
+        mean <= 1.70 && within_2 >= 0.61,
+        "self-calibrated with cells: {mean} / {within_2}"
+    );
+    let map = eval(&["--site", site, "--survey", survey, "--method", "radiomap"]);
+    assert!(figure(&map, "mean_error_cells") <= 1.40, "radiomap: {map}");
+    assert!(
+        figure(&map, "confidence_gap_max") <= 0.10,
+        "radiomap: {map}"
+    );
+
+    // The calibration file round-trips into a config the gateway accepts.
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("calibration.toml");
+    let out = gangway_ok(&[
+        "calibrate",
+        "--from",
+        unlabelled.to_str().unwrap(),
+        "--out",
+        file.to_str().unwrap(),
+        "--cells",
+        "--json",
+    ]);
+    let report: Value = serde_json::from_str(out.trim()).expect("one JSON object");
+    assert_eq!(report["anchors"].as_array().unwrap().len(), 13, "{report}");
+    assert!(report["cells"]["cells"].as_u64().unwrap() > 50, "{report}");
+    // The shipped config, its relative paths made absolute, with the file
+    // in place of the shipped calibration (`check` refuses one that does
+    // not load).
+    let root = common::root();
+    let shipped = std::fs::read_to_string(root.join("config/gangway.toml")).unwrap();
+    let calibration = "\"sites/waldo-calibration.toml\"";
+    assert!(shipped.contains(calibration));
+    let config = shipped
+        .replace(calibration, &format!("\"{}\"", file.display()))
+        .replace("\"../", &format!("\"{}/", root.display()))
+        .replace("\"sites/", &format!("\"{}/config/sites/", root.display()));
+    let config = write(dir.path(), "gangway.toml", &config);
+    gangway_ok(&["check", "--config", config.to_str().unwrap()]);
+}
+
+/// A fixed split, per-row fixes, and the errors a user meets first: a
+/// positive "not heard" value and rows without a position.
+#[test]
+fn fixed_splits_rows_and_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let site = write(dir.path(), "workshop.toml", SMALL_SITE);
+    let survey = small_survey();
+    let (header, rows) = survey.split_once('\n').unwrap();
+    let rows: Vec<&str> = rows.lines().collect();
+    let (train, test) = rows.split_at(rows.len() * 2 / 3);
+    let train = write(
+        dir.path(),
+        "train.csv",
+        &format!("{header}\n{}\n", train.join("\n")),
+    );
+    let test = write(
+        dir.path(),
+        "test.csv",
+        &format!("{header}\n{}\n", test.join("\n")),
+    );
+    let per_row = dir.path().join("rows.csv");
+    let m = eval(&[
+        "--site",
+        site.to_str().unwrap(),
+        "--train",
+        train.to_str().unwrap(),
+        "--test",
+        test.to_str().unwrap(),
+        "--method",
+        "radiomap",
+        "--rows",
+        per_row.to_str().unwrap(),
+    ]);
+    assert!(figure(&m, "mean_error_cells") < 1.5, "{m}");
+    let written = std::fs::read_to_string(&per_row).unwrap();
+    assert_eq!(written.lines().count(), rows.len() - rows.len() * 2 / 3 + 1);
+
+    let hundred = write(
+        dir.path(),
+        "hundred.csv",
+        &format!("{header}\n0,0,0,100,-70,-80,-90\n"),
+    );
+    let run = common::gangway(&[
+        "eval",
+        "localization",
+        "--site",
+        site.to_str().unwrap(),
+        "--survey",
+        hundred.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success());
+    assert!(
+        stderr.contains("hundred.csv:2") && stderr.contains("--not-heard 100"),
+        "{stderr}"
+    );
+}
+
+/// The `onnx` method trains a cell classifier per split, exports it and runs it
+/// through tract; it must locate far better than chance (about 0.12 within 2
+/// cells on this site).
+#[test]
+fn the_onnx_localizer_trains_exports_and_locates_per_split() {
+    let Some(survey) = common::uci_survey() else {
+        return;
+    };
+    let m = eval(&[
+        "--site",
+        "config/sites/waldo.toml",
+        "--survey",
+        survey.to_str().unwrap(),
+        "--method",
+        "onnx",
+        "--seeds",
+        "1",
+    ]);
+    assert!(figure(&m, "within_2") > 0.35, "{m}");
+}
+
+#[test]
+fn the_shipped_cell_classifier_serves_the_pipeline() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = common::root();
+    // A config using the onnx localizer with `model`, written to `name`.
+    let config_with = |name: &str, model: &std::path::Path| {
+        write(
+            dir.path(),
+            name,
+            &format!(
+                "gateway_id = \"gw\"\nsite = \"{}\"\n[localizer]\nmethod = \"onnx\"\n[localizer.onnx]\nmodel = \"{}\"\n",
+                root.join("config/sites/waldo.toml").display(),
+                model.display()
+            ),
+        )
+    };
+    let shipped = root.join("models/cell_classifier.onnx");
+    let config = config_with("gangway.toml", &shipped);
+    let out = gangway_ok(&[
+        "replay",
+        "fixtures/walk-waldo.jsonl",
+        "--config",
+        config.to_str().unwrap(),
+        "--print",
+    ]);
+    assert!(out.lines().any(|l| l.contains("/location")));
+
+    // A truncated model is refused with a message naming the file.
+    let bytes = std::fs::read(&shipped).unwrap();
+    let broken = dir.path().join("broken.onnx");
+    std::fs::write(&broken, &bytes[..bytes.len() / 2]).unwrap();
+    let config = config_with("broken.toml", &broken);
+    let run = common::gangway(&["check", "--config", config.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success());
+    assert!(
+        stderr.contains("broken.onnx") && !stderr.contains("panicked"),
+        "{stderr}"
+    );
+}
+
+const SMALL_SITE: &str = r#"name = "workshop"
+cell_m = 2.0
+map = '''
+########
+##....##
+########
+##....##
+########
+'''
+[[beacon]]
+id = "north-west"
+uuid = "0b1c2d3e-4f50-6172-8394-a5b6c7d8e9f0"
+major = 7
+minor = 1
+cell = [0, 0]
+[[beacon]]
+id = "north-east"
+uuid = "0b1c2d3e-4f50-6172-8394-a5b6c7d8e9f0"
+major = 7
+minor = 2
+cell = [7, 0]
+[[beacon]]
+id = "south-west"
+uuid = "0b1c2d3e-4f50-6172-8394-a5b6c7d8e9f0"
+major = 7
+minor = 3
+cell = [0, 4]
+[[beacon]]
+id = "south-east"
+uuid = "0b1c2d3e-4f50-6172-8394-a5b6c7d8e9f0"
+major = 7
+minor = 4
+cell = [7, 4]
+
+[places]
+bench = [0, 2]
+door = [7, 2]
+"#;
+
+/// A generic-layout survey of the small site: three readings per walkable
+/// cell from a path-loss formula with a fixed ±1 dB pattern.
+fn small_survey() -> String {
+    let beacons = [(0.0, 0.0), (7.0, 0.0), (0.0, 4.0), (7.0, 4.0)];
+    let map = ["########", "##....##", "########", "##....##", "########"];
+    let mut csv = String::from("x,y,t,north-west,north-east,south-west,south-east\n");
+    let mut t = 0;
+    for (y, row) in map.iter().enumerate() {
+        for (x, c) in row.chars().enumerate() {
+            if c != '#' {
+                continue;
+            }
+            for rep in 0..3 {
+                t += 2;
+                write!(csv, "{x},{y},{t}").unwrap();
+                for (i, (bx, by)) in beacons.iter().enumerate() {
+                    let d = 2.0 * ((x as f64 - bx).powi(2) + (y as f64 - by).powi(2)).sqrt();
+                    let noise = [(-1.0), 0.0, 1.0][(rep + i + x) % 3];
+                    let rssi = -59.0 - 22.0 * d.max(0.5).log10() + noise;
+                    write!(csv, ",{}", rssi.round() as i32).unwrap();
+                }
+                csv.push('\n');
+            }
+        }
+    }
+    csv
+}
+
+#[test]
+fn another_site_with_other_anchors_and_size_works_from_its_own_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let site = write(dir.path(), "workshop.toml", SMALL_SITE);
+    let survey = write(dir.path(), "survey.csv", &small_survey());
+    let (site, survey) = (site.to_str().unwrap(), survey.to_str().unwrap());
+
+    for method in ["knn", "pathloss"] {
+        let m = eval(&[
+            "--site",
+            site,
+            "--survey",
+            survey,
+            "--split",
+            "random",
+            "--method",
+            method,
+            "--tracker",
+            "none",
+        ]);
+        assert!(figure(&m, "mean_error_cells") < 1.0, "{method}: {m}");
+        assert_eq!(
+            figure(&m, "mean_error_m"),
+            2.0 * figure(&m, "mean_error_cells"),
+            "cell_m = 2"
+        );
+    }
+
+    // The whole pipeline on that site: simulate, then replay with the survey.
+    let log = dir.path().join("walk.jsonl");
+    gangway_ok(&[
+        "simulate",
+        "--site",
+        site,
+        "--out",
+        log.to_str().unwrap(),
+        "--walkers",
+        "2",
+        "--duration",
+        "40",
+    ]);
+    let config = write(
+        dir.path(),
+        "gangway.toml",
+        "gateway_id = \"gw-w\"\nsite = \"workshop.toml\"\n[localizer]\nmethod = \"knn\"\n[localizer.knn]\nsurvey = \"survey.csv\"\n",
+    );
+    let out = gangway_ok(&[
+        "replay",
+        log.to_str().unwrap(),
+        "--config",
+        config.to_str().unwrap(),
+        "--print",
+    ]);
+    let located: std::collections::BTreeSet<String> = out
+        .lines()
+        .map(|l| serde_json::from_str::<Value>(l).unwrap())
+        .filter(|m| m["topic"].as_str().unwrap().ends_with("/location"))
+        .map(|m| m["payload"]["device"].as_str().unwrap().to_owned())
+        .collect();
+    assert_eq!(located, ["walker-01", "walker-02"].map(String::from).into());
+}
+
+/// A second site in metres, unlike the sample floor in every way the site
+/// file can say: 0.9 m cells, its grid at x 250 m, y 120 m with y up, an open
+/// floor with a shelf block (obstacle polygon) and a partition (thin wall)
+/// drawn on it, beacons placed by `pos` on the shelf, on the partition and on
+/// the outer walls, some with a mounting height.
+const METRIC_SITE: &str = include_str!("../../config/sites/depot.toml");
+
+/// Where a world point falls on `METRIC_SITE`'s grid (cell column, row), and
+/// the centre of a cell in world metres: the frame written out independently
+/// of the code under test.
+const DEPOT_CELL_M: f64 = 0.9;
+fn depot_cell(x: f64, y: f64) -> (i64, i64) {
+    (
+        ((x - 250.0) / DEPOT_CELL_M).floor() as i64,
+        ((120.0 - y) / DEPOT_CELL_M).floor() as i64,
+    )
+}
+fn depot_centre(cx: i64, cy: i64) -> (f64, f64) {
+    (
+        250.0 + (cx as f64 + 0.5) * DEPOT_CELL_M,
+        120.0 - (cy as f64 + 0.5) * DEPOT_CELL_M,
+    )
+}
+
+/// Nothing tuned to the sample floor: on `METRIC_SITE`, a survey in metres
+/// (`x_m`,`y_m`, points anywhere on the walkable floor, not cell centres)
+/// simulated with drop-outs and shadowing, split by rows into fixed files,
+/// the radio map and the default surveyed method (`auto`) beat a plain kNN
+/// regressor computed here on the same split
+/// (the scikit-learn default: 5 neighbours, uniform weights, Euclidean
+/// distance on raw RSSI with "not heard" as a floor value, mean position).
+/// Both are scored in metres against where each row was really taken.
+#[test]
+fn the_surveyed_methods_beat_a_plain_knn_regressor_on_a_metric_site() {
+    use rand::{RngExt, SeedableRng};
+    let dir = tempfile::tempdir().unwrap();
+    let site_file = write(dir.path(), "depot.toml", METRIC_SITE);
+    let site = site_file.to_str().unwrap();
+    // Anchors as the radio sees them: (x, y, height above the phone).
+    let beacons = [
+        (250.0, 120.0, 1.3),
+        (256.7, 116.4, 0.6),
+        (261.0, 118.0, 0.0),
+        (264.4, 111.0, 1.3),
+        (250.0, 113.5, 0.0),
+        (258.0, 111.0, 1.3),
+    ];
+    // Blocked by the shelf (cell centres inside it) and the partition (the
+    // cells x = 261 m runs through, from the top down to y = 114.6 m, the
+    // edge between rows 5 and 6).
+    let blocked = |(cx, cy): (i64, i64)| {
+        let (x, y) = depot_centre(cx, cy);
+        let shelf = (254.5..259.0).contains(&x) && (115.5..117.3).contains(&y);
+        let partition = cx == depot_cell(261.0, 120.0).0 && cy <= 5;
+        shelf || partition
+    };
+    let mut rng = rand::rngs::Xoshiro256PlusPlus::seed_from_u64(11);
+    let header = "t,x_m,y_m,door,shelf,partition,far-corner,west,south";
+    // (true position, readings with -200 for "not heard").
+    let mut rows: Vec<((f64, f64), Vec<i32>)> = Vec::new();
+    while rows.len() < 900 {
+        // To the millimetre, as written to the files.
+        let mm = |v: f64| (v * 1000.0).round() / 1000.0;
+        let (x, y) = (
+            mm(rng.random_range(250.0..264.4)),
+            mm(rng.random_range(111.0..120.0)),
+        );
+        if blocked(depot_cell(x, y)) {
+            continue;
+        }
+        let readings = beacons
+            .iter()
+            .map(|&(bx, by, dh)| {
+                let d: f64 = ((x - bx) * (x - bx) + (y - by) * (y - by) + dh * dh).sqrt();
+                // Drop-outs rise with distance; shadowing of ±6 dB.
+                let heard = rng.random_bool(0.9 / (1.0 + (d / 7.0).powi(3)));
+                let shadowing: f64 = rng.random_range(-6.0..6.0);
+                if heard {
+                    (-60.0 - 22.0 * d.max(0.5).log10() + shadowing).round() as i32
+                } else {
+                    -200
+                }
+            })
+            .collect();
+        rows.push(((x, y), readings));
+    }
+    let csv = |rows: &[((f64, f64), Vec<i32>)], first_t: usize| {
+        let mut out = format!("{header}\n");
+        for (i, ((x, y), r)) in rows.iter().enumerate() {
+            let r: Vec<String> = r.iter().map(i32::to_string).collect();
+            // A minute apart: every row its own walking session.
+            let t = (first_t + i) * 60;
+            out.push_str(&format!("{t},{x:.3},{y:.3},{}\n", r.join(",")));
+        }
+        out
+    };
+    // Every third row held out.
+    let (test, train): (Vec<_>, Vec<_>) = rows
+        .iter()
+        .cloned()
+        .enumerate()
+        .partition(|(i, _)| i % 3 == 0);
+    let train: Vec<_> = train.into_iter().map(|(_, r)| r).collect();
+    let test: Vec<_> = test.into_iter().map(|(_, r)| r).collect();
+    let train_file = write(dir.path(), "train.csv", &csv(&train, 0));
+    let test_file = write(dir.path(), "test.csv", &csv(&test, train.len()));
+    // A surveyed method's mean error in metres: its fix is a cell, whose
+    // centre in world metres is set against the row's true position.
+    let surveyed_error = |method: &str| -> f64 {
+        let per_row = dir.path().join(format!("rows-{method}.csv"));
+        eval(&[
+            "--site",
+            site,
+            "--train",
+            train_file.to_str().unwrap(),
+            "--test",
+            test_file.to_str().unwrap(),
+            "--method",
+            method,
+            "--tracker",
+            "none",
+            "--rows",
+            per_row.to_str().unwrap(),
+        ]);
+        let fixes = std::fs::read_to_string(&per_row).unwrap();
+        let mut lines = fixes.lines();
+        let columns: Vec<&str> = lines.next().unwrap().split(',').collect();
+        let col = |name: &str| columns.iter().position(|c| *c == name).unwrap();
+        let (row_col, x_col, y_col) = (col("row"), col("x"), col("y"));
+        let mut error = 0.0;
+        let mut fixed = 0;
+        for line in lines {
+            let f: Vec<&str> = line.split(',').collect();
+            // Rows count through the training file, then the test file.
+            let i = f[row_col].parse::<usize>().unwrap() - train.len();
+            let (tx, ty) = test[i].0;
+            let (cx, cy) = (f[x_col].parse().unwrap(), f[y_col].parse().unwrap());
+            assert!(
+                !blocked((cx, cy)),
+                "{method}: a fix on a blocked cell: {line}"
+            );
+            let (x, y) = depot_centre(cx, cy);
+            error += (x - tx).hypot(y - ty);
+            fixed += 1;
+        }
+        assert_eq!(fixed, test.len(), "{method}: one fix per held-out row");
+        error / fixed as f64
+    };
+
+    // The plain regressor on the same split.
+    let value = |v: i32| if v == -200 { -105.0 } else { f64::from(v) };
+    let mut knn_error = 0.0;
+    for ((tx, ty), r) in &test {
+        let mut by_distance: Vec<(f64, (f64, f64))> = train
+            .iter()
+            .map(|(at, q)| {
+                let d: f64 = r
+                    .iter()
+                    .zip(q)
+                    .map(|(a, b)| (value(*a) - value(*b)).powi(2))
+                    .sum();
+                (d, *at)
+            })
+            .collect();
+        by_distance.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let (x, y) = by_distance[..5]
+            .iter()
+            .fold((0.0, 0.0), |acc, (_, (x, y))| {
+                (acc.0 + x / 5.0, acc.1 + y / 5.0)
+            });
+        knn_error += (x - tx).hypot(y - ty);
+    }
+    knn_error /= test.len() as f64;
+    // The radio map, and the shipped default (`auto`: the k-NN vote for
+    // fingerprints the survey recorded, the map for the others).
+    for method in ["radiomap", "auto"] {
+        let error = surveyed_error(method);
+        assert!(
+            error < knn_error,
+            "{method} {error:.3} m against a plain kNN regressor {knn_error:.3} m"
+        );
+        eprintln!("{method} {error:.3} m, plain kNN regressor {knn_error:.3} m");
+    }
+}
+
+/// The whole pipeline on the metric site: walkers simulated with the beacons'
+/// metric mounts, located by the survey-free model, published in the site's
+/// world metres (the centre of the fix's cell in the plan's coordinates).
+#[test]
+fn a_metric_site_publishes_world_coordinates() {
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "depot.toml", METRIC_SITE);
+    let log = dir.path().join("walk.jsonl");
+    gangway_ok(&[
+        "simulate",
+        "--site",
+        dir.path().join("depot.toml").to_str().unwrap(),
+        "--out",
+        log.to_str().unwrap(),
+        "--walkers",
+        "2",
+        "--duration",
+        "60",
+    ]);
+    let config = write(
+        dir.path(),
+        "gangway.toml",
+        "gateway_id = \"gw-d\"\nsite = \"depot.toml\"\n",
+    );
+    let out = gangway_ok(&[
+        "replay",
+        log.to_str().unwrap(),
+        "--config",
+        config.to_str().unwrap(),
+        "--print",
+    ]);
+    let mut known = 0;
+    for m in out
+        .lines()
+        .map(|l| serde_json::from_str::<Value>(l).unwrap())
+        .filter(|m| m["topic"].as_str().unwrap().ends_with("/location"))
+    {
+        let p = &m["payload"];
+        if p["cell"].is_null() {
+            continue;
+        }
+        known += 1;
+        let cell = (
+            p["cell"][0].as_i64().unwrap(),
+            p["cell"][1].as_i64().unwrap(),
+        );
+        let (x, y) = depot_centre(cell.0, cell.1);
+        let (x_m, y_m) = (p["x_m"].as_f64().unwrap(), p["y_m"].as_f64().unwrap());
+        assert!(
+            (x_m - x).abs() < 1e-9 && (y_m - y).abs() < 1e-9,
+            "{p}: the centre of {cell:?} is ({x}, {y})"
+        );
+        assert!(
+            (250.0..264.4).contains(&x_m) && (111.0..120.0).contains(&y_m),
+            "{p}"
+        );
+    }
+    assert!(known > 10, "only {known} located fixes:\n{out}");
+}
+
+/// A sink that counts the pipeline swaps the runtime announces (reloads and
+/// recalibrations both swap the whole pipeline).
+#[derive(Clone, Default)]
+struct Swaps(std::sync::Arc<std::sync::atomic::AtomicUsize>);
+
+impl gangway::sink::Sink for Swaps {
+    fn name(&self) -> &'static str {
+        "swaps"
+    }
+
+    fn send(&mut self, _: &[gangway::publish::Output]) -> anyhow::Result<()> {
+        Ok(())
+    }
+
+    fn reload(&mut self, _: &gangway::site::Site) {
+        self.0.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+    }
+
+    fn shutdown(self: Box<Self>) -> futures::future::BoxFuture<'static, anyhow::Result<()>> {
+        Box::pin(std::future::ready(Ok(())))
+    }
+}
+
+/// Polls `done` every 50 ms for up to 60 s.
+async fn eventually(what: &str, mut done: impl FnMut() -> bool) {
+    for _ in 0..1200 {
+        if done() {
+            return;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    panic!("no {what} within 60 s");
+}
+
+/// The daemon gathers what it hears into the learning store and, asked to,
+/// recalibrates the survey-free model from it off the event loop, writes the
+/// file and serves it (swapped in like a reload); a restart serves it too.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_daemon_recalibrates_from_what_it_heard_and_serves_it() {
+    use gangway::daemon::{self, state};
+    use gangway::event::Event;
+    use gangway::sighting::{BeaconId, Sighting};
+    use gangway::source::{ChannelSource, Input};
+    use std::sync::atomic::Ordering;
+
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "workshop.toml", SMALL_SITE);
+    let store = dir.path().join("learning.sqlite");
+    let config = write(
+        dir.path(),
+        "gangway.toml",
+        &format!(
+            "gateway_id = \"gw-w\"\nsite = \"workshop.toml\"\n[planner]\nmode = \"astar\"\n\
+             [store]\nenabled = true\npath = \"{}\"\n\
+             [localizer.recalibration]\nenabled = true\nevery_h = 0\nmin_windows = 100\n",
+            store.display()
+        ),
+    );
+    let serving = state::load_at_start(&config).unwrap();
+    // Heard in the last minutes: the store prunes what is older than its
+    // retention.
+    let now = gangway::sighting::unix_now();
+    let recorder = gangway::sink::recorder::Recorder::open(&serving.config.store, now)
+        .unwrap()
+        .keep_heard(serving.config.localizer.recalibration.max_windows);
+    let swaps = Swaps::default();
+    let (feed, source) = ChannelSource::new(64);
+    let (ask, asked) = tokio::sync::mpsc::channel(1);
+    let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+    let (_reload, reloads) = tokio::sync::mpsc::channel(1);
+    let options = daemon::Options {
+        recalibrate: Some(asked),
+        ..daemon::Options::default()
+    };
+    let daemon = tokio::spawn(daemon::run(
+        serving,
+        options,
+        vec![Box::new(source)],
+        vec![Box::new(recorder), Box::new(swaps.clone())],
+        async {
+            let _ = stopped.await;
+        },
+        reloads,
+    ));
+
+    // Two phones pacing the workshop's corridors, each beacon heard once a
+    // second when near enough, louder when nearer.
+    let uuid = uuid::Uuid::parse_str("0b1c2d3e-4f50-6172-8394-a5b6c7d8e9f0").unwrap();
+    let beacons = [(0.0, 0.0), (7.0, 0.0), (0.0, 4.0), (7.0, 4.0)];
+    for phone in ["phone-a", "phone-b"] {
+        let observer: std::sync::Arc<str> = phone.into();
+        let mut events = Vec::new();
+        for s in 0..400u32 {
+            let x = f64::from((s / 8 + u32::from(phone == "phone-b") * 3) % 8);
+            let y = if (s / 64) % 2 == 0 { 0.0 } else { 4.0 };
+            for (minor, (bx, by)) in (1u16..).zip(beacons) {
+                let d = 2.0 * ((x - bx) * (x - bx) + (y - by) * (y - by)).sqrt();
+                if d > 9.0 || (s + u32::from(minor)) % 3 == 0 {
+                    continue;
+                }
+                events.push(Event::Advert(Sighting {
+                    t: now - 1_000.0 + f64::from(s),
+                    observer: observer.clone(),
+                    advertiser: BeaconId {
+                        uuid,
+                        major: 7,
+                        minor,
+                    },
+                    tx_power: None,
+                    rssi: (-66.0 - 25.0 * d.max(0.5).log10()) as i16,
+                }));
+            }
+        }
+        for batch in events.chunks(64) {
+            feed.send(Input::Events(batch.to_vec())).await.unwrap();
+        }
+    }
+    let heard = || {
+        gangway::store::Store::open_read_only(&store)
+            .and_then(|s| s.heard(10_000))
+            .map_or(0, |rows| rows.len())
+    };
+    eventually("heard windows in the store", || heard() >= 300).await;
+
+    ask.send(()).await.unwrap();
+    eventually("the recalibrated pipeline", || {
+        swaps.0.load(Ordering::SeqCst) == 1
+    })
+    .await;
+    let file = dir.path().join("calibration.toml");
+    let site = gangway::site::Site::load(&dir.path().join("workshop.toml")).unwrap();
+    let calibration = gangway::locate::calibrate::Calibration::load(&file, &site).unwrap();
+    assert_eq!(calibration.anchors.len(), 4);
+    assert!(calibration.windows >= 300, "{}", calibration.windows);
+    assert!(!calibration.cells.is_empty(), "cells refined by default");
+
+    stop.send(()).unwrap();
+    let stats = daemon.await.unwrap().unwrap();
+    assert_eq!(stats.reload_failures, 0);
+    // A restart serves what was learned.
+    let restarted = state::load_at_start(&config).unwrap();
+    assert_eq!(
+        restarted.config.localizer.pathloss.calibration.as_deref(),
+        Some(file.as_path())
+    );
+}

@@ -1,0 +1,89 @@
+//! Two gateways of one site on one broker share their sightings and both
+//! localize a tag that each of them alone hears with a single anchor.
+
+use std::fmt::Write as _;
+
+use crate::mqtt_support::*;
+
+const TAG_UUID: &str = "0f0e0d0c-0b0a-4908-8706-050403020100";
+
+/// A log of the tag as heard by one gateway: every 0.5 s for 60 s.
+fn log_of(gateway: &str, rssi: i16) -> String {
+    let mut log = String::new();
+    for i in 0..120 {
+        let t = 1_767_225_600.0 + f64::from(i) * 0.5;
+        writeln!(
+            log,
+            r#"{{"type":"advert","t":{t},"observer":"{gateway}","uuid":"{TAG_UUID}","major":7,"minor":1,"rssi":{rssi}}}"#
+        )
+        .unwrap();
+    }
+    log
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_gateways_share_sightings_and_both_localize_a_tag() {
+    let broker = Broker::start();
+    let dir = tempfile::tempdir().unwrap();
+    // The sample site plus two fixed gateways: the help desk (J10) and the
+    // printers (N15).
+    let site = dir.path().join("site.toml");
+    let waldo = std::fs::read_to_string(repo().join("config/sites/waldo.toml")).unwrap();
+    let (body, places) = waldo.split_once("[places]").unwrap();
+    std::fs::write(
+        &site,
+        format!(
+            "{body}[[gateway]]\nid = \"gw-a\"\ncell = [9, 9]\n\n[[gateway]]\nid = \"gw-b\"\ncell = [13, 14]\n\n[places]{places}"
+        ),
+    )
+    .unwrap();
+    let advertiser = "[window]\norientation = \"advertiser\"\n";
+    let mut client = Client::connect(&broker, "test-fleet", &["gangway/#"]).await;
+    let mut running = Vec::new();
+    let mut configs = Vec::new();
+    for (id, rssi) in [("gw-a", -62), ("gw-b", -80)] {
+        let log = dir.path().join(format!("{id}.jsonl"));
+        std::fs::write(&log, log_of(id, rssi)).unwrap();
+        let config = gateway_config(id, &site, &broker, advertiser);
+        // 60 s of log at 4×: the first batches may reach the other gateway
+        // before it has subscribed, the rest cannot.
+        running.push(Gateway::start(
+            &config.path,
+            &["--replay", log.to_str().unwrap(), "--speed", "4"],
+        ));
+        configs.push(config);
+    }
+
+    let tag = format!("{TAG_UUID}-7-1");
+    for gw in ["gw-a", "gw-b"] {
+        let topic = format!("gangway/{gw}/devices/{tag}/location");
+        let fix = client
+            .wait_for(&format!("{gw} locating the tag from both gateways"), |m| {
+                m.topic == topic && m.json()["anchors_heard"] == 2
+            })
+            .await
+            .json();
+        // Heard far louder by gw-a: the tag is on gw-a's side of the floor.
+        let cell: [u16; 2] = serde_json::from_value(fix["cell"].clone()).unwrap();
+        let to_a = cell[0].abs_diff(9).max(cell[1].abs_diff(9));
+        let to_b = cell[0].abs_diff(13).max(cell[1].abs_diff(14));
+        assert!(to_a < to_b, "{gw} placed the tag at {cell:?}");
+    }
+    let stats = client
+        .wait_for("gw-a stats with shared sightings both ways", |m| {
+            let s = m.json();
+            m.topic == "gangway/gw-a/stats"
+                && s["shared_in"].as_u64() > Some(0)
+                && s["shared_out"].as_u64() > Some(0)
+        })
+        .await
+        .json();
+    assert_eq!(stats["rejected_messages"], 0, "{stats}");
+    assert!(
+        client.seen.iter().any(|m| m.topic.contains("/sightings/")),
+        "the shared sightings are on the broker"
+    );
+    assert_all_valid(&client.seen);
+    drop(running);
+    drop(configs);
+}

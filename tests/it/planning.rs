@@ -1,0 +1,377 @@
+//! Planning behaviour: every answer is a valid route or an error, profiles
+//! change routes as they promise, and `gangway plan` prints and draws routes.
+
+use crate::common;
+
+use std::path::Path;
+use std::sync::Arc;
+
+use gangway::model::runtime::PathClassifier;
+use gangway::plan::frame::route_from_frame;
+use gangway::plan::instructions::instructions;
+use gangway::plan::{
+    Connectivity, ModelPaths, Origin, Planner, PlannerConfig, PlannerMode, Profile, astar::AStar,
+    deviation_score,
+};
+use gangway::site::{Cell, Site};
+use rand::rngs::Xoshiro256PlusPlus;
+use rand::{RngExt, SeedableRng};
+
+fn waldo() -> Arc<Site> {
+    Arc::new(Site::load(&common::root().join("config/sites/waldo.toml")).unwrap())
+}
+
+/// A floor with a short way over stairs and through a narrow passage, and
+/// a long way round.
+fn attributes_site() -> Arc<Site> {
+    let text = "name = \"attributes\"\ncell_m = 1.0\nmap = '''\n\
+                #########\n\
+                #.......#\n\
+                #ssnnnnn#\n\
+                '''\n\
+                [places]\nwest = [0, 2]\neast = [8, 2]\n";
+    Arc::new(Site::parse(text, Path::new("attributes.toml")).unwrap())
+}
+
+#[test]
+fn repaired_frames_are_always_valid_routes() {
+    // Random frames stand for the worst a generator can produce: every
+    // learned route goes through `route_from_frame`, so whatever the frame,
+    // the answer must be a valid route (or `unreachable`, never on waldo).
+    let site = waldo();
+    let open = site.open_cells();
+    let cells = usize::from(site.width()) * usize::from(site.height());
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
+    for connectivity in [Connectivity::Eight, Connectivity::Four] {
+        for profile in [Profile::Default, Profile::Wheelchair, Profile::LowVision] {
+            for _ in 0..300 {
+                let from = open[rng.random_range(0..open.len())];
+                let to = open[rng.random_range(0..open.len())];
+                let density: f32 = rng.random_range(0.0..1.0);
+                let frame: Vec<f32> = (0..cells)
+                    .map(|_| {
+                        if rng.random_range(0.0..1.0) < density {
+                            0.9
+                        } else {
+                            -0.9
+                        }
+                    })
+                    .collect();
+                let (route, _) = route_from_frame(&site, connectivity, profile, &frame, from, to)
+                    .unwrap_or_else(|e| panic!("{from} → {to}: {e}"));
+                route
+                    .validate_for(&site, from, to, connectivity, profile)
+                    .unwrap();
+            }
+        }
+    }
+}
+
+#[test]
+fn astar_routes_are_valid_for_random_pairs() {
+    let site = waldo();
+    let open = site.open_cells();
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(9);
+    for connectivity in [Connectivity::Eight, Connectivity::Four] {
+        let planner = AStar::new(site.clone(), connectivity);
+        for _ in 0..500 {
+            let from = open[rng.random_range(0..open.len())];
+            let to = open[rng.random_range(0..open.len())];
+            let planned = planner.plan(from, to, Profile::Default).unwrap();
+            planned
+                .route
+                .validate(&site, from, to, connectivity)
+                .unwrap();
+        }
+    }
+}
+
+#[test]
+fn wheelchair_routes_avoid_stairs_and_low_vision_avoids_narrow_cells() {
+    let site = attributes_site();
+    let (from, to) = (site.place("west").unwrap(), site.place("east").unwrap());
+    let planner = AStar::new(site.clone(), Connectivity::Eight);
+    let short = planner.plan(from, to, Profile::Default).unwrap().route;
+    assert!(short.cells.iter().all(|c| c.y == 2), "{:?}", short.cells);
+    for profile in [Profile::Wheelchair, Profile::LowVision] {
+        let route = planner.plan(from, to, profile).unwrap().route;
+        route
+            .validate_for(&site, from, to, Connectivity::Eight, profile)
+            .unwrap();
+        assert!(
+            route.cells.iter().any(|c| c.y == 0),
+            "{profile:?} should go round by the top corridor: {:?}",
+            route.cells
+        );
+    }
+    // Stairs are not merely expensive for a wheelchair: with no way round,
+    // there is no route.
+    let text = "name = \"s\"\ncell_m = 1.0\nmap = '''\n#s#\n'''\n";
+    let stairs_only = Arc::new(Site::parse(text, Path::new("s.toml")).unwrap());
+    let err = AStar::new(stairs_only, Connectivity::Eight)
+        .plan(Cell::new(0, 0), Cell::new(2, 0), Profile::Wheelchair)
+        .unwrap_err();
+    assert_eq!(err.code().as_str(), "unreachable");
+}
+
+#[test]
+fn instructions_name_the_destination() {
+    let site = waldo();
+    let (a, b) = ("west entrance", "help desk");
+    let (Some(from), Some(to)) = (site.place(a), site.place(b)) else {
+        // The place names are the site's; skip if they change.
+        return;
+    };
+    let route = AStar::new(site.clone(), Connectivity::Eight)
+        .plan(from, to, Profile::Default)
+        .unwrap()
+        .route;
+    let steps = instructions(&site, &route, Profile::Default);
+    let last = steps.last().unwrap();
+    assert_eq!(last.at, to);
+    assert!(
+        last.text.ends_with("you have arrived at help desk."),
+        "{}",
+        last.text
+    );
+    let total: f64 = steps.iter().map(|s| s.distance_m).sum();
+    assert!((total - route.length_m(&site)).abs() < 1e-9);
+}
+
+#[test]
+fn gangway_plan_prints_json_and_draws_pictures() {
+    let site = waldo();
+    let names: Vec<&String> = site.places().keys().collect();
+    let (a, b) = (names[0].as_str(), names[1].as_str());
+    let out = common::gangway_ok(&[
+        "plan",
+        "--config",
+        "config/gangway.toml",
+        "--from",
+        a,
+        "--to",
+        b,
+        "--json",
+    ]);
+    let body: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(body["planner"], "conditional");
+    assert!(
+        body["model_version"]
+            .as_str()
+            .unwrap()
+            .starts_with("conditional_generator@")
+    );
+    assert_eq!(body["profile"], "default");
+    assert!(!body["instructions"].as_array().unwrap().is_empty());
+
+    let dir = tempfile::tempdir().unwrap();
+    for ext in ["svg", "png"] {
+        let pic = dir.path().join(format!("route.{ext}"));
+        common::gangway_ok(&[
+            "plan",
+            "--config",
+            "config/gangway.toml",
+            "--from",
+            a,
+            "--to",
+            "10,0",
+            "--profile",
+            "wheelchair",
+            &format!("--{ext}"),
+            pic.to_str().unwrap(),
+        ]);
+        assert!(
+            std::fs::metadata(&pic).unwrap().len() > 100,
+            "{ext} written"
+        );
+    }
+
+    let out = common::gangway(&[
+        "plan",
+        "--config",
+        "config/gangway.toml",
+        "--from",
+        a,
+        "--to",
+        b,
+        "--profile",
+        "jetpack",
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("`wheelchair`") && err.contains("`low-vision`"),
+        "{err}"
+    );
+}
+
+fn shipped_models(mode: PlannerMode) -> PlannerConfig {
+    let models = common::root().join("models");
+    PlannerConfig {
+        mode,
+        models: ModelPaths {
+            generator: models.join("generator.onnx"),
+            path_classifier: models.join("path_classifier.onnx"),
+            conditional_generator: models.join("conditional_generator.onnx"),
+            desire_lines: models.join("desire_lines.onnx"),
+        },
+        ..PlannerConfig::default()
+    }
+}
+
+#[test]
+fn learned_modes_answer_every_place_pair_with_a_valid_route() {
+    let site = waldo();
+    let places: Vec<Cell> = site.places().values().copied().collect();
+    for mode in [PlannerMode::Rejection, PlannerMode::Conditional] {
+        let config = shipped_models(mode);
+        let planner = gangway::plan::build(&config, site.clone()).unwrap();
+        for &from in &places {
+            for &to in places.iter().filter(|&&to| to != from) {
+                let planned = planner
+                    .plan(from, to, Profile::Default)
+                    .unwrap_or_else(|e| panic!("{}: {from} → {to}: {e}", mode.name()));
+                planned
+                    .route
+                    .validate(&site, from, to, config.connectivity)
+                    .unwrap();
+                assert!(planned.frame.is_some() || planned.origin == Origin::Untrained);
+            }
+        }
+    }
+}
+
+#[test]
+fn rejection_keeps_accepted_frames_of_other_pairs_for_later_requests() {
+    let site = waldo();
+    let classifier =
+        PathClassifier::load(&common::root().join("models/path_classifier.onnx"), &site).unwrap();
+    let classes = classifier.classes().to_vec();
+    let plan_all = |config: &PlannerConfig| {
+        let planner = gangway::plan::build(config, site.clone()).unwrap();
+        classes
+            .iter()
+            .map(|c| {
+                planner
+                    .plan(c.source, c.destination, Profile::Default)
+                    .unwrap()
+            })
+            .collect::<Vec<_>>()
+    };
+
+    // Without a bank every request generates its own frames.
+    let mut config = shipped_models(PlannerMode::Rejection);
+    config.rejection.bank_per_class = 0;
+    config.rejection.warm_samples = 0;
+    assert!(plan_all(&config).iter().all(|p| p.samples > 0));
+
+    // With the warmed bank, some requests are answered from frames generated
+    // before they came, and every accepted frame stays in the public area.
+    let config = shipped_models(PlannerMode::Rejection);
+    let answers = plan_all(&config);
+    assert!(answers.iter().any(|p| p.samples == 0));
+    for p in answers
+        .iter()
+        .filter(|p| matches!(p.origin, Origin::Frame | Origin::Repaired))
+    {
+        assert_eq!(deviation_score(&site, p.frame.as_ref().unwrap()), 0.0);
+    }
+}
+
+/// With one batch per request and no bank, many requests end with the budget
+/// exhausted; the frame repaired then is still one inside the public area.
+#[test]
+fn a_budget_exhausted_answer_keeps_to_the_public_area() {
+    let site = waldo();
+    let mut config = shipped_models(PlannerMode::Rejection);
+    config.rejection.bank_per_class = 0;
+    config.rejection.warm_samples = 0;
+    config.rejection.max_samples = config.rejection.batch;
+    let planner = gangway::plan::build(&config, site.clone()).unwrap();
+    let places: Vec<Cell> = site.places().values().copied().collect();
+    let mut exhausted = 0;
+    for &from in &places {
+        for &to in places.iter().filter(|&&to| to != from) {
+            let planned = planner.plan(from, to, Profile::Default).unwrap();
+            if planned.origin == Origin::BudgetExhausted {
+                exhausted += 1;
+                assert_eq!(
+                    deviation_score(&site, planned.frame.as_ref().unwrap()),
+                    0.0,
+                    "{from} → {to}"
+                );
+            }
+        }
+    }
+    assert!(exhausted > 0, "no request exhausted its budget");
+}
+
+/// Desire lines trained on some of the sample walks answer every place pair
+/// and random pairs, for every profile and both connectivities, with a route
+/// that validates and a line from the source's centre to the destination's;
+/// the route's cells are the line's.
+#[test]
+fn desire_lines_answer_every_pair_with_a_valid_route_along_their_line() {
+    use gangway::model::{Kind, Metadata, export};
+    let site = waldo();
+    let walks = gangway::train::trajectory::read(
+        &common::root().join("fixtures/trajectories/waldo.jsonl"),
+        &site,
+    )
+    .unwrap();
+    let trained = gangway::train::desire::train(&site, &walks[..400]).unwrap();
+    assert!(trained.metrics["bank_lines"] > 0.0);
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("desire_lines.onnx");
+    let meta = Metadata::for_site(Kind::DesireLines, &site);
+    export::write_proto(&file, &trained.model.to_onnx(&meta)).unwrap();
+    let pairs = gangway::eval::planning::pairs(&site, 200, 7);
+    for connectivity in [Connectivity::Eight, Connectivity::Four] {
+        let mut config = PlannerConfig {
+            mode: PlannerMode::Desire,
+            connectivity,
+            ..PlannerConfig::default()
+        };
+        config.models.desire_lines = file.clone();
+        let planner = gangway::plan::build(&config, site.clone()).unwrap();
+        assert_eq!(planner.mode(), "desire");
+        assert!(
+            planner
+                .model_version()
+                .unwrap()
+                .starts_with("desire_lines@")
+        );
+        for &(from, to) in &pairs {
+            for profile in [Profile::Default, Profile::Wheelchair, Profile::LowVision] {
+                let Ok(planned) = planner.plan(from, to, profile) else {
+                    // Only a pair the profile cannot walk may fail.
+                    assert!(
+                        AStar::new(site.clone(), connectivity)
+                            .plan(from, to, profile)
+                            .is_err()
+                    );
+                    continue;
+                };
+                planned
+                    .route
+                    .validate_for(&site, from, to, connectivity, profile)
+                    .unwrap();
+                // As learned, repaired, or the profile's any-angle route
+                // where the walks say too little or cost the profile more.
+                assert!(
+                    matches!(planned.origin, Origin::Frame | Origin::Repaired)
+                        || planned.origin.is_fallback(),
+                    "{:?}",
+                    planned.origin
+                );
+                if planned.origin == Origin::ProfileCosts {
+                    assert!(profile.has_costs());
+                }
+                let line = planned.line.as_ref().unwrap();
+                let centre = |c: Cell| [f64::from(c.x) + 0.5, f64::from(c.y) + 0.5];
+                assert_eq!(line.first(), Some(&centre(from)));
+                assert_eq!(line.last(), Some(&centre(to)));
+            }
+        }
+    }
+}
