@@ -71,6 +71,11 @@ fn packaged_config(config: &str, models: &Path) -> anyhow::Result<String> {
     const RELATIVE: &str = "\"../models/";
     let mut files = 0;
     for (i, line) in config.lines().enumerate() {
+        // A commented key (a model a mode other than the shipped one needs,
+        // which `gangway train` writes) is rewritten below but need not ship.
+        if line.trim_start().starts_with('#') {
+            continue;
+        }
         if let Some(start) = line.find(RELATIVE) {
             let rest = &line[start + RELATIVE.len()..];
             let file = &rest[..rest.find('"').context("unterminated string")?];
