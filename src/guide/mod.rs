@@ -688,6 +688,51 @@ mod tests {
     }
 
     #[test]
+    fn a_long_route_is_guided_through_a_window_of_its_maneuvers() {
+        // A 40 × 40 floor walked to and fro along every third row (3 m
+        // apart: never as near the destination as `arrive_m` before it).
+        let row = "#".repeat(40);
+        let map = vec![row; 40].join("\n");
+        let text = format!("name = \"t\"\ncell_m = 1.0\nmap = '''\n{map}\n'''\n");
+        let site = Site::parse(&text, Path::new("t.toml")).unwrap();
+        let mut cells = Vec::new();
+        for y in 0..=36u16 {
+            match y % 6 {
+                0 => cells.extend((0..40).map(|x| Cell::new(x, y))),
+                3 => cells.extend((0..40).rev().map(|x| Cell::new(x, y))),
+                1 | 2 => cells.push(Cell::new(39, y)),
+                _ => cells.push(Cell::new(0, y)),
+            }
+        }
+        let route = Route { cells };
+        let all = crate::plan::instructions::maneuvers(&site, &route, Profile::Default);
+        assert!(all.len() > 4 * session::WINDOW_MANEUVERS, "{}", all.len());
+        let mut guide = Guide::new(GuidanceConfig::default(), 0.0);
+        guide.start(&site, "p", None, Profile::Default, &route, 0.0, false);
+        // Walked cell by cell with exact fixes: every maneuver is next in
+        // turn, in the route's order, and the session stays small.
+        let mut told = vec![all[1].at];
+        let mut largest = 0;
+        for (i, &cell) in route.cells.iter().enumerate().skip(1) {
+            let t = i as f64 / 1.2;
+            let m = guide.update(&site, "p", Some(cell), t, t).unwrap();
+            largest = largest.max(guide.session("p").unwrap().state_bytes());
+            if let Some(next) = m.next
+                && told.last() != Some(&next.at)
+            {
+                told.push(next.at);
+            }
+            if m.state == SessionState::Arrived {
+                break;
+            }
+        }
+        let expected: Vec<Cell> = all[1..].iter().map(|m| m.at).collect();
+        assert_eq!(told, expected);
+        let metres = route.length_m(&site);
+        assert!(largest < 1024, "{largest} bytes for a {metres} m route");
+    }
+
+    #[test]
     fn bad_settings_are_named() {
         let bad = GuidanceConfig {
             corridor_m: 0.0,
