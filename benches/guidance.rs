@@ -5,7 +5,10 @@
 //! fixes), progress judged at its time (`guidance_tick`, no message most of
 //! the time). The walker walks a route across the waldo floor over and
 //! over; a new session starts each time round (1 update in ~40), as a route
-//! request would.
+//! request would. `guidance_update_straying`: the same walker misses the
+//! route's first turn and walks straight on until told they left the route,
+//! then starts again: fixes off the route, whose move the leaving test
+//! projects ahead.
 //! Run: `cargo bench --bench guidance`.
 
 use std::hint::black_box;
@@ -16,7 +19,7 @@ use gangway::guide::{GuidanceConfig, Guide};
 use gangway::mqtt::topics::Topics;
 use gangway::plan::{Connectivity, Profile, Route, astar};
 use gangway::publish::Output;
-use gangway::site::Site;
+use gangway::site::{Cell, Site};
 
 fn guidance(c: &mut Criterion) {
     let site =
@@ -45,6 +48,52 @@ fn guidance(c: &mut Criterion) {
             black_box(message.and_then(|m| topics.encode(&Output::Guidance(Box::new(m)))))
         })
     });
+    // On to a corner, then straight on past it while the floor is open (at
+    // most 8 cells): the corner with the most room to do so.
+    let step = |a: Cell, b: Cell| {
+        (
+            i32::from(b.x) - i32::from(a.x),
+            i32::from(b.y) - i32::from(a.y),
+        )
+    };
+    let straight_on = |i: usize| {
+        let (dx, dy) = step(route.cells[i - 1], route.cells[i]);
+        let mut walk = route.cells[..=i].to_vec();
+        for _ in 0..8 {
+            let last = *walk.last().unwrap();
+            let next = match (
+                u16::try_from(i32::from(last.x) + dx),
+                u16::try_from(i32::from(last.y) + dy),
+            ) {
+                (Ok(x), Ok(y)) if site.walkable(Cell::new(x, y)) => Cell::new(x, y),
+                _ => break,
+            };
+            walk.push(next);
+        }
+        walk
+    };
+    let stray = (1..route.cells.len() - 1)
+        .filter(|&i| {
+            step(route.cells[i - 1], route.cells[i]) != step(route.cells[i], route.cells[i + 1])
+        })
+        .map(|i| (straight_on(i), i))
+        .max_by_key(|(walk, i)| walk.len() - i)
+        .expect("the route turns");
+    let (stray, corner) = stray;
+    assert!(stray.len() > corner + 4, "room to stray past a corner");
+    let mut guide = Guide::new(GuidanceConfig::default(), 2.0);
+    let (mut i, mut t) = (0, 0.0);
+    c.bench_function("guidance_update_straying", |b| {
+        b.iter(|| {
+            if i == 0 {
+                start(&mut guide, &route, t);
+            }
+            t += 2.0;
+            let message = guide.update(&site, "phone", Some(stray[i]), t, t);
+            i = (i + 1) % stray.len();
+            black_box(message.and_then(|m| topics.encode(&Output::Guidance(Box::new(m)))))
+        })
+    });
     // Ten events between fixes two seconds apart.
     let mut guide = Guide::new(GuidanceConfig::default(), 2.0);
     let (mut k, mut t) = (0usize, 0.0);
@@ -65,9 +114,10 @@ fn guidance(c: &mut Criterion) {
         })
     });
     println!(
-        "route of {} cells, {:.0} m",
+        "route of {} cells, {:.0} m; straying: {} cells past the corner at cell {corner}",
         route.cells.len(),
-        route.length_m(&site)
+        route.length_m(&site),
+        stray.len() - corner - 1
     );
 }
 

@@ -94,18 +94,30 @@ impl RouteLine {
         self.steps.capacity()
     }
 
-    /// Each segment: its ends in metres and metres from the start to them.
+    /// The steps' codes, from the start.
+    fn codes(&self) -> impl Iterator<Item = u8> + '_ {
+        (0..self.step_count as usize).map(|i| (self.steps[i / 2] >> (4 * (i % 2))) & 0xF)
+    }
+
+    /// Each straight run of the route (the steps between two turns, as one
+    /// segment: projecting on it is projecting on its steps, for a fraction
+    /// of the work): its ends in metres and metres from the start to them.
     fn segments<'a>(
         &'a self,
         site: &'a Site,
     ) -> impl Iterator<Item = ((f64, f64), (f64, f64), f64, f64)> + 'a {
-        let mut along = 0.0;
-        let mut from = self.start;
-        self.cells().skip(1).map(move |to| {
+        let mut codes = self.codes().peekable();
+        let (mut from, mut along) = (self.start, 0.0);
+        std::iter::from_fn(move || {
+            let code = codes.next()?;
+            let mut to = step(from, code);
+            while let Some(c) = codes.next_if_eq(&code) {
+                to = step(to, c);
+            }
             let start = along;
             along += from.distance(to) * site.cell_m;
             let a = std::mem::replace(&mut from, to);
-            (site.metres(a), site.metres(to), start, along)
+            Some((site.metres(a), site.metres(to), start, along))
         })
     }
 
