@@ -14,7 +14,7 @@ use std::time::Instant;
 
 use crate::config::Config;
 use crate::event::{Event, RouteRequest};
-use crate::guide::{GuidanceEvent, Guide};
+use crate::guide::{GuidanceEvent, Guide, Located};
 use crate::locate::tracker::Tracker;
 use crate::locate::window::{Fingerprint, Orientation, Windows};
 use crate::locate::{self, Localizer};
@@ -311,7 +311,17 @@ impl Pipeline {
         {
             out.push(Output::Heard(heard));
         }
-        if let Some(guidance) = self.guide.update(&self.site, &fp.entity, cell, fp.t, now) {
+        let located = cell.map(|cell| {
+            let [x, y] = self.site.world_of_grid(fix.mean.map(f64::from));
+            Located {
+                cell,
+                mean_m: Some((x, y)),
+            }
+        });
+        if let Some(guidance) = self
+            .guide
+            .update(&self.site, &fp.entity, located, fp.t, now)
+        {
             let off_route = guidance.event == Some(GuidanceEvent::OffRoute);
             out.push(Output::Guidance(Box::new(guidance)));
             if off_route {

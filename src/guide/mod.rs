@@ -248,6 +248,24 @@ pub struct Guide {
     finished: VecDeque<Adherence>,
 }
 
+/// A located fix as guidance follows it: the tracker's cell, and where its
+/// belief is on average (metres; the cell's centre when not given).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Located {
+    pub cell: Cell,
+    /// The mean of the tracker's belief: how far along the route the walker
+    /// is reads off it rather than off the cell, which moves a whole cell
+    /// at a time and sticks while the belief drifts on (`gangway eval
+    /// guidance`, docs/guidance.md: announcements 85.0 % → 85.7 %).
+    pub mean_m: Option<(f64, f64)>,
+}
+
+impl From<Cell> for Located {
+    fn from(cell: Cell) -> Located {
+        Located { cell, mean_m: None }
+    }
+}
+
 impl Guide {
     /// `fix_lag_s`: how long ago the walker was where a fix places them
     /// ([`GuidanceConfig::fix_lag_s`]).
@@ -354,7 +372,8 @@ impl Guide {
         first
     }
 
-    /// Follows one fix of `device` (`None`: location unknown) of time `t`
+    /// Follows one fix of `device` (a cell or a [`Located`]; `None`:
+    /// location unknown) of time `t`
     /// (the end of its window), made at `now` (the event that closed the
     /// window). Returns a message when the device has a session and the
     /// fix was known, or when the session just expired; a session that
@@ -366,7 +385,7 @@ impl Guide {
         &mut self,
         site: &Site,
         device: &str,
-        cell: Option<Cell>,
+        fix: Option<impl Into<Located>>,
         t: f64,
         now: f64,
     ) -> Option<Guidance> {
@@ -378,7 +397,8 @@ impl Guide {
             self.finish(device, &session, t, Ending::Expired);
             return last;
         }
-        let message = session.update(site, &self.config, self.fix_lag_s, device, cell, t, now);
+        let fix = fix.map(Into::into);
+        let message = session.update(site, &self.config, self.fix_lag_s, device, fix, t, now);
         if session.is_over(&self.config)
             && let Some(session) = self.sessions.remove(device)
         {
@@ -559,7 +579,7 @@ mod tests {
         );
         // Unknown fixes between stray ones neither count nor reset.
         guide.update(&site, "p", off, 3.0, 3.0);
-        assert_eq!(guide.update(&site, "p", None, 4.0, 4.0), None);
+        assert_eq!(guide.update(&site, "p", None::<Cell>, 4.0, 4.0), None);
         assert_eq!(
             state(guide.update(&site, "p", off, 5.0, 5.0)),
             Some((SessionState::OffRoute, Some(GuidanceEvent::OffRoute), 2))

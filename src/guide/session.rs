@@ -4,7 +4,7 @@
 //!
 //! Progress is where the walker is by now along the route's polyline of cell
 //! centres ([`RouteLine`]), in metres from the start: each fix's projection
-//! on it, filtered and predicted forward from the moment the walker was
+//! on it (of the tracker's mean belief when given, [`super::Located`]), filtered and predicted forward from the moment the walker was
 //! there ([`Progress`]). Announcements and arrival are judged on that at
 //! every event of the device, not only at its fixes (sightings arrive many
 //! times a second, fixes every stride), so a decision point is announced
@@ -27,7 +27,9 @@
 //! worked out again from the route as the walker reaches the end of the
 //! window), the destination's name and a few numbers.
 
-use super::{Adherence, Ending, GuidanceConfig, GuidanceEvent, Progress, RouteLine, SessionState};
+use super::{
+    Adherence, Ending, GuidanceConfig, GuidanceEvent, Located, Progress, RouteLine, SessionState,
+};
 use crate::plan::instructions::{Maneuver, first_sentence, maneuvers};
 use crate::plan::{Profile, Route};
 use crate::publish::{GUIDANCE_SCHEMA, Guidance, NextManeuver};
@@ -332,13 +334,15 @@ impl Session {
         config: &GuidanceConfig,
         fix_lag_s: f64,
         device: &str,
-        cell: Option<Cell>,
+        fix: Option<Located>,
         fix_t: f64,
         now: f64,
     ) -> Option<Guidance> {
         self.last_t = fix_t;
-        let cell = cell?;
-        let (x, y) = site.metres(cell);
+        let fix = fix?;
+        // Leaving the route is judged on the cell (a belief split between
+        // two corridors has its mean in neither); progress on the mean.
+        let (x, y) = site.metres(fix.cell);
         // When the walker was where the fix places them (not before the
         // route was served: they stood at its start).
         let was_t = (fix_t - fix_lag_s).max(self.walked.started_t);
@@ -346,6 +350,14 @@ impl Session {
             self.line
                 .project(site, (x, y), self.track.at(was_t), config.corridor_m);
         let leaving = self.leaving(site, config, fix_lag_s, (x, y, fix_t), off_m, along_m);
+        let along_m = match fix.mean_m {
+            Some(mean) => {
+                self.line
+                    .project(site, mean, self.track.at(was_t), config.corridor_m)
+                    .1
+            }
+            None => along_m,
+        };
         self.last_fix = Some(LastFix {
             x: x as f32,
             y: y as f32,
