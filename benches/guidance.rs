@@ -1,5 +1,5 @@
 //! What guidance adds to the pipeline: per fix of a guided device, the fix
-//! projected on its route, the progress filter, the next maneuver,
+//! (its cell and the tracker's mean belief) projected on its route, the progress filter, the next maneuver,
 //! announcements and the message built and encoded as JSON
 //! (`guidance_update`); per other event of the device (a sighting between
 //! fixes), progress judged at its time (`guidance_tick`, no message most of
@@ -15,7 +15,7 @@ use std::hint::black_box;
 use std::path::Path;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use gangway::guide::{GuidanceConfig, Guide};
+use gangway::guide::{GuidanceConfig, Guide, Located};
 use gangway::mqtt::topics::Topics;
 use gangway::plan::{Connectivity, Profile, Route, astar};
 use gangway::publish::Output;
@@ -32,6 +32,15 @@ fn guidance(c: &mut Criterion) {
     // Stop short of the destination: arriving would end the session.
     let walk = &route.cells[..route.cells.len() - 6];
     let topics = Topics::new("gangway/gw-lobby");
+    // A fix as the pipeline passes it: the cell and the belief's mean (a
+    // little off the cell's centre), both projected on the route.
+    let located = |cell: Cell| {
+        let (x, y) = site.metres(cell);
+        Located {
+            cell,
+            mean_m: Some((x + 0.3, y - 0.2)),
+        }
+    };
     let start = |guide: &mut Guide, route: &Route, t: f64| {
         guide.start(&site, "phone", None, Profile::Default, route, t, false);
     };
@@ -43,7 +52,7 @@ fn guidance(c: &mut Criterion) {
                 start(&mut guide, &route, t);
             }
             t += 2.0;
-            let message = guide.update(&site, "phone", Some(walk[i]), t, t);
+            let message = guide.update(&site, "phone", Some(located(walk[i])), t, t);
             i = (i + 1) % walk.len();
             black_box(message.and_then(|m| topics.encode(&Output::Guidance(Box::new(m)))))
         })
@@ -89,7 +98,7 @@ fn guidance(c: &mut Criterion) {
                 start(&mut guide, &route, t);
             }
             t += 2.0;
-            let message = guide.update(&site, "phone", Some(stray[i]), t, t);
+            let message = guide.update(&site, "phone", Some(located(stray[i])), t, t);
             i = (i + 1) % stray.len();
             black_box(message.and_then(|m| topics.encode(&Output::Guidance(Box::new(m)))))
         })
@@ -105,7 +114,7 @@ fn guidance(c: &mut Criterion) {
             }
             t += 0.2;
             let message = if k % 10 == 0 {
-                guide.update(&site, "phone", Some(walk[i]), t, t)
+                guide.update(&site, "phone", Some(located(walk[i])), t, t)
             } else {
                 guide.tick(&site, "phone", t)
             };
