@@ -56,7 +56,7 @@ impl RouteLine {
                     (i32::from(next.y) - i32::from(line.end.y)).signum(),
                 );
                 let code = STEPS.iter().position(|&s| s == (dx, dy)).expect("a step") as u8;
-                if line.step_count % 2 == 0 {
+                if line.step_count.is_multiple_of(2) {
                     line.steps.push(code);
                 } else {
                     *line.steps.last_mut().expect("pushed") |= code << 4;
