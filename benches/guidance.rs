@@ -44,19 +44,23 @@ fn guidance(c: &mut Criterion) {
     let start = |guide: &mut Guide, route: &Route, t: f64| {
         guide.start(&site, "phone", None, Profile::Default, route, t, false);
     };
-    let mut guide = Guide::new(GuidanceConfig::default(), 2.0);
-    let (mut i, mut t) = (0, 0.0);
-    c.bench_function("guidance_update", |b| {
-        b.iter(|| {
-            if i == 0 {
-                start(&mut guide, &route, t);
-            }
-            t += 2.0;
-            let message = guide.update(&site, "phone", Some(located(walk[i])), t, t);
-            i = (i + 1) % walk.len();
-            black_box(message.and_then(|m| topics.encode(&Output::Guidance(Box::new(m)))))
-        })
-    });
+    // A fix every two seconds along `walk`, a new session each time round.
+    let bench_walk = |c: &mut Criterion, name: &str, walk: &[Cell]| {
+        let mut guide = Guide::new(GuidanceConfig::default(), 2.0);
+        let (mut i, mut t) = (0, 0.0);
+        c.bench_function(name, |b| {
+            b.iter(|| {
+                if i == 0 {
+                    start(&mut guide, &route, t);
+                }
+                t += 2.0;
+                let message = guide.update(&site, "phone", Some(located(walk[i])), t, t);
+                i = (i + 1) % walk.len();
+                black_box(message.and_then(|m| topics.encode(&Output::Guidance(Box::new(m)))))
+            })
+        });
+    };
+    bench_walk(c, "guidance_update", walk);
     // On to a corner, then straight on past it while the floor is open (at
     // most 8 cells): the corner with the most room to do so.
     let step = |a: Cell, b: Cell| {
@@ -90,19 +94,7 @@ fn guidance(c: &mut Criterion) {
         .expect("the route turns");
     let (stray, corner) = stray;
     assert!(stray.len() > corner + 4, "room to stray past a corner");
-    let mut guide = Guide::new(GuidanceConfig::default(), 2.0);
-    let (mut i, mut t) = (0, 0.0);
-    c.bench_function("guidance_update_straying", |b| {
-        b.iter(|| {
-            if i == 0 {
-                start(&mut guide, &route, t);
-            }
-            t += 2.0;
-            let message = guide.update(&site, "phone", Some(located(stray[i])), t, t);
-            i = (i + 1) % stray.len();
-            black_box(message.and_then(|m| topics.encode(&Output::Guidance(Box::new(m)))))
-        })
-    });
+    bench_walk(c, "guidance_update_straying", &stray);
     // Ten events between fixes two seconds apart.
     let mut guide = Guide::new(GuidanceConfig::default(), 2.0);
     let (mut k, mut t) = (0usize, 0.0);
