@@ -16,6 +16,8 @@
 //! and a sink, [`store`] keeps what the daemon saw for training, and [`score`]
 //! compares a replay's fixes with its log's ground truth.
 
+#![warn(unreachable_pub)]
+
 pub mod cli;
 pub mod config;
 pub mod daemon;
@@ -34,7 +36,7 @@ pub mod sink;
 pub mod site;
 pub mod source;
 pub mod store;
-pub mod throttle;
+pub(crate) mod throttle;
 pub mod train;
-pub mod walks;
+pub(crate) mod walks;
 pub mod web;

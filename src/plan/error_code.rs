@@ -44,7 +44,7 @@ pub enum RouteErrorCode {
 
 impl RouteErrorCode {
     /// Every code, in the order the schema lists them.
-    pub const ALL: [RouteErrorCode; 13] = [
+    pub(crate) const ALL: [RouteErrorCode; 13] = [
         RouteErrorCode::UnknownPlace,
         RouteErrorCode::OffMap,
         RouteErrorCode::BlockedCell,

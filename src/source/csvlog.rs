@@ -30,7 +30,7 @@ use crate::site::Site;
 
 /// How to read a scan log.
 #[derive(Clone, Debug)]
-pub struct CsvOptions {
+pub(crate) struct CsvOptions {
     /// The observer of every advert and the device of every truth event.
     pub device: Arc<str>,
     /// The RSSI value that means "not heard".
@@ -50,7 +50,11 @@ pub struct CsvLog {
 
 impl CsvLog {
     /// Reads a scan log whose beacon columns are named after `site`'s beacons.
-    pub fn open(path: &Path, site: &Site, options: &CsvOptions) -> Result<CsvLog, SurveyError> {
+    pub(crate) fn open(
+        path: &Path,
+        site: &Site,
+        options: &CsvOptions,
+    ) -> Result<CsvLog, SurveyError> {
         let beacon_ids: Vec<String> = site.beacons.iter().map(|b| b.id.clone()).collect();
         let header_error = |reason: String| SurveyError::Header {
             path: path.to_owned(),
@@ -140,22 +144,22 @@ impl CsvLog {
     }
 
     /// Rows read (not counting skipped ones).
-    pub fn rows(&self) -> u64 {
+    pub(crate) fn rows(&self) -> u64 {
         self.rows
     }
 
     /// Bad rows skipped (only with `skip_bad`).
-    pub fn skipped_rows(&self) -> u64 {
+    pub(crate) fn skipped_rows(&self) -> u64 {
         self.skipped_rows
     }
 
     /// Columns ignored because they name no beacon (only with `skip_bad`).
-    pub fn ignored_columns(&self) -> &[String] {
+    pub(crate) fn ignored_columns(&self) -> &[String] {
         &self.ignored_columns
     }
 
     /// Whether the rows had to be sorted into time order.
-    pub fn reordered(&self) -> bool {
+    pub(crate) fn reordered(&self) -> bool {
         self.reordered
     }
 }
