@@ -175,10 +175,6 @@ impl Pipeline {
         Ok((pipeline, fallbacks))
     }
 
-    pub(crate) fn site(&self) -> &Arc<Site> {
-        &self.site
-    }
-
     /// The counters so far.
     pub(crate) fn stats(&self) -> Stats {
         Stats {
@@ -500,6 +496,12 @@ impl Pipeline {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    impl Pipeline {
+        fn site(&self) -> &Arc<Site> {
+            &self.site
+        }
+    }
 
     /// The shipped config with a localizer model and a planner model that do
     /// not exist.

@@ -281,11 +281,8 @@ impl Guide {
         }
     }
 
-    pub(crate) fn config(&self) -> &GuidanceConfig {
-        &self.config
-    }
-
     /// Active sessions.
+    #[cfg(test)]
     pub(crate) fn len(&self) -> usize {
         self.sessions.len()
     }

@@ -157,10 +157,6 @@ impl Session {
         self.state
     }
 
-    pub(crate) fn progress_m(&self) -> f64 {
-        self.progress_m
-    }
-
     pub(crate) fn profile(&self) -> Profile {
         self.profile
     }
@@ -172,10 +168,6 @@ impl Session {
     /// The cell the route ends at.
     pub(crate) fn destination(&self) -> Cell {
         self.line.destination()
-    }
-
-    pub(crate) fn reroutes(&self) -> u32 {
-        self.walked.reroutes
     }
 
     pub(super) fn walked(&self) -> Walked {

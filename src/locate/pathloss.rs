@@ -67,11 +67,6 @@ impl Default for PathLossConfig {
 }
 
 impl PathLossConfig {
-    /// Expected RSSI at `distance_m` from an anchor with measured power `tx`.
-    pub(crate) fn expected_rssi(&self, tx_dbm: f64, distance_m: f64) -> f64 {
-        tx_dbm - 10.0 * self.exponent * distance_m.max(NEAREST_M).log10()
-    }
-
     /// The radio model of an anchor with measured power `tx_dbm`.
     pub(crate) fn radio(&self, tx_dbm: f64) -> Radio {
         Radio {
@@ -401,6 +396,13 @@ impl Localizer for PathLoss {
 mod tests {
     use super::*;
     use std::path::Path;
+
+    impl PathLossConfig {
+        /// Expected RSSI at `distance_m` from an anchor with measured power `tx`.
+        fn expected_rssi(&self, tx_dbm: f64, distance_m: f64) -> f64 {
+            self.radio(tx_dbm).expected_rssi(distance_m)
+        }
+    }
 
     fn corridor() -> Arc<Site> {
         let text = r#"

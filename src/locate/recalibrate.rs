@@ -217,10 +217,6 @@ impl Schedule {
     pub(crate) fn finished(&mut self) {
         self.running = false;
     }
-
-    pub(crate) fn running(&self) -> bool {
-        self.running
-    }
 }
 
 /// Everything a recalibration reads, owned, so the job can run on another
@@ -260,6 +256,8 @@ impl Job {
 /// A finished recalibration.
 #[derive(Debug)]
 pub(crate) struct Recalibrated {
+    /// What was written to `path` (the daemon reloads it from there).
+    #[cfg(test)]
     pub calibration: Calibration,
     /// The file written.
     pub path: PathBuf,
@@ -330,6 +328,7 @@ pub(crate) fn run(job: &Job) -> Result<Recalibrated, RecalibrationError> {
         source,
     })?;
     Ok(Recalibrated {
+        #[cfg(test)]
         calibration: fitted.calibration,
         path,
         windows,

@@ -482,11 +482,6 @@ impl Survey {
             ignored_columns: self.ignored_columns.clone(),
         }
     }
-
-    /// Columns that named no anchor of the site.
-    pub(crate) fn ignored_columns(&self) -> &[String] {
-        &self.ignored_columns
-    }
 }
 
 /// `MM-DD-YYYY HH:MM[:SS]` as Unix seconds (the survey's local time, taken as UTC).
@@ -502,6 +497,13 @@ fn parse_date(s: &str) -> Option<f64> {
 mod tests {
     use super::*;
     use std::io::Write;
+
+    impl Survey {
+        /// Columns that named no anchor of the site.
+        fn ignored_columns(&self) -> &[String] {
+            &self.ignored_columns
+        }
+    }
 
     const SITE: &str = r#"
 name = "t"

@@ -164,10 +164,6 @@ impl Tracker {
         self.tracks.len()
     }
 
-    pub(crate) fn is_empty(&self) -> bool {
-        self.tracks.is_empty()
-    }
-
     /// Folds one window's log-likelihoods (one per open cell) into the entity's
     /// track and returns the new fix.
     pub fn update(&mut self, entity: &Arc<str>, t: f64, log_likelihood: &[f32]) -> Fix {

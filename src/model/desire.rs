@@ -98,6 +98,7 @@ pub(crate) struct Sums {
 }
 
 /// The fraction of the way along a line of point `k`.
+#[cfg(test)]
 pub(crate) fn fraction(k: usize) -> f32 {
     k as f32 / (POINTS - 1) as f32
 }

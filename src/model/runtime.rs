@@ -358,39 +358,6 @@ impl PathGenerator {
     }
 }
 
-/// Scores frames as real walks.
-#[derive(Clone, Debug)]
-pub(crate) struct Discriminator(Model);
-
-impl Discriminator {
-    pub(crate) fn load(path: &Path, site: &Site) -> Result<Discriminator, ModelError> {
-        Model::load(
-            path,
-            site,
-            &[Kind::Discriminator, Kind::ConditionalDiscriminator],
-            Rows::Batches,
-        )
-        .map(Discriminator)
-    }
-
-    pub(crate) fn model(&self) -> &Model {
-        &self.0
-    }
-
-    /// Probability that each ±1 frame is a real walk (`[N, 1]`). A conditional
-    /// discriminator also takes the condition of each row.
-    pub(crate) fn score(
-        &self,
-        frames: ArrayView2<f32>,
-        conditions: Option<ArrayView2<f32>>,
-    ) -> Result<Array2<f32>, ModelError> {
-        match conditions {
-            None => self.0.run(&[frames]),
-            Some(c) => self.0.run(&[frames, c]),
-        }
-    }
-}
-
 /// Says which source/destination pair a path frame belongs to.
 #[derive(Clone, Debug)]
 pub struct PathClassifier(Model);
@@ -485,10 +452,6 @@ impl CellClassifier {
             });
         }
         Ok(CellClassifier(model))
-    }
-
-    pub(crate) fn model(&self) -> &Model {
-        &self.0
     }
 
     /// Writes the log-probability of each open cell (`Site::open_cells` order)

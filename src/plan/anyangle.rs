@@ -287,6 +287,7 @@ pub struct AnyAngleRoute {
 
 impl AnyAngleRoute {
     /// Length in metres along the polyline.
+    #[cfg(test)]
     pub(crate) fn length_m(&self, site: &Site) -> f64 {
         self.vertices
             .windows(2)
@@ -304,10 +305,6 @@ pub struct AnyAngle {
 impl AnyAngle {
     pub fn new(site: Arc<Site>) -> Self {
         AnyAngle { site }
-    }
-
-    pub(crate) fn site(&self) -> &Site {
-        &self.site
     }
 
     /// The straight segment from `from` to `to` when the profile may walk it

@@ -44,6 +44,7 @@ pub enum RouteErrorCode {
 
 impl RouteErrorCode {
     /// Every code, in the order the schema lists them.
+    #[cfg(test)]
     pub(crate) const ALL: [RouteErrorCode; 13] = [
         RouteErrorCode::UnknownPlace,
         RouteErrorCode::OffMap,

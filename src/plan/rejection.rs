@@ -195,11 +195,6 @@ impl Rejection {
             .get_mut(class)?
             .pop()
     }
-
-    /// The (source, destination) pairs this planner serves from frames.
-    pub(crate) fn classes(&self) -> &[PathClass] {
-        self.classifier.classes()
-    }
 }
 
 impl Planner for Rejection {

@@ -118,12 +118,6 @@ impl FloorplanEntry {
 }
 
 impl Floorplan {
-    /// Grid units of a pixel of the image.
-    pub(crate) fn grid_of_pixel(&self, [px, py]: [f64; 2]) -> [f64; 2] {
-        let [a, b, c, d, e, f] = self.pixels_to_grid;
-        [a * px + c * py + e, b * px + d * py + f]
-    }
-
     /// Reads the image's header: its MIME type and size in pixels, or why
     /// it cannot be shown (missing, too large, not the format its name says).
     pub(crate) fn probe(&self) -> Result<ImageInfo, String> {
@@ -224,6 +218,14 @@ fn similarity(from: [[f64; 2]; 2], to: [[f64; 2]; 2]) -> [f64; 6] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    impl Floorplan {
+        /// Grid units of a pixel of the image.
+        fn grid_of_pixel(&self, [px, py]: [f64; 2]) -> [f64; 2] {
+            let [a, b, c, d, e, f] = self.pixels_to_grid;
+            [a * px + c * py + e, b * px + d * py + f]
+        }
+    }
 
     #[test]
     fn two_points_fix_scale_rotation_and_shift() {

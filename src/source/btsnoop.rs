@@ -228,15 +228,6 @@ impl<R: Read> BtsnoopReader<R> {
         })
     }
 
-    pub(crate) fn datalink(&self) -> Datalink {
-        self.datalink
-    }
-
-    /// Records read so far.
-    pub(crate) fn records(&self) -> u64 {
-        self.record
-    }
-
     /// How many records or reports were skipped, by reason (zero counts left out).
     pub(crate) fn skipped(&self) -> impl Iterator<Item = (SkipReason, u64)> + '_ {
         self.adverts.skipped().iter()
@@ -482,6 +473,12 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
     use uuid::Uuid;
+
+    impl<R> BtsnoopReader<R> {
+        fn datalink(&self) -> Datalink {
+            self.datalink
+        }
+    }
 
     const T0_US: i64 = 1_700_000_000_250_000; // 2023-11-14 22:13:20.25 UTC
 

@@ -42,9 +42,12 @@ pub(crate) struct CsvOptions {
 /// A scan log's events in time order.
 pub struct CsvLog {
     events: std::vec::IntoIter<Event>,
+    #[cfg(test)]
     rows: u64,
     skipped_rows: u64,
     ignored_columns: Vec<String>,
+    /// Whether the rows had to be sorted (logged when read; kept for tests).
+    #[cfg(test)]
     reordered: bool,
 }
 
@@ -136,16 +139,13 @@ impl CsvLog {
         }
         Ok(CsvLog {
             events: events.into_iter(),
+            #[cfg(test)]
             rows: rows.len() as u64,
             skipped_rows,
             ignored_columns,
+            #[cfg(test)]
             reordered,
         })
-    }
-
-    /// Rows read (not counting skipped ones).
-    pub(crate) fn rows(&self) -> u64 {
-        self.rows
     }
 
     /// Bad rows skipped (only with `skip_bad`).
@@ -156,11 +156,6 @@ impl CsvLog {
     /// Columns ignored because they name no beacon (only with `skip_bad`).
     pub(crate) fn ignored_columns(&self) -> &[String] {
         &self.ignored_columns
-    }
-
-    /// Whether the rows had to be sorted into time order.
-    pub(crate) fn reordered(&self) -> bool {
-        self.reordered
     }
 }
 
@@ -198,6 +193,18 @@ mod tests {
     use super::*;
     use crate::site::Cell;
     use std::io::Write;
+
+    impl CsvLog {
+        /// Rows read (not counting skipped ones).
+        fn rows(&self) -> u64 {
+            self.rows
+        }
+
+        /// Whether the rows had to be sorted into time order.
+        fn reordered(&self) -> bool {
+            self.reordered
+        }
+    }
 
     const SITE: &str = r#"
 name = "t"

@@ -61,6 +61,7 @@ impl Frame {
 
     /// A frame from model output or any row-major values: a cell is on the path
     /// when its value is above `threshold`.
+    #[cfg(test)]
     pub(crate) fn from_values(width: u16, height: u16, values: &[f32], threshold: f32) -> Frame {
         assert_eq!(values.len(), usize::from(width) * usize::from(height));
         Frame {
@@ -68,14 +69,6 @@ impl Frame {
             height,
             cells: values.iter().map(|&v| v > threshold).collect(),
         }
-    }
-
-    pub(crate) fn width(&self) -> u16 {
-        self.width
-    }
-
-    pub(crate) fn height(&self) -> u16 {
-        self.height
     }
 
     pub(crate) fn get(&self, cell: Cell) -> bool {
@@ -184,6 +177,7 @@ impl Frame {
     }
 
     /// The frame as CSV, the layout [`Frame::read_csv`] reads.
+    #[cfg(test)]
     pub(crate) fn to_csv(&self) -> String {
         let mut out = String::new();
         for row in self.cells.chunks(usize::from(self.width)) {

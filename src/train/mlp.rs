@@ -146,16 +146,13 @@ impl Mlp {
         }
     }
 
+    #[cfg(test)]
     pub(crate) fn inputs(&self) -> usize {
         self.layers[0].inputs()
     }
 
     pub(crate) fn outputs(&self) -> usize {
         self.layers.last().expect("at least one layer").outputs()
-    }
-
-    pub(crate) fn max_batch(&self) -> usize {
-        self.max_batch
     }
 
     /// Rounds every weight matrix to the nearest float16, as
@@ -179,11 +176,6 @@ impl Mlp {
                 act: l.act,
             })
             .collect()
-    }
-
-    /// Number of trainable parameters.
-    pub(crate) fn parameters(&self) -> usize {
-        self.layers.iter().map(|l| l.w.len() + l.b.len()).sum()
     }
 
     /// Runs a batch of `x.nrows() ≤ max_batch` rows and returns the last layer's
