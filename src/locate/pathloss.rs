@@ -200,6 +200,9 @@ pub struct PathLoss {
     log_miss: Vec<f32>,
     /// 1/σ per anchor.
     inv_sigma: Vec<f32>,
+    /// ln(1/σ) per anchor: the Gaussian's normalising term, taken once here
+    /// rather than once per cell and window (it was a tenth of a replay).
+    ln_inv_sigma: Vec<f32>,
 }
 
 impl PathLoss {
@@ -286,17 +289,17 @@ impl PathLoss {
                 }
             }
         }
-        Ok(PathLoss {
-            n_cells: cells.len(),
-            n_anchors: anchors.len(),
+        let inv_sigma = anchors
+            .iter()
+            .map(|a| a.map_or(0.0, |(_, r)| (1.0 / r.shadowing_db) as f32))
+            .collect();
+        Ok(PathLoss::from_tables(
+            cells.len(),
             expected,
             log_hit,
             log_miss,
-            inv_sigma: anchors
-                .iter()
-                .map(|a| a.map_or(0.0, |(_, r)| (1.0 / r.shadowing_db) as f32))
-                .collect(),
-        })
+            inv_sigma,
+        ))
     }
 }
 
@@ -354,6 +357,7 @@ impl PathLoss {
             expected,
             log_hit,
             log_miss,
+            ln_inv_sigma: inv_sigma.iter().map(|s| s.ln()).collect(),
             inv_sigma,
         }
     }
@@ -382,7 +386,7 @@ impl Localizer for PathLoss {
                         continue;
                     }
                     let z = (rssi[a] - mu) * self.inv_sigma[a];
-                    ll += log_hit[a] - 0.5 * z * z + self.inv_sigma[a].ln();
+                    ll += log_hit[a] - 0.5 * z * z + self.ln_inv_sigma[a];
                 } else {
                     ll += log_miss[a];
                 }
