@@ -46,7 +46,7 @@ use crate::plan::{Connectivity, Origin, Profile, cells_off_area};
 use crate::site::{Cell, Site};
 
 #[derive(Clone, Debug)]
-pub struct Options {
+pub(crate) struct Options {
     pub iterations: usize,
     pub batch: usize,
     pub seed: u64,
@@ -63,7 +63,7 @@ pub struct Options {
 
 /// One figure a trained generator is held to.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Check {
+pub(crate) struct Check {
     /// The metric's key (as in the model's metadata).
     pub metric: &'static str,
     pub value: f64,
@@ -73,7 +73,7 @@ pub struct Check {
 }
 
 impl Check {
-    pub fn passed(&self) -> bool {
+    pub(crate) fn passed(&self) -> bool {
         if self.at_most {
             self.value <= self.bound
         } else {
@@ -82,7 +82,7 @@ impl Check {
     }
 
     /// `metric 0.061 (needs ≥ 0.5)`.
-    pub fn describe(&self) -> String {
+    pub(crate) fn describe(&self) -> String {
         format!(
             "{} {:.3} (needs {} {})",
             self.metric,
@@ -145,7 +145,7 @@ fn checks(kind: Kind, metrics: &BTreeMap<String, f64>) -> Vec<Check> {
 
 /// A model written by a training run.
 #[derive(Clone, Debug)]
-pub struct Trained {
+pub(crate) struct Trained {
     pub file: PathBuf,
     pub kind: Kind,
     pub parameters: usize,
@@ -158,13 +158,13 @@ pub struct Trained {
 
 impl Trained {
     /// Whether every check passed.
-    pub fn passed(&self) -> bool {
+    pub(crate) fn passed(&self) -> bool {
         self.checks.iter().all(Check::passed)
     }
 }
 
 /// Told about each training stage and iteration (the CLI draws progress bars).
-pub trait Progress {
+pub(crate) trait Progress {
     fn stage(&mut self, name: &str, iterations: usize);
     fn step(&mut self, iteration: usize, losses: &[(&str, f32)]);
     fn done(&mut self);
@@ -181,7 +181,7 @@ const CONFIDENT: f32 = 0.9;
 /// ([`gan::access_penalty`], 0: the paper's plain loss). The unconditional
 /// GAN always keeps the paper's loss: its planner (the paper's Algorithm 1)
 /// rejects frames that leave the public-access area anyway.
-pub fn train_paths(
+pub(crate) fn train_paths(
     site: &Site,
     set: &PathSet,
     options: &Options,
@@ -384,7 +384,7 @@ fn destination(out: &Path, checks: &[Check], options: &Options) -> anyhow::Resul
 /// Trains the desire lines on `walks` (cross-validating their settings) and
 /// writes `desire_lines.onnx` to `out`, or to `out/failed/` when it fails its
 /// checks (unless `accept_failed`).
-pub fn train_desire(
+pub(crate) fn train_desire(
     site: &Site,
     walks: &[Trajectory],
     options: &Options,
@@ -419,7 +419,7 @@ pub fn train_desire(
 }
 
 /// Trains the localization cell classifier on `survey` and writes it to `out`.
-pub fn train_cells(
+pub(crate) fn train_cells(
     site: &Site,
     survey: &Survey,
     options: &Options,
