@@ -19,7 +19,7 @@ use crate::train::paths::PathSet;
 use crate::train::{recorded, trajectory};
 
 #[derive(clap::Args)]
-pub struct Args {
+pub(super) struct Args {
     /// The site file.
     #[arg(long)]
     site: PathBuf,
@@ -92,7 +92,7 @@ pub struct Args {
     accept_failed: bool,
 }
 
-pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(
         args.trajectories.is_some() || args.from_store.is_some() || args.survey.is_some(),
         "nothing to train: give --trajectories and/or --from-store (path models), and/or --survey (cell classifier)"

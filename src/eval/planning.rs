@@ -52,7 +52,7 @@ use crate::train::trajectory::Trajectory;
 
 /// Recorded walks the routes and frames are compared with.
 #[derive(Default)]
-pub struct Walks {
+pub(crate) struct Walks {
     /// Walks no model was trained on (`human_iou_*`).
     pub heldout: Option<Vec<Trajectory>>,
     /// The frames of the walks the generators were trained on (`novelty`).
@@ -79,7 +79,7 @@ pub fn pairs(site: &Site, random: usize, seed: u64) -> Vec<(Cell, Cell)> {
 }
 
 /// Every ordered pair of distinct named places, in the places' name order.
-pub fn place_pairs(site: &Site) -> Vec<(Cell, Cell)> {
+pub(crate) fn place_pairs(site: &Site) -> Vec<(Cell, Cell)> {
     let places: Vec<Cell> = site.places().values().copied().collect();
     places
         .iter()
@@ -89,7 +89,7 @@ pub fn place_pairs(site: &Site) -> Vec<(Cell, Cell)> {
 }
 
 /// The report: top-level keys for `config.mode`, and every mode under `modes`.
-pub fn evaluate(
+pub(crate) fn evaluate(
     config: &PlannerConfig,
     site: Arc<Site>,
     pairs: &[(Cell, Cell)],

@@ -6,7 +6,7 @@ use crate::plan::Route;
 use crate::site::{Cell, Site};
 
 #[derive(Clone, Debug)]
-pub struct RouteLine {
+pub(crate) struct RouteLine {
     cells: Vec<Cell>,
     /// Metres from the start to the end (f32: millimetres on any
     /// building's routes, and every guided session holds one). Distances
@@ -16,28 +16,28 @@ pub struct RouteLine {
 }
 
 impl RouteLine {
-    pub fn new(site: &Site, route: &Route) -> RouteLine {
+    pub(crate) fn new(site: &Site, route: &Route) -> RouteLine {
         RouteLine {
             cells: route.cells.clone(),
             length_m: route.length_m(site) as f32,
         }
     }
 
-    pub fn cells(&self) -> &[Cell] {
+    pub(crate) fn cells(&self) -> &[Cell] {
         &self.cells
     }
 
-    pub fn length_m(&self) -> f64 {
+    pub(crate) fn length_m(&self) -> f64 {
         f64::from(self.length_m)
     }
 
     /// The cell the route ends at.
-    pub fn destination(&self) -> Cell {
+    pub(crate) fn destination(&self) -> Cell {
         *self.cells.last().expect("a route has cells")
     }
 
     /// Bytes held on the heap.
-    pub fn heap_bytes(&self) -> usize {
+    pub(crate) fn heap_bytes(&self) -> usize {
         self.cells.capacity() * std::mem::size_of::<Cell>()
     }
 
@@ -58,7 +58,7 @@ impl RouteLine {
     /// progress it stands for: its projection on the nearest segment that
     /// does not end more than `back_m` behind `progress_m` (so a route
     /// passing near itself does not pull the walker back to its start).
-    pub fn project(
+    pub(crate) fn project(
         &self,
         site: &Site,
         (x, y): (f64, f64),
@@ -91,7 +91,7 @@ impl RouteLine {
     /// Which way the route goes `along_m` from its start: the unit vector
     /// (metres east, metres along the world's y) of the segment there, the
     /// one leaving a corner when `along_m` is at one.
-    pub fn direction(&self, site: &Site, along_m: f64) -> (f64, f64) {
+    pub(crate) fn direction(&self, site: &Site, along_m: f64) -> (f64, f64) {
         let unit = |((ax, ay), (bx, by)): ((f64, f64), (f64, f64))| {
             let len = (bx - ax).hypot(by - ay).max(f64::EPSILON);
             ((bx - ax) / len, (by - ay) / len)

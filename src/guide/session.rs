@@ -69,7 +69,7 @@ enum Leaving {
 }
 
 #[derive(Clone, Debug)]
-pub struct Session {
+pub(crate) struct Session {
     request_id: Option<String>,
     profile: Profile,
     line: RouteLine,
@@ -153,29 +153,21 @@ impl Session {
         }
     }
 
-    pub fn state(&self) -> SessionState {
+    pub(crate) fn state(&self) -> SessionState {
         self.state
     }
 
-    pub fn progress_m(&self) -> f64 {
-        self.progress_m
-    }
-
-    pub fn profile(&self) -> Profile {
+    pub(crate) fn profile(&self) -> Profile {
         self.profile
     }
 
-    pub fn request_id(&self) -> Option<&str> {
+    pub(crate) fn request_id(&self) -> Option<&str> {
         self.request_id.as_deref()
     }
 
     /// The cell the route ends at.
-    pub fn destination(&self) -> Cell {
+    pub(crate) fn destination(&self) -> Cell {
         self.line.destination()
-    }
-
-    pub fn reroutes(&self) -> u32 {
-        self.walked.reroutes
     }
 
     pub(super) fn walked(&self) -> Walked {
@@ -218,7 +210,7 @@ impl Session {
     }
 
     /// Bytes this session holds, itself and on the heap.
-    pub fn state_bytes(&self) -> usize {
+    pub(crate) fn state_bytes(&self) -> usize {
         std::mem::size_of::<Session>()
             + self.line.heap_bytes()
             + self.maneuvers.capacity() * std::mem::size_of::<Maneuver>()

@@ -11,7 +11,7 @@ use super::Kind;
 
 /// One figure a trained model is held to.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Check {
+pub(crate) struct Check {
     /// The metric's key (as in the model's metadata).
     pub metric: &'static str,
     pub value: f64,
@@ -21,7 +21,7 @@ pub struct Check {
 }
 
 impl Check {
-    pub fn passed(&self) -> bool {
+    pub(crate) fn passed(&self) -> bool {
         if self.at_most {
             self.value <= self.bound
         } else {
@@ -30,7 +30,7 @@ impl Check {
     }
 
     /// `metric 0.061 (needs ≥ 0.5)`.
-    pub fn describe(&self) -> String {
+    pub(crate) fn describe(&self) -> String {
         format!(
             "{} {:.3} (needs {} {})",
             self.metric,
@@ -74,7 +74,7 @@ const DESIRE_CHECKS: [(&str, f64, bool); 2] = [
 
 /// The checks of a model of `kind` on its measured `metrics` (none for the
 /// classifiers and discriminators); a metric that is missing fails.
-pub fn checks(kind: Kind, metrics: &BTreeMap<String, f64>) -> Vec<Check> {
+pub(crate) fn checks(kind: Kind, metrics: &BTreeMap<String, f64>) -> Vec<Check> {
     let table: &[(&str, f64, bool)] = match kind {
         Kind::ConditionalGenerator => &CONDITIONAL_CHECKS,
         Kind::Generator => &GENERATOR_CHECKS,

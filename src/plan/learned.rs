@@ -31,7 +31,7 @@ use crate::site::Site;
 
 /// Which planner the default serves, and why.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Choice {
+pub(crate) struct Choice {
     /// The mode that answers requests: desire, conditional or astar.
     pub serves: PlannerMode,
     /// One sentence: what passed, or what was missing or failed.
@@ -40,7 +40,7 @@ pub struct Choice {
 
 impl Choice {
     /// Says which planner serves and why: a warning when it is A*.
-    pub fn log(&self) {
+    pub(crate) fn log(&self) {
         let name = self.serves.name();
         if self.serves == PlannerMode::Astar {
             tracing::warn!(
@@ -62,7 +62,7 @@ impl Choice {
 /// the one ([`Choice::log`] says so). Never fails on a model: a model that is missing, for
 /// another site or failed its check is passed over (and named in
 /// [`Choice::because`]).
-pub fn build(
+pub(crate) fn build(
     config: &PlannerConfig,
     site: Arc<Site>,
 ) -> anyhow::Result<(Box<dyn Planner>, Choice)> {

@@ -49,7 +49,7 @@ use crate::plan::{Connectivity, Origin, Profile, cells_off_area};
 use crate::site::{Cell, Site};
 
 #[derive(Clone, Debug)]
-pub struct Options {
+pub(crate) struct Options {
     pub iterations: usize,
     pub batch: usize,
     pub seed: u64,
@@ -66,7 +66,7 @@ pub struct Options {
 
 /// A model written by a training run.
 #[derive(Clone, Debug)]
-pub struct Trained {
+pub(crate) struct Trained {
     pub file: PathBuf,
     pub kind: Kind,
     pub parameters: usize,
@@ -79,13 +79,13 @@ pub struct Trained {
 
 impl Trained {
     /// Whether every check passed.
-    pub fn passed(&self) -> bool {
+    pub(crate) fn passed(&self) -> bool {
         self.checks.iter().all(Check::passed)
     }
 }
 
 /// Told about each training stage and iteration (the CLI draws progress bars).
-pub trait Progress {
+pub(crate) trait Progress {
     fn stage(&mut self, name: &str, iterations: usize);
     fn step(&mut self, iteration: usize, losses: &[(&str, f32)]);
     fn done(&mut self);
@@ -102,7 +102,7 @@ const CONFIDENT: f32 = 0.9;
 
 /// Whether `set` has the classes the paper's models (path classifier and
 /// GAN, the rejection mode) need: `Err` says why not.
-pub fn rejection_trainable(set: &PathSet) -> Result<(), String> {
+pub(crate) fn rejection_trainable(set: &PathSet) -> Result<(), String> {
     if set.classes.len() >= 2 {
         Ok(())
     } else {
@@ -122,7 +122,7 @@ pub fn rejection_trainable(set: &PathSet) -> Result<(), String> {
 /// paper's plain loss). The unconditional GAN always keeps the paper's loss:
 /// its planner (the paper's Algorithm 1) rejects frames that leave the
 /// public-access area anyway.
-pub fn train_paths(
+pub(crate) fn train_paths(
     site: &Site,
     set: &PathSet,
     options: &Options,
@@ -339,7 +339,7 @@ fn destination(out: &Path, checks: &[Check], options: &Options) -> anyhow::Resul
 /// Trains the desire lines on `walks` (cross-validating their settings) and
 /// writes `desire_lines.onnx` to `out`, or to `out/failed/` when it fails its
 /// checks (unless `accept_failed`).
-pub fn train_desire(
+pub(crate) fn train_desire(
     site: &Site,
     walks: &[Trajectory],
     options: &Options,
@@ -382,7 +382,7 @@ pub fn train_desire(
 }
 
 /// Trains the localization cell classifier on `survey` and writes it to `out`.
-pub fn train_cells(
+pub(crate) fn train_cells(
     site: &Site,
     survey: &Survey,
     options: &Options,
