@@ -1,6 +1,9 @@
 //! `gangway eval planning`: every planner mode on every ordered pair of named
 //! places plus random open-cell pairs, with the figures of issue 5.
 //!
+//! Every mode is measured, `learned` (the default) as a gateway builds it:
+//! its report says which planner it `serves` and why (`serves_because`).
+//!
 //! Measured here: pairs, valid_rate (every answer re-validated), the paper's
 //! deviation score (|G| − |G ∩ B|) / |B| of the frame each learned route came
 //! from, length_ratio_mean (to the shortest route), classifier_error (the
@@ -120,8 +123,16 @@ pub(crate) fn evaluate(
         .map(|heldout| Judged::new(&site, config.connectivity, heldout));
     let mut modes = serde_json::Map::new();
     for mode in PlannerMode::ALL {
-        let report = match plan::build_mode(config, mode, site.clone()) {
-            Ok(planner) => {
+        // The default mode through the path a gateway takes (`learned`),
+        // saying which planner it serves.
+        let built = match mode {
+            PlannerMode::Learned => {
+                plan::learned::build(config, site.clone()).map(|(p, choice)| (p, Some(choice)))
+            }
+            _ => plan::build_mode(config, mode, site.clone()).map(|p| (p, None)),
+        };
+        let report = match built {
+            Ok((planner, choice)) => {
                 let mut report = evaluate_mode(
                     config,
                     &site,
@@ -140,6 +151,10 @@ pub(crate) fn evaluate(
                     }
                     _ => Value::Null,
                 };
+                if let Some(choice) = choice {
+                    report["serves"] = json!(choice.serves.name());
+                    report["serves_because"] = json!(choice.because);
+                }
                 report
             }
             Err(e) => json!({ "unavailable": format!("{e:#}") }),

@@ -12,6 +12,7 @@
 //! - conditions: [`condition::encode`];
 //! - RSSI: dBm, one value per site anchor (see [`CellClassifierInput`]).
 
+pub(crate) mod checks;
 pub mod condition;
 pub mod desire;
 pub mod export;

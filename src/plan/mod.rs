@@ -6,7 +6,9 @@
 //! a route that [`Route::validate`] accepts, or an error: never an invalid route.
 
 //!
-//! Modes (`[planner] mode`): `astar` (shortest walk, no models), `desire`
+//! Modes (`[planner] mode`): `learned`, the default (the desire lines when
+//! they passed their training check on the site's walks, else the
+//! conditional GAN, else A*: [`learned`]), `astar` (shortest walk, no models), `desire`
 //! (the line people walk between the two cells, learned from their walks:
 //! [`desire`]), `rejection` (the paper's Algorithm 1, bounded: [`rejection`])
 //! and `conditional` (the conditional GAN: [`conditional`]). The GAN modes
@@ -23,6 +25,7 @@ pub mod desire;
 mod error_code;
 pub mod frame;
 pub mod instructions;
+pub(crate) mod learned;
 pub(crate) mod lines;
 pub(crate) mod picture;
 mod profile;
@@ -218,8 +221,11 @@ impl PlannerConfig {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum PlannerMode {
-    /// Shortest walkable path.
+    /// The default: the learned planner that passed its training check on
+    /// the site's walks, falling back down to A* ([`learned`]).
     #[default]
+    Learned,
+    /// Shortest walkable path.
     Astar,
     /// Algorithm 1: unconditional GAN + path classifier, bounded.
     Rejection,
@@ -230,7 +236,8 @@ pub enum PlannerMode {
 }
 
 impl PlannerMode {
-    pub(crate) const ALL: [PlannerMode; 4] = [
+    pub(crate) const ALL: [PlannerMode; 5] = [
+        PlannerMode::Learned,
         PlannerMode::Astar,
         PlannerMode::Rejection,
         PlannerMode::Conditional,
@@ -239,6 +246,7 @@ impl PlannerMode {
 
     pub fn name(self) -> &'static str {
         match self {
+            PlannerMode::Learned => "learned",
             PlannerMode::Astar => "astar",
             PlannerMode::Rejection => "rejection",
             PlannerMode::Conditional => "conditional",
@@ -343,6 +351,11 @@ pub fn build_mode(
     use crate::model::runtime::{DesireModel, PathClassifier, PathGenerator, Rows};
     let context = |what: &str| format!("[planner] mode = \"{}\": loading the {what}", mode.name());
     Ok(match mode {
+        PlannerMode::Learned => {
+            let (planner, choice) = learned::build(config, site)?;
+            choice.log();
+            planner
+        }
         PlannerMode::Astar => Box::new(astar::AStar::new(site, config.connectivity)),
         PlannerMode::Rejection => {
             let rows = Rows::for_batch(config.rejection.batch);
