@@ -306,7 +306,7 @@ impl Config {
 
     /// The prefix shared by the gateways of one site: `[mqtt] site_prefix`, or
     /// `gangway/sites/<site name>`.
-    pub fn site_prefix(&self, site_name: &str) -> String {
+    pub(crate) fn site_prefix(&self, site_name: &str) -> String {
         self.mqtt
             .site_prefix
             .clone()
@@ -314,7 +314,7 @@ impl Config {
     }
 
     /// The MQTT client id: `[mqtt] client_id`, or `gangway-<gateway_id>`.
-    pub fn client_id(&self) -> String {
+    pub(crate) fn client_id(&self) -> String {
         self.mqtt
             .client_id
             .clone()

@@ -26,7 +26,7 @@ pub enum Event {
 }
 
 impl Event {
-    pub fn t(&self) -> f64 {
+    pub(crate) fn t(&self) -> f64 {
         match self {
             Event::Advert(s) => s.t,
             Event::Request(r) => r.t,

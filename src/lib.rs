@@ -16,6 +16,11 @@
 //! and a sink, [`store`] keeps what the daemon saw for training, and [`score`]
 //! compares a replay's fixes with its log's ground truth.
 
+// The outside surface is what main.rs, tests/it, benches, examples and fuzz
+// use; everything else is pub(crate), so dead code is a warning. A `pub` that
+// nothing outside can reach is one too (`cargo fix` makes it pub(crate)).
+#![warn(unreachable_pub)]
+
 pub mod cli;
 pub mod config;
 pub mod daemon;
@@ -34,7 +39,7 @@ pub mod sink;
 pub mod site;
 pub mod source;
 pub mod store;
-pub mod throttle;
+pub(crate) mod throttle;
 pub mod train;
-pub mod walks;
+pub(crate) mod walks;
 pub mod web;

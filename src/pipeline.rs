@@ -29,7 +29,7 @@ use crate::site::{Cell, Site};
 /// replaced pipeline's to the ones kept (`+=`), so every counter is summed
 /// in this one place.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct Stats {
+pub(crate) struct Stats {
     pub sightings: u64,
     /// Sightings of anchors the site does not know.
     pub sightings_ignored: u64,
@@ -97,7 +97,7 @@ impl Pipeline {
     /// `astar`, instead of stopping the gateway, so it keeps locating and
     /// routing while someone fixes the file. Config mistakes are still errors.
     /// Returns, for each replacement, what failed and what serves instead.
-    pub fn with_fallbacks(
+    pub(crate) fn with_fallbacks(
         config: &Config,
         site: Arc<Site>,
     ) -> anyhow::Result<(Pipeline, Vec<String>)> {
@@ -175,12 +175,8 @@ impl Pipeline {
         Ok((pipeline, fallbacks))
     }
 
-    pub fn site(&self) -> &Arc<Site> {
-        &self.site
-    }
-
     /// The counters so far.
-    pub fn stats(&self) -> Stats {
+    pub(crate) fn stats(&self) -> Stats {
         Stats {
             sightings_ignored: self.windows.unknown_anchor_count(),
             evicted_windows: self.windows.evicted_count(),
@@ -190,17 +186,17 @@ impl Pipeline {
     }
 
     /// The guidance sessions.
-    pub fn guide(&self) -> &Guide {
+    pub(crate) fn guide(&self) -> &Guide {
         &self.guide
     }
 
     /// Number of entities with a track.
-    pub fn tracked(&self) -> usize {
+    pub(crate) fn tracked(&self) -> usize {
         self.tracker.len()
     }
 
     /// Entities with an open fingerprint window.
-    pub fn windows_open(&self) -> usize {
+    pub(crate) fn windows_open(&self) -> usize {
         self.windows.entity_count()
     }
 
@@ -226,7 +222,7 @@ impl Pipeline {
 
     /// Ends the guidance session of `device` at its request, publishing its
     /// last message (`cancelled`); nothing when it has none.
-    pub fn cancel(&mut self, device: &str, t: f64, out: &mut Vec<Output>) {
+    pub(crate) fn cancel(&mut self, device: &str, t: f64, out: &mut Vec<Output>) {
         if let Some(last) = self.guide.cancel(device, t) {
             out.push(Output::Guidance(Box::new(last)));
         }
@@ -410,7 +406,7 @@ impl Pipeline {
 
     /// Plans a route from the device's tracked cell; every failure becomes an
     /// error reply with a stable code.
-    pub fn route(&mut self, request: &RouteRequest) -> RouteReply {
+    pub(crate) fn route(&mut self, request: &RouteRequest) -> RouteReply {
         let started = Instant::now();
         self.stats.requests += 1;
         let outcome = self.plan_request(request, started);
@@ -455,7 +451,7 @@ impl Pipeline {
     }
 
     /// Which side of a sighting this pipeline locates.
-    pub fn orientation(&self) -> Orientation {
+    pub(crate) fn orientation(&self) -> Orientation {
         self.windows.config().orientation
     }
 
@@ -510,6 +506,12 @@ impl Pipeline {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    impl Pipeline {
+        fn site(&self) -> &Arc<Site> {
+            &self.site
+        }
+    }
 
     /// The shipped config with a localizer model and a planner model that do
     /// not exist.

@@ -31,7 +31,7 @@ use crate::site::{Cell, Site};
 
 /// Collects truths and fixes during a replay.
 #[derive(Debug)]
-pub struct Scorer {
+pub(crate) struct Scorer {
     tolerance_s: f64,
     /// Per device: (t, cell) in arrival order.
     truths: HashMap<String, Vec<(f64, Cell)>>,
@@ -41,7 +41,7 @@ pub struct Scorer {
 
 /// How well the fixes of a replay match its truth.
 #[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct Score {
+pub(crate) struct Score {
     /// Share of matched fixes in exactly the true cell.
     pub exact: Option<f64>,
     /// Share of matched fixes within 1 cell (Euclidean) of the truth.
@@ -61,7 +61,7 @@ pub struct Score {
 
 impl Scorer {
     /// `tolerance_s`: how far in time a truth may be from the fix it scores.
-    pub fn new(tolerance_s: f64) -> Scorer {
+    pub(crate) fn new(tolerance_s: f64) -> Scorer {
         Scorer {
             tolerance_s,
             truths: HashMap::new(),
@@ -70,7 +70,7 @@ impl Scorer {
         }
     }
 
-    pub fn truth(&mut self, truth: &Truth) {
+    pub(crate) fn truth(&mut self, truth: &Truth) {
         self.truth_count += 1;
         self.truths
             .entry(truth.device.clone())
@@ -79,7 +79,7 @@ impl Scorer {
     }
 
     /// Takes a fix; an unknown location names no cell to score.
-    pub fn location(&mut self, location: &Location) {
+    pub(crate) fn location(&mut self, location: &Location) {
         if let Some(cell) = location.cell {
             self.fixes.push((location.device.clone(), location.t, cell));
         }
@@ -88,7 +88,7 @@ impl Scorer {
     /// The scorer as a sink of the runtime: it takes the locations and the
     /// truths that pass through, and sends the score on the channel when
     /// the runtime shuts it down.
-    pub fn sink(self, site: Arc<Site>) -> (ScoreSink, oneshot::Receiver<Score>) {
+    pub(crate) fn sink(self, site: Arc<Site>) -> (ScoreSink, oneshot::Receiver<Score>) {
         let (done, score) = oneshot::channel();
         (
             ScoreSink {
@@ -100,7 +100,7 @@ impl Scorer {
         )
     }
 
-    pub fn score(mut self, site: &Site) -> Score {
+    pub(crate) fn score(mut self, site: &Site) -> Score {
         for truths in self.truths.values_mut() {
             truths.sort_by(|a, b| a.0.total_cmp(&b.0));
         }
@@ -132,7 +132,7 @@ impl Scorer {
 }
 
 /// A [`Scorer`] fed by the runtime.
-pub struct ScoreSink {
+pub(crate) struct ScoreSink {
     scorer: Scorer,
     site: Arc<Site>,
     done: oneshot::Sender<Score>,
@@ -165,7 +165,7 @@ impl Sink for ScoreSink {
 /// Accuracy figures of a set of position errors (in cells), shared by replay
 /// scoring and offline evaluation so both count the same way.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
-pub struct ErrorSummary {
+pub(crate) struct ErrorSummary {
     /// Share of errors of exactly 0 (the true cell).
     pub exact: f64,
     /// Share of errors ≤ 1 cell.
@@ -185,7 +185,7 @@ pub struct ErrorSummary {
 
 impl ErrorSummary {
     /// `None` for no errors at all.
-    pub fn of(errors: &[f64], cell_m: f64) -> Option<ErrorSummary> {
+    pub(crate) fn of(errors: &[f64], cell_m: f64) -> Option<ErrorSummary> {
         if errors.is_empty() {
             return None;
         }

@@ -54,7 +54,7 @@ pub fn unix_now() -> f64 {
 /// topic level: non-empty, at most 128 bytes, and free of `+`, `#`, `/` and
 /// control characters. Checked where ids come in (logs, the broker, the
 /// config), so no later stage meets one that cannot be published.
-pub fn valid_device_id(id: &str) -> bool {
+pub(crate) fn valid_device_id(id: &str) -> bool {
     !id.is_empty()
         && id.len() <= 128
         && !id

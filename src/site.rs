@@ -39,9 +39,9 @@ use crate::sighting::BeaconId;
 mod doc;
 mod floorplan;
 
-pub use doc::{SiteDoc, write_doc};
-pub use floorplan::{
-    Floorplan, ImageInfo, MAX_IMAGE_BYTES, ReferencePoint, mime_of_bytes,
+pub(crate) use doc::{SiteDoc, write_doc};
+pub(crate) use floorplan::{
+    Floorplan, MAX_IMAGE_BYTES, ReferencePoint, mime_of_bytes,
     mime_of_name as floorplan_mime_of_name, probe_image,
 };
 
@@ -96,7 +96,7 @@ impl fmt::Display for Cell {
 /// walkable; the attributes let route profiles (wheelchair, low vision) treat
 /// cells differently.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Tile {
+pub(crate) enum Tile {
     /// `.`: not public access (walls, shelving, staff areas).
     Blocked,
     /// `#`: open public-access floor.
@@ -113,7 +113,7 @@ pub enum Tile {
 
 impl Tile {
     /// The glyphs a map may use, in the order of the documentation.
-    pub const GLYPHS: &'static str = "#.sedn";
+    pub(crate) const GLYPHS: &'static str = "#.sedn";
 
     fn from_glyph(c: char) -> Option<Tile> {
         Some(match c {
@@ -127,7 +127,7 @@ impl Tile {
         })
     }
 
-    pub fn glyph(self) -> char {
+    pub(crate) fn glyph(self) -> char {
         match self {
             Tile::Open => '#',
             Tile::Blocked => '.',
@@ -138,7 +138,7 @@ impl Tile {
         }
     }
 
-    pub fn walkable(self) -> bool {
+    pub(crate) fn walkable(self) -> bool {
         self != Tile::Blocked
     }
 }
@@ -171,7 +171,7 @@ pub struct Gateway {
 
 /// Height above the floor at which a person carries a phone, metres: the
 /// other end of an anchor's distance when its mounting height is known.
-pub const DEVICE_HEIGHT_M: f64 = 1.2;
+pub(crate) const DEVICE_HEIGHT_M: f64 = 1.2;
 
 /// Where an anchor is mounted.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -186,7 +186,7 @@ impl Mount {
     /// Metres from the anchor to a device at `here` (world metres): in 3-D to
     /// a phone held at [`DEVICE_HEIGHT_M`] when the mounting height is known,
     /// else along the floor plan.
-    pub fn distance_m(&self, here: [f64; 2]) -> f64 {
+    pub(crate) fn distance_m(&self, here: [f64; 2]) -> f64 {
         let flat = (here[0] - self.at[0]).hypot(here[1] - self.at[1]);
         match self.height_m {
             Some(h) => flat.hypot(h - DEVICE_HEIGHT_M),
@@ -199,14 +199,14 @@ impl Mount {
 /// followed by a row number (`first_row` is y = 0).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct LabelScheme {
+pub(crate) struct LabelScheme {
     pub first_row: u16,
 }
 
 /// Which way world y runs against the grid's rows.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
-pub enum YAxis {
+pub(crate) enum YAxis {
     /// World y grows with the row index (row 0 is the smallest y): screen
     /// coordinates, and what sites without a frame mean.
     #[default]
@@ -253,7 +253,7 @@ pub struct Site {
 
 /// What a site's `obstacles` and `walls` drew onto its grid.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct Shapes {
+pub(crate) struct Shapes {
     pub obstacles: usize,
     pub walls: usize,
     /// Cells the map (or the open floor) left walkable that they blocked.
@@ -282,7 +282,7 @@ pub enum SiteError {
 
 impl SiteError {
     /// Each problem on its own, prefixed with the file as in the message.
-    pub fn problems(&self) -> Vec<String> {
+    pub(crate) fn problems(&self) -> Vec<String> {
         match self {
             SiteError::Invalid { path, problems } => problems
                 .iter()
@@ -744,12 +744,12 @@ impl Site {
     }
 
     /// The tile at `cell`, or `None` off the grid.
-    pub fn tile(&self, cell: Cell) -> Option<Tile> {
+    pub(crate) fn tile(&self, cell: Cell) -> Option<Tile> {
         self.contains(cell)
             .then(|| self.tiles[self.grid_index(cell)])
     }
 
-    pub fn contains(&self, cell: Cell) -> bool {
+    pub(crate) fn contains(&self, cell: Cell) -> bool {
         cell.x < self.width && cell.y < self.height
     }
 
@@ -769,12 +769,12 @@ impl Site {
 
     /// Grid indices ([`Site::grid_index`]) of the cells outside the
     /// public-access area, row-major: the cells no path frame may light.
-    pub fn blocked_indices(&self) -> &[usize] {
+    pub(crate) fn blocked_indices(&self) -> &[usize] {
         &self.blocked_indices
     }
 
     /// Index of a walkable cell in [`Site::open_cells`].
-    pub fn open_index(&self, cell: Cell) -> Option<usize> {
+    pub(crate) fn open_index(&self, cell: Cell) -> Option<usize> {
         if !self.contains(cell) {
             return None;
         }
@@ -785,12 +785,12 @@ impl Site {
     }
 
     /// World coordinates (metres) of the outer top-left corner of cell [0, 0].
-    pub fn origin_m(&self) -> [f64; 2] {
+    pub(crate) fn origin_m(&self) -> [f64; 2] {
         self.frame.origin_m
     }
 
     /// Which way world y runs against the rows.
-    pub fn y_axis(&self) -> YAxis {
+    pub(crate) fn y_axis(&self) -> YAxis {
         self.frame.y_axis
     }
 
@@ -798,35 +798,35 @@ impl Site {
     /// cells right of and below the outer top-left corner of cell [0, 0]
     /// (so `[x + 0.5, y + 0.5]` is the centre of cell `[x, y]`).
     /// [`Site::grid_of_world`] inverts it.
-    pub fn world_of_grid(&self, grid: [f64; 2]) -> [f64; 2] {
+    pub(crate) fn world_of_grid(&self, grid: [f64; 2]) -> [f64; 2] {
         self.frame.world_of_grid(grid)
     }
 
     /// Grid units (see [`Site::world_of_grid`]) of a point in world metres.
-    pub fn grid_of_world(&self, world: [f64; 2]) -> [f64; 2] {
+    pub(crate) fn grid_of_world(&self, world: [f64; 2]) -> [f64; 2] {
         self.frame.grid_of_world(world)
     }
 
     /// Centre of a cell in world metres.
-    pub fn world_of_cell(&self, cell: Cell) -> [f64; 2] {
+    pub(crate) fn world_of_cell(&self, cell: Cell) -> [f64; 2] {
         self.frame.world_of_cell(cell)
     }
 
     /// The cell containing a point in world metres; `None` outside the grid
     /// (or for a non-finite point). A point on the edge between two cells
     /// belongs to the one right of it and, in grid rows, below it.
-    pub fn cell_of_world(&self, world: [f64; 2]) -> Option<Cell> {
+    pub(crate) fn cell_of_world(&self, world: [f64; 2]) -> Option<Cell> {
         self.frame.cell_of_world(world, self.width, self.height)
     }
 
     /// The grid's extent in world metres: the smallest and largest x and y.
-    pub fn extent_m(&self) -> ([f64; 2], [f64; 2]) {
+    pub(crate) fn extent_m(&self) -> ([f64; 2], [f64; 2]) {
         self.frame.extent_m(self.width, self.height)
     }
 
     /// The floor-plan image and how its pixels sit on the grid, when the
     /// site names one (`[floorplan]`).
-    pub fn floorplan(&self) -> Option<&Floorplan> {
+    pub(crate) fn floorplan(&self) -> Option<&Floorplan> {
         self.floorplan.as_ref()
     }
 
@@ -834,17 +834,17 @@ impl Site {
     /// it cannot (missing, unreadable, too large, not what its name says).
     /// Not a load error: a gateway serves without its picture; `gangway
     /// check` and the editor report it.
-    pub fn check_floorplan(&self) -> Option<String> {
+    pub(crate) fn check_floorplan(&self) -> Option<String> {
         self.floorplan.as_ref()?.probe().err()
     }
 
     /// What the site's obstacles and walls drew onto the grid.
-    pub fn shapes(&self) -> Shapes {
+    pub(crate) fn shapes(&self) -> Shapes {
         self.shapes
     }
 
     /// [`Site::world_of_cell`] as a pair, for callers that destructure it.
-    pub fn metres(&self, cell: Cell) -> (f64, f64) {
+    pub(crate) fn metres(&self, cell: Cell) -> (f64, f64) {
         let [x, y] = self.world_of_cell(cell);
         (x, y)
     }
@@ -859,7 +859,7 @@ impl Site {
 
     /// The named place at or nearest to `cell` within `max_cells`, for messages
     /// such as "near help desk".
-    pub fn nearest_place(&self, cell: Cell, max_cells: f64) -> Option<&str> {
+    pub(crate) fn nearest_place(&self, cell: Cell, max_cells: f64) -> Option<&str> {
         self.places
             .iter()
             .map(|(name, &c)| (name, c.distance(cell)))
@@ -869,12 +869,12 @@ impl Site {
     }
 
     /// Whether the site names cells with survey labels (`[labels]`).
-    pub fn has_labels(&self) -> bool {
+    pub(crate) fn has_labels(&self) -> bool {
         self.labels.is_some()
     }
 
     /// Parses a survey label such as `O02` with the site's `[labels]` scheme.
-    pub fn parse_label(&self, label: &str) -> Option<Cell> {
+    pub(crate) fn parse_label(&self, label: &str) -> Option<Cell> {
         let scheme = self.labels?;
         let label = label.trim();
         let split = label.find(|c: char| !c.is_ascii_alphabetic())?;
@@ -893,7 +893,7 @@ impl Site {
     }
 
     /// The survey label of a cell (`O02`), when the site has a label scheme.
-    pub fn label(&self, cell: Cell) -> Option<String> {
+    pub(crate) fn label(&self, cell: Cell) -> Option<String> {
         let scheme = self.labels?;
         let mut letters = Vec::new();
         let mut x = u32::from(cell.x) + 1;
@@ -911,12 +911,12 @@ impl Site {
 
     /// SHA-256 of the grid size and tiles: models trained on one access map refuse
     /// to serve another.
-    pub fn map_hash(&self) -> &str {
+    pub(crate) fn map_hash(&self) -> &str {
         &self.map_hash
     }
 
     /// The map as text, one row per line, as in the site file.
-    pub fn map_text(&self) -> String {
+    pub(crate) fn map_text(&self) -> String {
         let mut out = String::with_capacity(self.tiles.len() + usize::from(self.height));
         for row in self.tiles.chunks(usize::from(self.width)) {
             out.extend(row.iter().map(|t| t.glyph()));

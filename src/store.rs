@@ -63,7 +63,7 @@ impl Default for StoreConfig {
 }
 
 impl StoreConfig {
-    pub fn validate(&self) -> Result<(), String> {
+    pub(crate) fn validate(&self) -> Result<(), String> {
         if !(self.retention_days > 0.0 && self.retention_days.is_finite()) {
             return Err("[store] `retention_days` must be a positive number of days".into());
         }
@@ -81,7 +81,7 @@ impl StoreConfig {
     }
 
     /// Where the store lives.
-    pub fn resolved_path(&self) -> PathBuf {
+    pub(crate) fn resolved_path(&self) -> PathBuf {
         self.path.clone().unwrap_or_else(|| {
             std::env::var_os("STATE_DIRECTORY")
                 .map(PathBuf::from)
@@ -210,7 +210,7 @@ impl Store {
     /// of another version), the file is moved aside to
     /// `<name>.broken-<unix time>` (with its WAL files) and a fresh store is
     /// started. Returns the store and, when it had to, what happened.
-    pub fn open_or_move_aside(path: &Path) -> Result<(Store, Option<String>), StoreError> {
+    pub(crate) fn open_or_move_aside(path: &Path) -> Result<(Store, Option<String>), StoreError> {
         let error = match Store::open(path) {
             Ok(store) => return Ok((store, None)),
             Err(e) => e,
@@ -388,7 +388,7 @@ impl Store {
 
     /// Deletes rows older than `now - retention_s`, and the oldest fixes past
     /// `max_fixes`. Returns the number of rows deleted.
-    pub fn prune(
+    pub(crate) fn prune(
         &mut self,
         now: f64,
         retention_s: f64,
@@ -415,7 +415,7 @@ impl Store {
     /// Keeps the store within `config`'s quotas: each device's rows per
     /// table, all rows, and the bytes of pages in use; the oldest rows go
     /// first. Returns the number of rows deleted.
-    pub fn enforce_quotas(&mut self, config: &StoreConfig) -> Result<usize, StoreError> {
+    pub(crate) fn enforce_quotas(&mut self, config: &StoreConfig) -> Result<usize, StoreError> {
         let path = self.path.clone();
         let err = |e| sql(&path, e);
         let per_device = i64::try_from(config.max_rows_per_device).unwrap_or(i64::MAX);
@@ -626,7 +626,7 @@ impl Store {
 
     /// Deletes all but the newest `max_rows` fingerprint windows. Returns
     /// the number deleted.
-    pub fn keep_newest_heard(&mut self, max_rows: usize) -> Result<usize, StoreError> {
+    pub(crate) fn keep_newest_heard(&mut self, max_rows: usize) -> Result<usize, StoreError> {
         self.conn
             .execute(
                 "DELETE FROM heard WHERE rowid IN \
@@ -637,7 +637,7 @@ impl Store {
     }
 
     /// Every guided walk's adherence, oldest first.
-    pub fn adherence(&self) -> Result<Vec<Adherence>, StoreError> {
+    pub(crate) fn adherence(&self) -> Result<Vec<Adherence>, StoreError> {
         let mut stmt = self
             .conn
             .prepare(

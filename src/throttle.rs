@@ -7,14 +7,14 @@ use std::time::{Duration, Instant};
 
 /// Says when a repeated warning may be logged again.
 #[derive(Debug)]
-pub struct Throttle {
+pub(crate) struct Throttle {
     period: Duration,
     last: Option<Instant>,
     suppressed: u64,
 }
 
 impl Throttle {
-    pub fn new(period: Duration) -> Self {
+    pub(crate) fn new(period: Duration) -> Self {
         Throttle {
             period,
             last: None,
@@ -24,7 +24,7 @@ impl Throttle {
 
     /// Call once per occurrence: `Some(n)` when this one may be logged, `n`
     /// being how many were not since the last one logged; `None` otherwise.
-    pub fn ready(&mut self) -> Option<u64> {
+    pub(crate) fn ready(&mut self) -> Option<u64> {
         let now = Instant::now();
         if self
             .last

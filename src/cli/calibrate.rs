@@ -16,7 +16,7 @@ use crate::locate::window::{Windows, anchor_ids};
 use crate::source::capture::{CaptureReader, Format, ReadOptions};
 
 #[derive(clap::Args)]
-pub struct Args {
+pub(super) struct Args {
     #[arg(long, default_value_os_t = super::default_config())]
     config: PathBuf,
     /// Captures heard on this site (any format `replay` reads: JSON Lines
@@ -49,7 +49,7 @@ pub struct Args {
     json: bool,
 }
 
-pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
     let (config, site) = super::load(&args.config)?;
     let orientation = config.window.orientation;
     let ids = anchor_ids(&site, orientation);

@@ -10,12 +10,12 @@ use crate::pipeline::Pipeline;
 use crate::site::Site;
 
 #[derive(clap::Args)]
-pub struct Args {
+pub(super) struct Args {
     #[arg(long, default_value_os_t = super::default_config())]
     config: PathBuf,
 }
 
-pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
     let mut problems: Vec<String> = Vec::new();
     match Config::load(&args.config) {
         Err(e) => problems.push(e.to_string()),

@@ -18,7 +18,7 @@ use crate::site::Site;
 use crate::train::trajectory;
 
 #[derive(clap::Args)]
-pub struct Args {
+pub(super) struct Args {
     #[command(subcommand)]
     what: What,
 }
@@ -157,7 +157,7 @@ struct LocalizationArgs {
     calibrate_cells: Option<usize>,
 }
 
-pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
     match args.what {
         What::Localization(args) => localization(args),
         What::Planning(args) => planning(args),

@@ -105,8 +105,10 @@ struct PlannerSource {
     /// the config's `[planner.models]`.
     #[arg(long)]
     models: Option<PathBuf>,
-    /// The planner mode instead of the config's `[planner] mode`: astar,
-    /// rejection, conditional or desire.
+    /// The planner mode instead of the config's `[planner] mode`: learned
+    /// (the default: desire lines when they passed their training check,
+    /// else the conditional generator, else astar), astar, rejection,
+    /// conditional or desire.
     #[arg(long, value_parser = parse_mode)]
     mode: Option<crate::plan::PlannerMode>,
 }
@@ -130,7 +132,6 @@ impl PlannerSource {
         crate::plan::PlannerConfig,
         std::sync::Arc<crate::site::Site>,
     )> {
-        use crate::model::Kind;
         let (mut planner, site) = match (&self.config, &self.site) {
             (None, Some(site)) => (
                 crate::plan::PlannerConfig::default(),
@@ -145,17 +146,25 @@ impl PlannerSource {
             }
         };
         if let Some(dir) = &self.models {
-            let file = |kind: Kind| dir.join(format!("{}.onnx", kind.name()));
-            planner.models.generator = file(Kind::Generator);
-            planner.models.path_classifier = file(Kind::PathClassifier);
-            planner.models.conditional_generator = file(Kind::ConditionalGenerator);
-            planner.models.desire_lines = file(Kind::DesireLines);
+            serve_models_from(&mut planner, dir);
         }
         if let Some(mode) = self.mode {
             planner.mode = mode;
         }
         Ok((planner, site))
     }
+}
+
+/// Points `planner` at the models in `dir`, named as `gangway train --out`
+/// writes them.
+fn serve_models_from(planner: &mut crate::plan::PlannerConfig, dir: &std::path::Path) {
+    use crate::model::Kind;
+    let file = |kind: Kind| dir.join(format!("{}.onnx", kind.name()));
+    let m = &mut planner.models;
+    m.generator = file(Kind::Generator);
+    m.path_classifier = file(Kind::PathClassifier);
+    m.conditional_generator = file(Kind::ConditionalGenerator);
+    m.desire_lines = file(Kind::DesireLines);
 }
 
 /// A tokio runtime for the long-running subcommands (`run`, `record`):

@@ -10,7 +10,7 @@ use crate::plan::{self, Destination, Profile};
 use crate::publish::RouteBody;
 
 #[derive(clap::Args)]
-pub struct Args {
+pub(super) struct Args {
     #[command(flatten)]
     planner: super::PlannerSource,
     /// Start: a place name or `x,y`.
@@ -42,7 +42,7 @@ fn destination(text: &str) -> Destination {
     }
 }
 
-pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
     let (config, site) = args.planner.load()?;
     let profile = Profile::parse(&args.profile).ok_or_else(|| {
         anyhow::anyhow!(

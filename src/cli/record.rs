@@ -14,7 +14,7 @@ use crate::source::capture::{CaptureWriter, Format};
 use crate::source::{Input, Shutdown, SourceContext};
 
 #[derive(clap::Args)]
-pub struct Args {
+pub(super) struct Args {
     /// The file to write: JSON Lines, or btsnoop when named *.btsnoop.
     #[arg(long)]
     out: PathBuf,
@@ -34,7 +34,7 @@ pub struct Args {
     observer: Option<String>,
 }
 
-pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
     let observer: Arc<str> = args.observer.clone().unwrap_or_else(hostname).into();
     let mut writer = CaptureWriter::create(&args.out, args.format)?;
     super::runtime()?.block_on(async {

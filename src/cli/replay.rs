@@ -20,7 +20,7 @@ use crate::source::capture::{CaptureReader, Format, ReadOptions};
 use crate::source::playback::CaptureSource;
 
 #[derive(clap::Args)]
-pub struct Args {
+pub(super) struct Args {
     /// The capture: a JSON Lines advert log, a CSV scan log, a btsnoop file or
     /// a pcap/pcapng capture.
     log: PathBuf,
@@ -91,7 +91,7 @@ fn open(args: &Args, site: &crate::site::Site) -> anyhow::Result<CaptureReader> 
     )?)
 }
 
-pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(
         args.speed >= 0.0 && args.speed.is_finite(),
         "--speed must be 0 (as fast as possible) or a positive factor"

@@ -21,7 +21,7 @@ use crate::source::capture::{CaptureReader, ReadOptions};
 use crate::source::playback::CaptureSource;
 
 #[derive(clap::Args)]
-pub struct Args {
+pub(super) struct Args {
     #[arg(long, default_value_os_t = super::default_config())]
     config: PathBuf,
     /// Use this broker (mqtt://host:port or mqtts://host:port), overriding
@@ -42,7 +42,7 @@ pub struct Args {
     out: Option<PathBuf>,
 }
 
-pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
     keep_freed_memory_returnable();
     anyhow::ensure!(
         args.speed >= 0.0 && args.speed.is_finite(),

@@ -15,7 +15,7 @@ use crate::source::simulate::{SimConfig, WalkConfig, simulate, simulate_walks};
 use crate::train::trajectory;
 
 #[derive(clap::Args)]
-pub struct Args {
+pub(super) struct Args {
     /// The site file.
     #[arg(long)]
     site: PathBuf,
@@ -62,7 +62,7 @@ pub struct Args {
     config: Option<PathBuf>,
 }
 
-pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
     if args.trajectories {
         return run_walks(&args);
     }

@@ -9,7 +9,7 @@ use std::process::ExitCode;
 use crate::web::{Editor, Server, Ui, WebConfig};
 
 #[derive(clap::Args)]
-pub struct Args {
+pub(super) struct Args {
     #[command(subcommand)]
     command: Command,
 }
@@ -39,7 +39,7 @@ struct EditArgs {
     token_file: Option<PathBuf>,
 }
 
-pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
     let Command::Edit(args) = args.command;
     let editor = Editor::open(&args.site, args.image.as_deref())?;
     let config = WebConfig {

@@ -1,8 +1,9 @@
 //! `gangway train`: path models from walks, and the localization cell
 //! classifier from a survey, written as ONNX to a directory.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
@@ -10,13 +11,15 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::locate::survey::Survey;
 use crate::model::Kind;
+use crate::plan::learned::Choice;
+use crate::plan::{self, PlannerConfig, PlannerMode};
 use crate::site::Site;
 use crate::train::job::{self, Options, Progress, Trained};
 use crate::train::paths::PathSet;
 use crate::train::{recorded, trajectory};
 
 #[derive(clap::Args)]
-pub struct Args {
+pub(super) struct Args {
     /// The site file.
     #[arg(long)]
     site: PathBuf,
@@ -68,10 +71,12 @@ pub struct Args {
     /// `OUT/checkpoints/iter-<N>/` (for `gangway eval planning --checkpoints`).
     #[arg(long)]
     checkpoint_every: Option<std::num::NonZeroUsize>,
-    /// Also train the desire lines (`desire_lines.onnx`, the `desire`
-    /// planner) from the walks: settings cross-validated on them, seconds.
-    #[arg(long)]
-    desire: bool,
+    /// Do not train the desire lines (`desire_lines.onnx`), which are
+    /// otherwise trained from walks in JSON Lines (settings cross-validated
+    /// on them, seconds) and served by the default planner when they pass
+    /// their check.
+    #[arg(long, conflicts_with = "desire_only")]
+    no_desire: bool,
     /// Train only the desire lines from the walks (and the cell classifier
     /// with --survey), not the GAN models: large sites, or walks whose
     /// endpoints are all distinct pairs.
@@ -87,7 +92,7 @@ pub struct Args {
     accept_failed: bool,
 }
 
-pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(
         args.trajectories.is_some() || args.from_store.is_some() || args.survey.is_some(),
         "nothing to train: give --trajectories and/or --from-store (path models), and/or --survey (cell classifier)"
@@ -117,10 +122,24 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let started = Instant::now();
     let mut bars = Bars::new(args.json);
     let mut written: Vec<Trained> = Vec::new();
+    // What was left out, and why: printed, and on the model card.
+    let mut notes: Vec<String> = Vec::new();
     let mut walks = None;
     if args.trajectories.is_some() || args.from_store.is_some() {
         let set = match (&args.trajectories, &args.from_store) {
             (Some(dir), None) if dir.is_dir() => {
+                anyhow::ensure!(
+                    !args.desire_only,
+                    "--desire-only learns from walks in JSON Lines, not from a directory of \
+                     frame CSVs (they carry no walking order)"
+                );
+                if !args.no_desire {
+                    notes.push(
+                        "desire lines not trained: frame CSVs carry no walking order (give \
+                         walks in JSON Lines)"
+                            .into(),
+                    );
+                }
                 PathSet::from_frame_dir(&site, dir, args.min_class_walks)?
             }
             (Some(dir), Some(_)) if dir.is_dir() => anyhow::bail!(
@@ -137,16 +156,35 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                     all.extend(recorded);
                 }
                 let all = recorded::weighted(all);
-                if args.desire || args.desire_only {
-                    written.push(job::train_desire(
-                        &site, &all, &options, &args.out, &mut bars,
-                    )?);
+                if !args.no_desire {
+                    match job::train_desire(&site, &all, &options, &args.out, &mut bars) {
+                        Ok(trained) => written.push(trained),
+                        // Trained by default beside the other models: too
+                        // few walks for them leaves the others to train.
+                        Err(e) if !args.desire_only => {
+                            notes.push(format!("desire lines not trained: {e:#}"))
+                        }
+                        Err(e) => return Err(e),
+                    }
                 }
                 PathSet::from_trajectories(&site, &all, args.min_class_walks)
             }
         };
         walks = Some((set.walks.len(), set.classes.len()));
-        if !args.desire_only {
+        let rejection = job::rejection_trainable(&set);
+        if let Err(why) = &rejection
+            && !args.desire_only
+            && (args.conditional || !written.is_empty())
+        {
+            // Walks whose endpoints are nearly all distinct: the other
+            // models need no classes.
+            notes.push(format!(
+                "the paper's GAN and path classifier (rejection mode) not trained: {why} \
+                 (--min-class-walks)"
+            ));
+        }
+        let paths_wanted = args.conditional || rejection.is_ok() || written.is_empty();
+        if !args.desire_only && paths_wanted {
             written.extend(job::train_paths(
                 &site,
                 &set,
@@ -164,18 +202,39 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             &site, &survey, &options, &args.out, &mut bars,
         )?);
     }
+    // What the default planner will serve from this directory: found the
+    // way a gateway finds it.
+    let default_planner = match walks {
+        Some(_) => Some(default_planner(&site, &args.out)?),
+        None => None,
+    };
     let wall = started.elapsed().as_secs_f64();
     let card = args.out.join("MODEL_CARD.md");
-    std::fs::write(&card, model_card(&site, &args, walks, &written, wall))
-        .with_context(|| format!("cannot write {}", card.display()))?;
+    let text = model_card(
+        &site,
+        &args,
+        walks,
+        &written,
+        &notes,
+        default_planner.as_ref(),
+        wall,
+    );
+    std::fs::write(&card, text).with_context(|| format!("cannot write {}", card.display()))?;
+    // A failed generator was asked for and is not servable; failed desire
+    // lines only matter when the default planner is left with nothing
+    // learned (it passes them over for the conditional generator).
+    let nothing_learned = default_planner
+        .as_ref()
+        .is_some_and(|c| c.serves == PlannerMode::Astar);
     let failed: Vec<&Trained> = written
         .iter()
         .filter(|t| {
             !t.passed()
-                && matches!(
-                    t.kind,
-                    Kind::Generator | Kind::ConditionalGenerator | Kind::DesireLines
-                )
+                && match t.kind {
+                    Kind::Generator | Kind::ConditionalGenerator => true,
+                    Kind::DesireLines => nothing_learned,
+                    _ => false,
+                }
         })
         .collect();
     if args.json {
@@ -210,6 +269,11 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             // Only the conditional generator has the penalty.
             "access_weight": if args.conditional { args.access_weight } else { 0.0 },
             "models": models,
+            "notes": notes,
+            "default_planner": default_planner.as_ref().map(|c| serde_json::json!({
+                "serves": c.serves.name(),
+                "because": c.because,
+            })),
         });
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {
@@ -229,6 +293,16 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 t.bytes as f64 / 1024.0,
                 t.seconds,
                 metrics.join(", ")
+            );
+        }
+        for note in &notes {
+            println!("note: {note}");
+        }
+        if let Some(c) = &default_planner {
+            println!(
+                "the default planner (mode `learned`) serves {}: {}",
+                c.serves.name(),
+                c.because
             );
         }
         println!("wall time {wall:.1} s");
@@ -251,8 +325,8 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
     let hint = if failed.iter().all(|t| t.kind == Kind::DesireLines) {
         "Desire lines that do not beat the any-angle route on the training walks' later \
-         folds need more walks (recorded walks of real people, --from-store), or the astar \
-         mode meanwhile"
+         folds need more walks (recorded walks of real people, --from-store); or train the \
+         conditional generator too (--conditional); the default planner serves A* meanwhile"
     } else {
         "Try more --iterations, more walks per source/destination pair (or coarser cells: \
          --cell-m), fewer rare pairs (--min-class-walks), or serve the astar mode meanwhile"
@@ -265,13 +339,23 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::FAILURE)
 }
 
-/// `MODEL_CARD.md`: what was trained, from what, what it measured and
-/// whether it passed its checks.
+/// Which planner the default mode serves from the models in `dir`, built
+/// as a gateway builds it (`plan::learned`).
+fn default_planner(site: &Site, dir: &Path) -> anyhow::Result<Choice> {
+    let mut config = PlannerConfig::default();
+    super::serve_models_from(&mut config, dir);
+    Ok(plan::learned::build(&config, Arc::new(site.clone()))?.1)
+}
+
+/// `MODEL_CARD.md`: what was trained, from what, what it measured, whether
+/// it passed its checks, and which planner the default mode serves.
 fn model_card(
     site: &Site,
     args: &Args,
     walks: Option<(usize, usize)>,
     written: &[Trained],
+    notes: &[String],
+    default_planner: Option<&Choice>,
     wall: f64,
 ) -> String {
     use std::fmt::Write as _;
@@ -331,6 +415,17 @@ fn model_card(
             m("min_mass"),
             crate::train::desire::FOLDS
         );
+    }
+    if let Some(c) = default_planner {
+        let _ = writeln!(
+            card,
+            "- default planner (`[planner] mode` unset or `learned`): serves **{}**: {}",
+            c.serves.name(),
+            c.because
+        );
+    }
+    for note in notes {
+        let _ = writeln!(card, "- {note}");
     }
     let _ = writeln!(card);
     let _ = writeln!(card, "| file | kind | servable | metrics | checks |");

@@ -14,7 +14,7 @@ use crate::walks::scene::{self, ObstacleImage, Obstacles};
 use crate::walks::{self, Format, Homography, PixelOrder, RasterOptions, RasterStats, ReadOptions};
 
 #[derive(clap::Args)]
-pub struct Args {
+pub(super) struct Args {
     #[command(subcommand)]
     what: What,
 }
@@ -143,7 +143,7 @@ fn parse_y_axis(text: &str) -> Result<YAxis, String> {
     }
 }
 
-pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
     match args.what {
         What::Import(args) => import(args),
         What::Site(args) => site(args),

@@ -12,14 +12,14 @@ use crate::event::RouteRequest;
 
 /// Counts per key within the current second of event time: a fixed window,
 /// emptied every second, so it holds only the keys of the last second.
-pub struct PerSecond {
+pub(super) struct PerSecond {
     limit: u32,
     second: i64,
     counts: HashMap<String, u32>,
 }
 
 impl PerSecond {
-    pub fn new(limit: u32) -> Self {
+    pub(super) fn new(limit: u32) -> Self {
         PerSecond {
             limit,
             second: i64::MIN,
@@ -28,7 +28,7 @@ impl PerSecond {
     }
 
     /// Counts one for `key` at `now` (seconds); false past the limit.
-    pub fn allow(&mut self, key: &str, now: f64) -> bool {
+    pub(super) fn allow(&mut self, key: &str, now: f64) -> bool {
         let second = now.floor() as i64;
         if second != self.second {
             self.second = second;
@@ -44,20 +44,20 @@ impl PerSecond {
 }
 
 /// A route request waiting to be planned.
-pub struct Waiting {
+pub(super) struct Waiting {
     pub request: RouteRequest,
     pub received: Instant,
 }
 
 /// Route requests waiting to be planned, bounded in number and in wait.
-pub struct Requests {
+pub(super) struct Requests {
     queue: VecDeque<Waiting>,
     max: usize,
     deadline: Duration,
 }
 
 /// What to do with a request.
-pub enum Admit {
+pub(super) enum Admit {
     /// Plan it.
     Serve(RouteRequest),
     /// Answer `overloaded`; the message says why.
@@ -65,7 +65,7 @@ pub enum Admit {
 }
 
 impl Requests {
-    pub fn new(max: usize, deadline: Duration) -> Self {
+    pub(super) fn new(max: usize, deadline: Duration) -> Self {
         Requests {
             queue: VecDeque::new(),
             max,
@@ -73,17 +73,17 @@ impl Requests {
         }
     }
 
-    pub fn len(&self) -> usize {
+    pub(super) fn len(&self) -> usize {
         self.queue.len()
     }
 
-    pub fn is_empty(&self) -> bool {
+    pub(super) fn is_empty(&self) -> bool {
         self.queue.is_empty()
     }
 
     /// Queues a request; when the queue is full, hands it back to be
     /// answered `overloaded`, with why.
-    pub fn push(&mut self, request: RouteRequest) -> Option<(RouteRequest, String)> {
+    pub(super) fn push(&mut self, request: RouteRequest) -> Option<(RouteRequest, String)> {
         if self.queue.len() >= self.max {
             let why = format!(
                 "the gateway is overloaded: {} route requests are waiting",
@@ -99,13 +99,13 @@ impl Requests {
     }
 
     /// When the next request was queued.
-    pub fn next_received(&self) -> Option<Instant> {
+    pub(super) fn next_received(&self) -> Option<Instant> {
         self.queue.front().map(|w| w.received)
     }
 
     /// The next request, to plan or, if it waited past the deadline, to
     /// answer `overloaded`.
-    pub fn take_next(&mut self) -> Option<Admit> {
+    pub(super) fn take_next(&mut self) -> Option<Admit> {
         let w = self.queue.pop_front()?;
         let waited = w.received.elapsed();
         Some(if waited > self.deadline {
@@ -124,14 +124,14 @@ impl Requests {
 /// The routes this gateway gave recently, by device and request id: feedback
 /// is taken once for each, and refused for anything else. The oldest are
 /// forgotten past the bound.
-pub struct Issued {
+pub(super) struct Issued {
     max: usize,
     order: VecDeque<(String, String)>,
     open: HashSet<(String, String)>,
 }
 
 impl Issued {
-    pub fn new(max: usize) -> Self {
+    pub(super) fn new(max: usize) -> Self {
         Issued {
             max,
             order: VecDeque::new(),
@@ -139,7 +139,7 @@ impl Issued {
         }
     }
 
-    pub fn insert(&mut self, device: &str, request_id: &str) {
+    pub(super) fn insert(&mut self, device: &str, request_id: &str) {
         let key = (device.to_owned(), request_id.to_owned());
         if self.open.insert(key.clone()) {
             self.order.push_back(key);
@@ -153,7 +153,7 @@ impl Issued {
 
     /// Whether feedback on this route is taken now (given, and not scored
     /// yet); a route is scored once.
-    pub fn take(&mut self, device: &str, request_id: &str) -> bool {
+    pub(super) fn take(&mut self, device: &str, request_id: &str) -> bool {
         self.open
             .remove(&(device.to_owned(), request_id.to_owned()))
     }

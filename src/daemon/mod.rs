@@ -868,6 +868,7 @@ impl Runtime {
                 tracing::info!(
                     windows = done.windows,
                     trajectories = done.trajectories,
+                    anchors = done.changes.len(),
                     seconds = done.seconds,
                     file = %done.path.display(),
                     cells = done.cells.as_ref().map_or(0, |c| c.cells),

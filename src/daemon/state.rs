@@ -62,7 +62,11 @@ fn load_with(config_path: &Path, fall_back: bool) -> anyhow::Result<Loaded> {
 /// The state of `config` on `site` with the survey-free model's calibration
 /// read from `path` (a recalibration's file), built whole or refused whole
 /// like a reload.
-pub fn recalibrated(config: &Config, site: &Arc<Site>, path: &Path) -> anyhow::Result<Loaded> {
+pub(crate) fn recalibrated(
+    config: &Config,
+    site: &Arc<Site>,
+    path: &Path,
+) -> anyhow::Result<Loaded> {
     let mut config = config.clone();
     config.localizer = recalibrate::with_calibration(&config.localizer, path);
     let pipeline = Pipeline::new(&config, site.clone())?;

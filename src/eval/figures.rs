@@ -25,7 +25,7 @@ use crate::site::{Cell, Site};
 /// class: `DIR/routes-<mode>/<source>--<destination>.svg`. The classes are
 /// the path classifier's when it loads, else every ordered pair of named
 /// places. Returns the files written.
-pub fn sample_routes(
+pub(crate) fn sample_routes(
     config: &PlannerConfig,
     site: Arc<Site>,
     per_class: usize,
@@ -102,7 +102,7 @@ fn cell_name(site: &Site, cell: Cell) -> String {
 
 /// One generator checkpoint's deviation score.
 #[derive(Clone, Debug, Serialize)]
-pub struct CheckpointDeviation {
+pub(crate) struct CheckpointDeviation {
     pub file: PathBuf,
     /// `generator` or `conditional_generator`.
     pub kind: &'static str,
@@ -120,7 +120,7 @@ pub struct CheckpointDeviation {
 /// checkpoint of a kind gets the same noise (from `seed`); a conditional one
 /// is asked for the ordered pairs of named places in turn. Sorted by kind and
 /// iterations.
-pub fn checkpoint_deviation(
+pub(crate) fn checkpoint_deviation(
     site: &Site,
     dir: &Path,
     frames: usize,
@@ -199,7 +199,7 @@ fn generate(
 
 /// Fig. 10: mean deviation score against training iterations, one line per
 /// generator kind, as SVG.
-pub fn deviation_svg(path: &Path, points: &[CheckpointDeviation]) -> anyhow::Result<()> {
+pub(crate) fn deviation_svg(path: &Path, points: &[CheckpointDeviation]) -> anyhow::Result<()> {
     let mut series: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
     for p in points {
         let xy = (p.iterations as f64, 100.0 * p.deviation_score_mean);

@@ -42,7 +42,7 @@ use crate::walks::Track;
 
 /// What to simulate.
 #[derive(Clone, Debug)]
-pub struct Setup {
+pub(crate) struct Setup {
     pub trips: usize,
     pub seed: u64,
     /// Chance that a walker strays at a turn.
@@ -68,7 +68,7 @@ impl Default for Setup {
 }
 
 #[derive(Clone, Debug, Default, Serialize)]
-pub struct Report {
+pub(crate) struct Report {
     pub trips: usize,
     /// Trips whose request got an error instead of a route.
     pub refused_trips: usize,
@@ -197,7 +197,7 @@ impl Walker {
 }
 
 /// Runs the trips of `setup` through a pipeline built from `config`.
-pub fn evaluate(
+pub(crate) fn evaluate(
     config: &Config,
     site: Arc<Site>,
     survey: Option<&Survey>,
@@ -520,16 +520,16 @@ impl<'a> Pace<'a> {
 
 /// Least mean speed of a recorded track that is a walk (not someone
 /// standing about), m/s.
-pub const WALKING_MPS: f64 = 0.5;
+pub(crate) const WALKING_MPS: f64 = 0.5;
 
 /// Least duration of a recorded track to take a pace from, seconds.
-pub const PACE_MIN_S: f64 = 4.0;
+pub(crate) const PACE_MIN_S: f64 = 4.0;
 
 /// The second-by-second pace (m/s) of each recorded track that walks: its
 /// positions sampled once a second (interpolated), kept when it lasts at
 /// least [`PACE_MIN_S`] and its mean speed is at least [`WALKING_MPS`]
 /// (pauses within a walk are kept: people slow down and stop).
-pub fn paces(tracks: &[Track]) -> Vec<Vec<f64>> {
+pub(crate) fn paces(tracks: &[Track]) -> Vec<Vec<f64>> {
     tracks
         .iter()
         .filter_map(|track| {

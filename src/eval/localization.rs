@@ -35,20 +35,20 @@ use crate::score::ErrorSummary;
 use crate::site::Site;
 use crate::train::job::{Options, Progress, train_cells};
 
-pub use crate::locate::survey::SESSION_GAP_S;
+pub(crate) use crate::locate::survey::SESSION_GAP_S;
 
 /// Share of rows (random) or sessions (session) held out for testing.
 const TEST_SHARE: f64 = 0.3;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum Split {
+pub(crate) enum Split {
     Random,
     Session,
 }
 
 /// Which rows are held out: drawn per seed, or fixed (`--train`/`--test`).
 #[derive(Clone, Debug)]
-pub enum Holdout {
+pub(crate) enum Holdout {
     Drawn(Split),
     /// `true` for the test rows; evaluated once.
     Fixed(Vec<bool>),
@@ -56,7 +56,7 @@ pub enum Holdout {
 
 /// What to evaluate.
 #[derive(Clone, Debug)]
-pub struct Setup {
+pub(crate) struct Setup {
     pub holdout: Holdout,
     /// A gap longer than this (seconds) between rows starts a new walking session.
     pub session_gap_s: f64,
@@ -76,7 +76,7 @@ pub struct Setup {
 /// The figures, averaged over seeds, and the reliability of the published
 /// confidence over all seeds' fixes.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
-pub struct Metrics {
+pub(crate) struct Metrics {
     #[serde(flatten)]
     pub errors: ErrorSummary,
     /// Localizer plus tracker time per fix, single-threaded.
@@ -90,7 +90,7 @@ pub struct Metrics {
 
 /// Fixes whose confidence fell in `[from, to)`.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
-pub struct ReliabilityBin {
+pub(crate) struct ReliabilityBin {
     pub from: f64,
     pub to: f64,
     pub fixes: usize,
@@ -100,7 +100,7 @@ pub struct ReliabilityBin {
 }
 
 /// Bins with fewer fixes are listed but too noisy to judge calibration by.
-pub const RELIABLE_BIN: usize = 30;
+pub(crate) const RELIABLE_BIN: usize = 30;
 
 /// The reliability table of (confidence, error in cells) pairs.
 fn reliability(fixes: &[(f32, f64)]) -> (Vec<ReliabilityBin>, f64) {
@@ -131,7 +131,7 @@ fn reliability(fixes: &[(f32, f64)]) -> (Vec<ReliabilityBin>, f64) {
 }
 
 /// Metrics plus every error (all seeds), for plotting.
-pub struct Outcome {
+pub(crate) struct Outcome {
     pub metrics: Metrics,
     pub errors: Vec<f64>,
     /// Every held-out row's fix, for `--rows`.
@@ -140,7 +140,7 @@ pub struct Outcome {
 
 /// One held-out row's fix.
 #[derive(Clone, Debug)]
-pub struct RowFix {
+pub(crate) struct RowFix {
     pub seed: u64,
     pub session: usize,
     /// The row's index in the survey file (0 = first data row).
@@ -153,7 +153,7 @@ pub struct RowFix {
 }
 
 #[derive(Debug, thiserror::Error)]
-pub enum EvalError {
+pub(crate) enum EvalError {
     #[error("the survey has no time column; sessions and tracking need `date` or `t`")]
     NoTime,
     #[error(
@@ -200,7 +200,11 @@ fn train_cell_classifier(site: &Site, train: &Survey, seed: u64) -> Result<Onnx,
     Ok(Onnx::load(&trained.file, site)?)
 }
 
-pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outcome, EvalError> {
+pub(crate) fn evaluate(
+    site: &Arc<Site>,
+    survey: &Survey,
+    setup: &Setup,
+) -> Result<Outcome, EvalError> {
     let needs_time = matches!(setup.holdout, Holdout::Drawn(Split::Session))
         || setup.tracker.kind == TrackerKind::Hmm;
     let times: Vec<f64> = if needs_time {
@@ -404,7 +408,7 @@ impl Sessions {
 /// Unlabelled scans for calibration: one row per window, as the evaluation
 /// localizes them.
 #[derive(Clone, Debug)]
-pub struct UnlabelledRows {
+pub(crate) struct UnlabelledRows {
     pub rows: Vec<(f64, Vec<Option<i16>>)>,
 }
 
@@ -457,7 +461,7 @@ fn calibration(
 }
 
 /// EM iterations of `--calibrate` (as `gangway calibrate`'s default).
-pub const CALIBRATION_ITERATIONS: usize = 8;
+pub(crate) const CALIBRATION_ITERATIONS: usize = 8;
 
 fn metrics(errors: &[f64], cell_m: f64, us_per_fix: f64) -> Metrics {
     Metrics {

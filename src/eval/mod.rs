@@ -10,11 +10,11 @@
 //! - [`figures`]: the planning figures (sample routes per class, deviation
 //!   over training checkpoints); `plot` draws the line charts.
 
-pub mod figures;
-pub mod guidance;
-pub mod localization;
+pub(crate) mod figures;
+pub(crate) mod guidance;
+pub(crate) mod localization;
 pub mod planning;
 mod plot;
-pub mod similarity;
+pub(crate) mod similarity;
 
-pub use plot::error_cdf_svg;
+pub(crate) use plot::error_cdf_svg;

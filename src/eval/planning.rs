@@ -1,6 +1,9 @@
 //! `gangway eval planning`: every planner mode on every ordered pair of named
 //! places plus random open-cell pairs, with the figures of issue 5.
 //!
+//! Every mode is measured, `learned` (the default) as a gateway builds it:
+//! its report says which planner it `serves` and why (`serves_because`).
+//!
 //! Measured here: pairs, valid_rate (every answer re-validated), the paper's
 //! deviation score (|G| − |G ∩ B|) / |B| of the frame each learned route came
 //! from, length_ratio_mean (to the shortest route), classifier_error (the
@@ -49,7 +52,7 @@ use crate::train::trajectory::Trajectory;
 
 /// Recorded walks the routes and frames are compared with.
 #[derive(Default)]
-pub struct Walks {
+pub(crate) struct Walks {
     /// Walks no model was trained on (`human_iou_*`).
     pub heldout: Option<Vec<Trajectory>>,
     /// The frames of the walks the generators were trained on (`novelty`).
@@ -76,7 +79,7 @@ pub fn pairs(site: &Site, random: usize, seed: u64) -> Vec<(Cell, Cell)> {
 }
 
 /// Every ordered pair of distinct named places, in the places' name order.
-pub fn place_pairs(site: &Site) -> Vec<(Cell, Cell)> {
+pub(crate) fn place_pairs(site: &Site) -> Vec<(Cell, Cell)> {
     let places: Vec<Cell> = site.places().values().copied().collect();
     places
         .iter()
@@ -86,7 +89,7 @@ pub fn place_pairs(site: &Site) -> Vec<(Cell, Cell)> {
 }
 
 /// The report: top-level keys for `config.mode`, and every mode under `modes`.
-pub fn evaluate(
+pub(crate) fn evaluate(
     config: &PlannerConfig,
     site: Arc<Site>,
     pairs: &[(Cell, Cell)],
@@ -120,8 +123,16 @@ pub fn evaluate(
         .map(|heldout| Judged::new(&site, config.connectivity, heldout));
     let mut modes = serde_json::Map::new();
     for mode in PlannerMode::ALL {
-        let report = match plan::build_mode(config, mode, site.clone()) {
-            Ok(planner) => {
+        // The default mode through the path a gateway takes (`learned`),
+        // saying which planner it serves.
+        let built = match mode {
+            PlannerMode::Learned => {
+                plan::learned::build(config, site.clone()).map(|(p, choice)| (p, Some(choice)))
+            }
+            _ => plan::build_mode(config, mode, site.clone()).map(|p| (p, None)),
+        };
+        let report = match built {
+            Ok((planner, choice)) => {
                 let mut report = evaluate_mode(
                     config,
                     &site,
@@ -140,6 +151,10 @@ pub fn evaluate(
                     }
                     _ => Value::Null,
                 };
+                if let Some(choice) = choice {
+                    report["serves"] = json!(choice.serves.name());
+                    report["serves_because"] = json!(choice.because);
+                }
                 report
             }
             Err(e) => json!({ "unavailable": format!("{e:#}") }),

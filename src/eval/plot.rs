@@ -8,7 +8,7 @@ use std::path::Path;
 use plotters::prelude::*;
 
 /// Draws one cumulative error curve per `(label, errors)` on one chart.
-pub fn error_cdf_svg(
+pub(crate) fn error_cdf_svg(
     path: &Path,
     title: &str,
     curves: &[(String, Vec<f64>)],
@@ -45,7 +45,7 @@ pub fn error_cdf_svg(
 
 /// Draws one line per `(label, points)`, each point marked, axes fitted to
 /// the points (the y axis from 0).
-pub fn line_svg(
+pub(super) fn line_svg(
     path: &Path,
     title: &str,
     axes: (&str, &str),

@@ -17,13 +17,13 @@
 use std::collections::HashSet;
 
 use crate::plan::frame::bright;
-pub use crate::plan::lines::{Polyline, Shape, shape};
+pub(crate) use crate::plan::lines::{Polyline, shape};
 use crate::site::{Cell, Site};
 use crate::train::trajectory::Trajectory;
 
 /// The cells of a grid that are on a path, one bit each.
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
-pub struct CellBits(Vec<u64>);
+pub(crate) struct CellBits(Vec<u64>);
 
 impl CellBits {
     fn empty(site: &Site) -> CellBits {
@@ -32,7 +32,7 @@ impl CellBits {
     }
 
     /// The set of `cells` (a route's or a walk's; cells off the grid ignored).
-    pub fn from_cells(site: &Site, cells: &[Cell]) -> CellBits {
+    pub(crate) fn from_cells(site: &Site, cells: &[Cell]) -> CellBits {
         let mut bits = CellBits::empty(site);
         for &c in cells.iter().filter(|&&c| site.contains(c)) {
             let i = site.grid_index(c);
@@ -43,7 +43,7 @@ impl CellBits {
 
     /// A generated frame's path cells: values above 0, the threshold every
     /// planner uses ([`bright`]).
-    pub fn from_frame(site: &Site, frame: &[f32]) -> CellBits {
+    pub(crate) fn from_frame(site: &Site, frame: &[f32]) -> CellBits {
         let mut bits = CellBits::empty(site);
         for i in (0..frame.len()).filter(|&i| bright(frame, i)) {
             bits.0[i / 64] |= 1 << (i % 64);
@@ -52,7 +52,7 @@ impl CellBits {
     }
 
     /// Cells in exactly one of the two sets.
-    pub fn hamming(&self, other: &CellBits) -> u32 {
+    pub(crate) fn hamming(&self, other: &CellBits) -> u32 {
         self.0
             .iter()
             .zip(&other.0)
@@ -61,7 +61,7 @@ impl CellBits {
     }
 
     /// |A ∩ B| / |A ∪ B|; 1 for two empty sets.
-    pub fn iou(&self, other: &CellBits) -> f64 {
+    pub(crate) fn iou(&self, other: &CellBits) -> f64 {
         let (mut both, mut either) = (0u32, 0u32);
         for (a, b) in self.0.iter().zip(&other.0) {
             both += (a & b).count_ones();
@@ -76,17 +76,17 @@ impl CellBits {
 }
 
 /// Cell-set IoU of two cell sequences on `site` (order and repeats ignored).
-pub fn cell_iou(site: &Site, a: &[Cell], b: &[Cell]) -> f64 {
+pub(crate) fn cell_iou(site: &Site, a: &[Cell], b: &[Cell]) -> f64 {
     CellBits::from_cells(site, a).iou(&CellBits::from_cells(site, b))
 }
 
 /// The distinct frames of the walks a generator was trained on.
-pub struct TrainingFrames {
+pub(crate) struct TrainingFrames {
     frames: Vec<CellBits>,
 }
 
 impl TrainingFrames {
-    pub fn new(site: &Site, walks: &[Trajectory]) -> TrainingFrames {
+    pub(crate) fn new(site: &Site, walks: &[Trajectory]) -> TrainingFrames {
         let distinct: HashSet<CellBits> = walks
             .iter()
             .map(|w| CellBits::from_cells(site, &w.cells))
@@ -97,17 +97,17 @@ impl TrainingFrames {
     }
 
     /// Distinct training frames.
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         self.frames.len()
     }
 
-    pub fn is_empty(&self) -> bool {
+    pub(crate) fn is_empty(&self) -> bool {
         self.frames.is_empty()
     }
 
     /// Cells by which `frame` differs from the training frame nearest to it;
     /// `None` without training frames.
-    pub fn nearest_distance(&self, frame: &CellBits) -> Option<u32> {
+    pub(crate) fn nearest_distance(&self, frame: &CellBits) -> Option<u32> {
         let mut best: Option<u32> = None;
         for t in &self.frames {
             let d = t.hamming(frame);
@@ -127,7 +127,7 @@ impl TrainingFrames {
 /// likely to win each comparison. The binomial tail is summed here rather
 /// than taken from a statistics crate (none is a dependency): it is a few
 /// lines, in log space so that thousands of comparisons do not underflow.
-pub fn sign_test(wins: usize, losses: usize) -> f64 {
+pub(crate) fn sign_test(wins: usize, losses: usize) -> f64 {
     let n = wins + losses;
     if n == 0 {
         return 1.0;

@@ -24,7 +24,7 @@ const STEPS: [(i32, i32); 8] = [
 ];
 
 #[derive(Clone, Debug)]
-pub struct RouteLine {
+pub(crate) struct RouteLine {
     start: Cell,
     end: Cell,
     /// The steps from `start`, two to a byte (the low half first).
@@ -40,7 +40,7 @@ impl RouteLine {
     /// The line of `route`. A step between cells that are not neighbours
     /// (never in a served route) is held as neighbour steps towards the
     /// next cell: the diagonal first, then straight.
-    pub fn new(site: &Site, route: &Route) -> RouteLine {
+    pub(crate) fn new(site: &Site, route: &Route) -> RouteLine {
         let start = *route.cells.first().expect("a route has cells");
         let mut line = RouteLine {
             start,
@@ -71,7 +71,7 @@ impl RouteLine {
     }
 
     /// The route's cells, from the start.
-    pub fn cells(&self) -> impl Iterator<Item = Cell> + '_ {
+    pub(crate) fn cells(&self) -> impl Iterator<Item = Cell> + '_ {
         let codes =
             (0..self.step_count as usize).map(|i| (self.steps[i / 2] >> (4 * (i % 2))) & 0xF);
         std::iter::once(self.start).chain(codes.scan(self.start, |at, code| {
@@ -80,17 +80,17 @@ impl RouteLine {
         }))
     }
 
-    pub fn length_m(&self) -> f64 {
+    pub(crate) fn length_m(&self) -> f64 {
         f64::from(self.length_m)
     }
 
     /// The cell the route ends at.
-    pub fn destination(&self) -> Cell {
+    pub(crate) fn destination(&self) -> Cell {
         self.end
     }
 
     /// Bytes held on the heap.
-    pub fn heap_bytes(&self) -> usize {
+    pub(crate) fn heap_bytes(&self) -> usize {
         self.steps.capacity()
     }
 
@@ -125,7 +125,7 @@ impl RouteLine {
     /// progress it stands for: its projection on the nearest segment that
     /// does not end more than `back_m` behind `progress_m` (so a route
     /// passing near itself does not pull the walker back to its start).
-    pub fn project(
+    pub(crate) fn project(
         &self,
         site: &Site,
         (x, y): (f64, f64),
@@ -158,7 +158,7 @@ impl RouteLine {
     /// Which way the route goes `along_m` from its start: the unit vector
     /// (metres east, metres along the world's y) of the segment there, the
     /// one leaving a corner when `along_m` is at one.
-    pub fn direction(&self, site: &Site, along_m: f64) -> (f64, f64) {
+    pub(crate) fn direction(&self, site: &Site, along_m: f64) -> (f64, f64) {
         let unit = |((ax, ay), (bx, by)): ((f64, f64), (f64, f64))| {
             let len = (bx - ax).hypot(by - ay).max(f64::EPSILON);
             ((bx - ax) / len, (by - ay) / len)

@@ -30,9 +30,9 @@ use std::collections::{HashMap, VecDeque};
 
 use serde::{Deserialize, Serialize};
 
-pub use line::RouteLine;
-pub use progress::Progress;
-pub use session::Session;
+pub(crate) use line::RouteLine;
+pub(crate) use progress::Progress;
+pub(crate) use session::Session;
 
 use crate::plan::{Profile, Route};
 use crate::publish::Guidance;
@@ -96,11 +96,11 @@ impl Default for GuidanceConfig {
 
 impl GuidanceConfig {
     /// `fix_lag_s`, or its default for fixes from `window`.
-    pub fn fix_lag_s(&self, window: &crate::locate::window::WindowConfig) -> f64 {
+    pub(crate) fn fix_lag_s(&self, window: &crate::locate::window::WindowConfig) -> f64 {
         self.fix_lag_s.unwrap_or(window.length_s / 2.0)
     }
 
-    pub fn validate(&self) -> Result<(), String> {
+    pub(crate) fn validate(&self) -> Result<(), String> {
         let positive = [
             ("announce_m", self.announce_m),
             ("reassure_m", self.reassure_m),
@@ -178,7 +178,7 @@ pub enum Ending {
 }
 
 impl Ending {
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             Ending::Arrived => "arrived",
             Ending::Cancelled => "cancelled",
@@ -187,7 +187,7 @@ impl Ending {
         }
     }
 
-    pub fn parse(name: &str) -> Option<Ending> {
+    pub(crate) fn parse(name: &str) -> Option<Ending> {
         [
             Ending::Arrived,
             Ending::Cancelled,
@@ -227,7 +227,7 @@ impl Adherence {
     /// divided by one more than the detours, halved when the walker never
     /// arrived. A route followed to its end at the expected pace scores 1;
     /// one left twice and abandoned scores little.
-    pub fn score(&self) -> f64 {
+    pub(crate) fn score(&self) -> f64 {
         let pace = if self.taken_s > 0.0 {
             (self.expected_s / self.taken_s).min(1.0)
         } else {
@@ -279,7 +279,7 @@ impl Guide {
     }
 
     /// The adherence of the sessions finished since the last call.
-    pub fn take_finished(&mut self) -> Vec<Adherence> {
+    pub(crate) fn take_finished(&mut self) -> Vec<Adherence> {
         self.finished.drain(..).collect()
     }
 
@@ -299,20 +299,17 @@ impl Guide {
         }
     }
 
-    pub fn config(&self) -> &GuidanceConfig {
-        &self.config
-    }
-
     /// Active sessions.
-    pub fn len(&self) -> usize {
+    #[cfg(test)]
+    pub(crate) fn len(&self) -> usize {
         self.sessions.len()
     }
 
-    pub fn is_empty(&self) -> bool {
+    pub(crate) fn is_empty(&self) -> bool {
         self.sessions.is_empty()
     }
 
-    pub fn session(&self, device: &str) -> Option<&Session> {
+    pub(crate) fn session(&self, device: &str) -> Option<&Session> {
         self.sessions.get(device)
     }
 
@@ -419,7 +416,7 @@ impl Guide {
 
     /// Ends the session of `device`, if it has one (one that has arrived
     /// has nothing left to cancel).
-    pub fn cancel(&mut self, device: &str, t: f64) -> Option<Guidance> {
+    pub(crate) fn cancel(&mut self, device: &str, t: f64) -> Option<Guidance> {
         let session = self.sessions.remove(device)?;
         self.finish(device, &session, t, Ending::Cancelled);
         (session.state() != SessionState::Arrived)

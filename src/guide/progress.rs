@@ -24,7 +24,7 @@ const PACE_CHANGE_MPS2: f64 = 0.1;
 /// The filter's state: progress and speed along the route with their
 /// covariance (kept in f32, computed in f64: every guided session holds one).
 #[derive(Clone, Copy, Debug)]
-pub struct Progress {
+pub(crate) struct Progress {
     /// Filtered progress at `t`, metres from the route's start.
     m: f32,
     /// Walking speed along the route, m/s (never negative: walking back
@@ -40,7 +40,7 @@ impl Progress {
     /// A walker setting off from the route's start at `t` at about
     /// `speed_mps` (within a quarter of it, one standard deviation);
     /// `spread_m` is how far a fix's progress strays from the truth.
-    pub fn new(t: f64, speed_mps: f64, spread_m: f64) -> Progress {
+    pub(crate) fn new(t: f64, speed_mps: f64, spread_m: f64) -> Progress {
         let speed_spread = speed_mps / 4.0;
         Progress {
             m: 0.0,
@@ -55,24 +55,24 @@ impl Progress {
     }
 
     /// Filtered progress predicted to time `t` at the filtered speed.
-    pub fn at(&self, t: f64) -> f64 {
+    pub(crate) fn at(&self, t: f64) -> f64 {
         self.at_speed(t, self.speed_mps())
     }
 
     /// Filtered progress predicted to time `t` at `speed_mps`.
-    pub fn at_speed(&self, t: f64, speed_mps: f64) -> f64 {
+    pub(crate) fn at_speed(&self, t: f64, speed_mps: f64) -> f64 {
         f64::from(self.m) + speed_mps * (t - self.t).max(0.0)
     }
 
     /// Filtered speed along the route, m/s.
-    pub fn speed_mps(&self) -> f64 {
+    pub(crate) fn speed_mps(&self) -> f64 {
         f64::from(self.v)
     }
 
     /// Folds in the progress `z` (metres along the route) the walker had at
     /// `t`, as a fix of spread `spread_m` says; the speed stays within
     /// `0..=max_mps`. A fix from before the last one moves nothing.
-    pub fn update(&mut self, t: f64, z: f64, spread_m: f64, max_mps: f64) {
+    pub(crate) fn update(&mut self, t: f64, z: f64, spread_m: f64, max_mps: f64) {
         if t < self.t {
             return;
         }

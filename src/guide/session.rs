@@ -45,7 +45,7 @@ const TURNING_OFF_DEG: f64 = 60.0;
 /// announced with it. A route with more has the rest worked out again
 /// from the route when fewer than [`MANEUVERS_AHEAD`] are left in the
 /// window.
-pub const WINDOW_MANEUVERS: usize = 6;
+pub(crate) const WINDOW_MANEUVERS: usize = 6;
 
 /// Maneuvers from the next one on that the window keeps loaded.
 const MANEUVERS_AHEAD: usize = 3;
@@ -85,7 +85,7 @@ enum Leaving {
 }
 
 #[derive(Clone, Debug)]
-pub struct Session {
+pub(crate) struct Session {
     request_id: Option<String>,
     profile: Profile,
     line: RouteLine,
@@ -221,29 +221,21 @@ impl Session {
         self.load_window(all, self.next);
     }
 
-    pub fn state(&self) -> SessionState {
+    pub(crate) fn state(&self) -> SessionState {
         self.state
     }
 
-    pub fn progress_m(&self) -> f64 {
-        self.progress_m
-    }
-
-    pub fn profile(&self) -> Profile {
+    pub(crate) fn profile(&self) -> Profile {
         self.profile
     }
 
-    pub fn request_id(&self) -> Option<&str> {
+    pub(crate) fn request_id(&self) -> Option<&str> {
         self.request_id.as_deref()
     }
 
     /// The cell the route ends at.
-    pub fn destination(&self) -> Cell {
+    pub(crate) fn destination(&self) -> Cell {
         self.line.destination()
-    }
-
-    pub fn reroutes(&self) -> u32 {
-        self.walked.reroutes
     }
 
     pub(super) fn walked(&self) -> Walked {
@@ -286,7 +278,7 @@ impl Session {
     }
 
     /// Bytes this session holds, itself and on the heap.
-    pub fn state_bytes(&self) -> usize {
+    pub(crate) fn state_bytes(&self) -> usize {
         std::mem::size_of::<Session>()
             + self.line.heap_bytes()
             + self.window.capacity() * std::mem::size_of::<Maneuver>()

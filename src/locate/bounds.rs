@@ -9,7 +9,7 @@ use std::collections::HashMap;
 
 /// How many entities a table keeps and for how long, and how many it forgot.
 #[derive(Clone, Debug)]
-pub struct Bounds {
+pub(crate) struct Bounds {
     max: usize,
     idle_s: f64,
     /// Latest event time seen: the clock idle time is measured on (event
@@ -27,7 +27,7 @@ impl Default for Bounds {
 }
 
 impl Bounds {
-    pub fn new(max: usize, idle_s: f64) -> Self {
+    pub(crate) fn new(max: usize, idle_s: f64) -> Self {
         Bounds {
             max: max.max(1),
             idle_s,
@@ -37,12 +37,12 @@ impl Bounds {
         }
     }
 
-    pub fn max(&self) -> usize {
+    pub(crate) fn max(&self) -> usize {
         self.max
     }
 
     /// Entities forgotten so far.
-    pub fn evicted(&self) -> u64 {
+    pub(crate) fn evicted(&self) -> u64 {
         self.evicted
     }
 
@@ -51,7 +51,7 @@ impl Bounds {
     /// quarter of the idle time, and, when full, the least recently seen
     /// sixteenth: amortised O(1) per call, without a recency list to keep in
     /// order. `forgotten` gets each key removed.
-    pub fn make_room<K: Eq + Hash + Clone, V, S: BuildHasher>(
+    pub(crate) fn make_room<K: Eq + Hash + Clone, V, S: BuildHasher>(
         &mut self,
         map: &mut HashMap<K, V, S>,
         t: f64,

@@ -40,7 +40,7 @@ use crate::site::{Cell, Site};
 /// One window of a trajectory: when, what was heard (one slot per anchor,
 /// `None` when silent) and, when known, where.
 #[derive(Clone, Debug)]
-pub struct Window {
+pub(crate) struct Window {
     pub t: f64,
     pub rssi: Vec<Option<f32>>,
     pub cell: Option<Cell>,
@@ -71,7 +71,7 @@ pub struct Calibration {
 
 /// What [`fit`] fits.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct FitOptions {
+pub(crate) struct FitOptions {
     /// EM iterations of the per-anchor models.
     pub iterations: usize,
     /// EM iterations refining a radio map per cell afterwards (0: none).
@@ -82,7 +82,7 @@ pub struct FitOptions {
 
 impl FitOptions {
     /// Per-anchor models only.
-    pub fn anchors(iterations: usize) -> FitOptions {
+    pub(crate) fn anchors(iterations: usize) -> FitOptions {
         FitOptions {
             iterations,
             cell_iterations: 0,
@@ -93,7 +93,7 @@ impl FitOptions {
 
 /// Default of [`FitOptions::cell_prior_readings`]: one reading's weight, so
 /// a cell the walks stood on a few times is mostly what was heard there.
-pub const DEFAULT_CELL_PRIOR_READINGS: f64 = 1.0;
+pub(crate) const DEFAULT_CELL_PRIOR_READINGS: f64 = 1.0;
 
 /// Cells whose refinement rests on less belief than this (in windows) are
 /// not written: they are the anchors' models anyway.
@@ -182,18 +182,18 @@ impl Calibration {
     }
 
     /// The radio model of one anchor, if calibrated.
-    pub fn radio(&self, id: &str) -> Option<Radio> {
+    pub(crate) fn radio(&self, id: &str) -> Option<Radio> {
         self.anchors.iter().find(|a| a.id == id).map(|a| a.radio)
     }
 
-    pub fn to_toml(&self) -> String {
+    pub(crate) fn to_toml(&self) -> String {
         toml::to_string(self).expect("a calibration serializes")
     }
 }
 
 /// How far one anchor's model moved.
 #[derive(Clone, Debug, Serialize)]
-pub struct Change {
+pub(crate) struct Change {
     pub id: String,
     pub heard: usize,
     pub before: Radio,
@@ -205,7 +205,7 @@ pub struct Change {
 }
 
 /// The fitted calibration and what changed.
-pub struct Fitted {
+pub(crate) struct Fitted {
     pub calibration: Calibration,
     pub changes: Vec<Change>,
     /// Mean log-likelihood per window under the final model.
@@ -217,7 +217,7 @@ pub struct Fitted {
 
 /// How far the per-cell refinement moved the radio map.
 #[derive(Clone, Debug, Serialize)]
-pub struct CellChange {
+pub(crate) struct CellChange {
     /// Cells refined (and written).
     pub cells: usize,
     /// Mean |change| of the detection probability over those cells and anchors.
@@ -230,7 +230,7 @@ pub struct CellChange {
 /// Fits every positioned anchor's radio model to `trajectories` (each in time
 /// order), starting from `start` (in the orientation's anchor order, with the
 /// anchors' ids in `ids`), and then, if asked, a radio map per cell.
-pub fn fit(
+pub(crate) fn fit(
     site: &Arc<Site>,
     ids: &[String],
     start: &[Anchor],

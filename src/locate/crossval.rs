@@ -18,7 +18,7 @@ use crate::site::Site;
 
 /// How the survey's rows are split for cross-validation.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Folds {
+pub(crate) enum Folds {
     /// Whole walking sessions in this many folds (rows in turn when the
     /// survey has no times): cheap, for choosing between settings.
     Sessions(usize),
@@ -36,7 +36,7 @@ const MAX_FOLDS: usize = 20;
 
 /// The chosen candidate, its mean held-out error (cells) and the confidence
 /// map of its held-out fixes.
-pub struct Chosen<C> {
+pub(crate) struct Chosen<C> {
     pub candidate: C,
     pub error_cells: f64,
     pub confidence: ConfidenceMap,
@@ -44,7 +44,7 @@ pub struct Chosen<C> {
 
 /// Tries every candidate; `build` makes a localizer of one candidate from
 /// some survey rows; anchors not heard read `missing_dbm`, as in a window.
-pub fn choose<C: Clone, L: Localizer>(
+pub(crate) fn choose<C: Clone, L: Localizer>(
     candidates: &[C],
     how: Folds,
     site: &Arc<Site>,

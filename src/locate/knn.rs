@@ -68,7 +68,7 @@ impl Default for KnnConfig {
 
 impl KnnConfig {
     /// Checks the values a user can get wrong, naming the key.
-    pub fn validate(&self) -> Result<(), String> {
+    pub(crate) fn validate(&self) -> Result<(), String> {
         if self.k == 0 {
             return Err("`k` must be at least 1".into());
         }
@@ -121,7 +121,7 @@ pub struct Knn {
 /// recorded it: the row still carries e^-2 ≈ 14% of an exact match's
 /// weight in the vote, so the vote is a lookup of something recorded rather
 /// than the least bad of strangers.
-pub const FAMILIAR_BANDWIDTHS: f32 = 2.0;
+pub(crate) const FAMILIAR_BANDWIDTHS: f32 = 2.0;
 
 /// Width of the distance loop's accumulators.
 const LANES: usize = 8;
@@ -195,7 +195,7 @@ impl Knn {
     }
 
     /// Loads the configured survey and builds from all of it.
-    pub fn load(
+    pub(crate) fn load(
         config: &KnnConfig,
         site: &Arc<Site>,
         anchors: &[String],
@@ -212,7 +212,7 @@ impl Knn {
     /// Whether the fingerprint of the last [`Localizer::log_likelihood`]
     /// call is one the survey recorded: a row within
     /// [`FAMILIAR_BANDWIDTHS`] kernel widths of it.
-    pub fn familiar(&self) -> bool {
+    pub(crate) fn familiar(&self) -> bool {
         self.nearest_db * self.inv_bandwidth <= FAMILIAR_BANDWIDTHS
     }
 }

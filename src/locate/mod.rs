@@ -7,16 +7,16 @@
 //! - [`tracker`] keeps a belief per entity that respects walls and walking speed.
 
 pub(crate) mod auto;
-pub mod bounds;
+pub(crate) mod bounds;
 pub mod calibrate;
-pub mod crossval;
+pub(crate) mod crossval;
 pub mod knn;
-pub mod onnx;
+pub(crate) mod onnx;
 pub mod pathloss;
 pub mod radiomap;
-pub mod recalibrate;
-pub mod reliability;
-pub mod strongest;
+pub(crate) mod recalibrate;
+pub(crate) mod reliability;
+pub(crate) mod strongest;
 pub mod survey;
 pub mod tracker;
 pub mod window;
@@ -112,7 +112,7 @@ pub enum Method {
 }
 
 impl Method {
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             Method::Auto => "auto",
             Method::Pathloss => "pathloss",
@@ -166,7 +166,7 @@ impl LocalizerError {
     /// Whether a file the localizer reads (its survey or model) failed, as
     /// opposed to the config or the site: only then can another method serve
     /// in its place ([`crate::pipeline::Pipeline::with_fallbacks`]).
-    pub fn is_file_failure(&self) -> bool {
+    pub(crate) fn is_file_failure(&self) -> bool {
         matches!(
             self,
             LocalizerError::EmptySurvey

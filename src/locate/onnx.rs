@@ -27,13 +27,13 @@ impl Default for OnnxConfig {
     }
 }
 
-pub struct Onnx {
+pub(crate) struct Onnx {
     model: CellClassifier,
 }
 
 impl Onnx {
     /// Loads a cell classifier, refusing one made for another site or anchors.
-    pub fn load(path: &Path, site: &Site) -> Result<Onnx, LocalizerError> {
+    pub(crate) fn load(path: &Path, site: &Site) -> Result<Onnx, LocalizerError> {
         Ok(Onnx {
             model: CellClassifier::load(path, site)?,
         })

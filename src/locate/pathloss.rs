@@ -67,13 +67,8 @@ impl Default for PathLossConfig {
 }
 
 impl PathLossConfig {
-    /// Expected RSSI at `distance_m` from an anchor with measured power `tx`.
-    pub fn expected_rssi(&self, tx_dbm: f64, distance_m: f64) -> f64 {
-        tx_dbm - 10.0 * self.exponent * distance_m.max(NEAREST_M).log10()
-    }
-
     /// The radio model of an anchor with measured power `tx_dbm`.
-    pub fn radio(&self, tx_dbm: f64) -> Radio {
+    pub(crate) fn radio(&self, tx_dbm: f64) -> Radio {
         Radio {
             tx_dbm,
             exponent: self.exponent,
@@ -85,7 +80,7 @@ impl PathLossConfig {
     }
 
     /// Checks the values a user can get wrong, naming the key.
-    pub fn validate(&self) -> Result<(), String> {
+    pub(crate) fn validate(&self) -> Result<(), String> {
         self.radio(self.tx_power_dbm).validate()
     }
 }
@@ -112,19 +107,19 @@ pub struct Radio {
 }
 
 impl Radio {
-    pub fn expected_rssi(&self, distance_m: f64) -> f64 {
+    pub(crate) fn expected_rssi(&self, distance_m: f64) -> f64 {
         self.tx_dbm - 10.0 * self.exponent * distance_m.max(NEAREST_M).log10()
     }
 
     /// Chance the anchor is heard in one window at `distance_m`, kept inside
     /// [`DETECTION_BOUNDS`] so neither hearing nor silence is ever impossible.
-    pub fn detection(&self, distance_m: f64) -> f64 {
+    pub(crate) fn detection(&self, distance_m: f64) -> f64 {
         let d = distance_m.max(NEAREST_M) / self.range_m;
         let p = self.max_detection / (1.0 + d.powf(self.range_slope));
         p.clamp(DETECTION_BOUNDS.0, DETECTION_BOUNDS.1)
     }
 
-    pub fn validate(&self) -> Result<(), String> {
+    pub(crate) fn validate(&self) -> Result<(), String> {
         let checks: [(&str, f64, bool); 5] = [
             ("exponent", self.exponent, self.exponent > 0.0),
             ("shadowing_db", self.shadowing_db, self.shadowing_db > 0.0),
@@ -153,17 +148,17 @@ impl Radio {
 /// Detection probabilities are kept in this range: a beacon next to you is
 /// still missed now and then (collisions, scan gaps), and one across the
 /// floor is still heard through a reflection.
-pub const DETECTION_BOUNDS: (f64, f64) = (1e-3, 0.98);
+pub(crate) const DETECTION_BOUNDS: (f64, f64) = (1e-3, 0.98);
 
 /// An anchor's mounting position (world metres, maybe a height) and radio
 /// model, in the orientation's anchor order; `None` for an anchor without a
 /// known position.
-pub type Anchor = Option<(Mount, Radio)>;
+pub(crate) type Anchor = Option<(Mount, Radio)>;
 
 /// The anchors of the site in the orientation's order, with the radio model
 /// each one gets: the calibration's entry, else the config's values with the
 /// site's `tx_power`.
-pub fn anchors(
+pub(crate) fn anchors(
     site: &Site,
     orientation: Orientation,
     config: &PathLossConfig,
@@ -205,6 +200,9 @@ pub struct PathLoss {
     log_miss: Vec<f32>,
     /// 1/σ per anchor.
     inv_sigma: Vec<f32>,
+    /// ln(1/σ) per anchor: the Gaussian's normalising term, taken once here
+    /// rather than once per cell and window (it was a tenth of a replay).
+    ln_inv_sigma: Vec<f32>,
 }
 
 impl PathLoss {
@@ -223,7 +221,7 @@ impl PathLoss {
 
     /// The model of the config's anchors with a calibration applied: its
     /// per-anchor models, then its refined cells.
-    pub fn calibrated(
+    pub(crate) fn calibrated(
         site: &Site,
         orientation: Orientation,
         config: &PathLossConfig,
@@ -261,7 +259,7 @@ impl PathLoss {
     }
 
     /// The model for given anchors (calibration and evaluation build these).
-    pub fn with_anchors(site: &Site, anchors: &[Anchor]) -> Result<Self, LocalizerError> {
+    pub(crate) fn with_anchors(site: &Site, anchors: &[Anchor]) -> Result<Self, LocalizerError> {
         if anchors.iter().all(Option::is_none) {
             return Err(LocalizerError::NoAnchorPositions);
         }
@@ -291,17 +289,17 @@ impl PathLoss {
                 }
             }
         }
-        Ok(PathLoss {
-            n_cells: cells.len(),
-            n_anchors: anchors.len(),
+        let inv_sigma = anchors
+            .iter()
+            .map(|a| a.map_or(0.0, |(_, r)| (1.0 / r.shadowing_db) as f32))
+            .collect();
+        Ok(PathLoss::from_tables(
+            cells.len(),
             expected,
             log_hit,
             log_miss,
-            inv_sigma: anchors
-                .iter()
-                .map(|a| a.map_or(0.0, |(_, r)| (1.0 / r.shadowing_db) as f32))
-                .collect(),
-        })
+            inv_sigma,
+        ))
     }
 }
 
@@ -359,6 +357,7 @@ impl PathLoss {
             expected,
             log_hit,
             log_miss,
+            ln_inv_sigma: inv_sigma.iter().map(|s| s.ln()).collect(),
             inv_sigma,
         }
     }
@@ -387,7 +386,7 @@ impl Localizer for PathLoss {
                         continue;
                     }
                     let z = (rssi[a] - mu) * self.inv_sigma[a];
-                    ll += log_hit[a] - 0.5 * z * z + self.inv_sigma[a].ln();
+                    ll += log_hit[a] - 0.5 * z * z + self.ln_inv_sigma[a];
                 } else {
                     ll += log_miss[a];
                 }
@@ -401,6 +400,13 @@ impl Localizer for PathLoss {
 mod tests {
     use super::*;
     use std::path::Path;
+
+    impl PathLossConfig {
+        /// Expected RSSI at `distance_m` from an anchor with measured power `tx`.
+        fn expected_rssi(&self, tx_dbm: f64, distance_m: f64) -> f64 {
+            self.radio(tx_dbm).expected_rssi(distance_m)
+        }
+    }
 
     fn corridor() -> Arc<Site> {
         let text = r#"

@@ -86,7 +86,7 @@ struct CellReadings {
 
 impl RadioMap {
     /// Loads the configured survey and builds from all of it.
-    pub fn load(
+    pub(crate) fn load(
         config: &RadioMapConfig,
         site: &Arc<Site>,
         ids: &[String],
@@ -166,7 +166,7 @@ impl RadioMap {
     }
 
     /// The kernel width (m) and RSSI spread (dB) it was built with.
-    pub fn settings(&self) -> (f64, f64) {
+    pub(crate) fn settings(&self) -> (f64, f64) {
         self.settings
     }
 }

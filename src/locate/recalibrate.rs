@@ -70,7 +70,7 @@ impl Default for RecalibrationConfig {
 
 impl RecalibrationConfig {
     /// Checks the values a user can get wrong, naming the key.
-    pub fn validate(&self) -> Result<(), String> {
+    pub(crate) fn validate(&self) -> Result<(), String> {
         if !(self.every_h.is_finite() && self.every_h >= 0.0) {
             return Err(format!(
                 "`every_h` = {} must be a number of hours, 0 or more",
@@ -87,7 +87,7 @@ impl RecalibrationConfig {
     }
 
     /// Where the calibration goes: `out`, else beside the store.
-    pub fn out_path(&self, store: &Path) -> PathBuf {
+    pub(crate) fn out_path(&self, store: &Path) -> PathBuf {
         self.out
             .clone()
             .unwrap_or_else(|| store.with_file_name("calibration.toml"))
@@ -113,7 +113,7 @@ pub struct Heard {
 impl Heard {
     /// The window, if it heard any anchor; `ids` are the anchors in the
     /// window's order ([`anchor_ids`]).
-    pub fn of(window: &Fingerprint, ids: &[String]) -> Option<Heard> {
+    pub(crate) fn of(window: &Fingerprint, ids: &[String]) -> Option<Heard> {
         let readings: Vec<(String, f32)> = window
             .heard
             .iter()
@@ -132,7 +132,7 @@ impl Heard {
 
 /// Whether recalibration changes what `config` serves: the survey-free
 /// model, configured or chosen by `auto` for want of a survey.
-pub fn applies(config: &LocalizerConfig) -> bool {
+pub(crate) fn applies(config: &LocalizerConfig) -> bool {
     match config.method {
         Method::Pathloss => true,
         Method::Auto => config.knn.survey.is_none() && config.radiomap.survey.is_none(),
@@ -142,7 +142,11 @@ pub fn applies(config: &LocalizerConfig) -> bool {
 
 /// The localizer config a gateway serves with: with recalibration on and a
 /// recalibrated file that loads, that file; else `config` as it is.
-pub fn serving(config: &LocalizerConfig, store: &StoreConfig, site: &Site) -> LocalizerConfig {
+pub(crate) fn serving(
+    config: &LocalizerConfig,
+    store: &StoreConfig,
+    site: &Site,
+) -> LocalizerConfig {
     if !(config.recalibration.enabled && applies(config)) {
         return config.clone();
     }
@@ -161,7 +165,7 @@ pub fn serving(config: &LocalizerConfig, store: &StoreConfig, site: &Site) -> Lo
 
 /// When the next recalibration is due.
 #[derive(Clone, Debug)]
-pub struct Schedule {
+pub(crate) struct Schedule {
     every_s: f64,
     min_windows: u64,
     /// Time of the last run's start (or of the schedule's creation).
@@ -173,7 +177,7 @@ pub struct Schedule {
 }
 
 impl Schedule {
-    pub fn new(config: &RecalibrationConfig, now: f64) -> Schedule {
+    pub(crate) fn new(config: &RecalibrationConfig, now: f64) -> Schedule {
         Schedule {
             every_s: config.every_h * 3600.0,
             min_windows: config.min_windows as u64,
@@ -185,13 +189,13 @@ impl Schedule {
     }
 
     /// Asks for a run as soon as none is running.
-    pub fn request(&mut self) {
+    pub(crate) fn request(&mut self) {
         self.requested = true;
     }
 
     /// Whether a run should start now, `gathered` windows having been kept
     /// since start.
-    pub fn due(&self, now: f64, gathered: u64) -> bool {
+    pub(crate) fn due(&self, now: f64, gathered: u64) -> bool {
         if self.running {
             return false;
         }
@@ -202,7 +206,7 @@ impl Schedule {
     }
 
     /// A run started.
-    pub fn started(&mut self, now: f64, gathered: u64) {
+    pub(crate) fn started(&mut self, now: f64, gathered: u64) {
         self.running = true;
         self.requested = false;
         self.last = now;
@@ -210,19 +214,15 @@ impl Schedule {
     }
 
     /// The run ended (applied or not).
-    pub fn finished(&mut self) {
+    pub(crate) fn finished(&mut self) {
         self.running = false;
-    }
-
-    pub fn running(&self) -> bool {
-        self.running
     }
 }
 
 /// Everything a recalibration reads, owned, so the job can run on another
 /// thread while the daemon serves.
 #[derive(Clone, Debug)]
-pub struct Job {
+pub(crate) struct Job {
     pub site: Arc<Site>,
     pub orientation: Orientation,
     /// The configured model EM starts from (its calibration file unused).
@@ -235,7 +235,7 @@ pub struct Job {
 
 impl Job {
     /// The job of a gateway config's parts.
-    pub fn new(
+    pub(crate) fn new(
         site: &Arc<Site>,
         orientation: Orientation,
         localizer: &LocalizerConfig,
@@ -255,7 +255,9 @@ impl Job {
 
 /// A finished recalibration.
 #[derive(Debug)]
-pub struct Recalibrated {
+pub(crate) struct Recalibrated {
+    /// What was written to `path` (the daemon reloads it from there).
+    #[cfg(test)]
     pub calibration: Calibration,
     /// The file written.
     pub path: PathBuf,
@@ -267,7 +269,7 @@ pub struct Recalibrated {
 }
 
 #[derive(Debug, thiserror::Error)]
-pub enum RecalibrationError {
+pub(crate) enum RecalibrationError {
     #[error(transparent)]
     Store(#[from] StoreError),
     #[error(
@@ -285,7 +287,7 @@ pub enum RecalibrationError {
 }
 
 /// Runs one recalibration (blocking; see the module doc).
-pub fn run(job: &Job) -> Result<Recalibrated, RecalibrationError> {
+pub(crate) fn run(job: &Job) -> Result<Recalibrated, RecalibrationError> {
     let started = std::time::Instant::now();
     let store = Store::open_read_only(&job.store)?;
     let rows = store.heard(job.config.max_windows)?;
@@ -326,6 +328,7 @@ pub fn run(job: &Job) -> Result<Recalibrated, RecalibrationError> {
         source,
     })?;
     Ok(Recalibrated {
+        #[cfg(test)]
         calibration: fitted.calibration,
         path,
         windows,
@@ -338,7 +341,7 @@ pub fn run(job: &Job) -> Result<Recalibrated, RecalibrationError> {
 
 /// The localizer config that loads a recalibrated file: what the daemon
 /// builds anew and swaps in.
-pub fn with_calibration(config: &LocalizerConfig, path: &Path) -> LocalizerConfig {
+pub(crate) fn with_calibration(config: &LocalizerConfig, path: &Path) -> LocalizerConfig {
     let mut config = config.clone();
     config.pathloss.calibration = Some(path.to_owned());
     config

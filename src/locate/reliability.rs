@@ -11,7 +11,7 @@
 /// A monotone map from raw to published confidence: `(raw, published)`
 /// knots, linear between them.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct ConfidenceMap {
+pub(crate) struct ConfidenceMap {
     knots: Vec<(f32, f32)>,
 }
 
@@ -20,7 +20,7 @@ const MIN_FIXES: usize = 50;
 
 impl ConfidenceMap {
     /// Fits to held-out `(raw confidence, error in cells)` pairs.
-    pub fn fit(fixes: &[(f32, f64)]) -> ConfidenceMap {
+    pub(crate) fn fit(fixes: &[(f32, f64)]) -> ConfidenceMap {
         if fixes.len() < MIN_FIXES {
             return ConfidenceMap::default();
         }
@@ -52,7 +52,7 @@ impl ConfidenceMap {
     }
 
     /// The published confidence of a raw one.
-    pub fn apply(&self, raw: f32) -> f32 {
+    pub(crate) fn apply(&self, raw: f32) -> f32 {
         let k = &self.knots;
         let (Some(first), Some(last)) = (k.first(), k.last()) else {
             return raw;

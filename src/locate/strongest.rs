@@ -15,7 +15,7 @@ use super::window::Orientation;
 use super::{Localizer, LocalizerError, pathloss};
 use crate::site::{Mount, Site};
 
-pub struct Strongest {
+pub(crate) struct Strongest {
     /// Each walkable cell's centre, world metres.
     cells_m: Vec<[f64; 2]>,
     /// Where each anchor is mounted, in the orientation's anchor order.
@@ -24,7 +24,7 @@ pub struct Strongest {
 }
 
 impl Strongest {
-    pub fn new(
+    pub(crate) fn new(
         config: &pathloss::PathLossConfig,
         site: &Arc<Site>,
         orientation: Orientation,

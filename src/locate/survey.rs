@@ -34,11 +34,11 @@ use crate::site::{Cell, Site};
 
 /// A gap longer than this (seconds) between survey rows starts a new walking
 /// session, unless the caller says otherwise.
-pub const SESSION_GAP_S: f64 = 20.0;
+pub(crate) const SESSION_GAP_S: f64 = 20.0;
 
 /// Rows in time order and the walking session of each (numbered from 0 in
 /// time order): a gap over `gap_s` seconds starts a new one.
-pub fn sessions(times: &[f64], gap_s: f64) -> (Vec<usize>, Vec<usize>) {
+pub(crate) fn sessions(times: &[f64], gap_s: f64) -> (Vec<usize>, Vec<usize>) {
     let mut order: Vec<usize> = (0..times.len()).collect();
     order.sort_by(|&a, &b| times[a].total_cmp(&times[b]));
     let mut session = vec![0usize; times.len()];
@@ -113,7 +113,7 @@ const KNOWN_COLUMNS: [&str; 7] = ["location", "x", "y", "x_m", "y_m", "date", "t
 
 /// One row of a survey or scan log, its anchors in the caller's anchor order.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Row {
+pub(crate) struct Row {
     /// Line of the row in the file (the header is line 1).
     pub line: u64,
     /// Where the row was taken, when the file has position columns.
@@ -128,7 +128,7 @@ pub struct Row {
 
 /// A survey-layout CSV file opened for reading row by row, its columns matched
 /// to a list of anchors.
-pub struct SurveyRows<'a> {
+pub(crate) struct SurveyRows<'a> {
     reader: csv::Reader<File>,
     record: csv::StringRecord,
     path: PathBuf,
@@ -146,7 +146,7 @@ impl<'a> SurveyRows<'a> {
     /// file); `not_heard` is the RSSI sentinel for "not heard". Refuses a file
     /// whose header names no anchor, or that names cells by label on a site
     /// without a label scheme.
-    pub fn open(
+    pub(crate) fn open(
         path: &Path,
         site: &'a Site,
         anchors: &[String],
@@ -233,22 +233,22 @@ impl<'a> SurveyRows<'a> {
 
     /// Whether rows say where they were taken (`x_m` and `y_m`, `location`,
     /// or `x` and `y`).
-    pub fn has_position(&self) -> bool {
+    pub(crate) fn has_position(&self) -> bool {
         self.position.is_some()
     }
 
     /// Whether rows say when they were taken (`date` or `t`).
-    pub fn has_clock(&self) -> bool {
+    pub(crate) fn has_clock(&self) -> bool {
         !matches!(self.clock, Clock::None)
     }
 
     /// Which anchors the file has a column for.
-    pub fn present(&self) -> Vec<bool> {
+    pub(crate) fn present(&self) -> Vec<bool> {
         self.column_of.iter().map(Option::is_some).collect()
     }
 
     /// Columns that name no anchor and have no meaning of their own.
-    pub fn ignored_columns(&self) -> &[String] {
+    pub(crate) fn ignored_columns(&self) -> &[String] {
         &self.ignored_columns
     }
 
@@ -474,18 +474,13 @@ impl Survey {
     }
 
     /// The survey restricted to some of its rows (a training split).
-    pub fn subset(&self, rows: &[usize]) -> Survey {
+    pub(crate) fn subset(&self, rows: &[usize]) -> Survey {
         Survey {
             samples: rows.iter().map(|&r| self.samples[r].clone()).collect(),
             anchors: self.anchors.clone(),
             present: self.present.clone(),
             ignored_columns: self.ignored_columns.clone(),
         }
-    }
-
-    /// Columns that named no anchor of the site.
-    pub fn ignored_columns(&self) -> &[String] {
-        &self.ignored_columns
     }
 }
 
@@ -502,6 +497,13 @@ fn parse_date(s: &str) -> Option<f64> {
 mod tests {
     use super::*;
     use std::io::Write;
+
+    impl Survey {
+        /// Columns that named no anchor of the site.
+        fn ignored_columns(&self) -> &[String] {
+            &self.ignored_columns
+        }
+    }
 
     const SITE: &str = r#"
 name = "t"

@@ -141,33 +141,29 @@ impl Tracker {
 
     /// Keeps at most `max` tracks, and none without a window for `idle_s`
     /// seconds (see [`Bounds`]).
-    pub fn bound(mut self, max: usize, idle_s: f64) -> Self {
+    pub(crate) fn bound(mut self, max: usize, idle_s: f64) -> Self {
         self.bounds = Bounds::new(max, idle_s);
         self
     }
 
     /// Tracks forgotten since start.
-    pub fn evicted_count(&self) -> u64 {
+    pub(crate) fn evicted_count(&self) -> u64 {
         self.bounds.evicted()
     }
 
     /// The entities forgotten since the last call (whoever announced them
     /// can withdraw them).
-    pub fn take_evicted(&mut self) -> Vec<Arc<str>> {
+    pub(crate) fn take_evicted(&mut self) -> Vec<Arc<str>> {
         std::mem::take(&mut self.evicted).into()
     }
 
     /// The latest fix of an entity.
-    pub fn last_fix(&self, entity: &str) -> Option<Fix> {
+    pub(crate) fn last_fix(&self, entity: &str) -> Option<Fix> {
         self.tracks.get(entity).map(|t| t.fix)
     }
 
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         self.tracks.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.tracks.is_empty()
     }
 
     /// Folds one window's log-likelihoods (one per open cell) into the entity's
@@ -215,7 +211,7 @@ impl Tracker {
     /// [`Tracker::update`], then a backward pass over the lag). A live gateway
     /// would publish each such fix `lag` windows late; recorded walks can
     /// afford it. With `lag` 0 this is the online filter.
-    pub fn smooth(&self, windows: &[(f64, Vec<f32>)], lag: usize) -> Vec<Fix> {
+    pub(crate) fn smooth(&self, windows: &[(f64, Vec<f32>)], lag: usize) -> Vec<Fix> {
         let model = self.model();
         let forward = model.forward(windows);
         let n = windows.len();
@@ -235,7 +231,7 @@ impl Tracker {
     /// The belief over open cells at every window of one recorded trajectory,
     /// given all of it (forward-backward): what calibration weighs each
     /// window's evidence by when no position is known.
-    pub fn posteriors(&self, windows: &[(f64, Vec<f32>)]) -> Vec<Vec<f32>> {
+    pub(crate) fn posteriors(&self, windows: &[(f64, Vec<f32>)]) -> Vec<Vec<f32>> {
         let model = self.model();
         let forward = model.forward(windows);
         let n = windows.len();

@@ -96,7 +96,7 @@ pub struct Fingerprint {
 }
 
 impl Fingerprint {
-    pub fn heard_count(&self) -> usize {
+    pub(crate) fn heard_count(&self) -> usize {
         self.heard.iter().filter(|&&h| h).count()
     }
 }
@@ -163,27 +163,27 @@ impl Windows {
     }
 
     /// Keeps at most `max` entities, and none unheard for `idle_s` seconds.
-    pub fn bound(mut self, max: usize, idle_s: f64) -> Self {
+    pub(crate) fn bound(mut self, max: usize, idle_s: f64) -> Self {
         self.bounds = Bounds::new(max, idle_s);
         self
     }
 
     /// Entities forgotten (idle or least recently heard past the maximum).
-    pub fn evicted_count(&self) -> u64 {
+    pub(crate) fn evicted_count(&self) -> u64 {
         self.bounds.evicted()
     }
 
-    pub fn config(&self) -> &WindowConfig {
+    pub(crate) fn config(&self) -> &WindowConfig {
         &self.config
     }
 
     /// Sightings whose anchor is not in the site (other beacons, other gateways).
-    pub fn unknown_anchor_count(&self) -> u64 {
+    pub(crate) fn unknown_anchor_count(&self) -> u64 {
         self.unknown_anchor
     }
 
     /// Number of entities with an open window.
-    pub fn entity_count(&self) -> usize {
+    pub(crate) fn entity_count(&self) -> usize {
         self.entities.len()
     }
 
@@ -262,7 +262,7 @@ impl Windows {
 
     /// Closes every open window (end of a replay): one last fingerprint per entity
     /// that has sightings since its last one.
-    pub fn flush(&mut self) -> Vec<Fingerprint> {
+    pub(crate) fn flush(&mut self) -> Vec<Fingerprint> {
         let mut out = Vec::new();
         let mut entities: Vec<_> = self.entities.drain().collect();
         entities.sort_by(|a, b| a.0.cmp(&b.0));

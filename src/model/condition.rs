@@ -8,9 +8,9 @@
 use crate::site::Cell;
 
 /// Spread of a bump, in cells.
-pub const SIGMA_CELLS: f32 = 1.0;
+pub(crate) const SIGMA_CELLS: f32 = 1.0;
 /// Cells farther than this from the centre get exactly 0.
-pub const CUTOFF_CELLS: i32 = 3;
+pub(crate) const CUTOFF_CELLS: i32 = 3;
 
 /// Length of the condition vector on a `width × height` grid.
 pub fn len(width: u16, height: u16) -> usize {

@@ -89,7 +89,7 @@ pub struct Prediction {
 /// A request's kernel sums over the bank at one `σ`: everything of the
 /// answer that does not depend on `c`, `π` or `τ`.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Sums {
+pub(crate) struct Sums {
     /// `Σw` and `Σw²`.
     pub mass: f32,
     pub mass_sq: f32,
@@ -98,7 +98,8 @@ pub struct Sums {
 }
 
 /// The fraction of the way along a line of point `k`.
-pub fn fraction(k: usize) -> f32 {
+#[cfg(test)]
+pub(crate) fn fraction(k: usize) -> f32 {
     k as f32 / (POINTS - 1) as f32
 }
 
@@ -111,7 +112,7 @@ impl DesireLines {
     }
 
     /// The kernel sums of the request `a → b` over the bank at `sigma_cells`.
-    pub fn sums(&self, a: [f32; 2], b: [f32; 2], sigma_cells: f32) -> Sums {
+    pub(crate) fn sums(&self, a: [f32; 2], b: [f32; 2], sigma_cells: f32) -> Sums {
         let x = [a[0], a[1], b[0], b[1]];
         let scale = 1.0 / (2.0 * sigma_cells * sigma_cells);
         let mut sums = Sums {
@@ -343,7 +344,7 @@ impl Graph {
 /// The answer for `a → b` from its kernel `sums` (the arithmetic of the
 /// graph, in the same order): training calls it once per setting on sums
 /// it computed once per `σ`.
-pub fn finish(
+pub(crate) fn finish(
     settings: &Settings,
     sums: &Sums,
     a: [f32; 2],

@@ -23,7 +23,7 @@ use ndarray::{ArrayView1, ArrayView2};
 use super::Metadata;
 
 /// The slope of LeakyReLU for negative inputs (as in the paper's Keras setup).
-pub const LEAKY_SLOPE: f32 = 0.2;
+pub(crate) const LEAKY_SLOPE: f32 = 0.2;
 
 /// What follows a layer's affine map. Defined here, with the graph that
 /// spells it out, so the file format does not depend on the trainer
@@ -39,20 +39,20 @@ pub enum Act {
 
 /// One dense layer as exported: `x·w + b` (`w` is `in × out`), then `act`.
 #[derive(Clone, Copy, Debug)]
-pub struct Layer<'a> {
+pub(crate) struct Layer<'a> {
     pub w: ArrayView2<'a, f32>,
     pub b: ArrayView1<'a, f32>,
     pub act: Act,
 }
 
 /// ONNX operator set the graphs use.
-pub const OPSET: i64 = 13;
+pub(crate) const OPSET: i64 = 13;
 /// ONNX IR version matching [`OPSET`].
 const IR_VERSION: i64 = 8;
 
 /// What follows the last layer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Head {
+pub(crate) enum Head {
     /// The last layer's own activation only.
     None,
     Sigmoid,
@@ -63,7 +63,7 @@ pub enum Head {
 /// Input normalization baked into the graph: `x' = (clip(x, lo, hi) + offset) · scale`.
 /// The clip is a node; the affine part is folded into the first layer.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct ClipScale {
+pub(crate) struct ClipScale {
     pub lo: f32,
     pub hi: f32,
     pub offset: f32,
@@ -72,7 +72,7 @@ pub struct ClipScale {
 
 /// How the layers' weight matrices are stored (biases are always f32).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Weights {
+pub(crate) enum Weights {
     F32,
     /// Rounded to float16 (nearest, ties to even): half the bytes to read per
     /// row at inference, which is what bounds a one-row generator
@@ -81,7 +81,7 @@ pub enum Weights {
 }
 
 /// A network and how it is presented.
-pub struct Spec<'a> {
+pub(crate) struct Spec<'a> {
     /// The network's layers, input first.
     pub layers: Vec<Layer<'a>>,
     pub weights: Weights,
@@ -94,7 +94,7 @@ pub struct Spec<'a> {
 
 impl Spec<'_> {
     /// Trainable parameters (weights and biases).
-    pub fn parameters(&self) -> usize {
+    pub(crate) fn parameters(&self) -> usize {
         self.layers.iter().map(|l| l.w.len() + l.b.len()).sum()
     }
 
@@ -104,7 +104,7 @@ impl Spec<'_> {
 }
 
 /// The ONNX model for `spec` with `meta` as its `metadata_props`.
-pub fn to_onnx(spec: &Spec, meta: &Metadata) -> pb::ModelProto {
+pub(crate) fn to_onnx(spec: &Spec, meta: &Metadata) -> pb::ModelProto {
     let widths: usize = spec.inputs.iter().map(|(_, w)| w).sum();
     assert_eq!(
         widths,
@@ -249,7 +249,7 @@ pub(crate) fn model_proto(
 }
 
 /// Writes the model to `path`.
-pub fn write(path: &Path, spec: &Spec, meta: &Metadata) -> std::io::Result<()> {
+pub(crate) fn write(path: &Path, spec: &Spec, meta: &Metadata) -> std::io::Result<()> {
     write_proto(path, &to_onnx(spec, meta))
 }
 

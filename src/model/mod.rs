@@ -12,6 +12,7 @@
 //! - conditions: [`condition::encode`];
 //! - RSSI: dBm, one value per site anchor (see [`CellClassifierInput`]).
 
+pub(crate) mod checks;
 pub mod condition;
 pub mod desire;
 pub mod export;
@@ -23,7 +24,7 @@ use crate::site::{Cell, Site};
 
 /// Version of the metadata and input conventions below; bumped when a model
 /// written by an older gangway would be misread.
-pub const FORMAT_VERSION: u32 = 1;
+pub(crate) const FORMAT_VERSION: u32 = 1;
 
 /// What a model does. Each kind fixes its inputs and output:
 ///
@@ -47,7 +48,7 @@ pub enum Kind {
 }
 
 impl Kind {
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             Kind::Generator => "generator",
             Kind::ConditionalGenerator => "conditional_generator",
@@ -80,13 +81,13 @@ impl Kind {
 /// or the survey's −200) reads as "not heard". The clip is the first node of
 /// the graph and the scaling is folded into the first layer, so callers pass
 /// raw dBm.
-pub struct CellClassifierInput;
+pub(crate) struct CellClassifierInput;
 
 impl CellClassifierInput {
-    pub const RSSI_FLOOR_DBM: f32 = -105.0;
-    pub const RSSI_CEIL_DBM: f32 = -45.0;
+    pub(crate) const RSSI_FLOOR_DBM: f32 = -105.0;
+    pub(crate) const RSSI_CEIL_DBM: f32 = -45.0;
 
-    pub fn normalize(dbm: f32) -> f32 {
+    pub(crate) fn normalize(dbm: f32) -> f32 {
         (dbm.clamp(Self::RSSI_FLOOR_DBM, Self::RSSI_CEIL_DBM) - Self::RSSI_FLOOR_DBM)
             / (Self::RSSI_CEIL_DBM - Self::RSSI_FLOOR_DBM)
     }
@@ -189,7 +190,7 @@ impl Metadata {
     }
 
     /// The key/value pairs written to `metadata_props`, keys sorted.
-    pub fn to_props(&self) -> Vec<(String, String)> {
+    pub(crate) fn to_props(&self) -> Vec<(String, String)> {
         let mut props = vec![
             (KEY_KIND, self.kind.name().to_owned()),
             (KEY_VERSION, self.version.to_string()),
@@ -209,7 +210,7 @@ impl Metadata {
     }
 
     /// Reads the metadata back; `path` is only used in errors.
-    pub fn from_props(
+    pub(crate) fn from_props(
         props: &BTreeMap<String, String>,
         path: &str,
     ) -> Result<Metadata, ModelError> {
@@ -282,7 +283,7 @@ impl Metadata {
     /// Refuses a model trained for another site, naming the first field that
     /// differs. The map hash is what matters; name and grid make the message
     /// clear.
-    pub fn check_site(&self, site: &Site, path: &str) -> Result<(), ModelError> {
+    pub(crate) fn check_site(&self, site: &Site, path: &str) -> Result<(), ModelError> {
         let mismatch = |field: &'static str, trained: String, configured: String| {
             Err(ModelError::SiteMismatch {
                 path: path.to_owned(),

@@ -42,7 +42,7 @@ pub enum Rows {
 
 impl Rows {
     /// What a caller that runs `rows` rows per call needs.
-    pub fn for_batch(rows: usize) -> Rows {
+    pub(crate) fn for_batch(rows: usize) -> Rows {
         if rows == 1 {
             Rows::AlsoSingle
         } else {
@@ -335,7 +335,7 @@ impl PathGenerator {
 
     /// Whether [`PathGenerator::generate`] needs conditions
     /// ([`crate::model::condition::encode`]).
-    pub fn is_conditional(&self) -> bool {
+    pub(crate) fn is_conditional(&self) -> bool {
         self.0.meta.kind == Kind::ConditionalGenerator
     }
 
@@ -358,39 +358,6 @@ impl PathGenerator {
     }
 }
 
-/// Scores frames as real walks.
-#[derive(Clone, Debug)]
-pub struct Discriminator(Model);
-
-impl Discriminator {
-    pub fn load(path: &Path, site: &Site) -> Result<Discriminator, ModelError> {
-        Model::load(
-            path,
-            site,
-            &[Kind::Discriminator, Kind::ConditionalDiscriminator],
-            Rows::Batches,
-        )
-        .map(Discriminator)
-    }
-
-    pub fn model(&self) -> &Model {
-        &self.0
-    }
-
-    /// Probability that each ±1 frame is a real walk (`[N, 1]`). A conditional
-    /// discriminator also takes the condition of each row.
-    pub fn score(
-        &self,
-        frames: ArrayView2<f32>,
-        conditions: Option<ArrayView2<f32>>,
-    ) -> Result<Array2<f32>, ModelError> {
-        match conditions {
-            None => self.0.run(&[frames]),
-            Some(c) => self.0.run(&[frames, c]),
-        }
-    }
-}
-
 /// Says which source/destination pair a path frame belongs to.
 #[derive(Clone, Debug)]
 pub struct PathClassifier(Model);
@@ -400,7 +367,7 @@ impl PathClassifier {
         Model::load(path, site, &[Kind::PathClassifier], Rows::Batches).map(PathClassifier)
     }
 
-    pub fn model(&self) -> &Model {
+    pub(crate) fn model(&self) -> &Model {
         &self.0
     }
 
@@ -417,10 +384,10 @@ impl PathClassifier {
 
 /// Where people walk between two points ([`super::desire`]).
 #[derive(Clone, Debug)]
-pub struct DesireModel(Model);
+pub(crate) struct DesireModel(Model);
 
 impl DesireModel {
-    pub fn load(path: &Path, site: &Site) -> Result<DesireModel, ModelError> {
+    pub(crate) fn load(path: &Path, site: &Site) -> Result<DesireModel, ModelError> {
         use super::desire::POINTS;
         let model = Model::load(path, site, &[Kind::DesireLines], Rows::Batches)?;
         let widths: Vec<usize> = model.inputs.iter().map(|i| i.1).collect();
@@ -439,14 +406,14 @@ impl DesireModel {
         Ok(DesireModel(model))
     }
 
-    pub fn model(&self) -> &Model {
+    pub(crate) fn model(&self) -> &Model {
         &self.0
     }
 
     /// The learned line from `a` to `b` (cell units), `a` first, blended
     /// into `prior` ([`super::desire::POINTS`] points from `a` to `b`), and
     /// the walks' share of it (0: the prior alone answered).
-    pub fn line(
+    pub(crate) fn line(
         &self,
         a: [f32; 2],
         b: [f32; 2],
@@ -487,10 +454,6 @@ impl CellClassifier {
         Ok(CellClassifier(model))
     }
 
-    pub fn model(&self) -> &Model {
-        &self.0
-    }
-
     /// Writes the log-probability of each open cell (`Site::open_cells` order)
     /// for one fingerprint: `rssi` in dBm, one per site anchor, anything at or
     /// below [`super::CellClassifierInput::RSSI_FLOOR_DBM`] meaning not heard.
@@ -510,7 +473,7 @@ impl CellClassifier {
     }
 
     /// [`CellClassifier::log_probs`] for a batch (`[N, anchors]` → `[N, cells]`).
-    pub fn log_probs_batch(&self, rssi: ArrayView2<f32>) -> Result<Array2<f32>, ModelError> {
+    pub(crate) fn log_probs_batch(&self, rssi: ArrayView2<f32>) -> Result<Array2<f32>, ModelError> {
         self.0.run(&[rssi])
     }
 }

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use rumqttd::{Broker, Config, ConnectionSettings, RouterConfig, ServerSettings};
 
 /// Starts the broker on `127.0.0.1:port` and returns its `mqtt://` url.
-pub fn start(port: u16, max_payload_bytes: usize) -> anyhow::Result<String> {
+pub(crate) fn start(port: u16, max_payload_bytes: usize) -> anyhow::Result<String> {
     let listen = SocketAddr::from((Ipv4Addr::LOCALHOST, port));
     // rumqttd binds on a thread of its own and only logs a failure there;
     // binding once here turns a busy port into a clear error.

@@ -15,7 +15,7 @@ use rustls::pki_types::{CertificateDer, PrivateKeyDer};
 use serde::Deserialize;
 
 /// Name of the systemd credential read when `password_file` is unset.
-pub const PASSWORD_CREDENTIAL: &str = "mqtt-password";
+pub(crate) const PASSWORD_CREDENTIAL: &str = "mqtt-password";
 
 /// Largest `max_payload_bytes`: far below the packets the link sends and
 /// takes, so an oversized request still gets its error reply.
@@ -113,7 +113,7 @@ pub enum MqttError {
 
 impl MqttConfig {
     /// Resolves relative file paths against the config file's directory.
-    pub fn resolve_paths(&mut self, base: &Path) {
+    pub(crate) fn resolve_paths(&mut self, base: &Path) {
         for path in [
             &mut self.password_file,
             &mut self.ca_file,
@@ -128,7 +128,7 @@ impl MqttConfig {
     }
 
     /// Checks values that serde cannot; the message names the key.
-    pub fn validate(&self) -> Result<(), MqttError> {
+    pub(crate) fn validate(&self) -> Result<(), MqttError> {
         qos(self.qos)?;
         let bad = |m: &str| Err(MqttError::Invalid(m.to_owned()));
         if self.client_cert.is_some() != self.client_key.is_some() {
@@ -169,7 +169,7 @@ impl MqttConfig {
         Ok(())
     }
 
-    pub fn qos(&self) -> QoS {
+    pub(crate) fn qos(&self) -> QoS {
         qos(self.qos).unwrap_or(QoS::AtLeastOnce)
     }
 
@@ -292,7 +292,7 @@ impl MqttConfig {
     }
 }
 
-pub fn qos(level: u8) -> Result<QoS, MqttError> {
+pub(crate) fn qos(level: u8) -> Result<QoS, MqttError> {
     match level {
         0 => Ok(QoS::AtMostOnce),
         1 => Ok(QoS::AtLeastOnce),
@@ -305,7 +305,7 @@ pub fn qos(level: u8) -> Result<QoS, MqttError> {
 
 /// Whether `prefix` can start topics: non-empty, no wildcards or control
 /// characters, no leading or trailing `/`.
-pub fn valid_prefix(prefix: &str) -> bool {
+pub(crate) fn valid_prefix(prefix: &str) -> bool {
     !prefix.is_empty()
         && !prefix.starts_with('/')
         && !prefix.ends_with('/')

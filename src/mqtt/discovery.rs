@@ -22,9 +22,9 @@ use crate::publish::Location;
 use crate::publish::stats::{COUNTERS, GAUGES};
 
 /// Tracker state of a device located in the building but at no named place.
-pub const HOME: &str = "home";
+pub(crate) const HOME: &str = "home";
 /// Tracker state of a device whose location is unknown.
-pub const NOT_HOME: &str = "not_home";
+pub(crate) const NOT_HOME: &str = "not_home";
 
 /// The tracker's attributes, from one location message. `get` keeps keys the
 /// message leaves out (an older gateway's `label`) from failing the template:
@@ -35,7 +35,7 @@ const TRACKER_ATTRIBUTES: &str = "{{ {'x': value_json.get('x_m'), 'y': value_jso
      't': value_json.get('t')} | tojson }}";
 
 /// Builds discovery messages for one gateway.
-pub struct Discovery {
+pub(crate) struct Discovery {
     prefix: String,
     gateway_id: String,
     node: String,
@@ -46,7 +46,7 @@ pub struct Discovery {
 }
 
 impl Discovery {
-    pub fn new<'a>(
+    pub(crate) fn new<'a>(
         discovery_prefix: &str,
         gateway_id: &str,
         topics: Topics,
@@ -94,7 +94,7 @@ impl Discovery {
 
     /// The gateway's own entities: connectivity, counters and one occupancy
     /// sensor per named place.
-    pub fn gateway(&self) -> Vec<Message> {
+    pub(crate) fn gateway(&self) -> Vec<Message> {
         let mut out = vec![self.config(
             "binary_sensor",
             "status",
@@ -156,13 +156,13 @@ impl Discovery {
     }
 
     /// The named places with an occupancy sensor.
-    pub fn place_names(&self) -> impl Iterator<Item = &str> {
+    pub(crate) fn place_names(&self) -> impl Iterator<Item = &str> {
         self.places.iter().map(|(name, _)| name.as_str())
     }
 
     /// The config topic of `place`'s occupancy sensor (`None` for a name the
     /// site does not have): an empty retained message there removes it.
-    pub fn occupancy_config_topic(&self, place: &str) -> Option<String> {
+    pub(crate) fn occupancy_config_topic(&self, place: &str) -> Option<String> {
         self.places
             .iter()
             .find(|(name, _)| name == place)
@@ -171,12 +171,12 @@ impl Discovery {
 
     /// The config topic of `device`'s tracker: an empty retained message there
     /// removes the tracker from Home Assistant and the broker.
-    pub fn tracker_config_topic(&self, device: &str) -> String {
+    pub(crate) fn tracker_config_topic(&self, device: &str) -> String {
         self.config_topic("device_tracker", &object_id(device))
     }
 
     /// A tracker for one device, sent once per device the gateway locates.
-    pub fn device_tracker(&self, device: &str) -> Message {
+    pub(crate) fn device_tracker(&self, device: &str) -> Message {
         let object = object_id(device);
         self.config(
             "device_tracker",
@@ -204,7 +204,7 @@ impl Discovery {
     /// The tracker state a location sets, as `(topic, payload)`: the named
     /// place, [`HOME`] in the building at no named place, or [`NOT_HOME`]
     /// when the location is unknown (no cell).
-    pub fn presence(&self, location: &Location) -> (String, String) {
+    pub(crate) fn presence(&self, location: &Location) -> (String, String) {
         let state = match (location.cell, &location.place) {
             (None, _) => NOT_HOME,
             (Some(_), Some(place)) => place,

@@ -48,7 +48,7 @@ pub enum Rejected {
 }
 
 impl Rejected {
-    pub fn is_oversized(&self) -> bool {
+    pub(crate) fn is_oversized(&self) -> bool {
         matches!(self, Rejected::TooLarge { .. })
     }
 }
@@ -109,7 +109,7 @@ impl Inbox {
     }
 
     /// The topic filters to subscribe to.
-    pub fn subscriptions(&self) -> Vec<String> {
+    pub(crate) fn subscriptions(&self) -> Vec<String> {
         let mut filters = vec![
             self.topics.route_set("+"),
             self.topics.route_cancel("+"),
@@ -129,7 +129,7 @@ impl Inbox {
 
     /// [`Inbox::read`] of a message of `size` bytes whose payload the link
     /// cut off (empty) for being over the limit.
-    pub fn read_sized(
+    pub(crate) fn read_sized(
         &self,
         topic: &str,
         payload: &[u8],
@@ -295,7 +295,7 @@ impl Inbox {
 
 /// Longest request id, in bytes: ids are echoed in replies and kept in the
 /// learning store, so a client cannot make them large.
-pub const MAX_REQUEST_ID_BYTES: usize = 128;
+pub(crate) const MAX_REQUEST_ID_BYTES: usize = 128;
 const REQUEST_ID_RULE: &str = "`request_id` must be 1 to 128 bytes without control characters";
 
 fn valid_request_id(id: &str) -> bool {

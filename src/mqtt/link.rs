@@ -48,11 +48,11 @@ const EVENT_BURST: usize = 1024;
 /// Largest packet MQTT allows (a 268,435,455-byte remaining length and its
 /// 5-byte fixed header). The client accepts all of them, so a big message is
 /// dropped by the link and never costs the connection.
-pub const MQTT_MAX_PACKET: usize = 268_435_455 + 5;
+pub(crate) const MQTT_MAX_PACKET: usize = 268_435_455 + 5;
 
 /// Largest packet the link sends: far above any payload the gateway makes, so
 /// only a message that would make rumqttc fail the connection is refused.
-pub const MAX_OUTGOING_PACKET: usize = 1 << 20;
+pub(crate) const MAX_OUTGOING_PACKET: usize = 1 << 20;
 
 /// Received messages held back (not acknowledged) while the daemon's channel
 /// is full, at most; past it QoS 0 messages are dropped and counted (QoS 1 and
@@ -67,7 +67,7 @@ const FLAP_COUNT: usize = 5;
 
 /// What a link is set up with.
 #[derive(Clone, Debug)]
-pub struct LinkSettings {
+pub(crate) struct LinkSettings {
     pub options: MqttOptions,
     pub qos: QoS,
     /// `(topic, online payload, offline payload)`: retained birth and last will.
@@ -94,7 +94,7 @@ pub struct LinkSettings {
 
 /// A received message, as the daemon gets it.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Received {
+pub(crate) struct Received {
     pub topic: String,
     /// Empty when the payload was over [`LinkSettings::max_inbound_payload`].
     pub payload: Bytes,
@@ -104,7 +104,7 @@ pub struct Received {
 
 /// Counters the link shares with whoever reports stats.
 #[derive(Debug, Default)]
-pub struct LinkStats {
+pub(crate) struct LinkStats {
     pub connected: AtomicBool,
     /// Successful connections after the first.
     pub reconnects: AtomicU64,
@@ -146,7 +146,7 @@ enum Command {
 }
 
 /// A handle on the link task.
-pub struct Link {
+pub(crate) struct Link {
     commands: mpsc::UnboundedSender<Command>,
     stats: Arc<LinkStats>,
     task: tokio::task::JoinHandle<()>,
@@ -159,7 +159,7 @@ pub struct Link {
 impl Link {
     /// Starts the link task; returns the handle and the channel of received
     /// messages (on the subscribed topics).
-    pub fn start(settings: LinkSettings) -> (Link, mpsc::Receiver<Received>) {
+    pub(crate) fn start(settings: LinkSettings) -> (Link, mpsc::Receiver<Received>) {
         let (commands, commands_rx) = mpsc::unbounded_channel();
         let (inbound_tx, inbound_rx) = mpsc::channel(settings.inbound_capacity.max(1));
         let stats = Arc::new(LinkStats::default());
@@ -180,19 +180,19 @@ impl Link {
         )
     }
 
-    pub fn stats(&self) -> &Arc<LinkStats> {
+    pub(crate) fn stats(&self) -> &Arc<LinkStats> {
         &self.stats
     }
 
     /// Whether the link task still runs (it ends only after a shutdown, or
     /// if it panicked).
-    pub fn is_alive(&self) -> bool {
+    pub(crate) fn is_alive(&self) -> bool {
         !self.task.is_finished()
     }
 
     /// Queues messages, in order, in one hand-over to the link task; never
     /// blocks.
-    pub fn publish_batch(&self, messages: Vec<super::topics::Message>) {
+    pub(crate) fn publish_batch(&self, messages: Vec<super::topics::Message>) {
         if messages.is_empty() {
             return;
         }
@@ -215,7 +215,7 @@ impl Link {
     /// between publications, handing over at most [`Link::room`] at a time;
     /// the daemon does not, so that it keeps locating while the broker is
     /// away (it checks [`Link::has_room`] before taking requests instead).
-    pub async fn wait_for_room(&self) {
+    pub(crate) async fn wait_for_room(&self) {
         loop {
             let progress = self.stats.progress.notified();
             if self.has_room() {
@@ -232,13 +232,13 @@ impl Link {
     /// link is gone, when waiting would be forever). The daemon takes no
     /// request while it is not: replies it could not send would push older
     /// ones out of the queue, so the broker holds the requests instead.
-    pub fn has_room(&self) -> bool {
+    pub(crate) fn has_room(&self) -> bool {
         self.room() > 0
     }
 
     /// How many more messages fit under half the queue bound (all of them
     /// when the link is gone, and waiting would be forever).
-    pub fn room(&self) -> usize {
+    pub(crate) fn room(&self) -> usize {
         if self.task.is_finished() {
             return usize::MAX;
         }
@@ -252,7 +252,7 @@ impl Link {
     /// Adds (or replaces, by topic) messages sent (before the queue) after
     /// every connect; with `send_now` they are also sent on the current
     /// connection. Costs the messages given, not the birth already kept.
-    pub fn set_birth(&self, messages: &[super::topics::Message], send_now: bool) {
+    pub(crate) fn set_birth(&self, messages: &[super::topics::Message], send_now: bool) {
         let birth = messages
             .iter()
             .map(|m| Outgoing {
@@ -267,13 +267,13 @@ impl Link {
 
     /// Removes the birth message of `topic` (a device that is no longer
     /// tracked) and clears its retained message on the broker now.
-    pub fn clear_retained(&self, topic: String) {
+    pub(crate) fn clear_retained(&self, topic: String) {
         let _ = self.commands.send(Command::ClearRetained(topic));
     }
 
     /// Publishes the offline status, waits (up to the grace period) until every
     /// queued and in-flight message is acknowledged, and disconnects.
-    pub async fn shutdown(self) {
+    pub(crate) async fn shutdown(self) {
         let (done, wait) = oneshot::channel();
         if self.commands.send(Command::Shutdown(done)).is_ok() {
             let _ = wait.await;

@@ -30,12 +30,16 @@ pub mod topics;
 
 use std::time::Duration;
 
-pub use config::{MqttConfig, MqttError};
+pub use config::MqttConfig;
+pub(crate) use config::MqttError;
 pub(crate) use link::{Link, LinkSettings, LinkStats, Received};
 
 /// The broker to use: `override_url`, else `[mqtt] url`, else an embedded
 /// broker started now on 127.0.0.1.
-pub fn broker_url(config: &MqttConfig, override_url: Option<String>) -> anyhow::Result<String> {
+pub(crate) fn broker_url(
+    config: &MqttConfig,
+    override_url: Option<String>,
+) -> anyhow::Result<String> {
     if let Some(url) = override_url.or_else(|| config.url.clone()) {
         return Ok(url);
     }
@@ -51,7 +55,7 @@ pub fn broker_url(config: &MqttConfig, override_url: Option<String>) -> anyhow::
 /// Link settings for `url` from `[mqtt]`; `status` is `Some(topic)` for a
 /// gateway that announces itself (retained `online`, last will `offline`);
 /// `low_latency` sends each message at once (see [`LinkSettings`]).
-pub fn link_settings(
+pub(crate) fn link_settings(
     config: &MqttConfig,
     url: &str,
     client_id: &str,

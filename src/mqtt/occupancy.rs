@@ -12,15 +12,15 @@ use serde_json::json;
 use super::topics::{Message, Topics};
 use crate::publish::Location;
 
-pub const OCCUPANCY_SCHEMA: &str = "gangway.occupancy/1";
+pub(crate) const OCCUPANCY_SCHEMA: &str = "gangway.occupancy/1";
 
 /// Most devices counted at named places at once. Device ids come from the air
 /// and from phones: past this bound a device arriving at a place is left
 /// uncounted (and logged) rather than growing the table without limit.
-pub const MAX_DEVICES: usize = 65_536;
+pub(crate) const MAX_DEVICES: usize = 65_536;
 
 /// Devices per named place.
-pub struct Occupancy {
+pub(crate) struct Occupancy {
     /// The site's named places; indexes into `counts`.
     places: Vec<String>,
     counts: Vec<u32>,
@@ -35,7 +35,7 @@ pub struct Occupancy {
 impl Occupancy {
     /// Everyone away from every place; the first [`Occupancy::update`] sends
     /// the zeros, so each place's sensor has a value from the start.
-    pub fn new<'a>(places: impl IntoIterator<Item = &'a str>) -> Self {
+    pub(crate) fn new<'a>(places: impl IntoIterator<Item = &'a str>) -> Self {
         let places: Vec<String> = places.into_iter().map(str::to_owned).collect();
         Occupancy {
             counts: vec![0; places.len()],
@@ -48,7 +48,7 @@ impl Occupancy {
 
     /// Follows one published location: it moves its device to its place, or
     /// out of every place.
-    pub fn observe(&mut self, location: &Location) {
+    pub(crate) fn observe(&mut self, location: &Location) {
         let device = location.device.as_str();
         let place = location
             .place
@@ -86,7 +86,7 @@ impl Occupancy {
     }
 
     /// A device that is gone leaves its place.
-    pub fn forget(&mut self, device: &str) {
+    pub(crate) fn forget(&mut self, device: &str) {
         if let Some(i) = self.at.remove(device) {
             self.counts[i] -= 1;
             self.changed = true;
@@ -95,7 +95,7 @@ impl Occupancy {
 
     /// The retained counts at time `t` (seconds since the epoch), when they
     /// changed since the last call.
-    pub fn update(&mut self, topics: &Topics, t: f64) -> Option<Message> {
+    pub(crate) fn update(&mut self, topics: &Topics, t: f64) -> Option<Message> {
         if !std::mem::take(&mut self.changed) {
             return None;
         }

@@ -8,7 +8,7 @@ use rumqttc::QoS;
 
 /// One message ready for the wire.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Outgoing {
+pub(crate) struct Outgoing {
     pub topic: String,
     pub payload: Vec<u8>,
     pub qos: QoS,
@@ -17,13 +17,13 @@ pub struct Outgoing {
 
 impl Outgoing {
     /// What the message costs in the queue's byte bound.
-    pub fn size(&self) -> usize {
+    pub(crate) fn size(&self) -> usize {
         self.topic.len() + self.payload.len()
     }
 }
 
 #[derive(Debug)]
-pub struct OfflineQueue {
+pub(crate) struct OfflineQueue {
     max_messages: usize,
     max_bytes: usize,
     items: VecDeque<Outgoing>,
@@ -32,7 +32,7 @@ pub struct OfflineQueue {
 }
 
 impl OfflineQueue {
-    pub fn new(max_messages: usize, max_bytes: usize) -> Self {
+    pub(crate) fn new(max_messages: usize, max_bytes: usize) -> Self {
         OfflineQueue {
             max_messages: max_messages.max(1),
             max_bytes: max_bytes.max(1),
@@ -44,7 +44,7 @@ impl OfflineQueue {
 
     /// Appends a message, dropping the oldest ones past the bounds. A message
     /// larger than the whole byte bound is dropped itself.
-    pub fn push(&mut self, message: Outgoing) {
+    pub(crate) fn push(&mut self, message: Outgoing) {
         if message.size() > self.max_bytes {
             self.dropped += 1;
             return;
@@ -60,7 +60,7 @@ impl OfflineQueue {
     /// Puts messages that were handed to the broker but not acknowledged back
     /// at the front, in their original order, within the same bounds (dropping
     /// from the front, the oldest).
-    pub fn requeue_front(&mut self, messages: impl DoubleEndedIterator<Item = Outgoing>) {
+    pub(crate) fn requeue_front(&mut self, messages: impl DoubleEndedIterator<Item = Outgoing>) {
         for message in messages.rev() {
             self.bytes += message.size();
             self.items.push_front(message);
@@ -71,26 +71,26 @@ impl OfflineQueue {
         }
     }
 
-    pub fn pop(&mut self) -> Option<Outgoing> {
+    pub(crate) fn pop(&mut self) -> Option<Outgoing> {
         let message = self.items.pop_front()?;
         self.bytes -= message.size();
         Some(message)
     }
 
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         self.items.len()
     }
 
-    pub fn is_empty(&self) -> bool {
+    pub(crate) fn is_empty(&self) -> bool {
         self.items.is_empty()
     }
 
-    pub fn bytes(&self) -> usize {
+    pub(crate) fn bytes(&self) -> usize {
         self.bytes
     }
 
     /// Messages dropped because the queue was full, since start.
-    pub fn dropped(&self) -> u64 {
+    pub(crate) fn dropped(&self) -> u64 {
         self.dropped
     }
 }

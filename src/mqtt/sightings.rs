@@ -11,12 +11,12 @@ use uuid::Uuid;
 use super::topics::Message;
 use crate::sighting::{BeaconId, Sighting};
 
-pub const SIGHTINGS_SCHEMA: &str = "gangway.sightings/1";
+pub(crate) const SIGHTINGS_SCHEMA: &str = "gangway.sightings/1";
 
 /// One sighting as sent between gateways (the observer is the sending gateway).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct SharedSighting {
+pub(crate) struct SharedSighting {
     pub t: f64,
     pub uuid: Uuid,
     pub major: u16,
@@ -35,7 +35,7 @@ struct Batch {
 }
 
 /// The topic a gateway publishes its sightings on.
-pub fn topic(site_prefix: &str, gateway: &str) -> String {
+pub(crate) fn topic(site_prefix: &str, gateway: &str) -> String {
     format!("{site_prefix}/sightings/{gateway}")
 }
 
@@ -61,7 +61,7 @@ pub fn encode(site_prefix: &str, gateway: &str, sightings: &[Sighting]) -> Messa
 
 /// Reads another gateway's batch; `gateway` is the topic's last level and must
 /// match the payload's.
-pub fn decode(gateway: &str, payload: &[u8]) -> Result<Vec<Sighting>, String> {
+pub(crate) fn decode(gateway: &str, payload: &[u8]) -> Result<Vec<Sighting>, String> {
     let batch: Batch = serde_json::from_slice(payload).map_err(|e| e.to_string())?;
     if batch.schema != SIGHTINGS_SCHEMA {
         return Err(format!(

@@ -33,7 +33,7 @@ use crate::sink::Sink;
 use crate::site::Site;
 
 /// Publishes outputs to the broker.
-pub struct MqttSink {
+pub(crate) struct MqttSink {
     link: Link,
     topics: Topics,
     /// The site's prefix and this gateway's id: where shared sightings go.
@@ -56,7 +56,7 @@ pub struct MqttSink {
 
 /// Whether the site's gateways exchange sightings: when the gateways are the
 /// anchors (`[window] orientation = "advertiser"`).
-pub fn shares_sightings(config: &Config) -> bool {
+pub(crate) fn shares_sightings(config: &Config) -> bool {
     config.window.orientation == Orientation::Advertiser
 }
 
@@ -64,7 +64,11 @@ pub fn shares_sightings(config: &Config) -> bool {
 /// (with a retained `online`/`offline` status and Home Assistant discovery)
 /// and a source of what it subscribes to (route requests, feedback, phone
 /// scans, other gateways' sightings).
-pub fn gateway(config: &Config, site: &Site, url: &str) -> anyhow::Result<(MqttSink, MqttSource)> {
+pub(crate) fn gateway(
+    config: &Config,
+    site: &Site,
+    url: &str,
+) -> anyhow::Result<(MqttSink, MqttSource)> {
     let topics = Topics::new(config.topic_prefix());
     let site_prefix = config.site_prefix(&site.name);
     anyhow::ensure!(
@@ -101,7 +105,7 @@ pub fn gateway(config: &Config, site: &Site, url: &str) -> anyhow::Result<(MqttS
 
 /// A replay's connection to `url`: publishes outputs and waits for the broker
 /// rather than drop any; no status, no subscriptions, no discovery.
-pub fn publisher(config: &Config, site: &Site, url: &str) -> Result<MqttSink, MqttError> {
+pub(crate) fn publisher(config: &Config, site: &Site, url: &str) -> Result<MqttSink, MqttError> {
     let client_id = format!("{}-replay", config.client_id());
     // Nobody waits for a reply: let the kernel gather messages into packets.
     let settings = super::link_settings(&config.mqtt, url, &client_id, None, Vec::new(), false)?;

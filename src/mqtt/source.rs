@@ -21,7 +21,7 @@ use crate::throttle::Throttle;
 const WARN_EVERY: Duration = Duration::from_secs(10);
 
 /// Messages from the broker, read.
-pub struct MqttSource {
+pub(crate) struct MqttSource {
     inbound: mpsc::Receiver<Received>,
     inbox: Inbox,
 }

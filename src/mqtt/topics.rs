@@ -34,7 +34,7 @@ impl Message {
     /// A JSON message. Keys come out sorted at every level (through
     /// `serde_json::Value`), as every payload has been since the first
     /// version, so a payload's bytes do not change with field order.
-    pub fn json(topic: String, payload: &impl Serialize, retain: bool) -> Message {
+    pub(crate) fn json(topic: String, payload: &impl Serialize, retain: bool) -> Message {
         let value = serde_json::to_value(payload).expect("plain data serializes");
         Message {
             topic,
@@ -109,21 +109,21 @@ impl Topics {
         }
     }
 
-    pub fn prefix(&self) -> &str {
+    pub(crate) fn prefix(&self) -> &str {
         &self.prefix
     }
 
-    pub fn location(&self, device: &str) -> String {
+    pub(crate) fn location(&self, device: &str) -> String {
         format!("{}/devices/{device}/location", self.prefix)
     }
 
     /// Plain-text tracker state for Home Assistant: place, `home` or `not_home`.
-    pub fn presence(&self, device: &str) -> String {
+    pub(crate) fn presence(&self, device: &str) -> String {
         format!("{}/devices/{device}/presence", self.prefix)
     }
 
     /// Retained devices per named place.
-    pub fn occupancy(&self) -> String {
+    pub(crate) fn occupancy(&self) -> String {
         format!("{}/occupancy", self.prefix)
     }
 
@@ -132,17 +132,17 @@ impl Topics {
     }
 
     /// Retained `online` / `offline` (the last will).
-    pub fn status(&self) -> String {
+    pub(crate) fn status(&self) -> String {
         format!("{}/status", self.prefix)
     }
 
     /// Retained counters.
-    pub fn stats(&self) -> String {
+    pub(crate) fn stats(&self) -> String {
         format!("{}/stats", self.prefix)
     }
 
     /// Guidance for a device walking a route.
-    pub fn guidance(&self, device: &str) -> String {
+    pub(crate) fn guidance(&self, device: &str) -> String {
         format!("{}/devices/{device}/guidance", self.prefix)
     }
 
@@ -152,17 +152,17 @@ impl Topics {
     }
 
     /// A device's request to end its guidance session.
-    pub fn route_cancel(&self, device: &str) -> String {
+    pub(crate) fn route_cancel(&self, device: &str) -> String {
         format!("{}/devices/{device}/route/cancel", self.prefix)
     }
 
     /// Feedback on a route.
-    pub fn feedback(&self, device: &str) -> String {
+    pub(crate) fn feedback(&self, device: &str) -> String {
         format!("{}/devices/{device}/feedback", self.prefix)
     }
 
     /// Scans a phone publishes of the beacons it hears.
-    pub fn scans(&self, device: &str) -> String {
+    pub(crate) fn scans(&self, device: &str) -> String {
         format!("{}/scans/{device}", self.prefix)
     }
 

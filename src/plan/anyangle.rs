@@ -31,15 +31,15 @@ use super::{Connectivity, PlanError, Planned, Planner, Profile, Route};
 use crate::site::{Cell, Site};
 
 /// A point in cell units: cell `(x, y)` spans `[x, x+1) × [y, y+1)`.
-pub type GridPoint = [f64; 2];
+pub(crate) type GridPoint = [f64; 2];
 
 /// The centre of `cell` in cell units.
-pub fn centre(cell: Cell) -> GridPoint {
+pub(crate) fn centre(cell: Cell) -> GridPoint {
     [f64::from(cell.x) + 0.5, f64::from(cell.y) + 0.5]
 }
 
 /// `p` (cell units) in world metres through the site's frame.
-pub fn world_of_point(site: &Site, p: GridPoint) -> [f64; 2] {
+pub(crate) fn world_of_point(site: &Site, p: GridPoint) -> [f64; 2] {
     let (origin, step) = frame_steps(site);
     [
         origin[0] + (p[0] - 0.5) * step[0],
@@ -48,7 +48,7 @@ pub fn world_of_point(site: &Site, p: GridPoint) -> [f64; 2] {
 }
 
 /// A point in world metres in cell units (the inverse of [`world_of_point`]).
-pub fn point_of_world(site: &Site, w: [f64; 2]) -> GridPoint {
+pub(crate) fn point_of_world(site: &Site, w: [f64; 2]) -> GridPoint {
     let (origin, step) = frame_steps(site);
     [
         0.5 + (w[0] - origin[0]) / step[0],
@@ -68,7 +68,7 @@ fn frame_steps(site: &Site) -> ([f64; 2], [f64; 2]) {
 /// The cells a segment passes through, in order, from the cell holding `a`
 /// to the cell holding `b`.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct Traversal {
+pub(crate) struct Traversal {
     /// Cells in order, each a 4-neighbour of the one before except where the
     /// segment crosses a corner exactly (a diagonal step).
     pub cells: Vec<[i64; 2]>,
@@ -79,7 +79,7 @@ pub struct Traversal {
 
 /// Amanatides–Woo traversal of the segment `a → b` (cell units). Cells may be
 /// off the grid (negative or past its size); callers check.
-pub fn traverse(a: GridPoint, b: GridPoint) -> Traversal {
+pub(crate) fn traverse(a: GridPoint, b: GridPoint) -> Traversal {
     const EPS: f64 = 1e-9;
     let mut cell = [a[0].floor() as i64, a[1].floor() as i64];
     let end = [b[0].floor() as i64, b[1].floor() as i64];
@@ -138,7 +138,7 @@ fn on_grid(site: &Site, [x, y]: [i64; 2]) -> Option<Cell> {
 
 /// Whether the segment between the centres of `a` and `b` crosses only cells
 /// `passable` allows, corners included.
-pub fn clear(site: &Site, a: Cell, b: Cell, passable: impl Fn(Cell) -> bool) -> bool {
+pub(crate) fn clear(site: &Site, a: Cell, b: Cell, passable: impl Fn(Cell) -> bool) -> bool {
     let t = traverse(centre(a), centre(b));
     t.cells
         .iter()
@@ -150,7 +150,7 @@ pub fn clear(site: &Site, a: Cell, b: Cell, passable: impl Fn(Cell) -> bool) -> 
 /// units), first cell included: the supercover's cells made a walk by
 /// [`extend_walk`]. `None` when the segment leaves the grid or crosses a cell
 /// `passable` refuses.
-pub fn segment_cells(
+pub(crate) fn segment_cells(
     site: &Site,
     a: GridPoint,
     b: GridPoint,
@@ -175,7 +175,7 @@ pub fn segment_cells(
 /// that one allowed diagonal step could replace is replaced by it, so a
 /// slanted line is a thin staircase, as routes are. `false` when the corner
 /// has no open side: the walk cannot go on.
-pub fn extend_walk(
+pub(crate) fn extend_walk(
     out: &mut Vec<(Cell, f64)>,
     cell: Cell,
     t: f64,
@@ -209,7 +209,7 @@ pub fn extend_walk(
 /// The cells of a polyline through cell centres or any points (cell units),
 /// with loops cut out so no cell is visited twice; `None` as for
 /// [`segment_cells`].
-pub fn polyline_cells(
+pub(crate) fn polyline_cells(
     site: &Site,
     points: &[GridPoint],
     passable: impl Fn(Cell) -> bool + Copy,
@@ -232,7 +232,7 @@ pub fn polyline_cells(
 
 /// Cuts every loop out of a walk of items at cells (`cell_of`): from a
 /// cell's first visit straight on from its last.
-pub fn without_loops<T>(items: Vec<T>, cell_of: impl Fn(&T) -> Cell) -> Vec<T> {
+pub(crate) fn without_loops<T>(items: Vec<T>, cell_of: impl Fn(&T) -> Cell) -> Vec<T> {
     let mut out: Vec<T> = Vec::with_capacity(items.len());
     let mut at: std::collections::HashMap<Cell, usize> = Default::default();
     for item in items {
@@ -254,7 +254,11 @@ pub fn without_loops<T>(items: Vec<T>, cell_of: impl Fn(&T) -> Cell) -> Vec<T> {
 /// `passable`. String-pulling a grid route is the cheap any-angle route: a
 /// grid search plus one line check per cell, against Theta*'s line check per
 /// expanded neighbour.
-pub fn string_pulled(site: &Site, cells: &[Cell], passable: impl Fn(Cell) -> bool) -> Vec<Cell> {
+pub(crate) fn string_pulled(
+    site: &Site,
+    cells: &[Cell],
+    passable: impl Fn(Cell) -> bool,
+) -> Vec<Cell> {
     let Some(&first) = cells.first() else {
         return Vec::new();
     };
@@ -283,7 +287,8 @@ pub struct AnyAngleRoute {
 
 impl AnyAngleRoute {
     /// Length in metres along the polyline.
-    pub fn length_m(&self, site: &Site) -> f64 {
+    #[cfg(test)]
+    pub(crate) fn length_m(&self, site: &Site) -> f64 {
         self.vertices
             .windows(2)
             .map(|w| w[0].distance(w[1]))
@@ -302,13 +307,9 @@ impl AnyAngle {
         AnyAngle { site }
     }
 
-    pub fn site(&self) -> &Site {
-        &self.site
-    }
-
     /// The straight segment from `from` to `to` when the profile may walk it
     /// (see [`clear`]).
-    pub fn straight(&self, from: Cell, to: Cell, profile: Profile) -> Option<AnyAngleRoute> {
+    pub(crate) fn straight(&self, from: Cell, to: Cell, profile: Profile) -> Option<AnyAngleRoute> {
         let site = &*self.site;
         let passable = |c| profile.passable(site, c);
         if !(passable(from) && passable(to) && clear(site, from, to, passable)) {

@@ -39,7 +39,7 @@ impl Planner for AStar {
 /// (≥ 1), equally cheap routes broken towards the straight line
 /// ([`Costs::hug_line`]). Shared by every planner: the baseline, and the
 /// repair of learned frames.
-pub fn profile_search(
+pub(crate) fn profile_search(
     site: &Site,
     connectivity: Connectivity,
     from: Cell,
@@ -145,7 +145,7 @@ pub fn search(
 }
 
 /// What a search may use and what it pays.
-pub struct Costs<P, C> {
+pub(crate) struct Costs<P, C> {
     /// Cells the walker may stand on (a subset of the site's walkable cells).
     pub passable: P,
     /// Factor ≥ 1 on the cost of entering a cell.
@@ -163,7 +163,7 @@ pub struct Costs<P, C> {
 /// a diagonal never cuts the corner of a cell the walker may not use), with a
 /// cost per turn. With a turn cost the search state is (cell, heading), so
 /// the cheapest route with fewest turns wins, not the first one found.
-pub fn search_with(
+pub(crate) fn search_with(
     site: &Site,
     connectivity: Connectivity,
     from: Cell,

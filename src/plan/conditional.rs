@@ -37,7 +37,7 @@ impl Default for ConditionalConfig {
     }
 }
 
-pub struct Conditional {
+pub(crate) struct Conditional {
     site: Arc<Site>,
     connectivity: Connectivity,
     generator: PathGenerator,
@@ -47,7 +47,7 @@ pub struct Conditional {
 }
 
 impl Conditional {
-    pub fn new(
+    pub(crate) fn new(
         site: Arc<Site>,
         connectivity: Connectivity,
         generator: PathGenerator,

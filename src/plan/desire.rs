@@ -41,7 +41,7 @@ use crate::model::desire::POINTS;
 use crate::model::runtime::DesireModel;
 use crate::site::{Cell, Site};
 
-pub struct Desire {
+pub(crate) struct Desire {
     site: Arc<Site>,
     connectivity: Connectivity,
     model: DesireModel,
@@ -49,7 +49,7 @@ pub struct Desire {
 }
 
 impl Desire {
-    pub fn new(site: Arc<Site>, connectivity: Connectivity, model: DesireModel) -> Desire {
+    pub(crate) fn new(site: Arc<Site>, connectivity: Connectivity, model: DesireModel) -> Desire {
         // "desire_lines@474lines/seed1": the bank is what was learned.
         let meta = model.model().metadata();
         let version = format!(
@@ -227,7 +227,7 @@ pub fn prior_line(
 /// cheapest grid route (cell and turn costs included) pulled taut
 /// ([`string_pulled`]) without cutting across cells the profile pays extra
 /// for that the route itself kept clear of.
-pub fn anyangle_cells(
+pub(crate) fn anyangle_cells(
     site: &Site,
     profile: Profile,
     a: Cell,
@@ -278,7 +278,11 @@ pub fn resample(points: &[GridPoint], count: usize) -> Vec<GridPoint> {
 /// by the change interpolated there. Where the walks left the prior alone
 /// this is the prior exactly, corners included, which [`POINTS`] samples
 /// of it would cut.
-pub fn warped(prior: &[GridPoint], samples: &[[f32; 2]], learned: &[GridPoint]) -> Vec<GridPoint> {
+pub(crate) fn warped(
+    prior: &[GridPoint],
+    samples: &[[f32; 2]],
+    learned: &[GridPoint],
+) -> Vec<GridPoint> {
     let shift: Vec<GridPoint> = samples
         .iter()
         .zip(learned)
@@ -332,7 +336,7 @@ pub fn warped(prior: &[GridPoint], samples: &[[f32; 2]], learned: &[GridPoint]) 
 /// that cross an unusable cell replaced by the any-angle route between their
 /// ends. When a repair cannot be made (a snapped point in a part of the site
 /// not connected to the route), the whole line is the any-angle route.
-pub fn walkable_line(
+pub(crate) fn walkable_line(
     site: &Site,
     profile: Profile,
     points: &[GridPoint],

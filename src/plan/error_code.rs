@@ -44,7 +44,8 @@ pub enum RouteErrorCode {
 
 impl RouteErrorCode {
     /// Every code, in the order the schema lists them.
-    pub const ALL: [RouteErrorCode; 13] = [
+    #[cfg(test)]
+    pub(crate) const ALL: [RouteErrorCode; 13] = [
         RouteErrorCode::UnknownPlace,
         RouteErrorCode::OffMap,
         RouteErrorCode::BlockedCell,

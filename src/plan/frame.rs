@@ -17,10 +17,10 @@ use crate::site::{Cell, Site};
 /// Cost factor of an open cell the frame did not light. High enough that a
 /// detour of a few bright cells beats a dark shortcut, low enough that a
 /// frame with a gap is still repaired along its bright cells.
-pub const DARK_COST: f64 = 4.0;
+pub(crate) const DARK_COST: f64 = 4.0;
 
 /// Whether the cell at grid index `i` is on the frame's path.
-pub fn bright(frame: &[f32], i: usize) -> bool {
+pub(crate) fn bright(frame: &[f32], i: usize) -> bool {
     frame[i] > 0.0
 }
 

@@ -28,14 +28,14 @@ use super::{Profile, Route};
 use crate::site::{Cell, Site, Tile};
 
 /// How near (in cells) a named place must be to name a turn after it.
-pub const PLACE_RADIUS_CELLS: f64 = 1.5;
+pub(crate) const PLACE_RADIUS_CELLS: f64 = 1.5;
 
 /// How near (in cells) a named place may be to serve a low-vision walker as
 /// the landmark of a decision point.
-pub const LOW_VISION_PLACE_RADIUS_CELLS: f64 = 4.0;
+pub(crate) const LOW_VISION_PLACE_RADIUS_CELLS: f64 = 4.0;
 
 /// How near (in cells) a named place must be to the start to set off by it.
-pub const START_PLACE_RADIUS_CELLS: f64 = 3.0;
+pub(crate) const START_PLACE_RADIUS_CELLS: f64 = 3.0;
 
 /// Something on the walk to a maneuver worth a warning before it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -113,7 +113,7 @@ pub enum Modifier {
 
 impl Modifier {
     /// The English words for the turn.
-    pub fn words(self) -> &'static str {
+    pub(crate) fn words(self) -> &'static str {
         match self {
             Modifier::Straight => "go straight on",
             Modifier::SlightRight => "bear right",
@@ -152,7 +152,7 @@ pub struct Maneuver {
 
 impl Maneuver {
     /// Whether the walker must decide something here (turn or stop).
-    pub fn is_decision(&self) -> bool {
+    pub(crate) fn is_decision(&self) -> bool {
         self.kind != ManeuverType::Depart
     }
 
@@ -160,13 +160,13 @@ impl Maneuver {
     /// maneuver itself, as a screen reader speaks it, from `distance_m`
     /// before it: "Walk 12 metres, with a door after 4 metres, then turn
     /// left at help desk."
-    pub fn sentence(&self, distance_m: f64) -> String {
+    pub(crate) fn sentence(&self, distance_m: f64) -> String {
         capitalised(&self.clause(distance_m)) + "."
     }
 
     /// [`Maneuver::sentence`] without its capital and full stop, to be
     /// joined to another.
-    pub fn clause(&self, distance_m: f64) -> String {
+    pub(crate) fn clause(&self, distance_m: f64) -> String {
         let named = self
             .place
             .as_ref()
@@ -193,7 +193,11 @@ impl Maneuver {
 
 /// The sentence a walker sets off along `route` with: how to orient without
 /// a compass, then the walk to the first decision point of its `maneuvers`.
-pub fn first_sentence(site: &Site, route: &[Cell], maneuvers: &[Maneuver]) -> Option<String> {
+pub(crate) fn first_sentence(
+    site: &Site,
+    route: &[Cell],
+    maneuvers: &[Maneuver],
+) -> Option<String> {
     let first = maneuvers.get(1)?;
     let walk = first.clause(first.distance_m);
     Some(match setting_off(site, route) {
@@ -211,17 +215,17 @@ fn capitalised(clause: &str) -> String {
 
 /// How far (in cells) a route may stray from the straight line between two
 /// kept corners before the cell between them becomes a corner too.
-pub const CORNER_TOLERANCE_CELLS: f64 = 1.0;
+pub(crate) const CORNER_TOLERANCE_CELLS: f64 = 1.0;
 
 /// How far around a cell its ways out are counted, metres: beyond the
 /// width of a corridor, so a corridor shows two ways (on and back) and a
 /// junction three or more.
-pub const JUNCTION_RADIUS_M: f64 = 3.0;
+pub(crate) const JUNCTION_RADIUS_M: f64 = 3.0;
 
 /// The maneuvers of `route` on `site` for a walker with `profile`: depart,
 /// a turn per corner, a continue per junction passed straight on, arrive;
 /// empty for a route of one cell.
-pub fn maneuvers(site: &Site, route: &Route, profile: Profile) -> Vec<Maneuver> {
+pub(crate) fn maneuvers(site: &Site, route: &Route, profile: Profile) -> Vec<Maneuver> {
     let cells = &route.cells;
     if cells.len() < 2 {
         return Vec::new();

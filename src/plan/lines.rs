@@ -10,11 +10,11 @@ use crate::site::{Cell, Site};
 
 /// A line through points in metres, in walking order.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Polyline(pub Vec<[f64; 2]>);
+pub(crate) struct Polyline(pub Vec<[f64; 2]>);
 
 impl Polyline {
     /// The line through the centres of `cells` on `site`.
-    pub fn of_cells(site: &Site, cells: &[Cell]) -> Polyline {
+    pub(crate) fn of_cells(site: &Site, cells: &[Cell]) -> Polyline {
         Polyline(
             cells
                 .iter()
@@ -27,13 +27,13 @@ impl Polyline {
     }
 
     /// Length in metres.
-    pub fn length_m(&self) -> f64 {
+    pub(crate) fn length_m(&self) -> f64 {
         self.0.windows(2).map(|w| dist(w[0], w[1])).sum()
     }
 
     /// Points every `step_m` metres along the line, from its first point to
     /// its last (both kept), so two lines are compared at the same density.
-    pub fn resampled(&self, step_m: f64) -> Vec<[f64; 2]> {
+    pub(crate) fn resampled(&self, step_m: f64) -> Vec<[f64; 2]> {
         let Some(&first) = self.0.first() else {
             return Vec::new();
         };
@@ -66,7 +66,7 @@ fn dist(a: [f64; 2], b: [f64; 2]) -> f64 {
 
 /// How far apart two lines are, in metres, both resampled every `step_m`.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Shape {
+pub(crate) struct Shape {
     /// Dynamic time warping: the mean distance between matched points along
     /// the cheapest monotone matching (its total over its number of pairs).
     pub dtw_m: f64,
@@ -76,7 +76,7 @@ pub struct Shape {
 }
 
 /// [`Shape`] of `a` against `b`; `None` when either line is empty.
-pub fn shape(a: &Polyline, b: &Polyline, step_m: f64) -> Option<Shape> {
+pub(crate) fn shape(a: &Polyline, b: &Polyline, step_m: f64) -> Option<Shape> {
     let (p, q) = (a.resampled(step_m), b.resampled(step_m));
     if p.is_empty() || q.is_empty() {
         return None;

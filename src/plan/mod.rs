@@ -6,7 +6,9 @@
 //! a route that [`Route::validate`] accepts, or an error: never an invalid route.
 
 //!
-//! Modes (`[planner] mode`): `astar` (shortest walk, no models), `desire`
+//! Modes (`[planner] mode`): `learned`, the default (the desire lines when
+//! they passed their training check on the site's walks, else the
+//! conditional GAN, else A*: [`learned`]), `astar` (shortest walk, no models), `desire`
 //! (the line people walk between the two cells, learned from their walks:
 //! [`desire`]), `rejection` (the paper's Algorithm 1, bounded: [`rejection`])
 //! and `conditional` (the conditional GAN: [`conditional`]). The GAN modes
@@ -18,15 +20,16 @@
 
 pub mod anyangle;
 pub mod astar;
-pub mod conditional;
+pub(crate) mod conditional;
 pub mod desire;
 mod error_code;
 pub mod frame;
 pub mod instructions;
-pub mod lines;
-pub mod picture;
+pub(crate) mod learned;
+pub(crate) mod lines;
+pub(crate) mod picture;
 mod profile;
-pub mod rejection;
+pub(crate) mod rejection;
 mod route;
 
 use std::path::{Path, PathBuf};
@@ -36,7 +39,7 @@ use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
 pub use error_code::RouteErrorCode;
-pub use profile::{PROFILE_NAMES, Profile, unknown_profile_message};
+pub use profile::{Profile, unknown_profile_message};
 pub use route::{Route, Waypoint};
 
 use crate::site::{Cell, Site};
@@ -89,7 +92,7 @@ impl PlanError {
 
 impl Destination {
     /// The walkable cell this destination names on `site`.
-    pub fn resolve(&self, site: &Site) -> Result<Cell, PlanError> {
+    pub(crate) fn resolve(&self, site: &Site) -> Result<Cell, PlanError> {
         let cell = match self {
             Destination::Place(name) => {
                 site.place(name).ok_or_else(|| PlanError::UnknownPlace {
@@ -140,12 +143,12 @@ pub enum Connectivity {
 
 impl Connectivity {
     /// Whether a single step from `a` to `b` is allowed on `site`.
-    pub fn step_ok(self, site: &Site, a: Cell, b: Cell) -> bool {
+    pub(crate) fn step_ok(self, site: &Site, a: Cell, b: Cell) -> bool {
         self.step_ok_by(a, b, |c| site.walkable(c))
     }
 
     /// [`Connectivity::step_ok`] where `passable` says which cells may be used.
-    pub fn step_ok_by(self, a: Cell, b: Cell, passable: impl Fn(Cell) -> bool) -> bool {
+    pub(crate) fn step_ok_by(self, a: Cell, b: Cell, passable: impl Fn(Cell) -> bool) -> bool {
         let (dx, dy) = (a.x.abs_diff(b.x), a.y.abs_diff(b.y));
         if !passable(b) || dx > 1 || dy > 1 || (dx == 0 && dy == 0) {
             return false;
@@ -218,8 +221,11 @@ impl PlannerConfig {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum PlannerMode {
-    /// Shortest walkable path.
+    /// The default: the learned planner that passed its training check on
+    /// the site's walks, falling back down to A* ([`learned`]).
     #[default]
+    Learned,
+    /// Shortest walkable path.
     Astar,
     /// Algorithm 1: unconditional GAN + path classifier, bounded.
     Rejection,
@@ -230,7 +236,8 @@ pub enum PlannerMode {
 }
 
 impl PlannerMode {
-    pub const ALL: [PlannerMode; 4] = [
+    pub(crate) const ALL: [PlannerMode; 5] = [
+        PlannerMode::Learned,
         PlannerMode::Astar,
         PlannerMode::Rejection,
         PlannerMode::Conditional,
@@ -239,6 +246,7 @@ impl PlannerMode {
 
     pub fn name(self) -> &'static str {
         match self {
+            PlannerMode::Learned => "learned",
             PlannerMode::Astar => "astar",
             PlannerMode::Rejection => "rejection",
             PlannerMode::Conditional => "conditional",
@@ -343,6 +351,11 @@ pub fn build_mode(
     use crate::model::runtime::{DesireModel, PathClassifier, PathGenerator, Rows};
     let context = |what: &str| format!("[planner] mode = \"{}\": loading the {what}", mode.name());
     Ok(match mode {
+        PlannerMode::Learned => {
+            let (planner, choice) = learned::build(config, site)?;
+            choice.log();
+            planner
+        }
         PlannerMode::Astar => Box::new(astar::AStar::new(site, config.connectivity)),
         PlannerMode::Rejection => {
             let rows = Rows::for_batch(config.rejection.batch);
@@ -392,7 +405,7 @@ pub fn deviation_score(site: &Site, frame: &[f32]) -> f64 {
 }
 
 /// The frame's bright cells outside the public-access area, |G| − |G ∩ B|.
-pub fn cells_off_area(site: &Site, frame: &[f32]) -> usize {
+pub(crate) fn cells_off_area(site: &Site, frame: &[f32]) -> usize {
     site.blocked_indices()
         .iter()
         .filter(|&&i| frame::bright(frame, i))

@@ -21,13 +21,17 @@ const CELL_PX: u32 = 24;
 const GAP_PX: u32 = CELL_PX / 2;
 
 /// Draws `route` on `site` into `path` (`.svg` or `.png`).
-pub fn draw(site: &Site, route: &Route, path: &Path) -> anyhow::Result<()> {
+pub(crate) fn draw(site: &Site, route: &Route, path: &Path) -> anyhow::Result<()> {
     draw_panels(site, &[Panel::Route(route)], 1, path)
 }
 
 /// Draws one row per `(frame, route)` sample, the frame on the left and the
 /// route on the right, into `path` (`.svg` or `.png`).
-pub fn draw_samples(site: &Site, samples: &[(&[f32], &Route)], path: &Path) -> anyhow::Result<()> {
+pub(crate) fn draw_samples(
+    site: &Site,
+    samples: &[(&[f32], &Route)],
+    path: &Path,
+) -> anyhow::Result<()> {
     let panels: Vec<Panel> = samples
         .iter()
         .flat_map(|&(frame, route)| [Panel::Frame(frame), Panel::Route(route)])

@@ -17,11 +17,11 @@ pub enum Profile {
 }
 
 /// The profile names a request may use, in the order they are listed in errors.
-pub const PROFILE_NAMES: [&str; 3] = ["default", "wheelchair", "low-vision"];
+pub(crate) const PROFILE_NAMES: [&str; 3] = ["default", "wheelchair", "low-vision"];
 
 impl Profile {
     /// The profile called `name`, or `None` for a name not in [`PROFILE_NAMES`].
-    pub fn parse(name: &str) -> Option<Profile> {
+    pub(crate) fn parse(name: &str) -> Option<Profile> {
         match name {
             "default" => Some(Profile::Default),
             "wheelchair" => Some(Profile::Wheelchair),
@@ -30,7 +30,7 @@ impl Profile {
         }
     }
 
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             Profile::Default => "default",
             Profile::Wheelchair => "wheelchair",
@@ -39,7 +39,7 @@ impl Profile {
     }
 
     /// Whether this walker may stand on `cell` at all.
-    pub fn passable(self, site: &Site, cell: Cell) -> bool {
+    pub(crate) fn passable(self, site: &Site, cell: Cell) -> bool {
         match site.tile(cell) {
             None | Some(Tile::Blocked) => false,
             Some(Tile::Stairs) => self != Profile::Wheelchair,
@@ -49,7 +49,7 @@ impl Profile {
 
     /// Factor (≥ 1, so the search heuristic stays admissible) on the cost of
     /// entering `cell`.
-    pub fn cell_cost(self, site: &Site, cell: Cell) -> f64 {
+    pub(crate) fn cell_cost(self, site: &Site, cell: Cell) -> f64 {
         match (self, site.tile(cell)) {
             (Profile::LowVision, Some(Tile::Narrow)) => 4.0,
             (Profile::LowVision, Some(Tile::Door)) => 1.5,
@@ -69,7 +69,7 @@ impl Profile {
     /// Typical walking speed, m/s, for the arrival times guidance gives:
     /// 1.2 m/s is a common indoor pedestrian design speed; wheelchair users
     /// and people walking with a cane or a guide dog indoors are often slower.
-    pub fn walking_speed_mps(self) -> f64 {
+    pub(crate) fn walking_speed_mps(self) -> f64 {
         match self {
             Profile::Default => 1.2,
             Profile::Wheelchair => 1.0,
@@ -80,7 +80,7 @@ impl Profile {
     /// Extra cost of changing direction (in cell lengths): a low-vision walker
     /// would rather walk a little further than turn often, since every turn is
     /// one more instruction to follow without seeing the next landmark.
-    pub fn turn_cost(self) -> f64 {
+    pub(crate) fn turn_cost(self) -> f64 {
         match self {
             Profile::LowVision => 2.0,
             _ => 0.0,

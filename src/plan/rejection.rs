@@ -71,7 +71,7 @@ impl Default for RejectionConfig {
     }
 }
 
-pub struct Rejection {
+pub(crate) struct Rejection {
     site: Arc<Site>,
     connectivity: Connectivity,
     generator: PathGenerator,
@@ -92,7 +92,7 @@ struct Batch {
 }
 
 impl Rejection {
-    pub fn new(
+    pub(crate) fn new(
         site: Arc<Site>,
         connectivity: Connectivity,
         generator: PathGenerator,
@@ -194,11 +194,6 @@ impl Rejection {
             .unwrap_or_else(PoisonError::into_inner)
             .get_mut(class)?
             .pop()
-    }
-
-    /// The (source, destination) pairs this planner serves from frames.
-    pub fn classes(&self) -> &[PathClass] {
-        self.classifier.classes()
     }
 }
 

@@ -29,7 +29,7 @@ impl Route {
             * site.cell_m
     }
 
-    pub fn waypoints(&self, site: &Site) -> Vec<Waypoint> {
+    pub(crate) fn waypoints(&self, site: &Site) -> Vec<Waypoint> {
         self.cells
             .iter()
             .map(|&cell| {

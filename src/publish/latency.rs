@@ -39,7 +39,7 @@ impl Latency {
     }
 
     /// Both histograms in the Prometheus text format.
-    pub fn write_prometheus(&self, out: &mut String) {
+    pub(crate) fn write_prometheus(&self, out: &mut String) {
         self.fix.write(
             out,
             "gangway_fix_latency_seconds",

@@ -15,7 +15,7 @@
 //!   sightings, the counters ([`stats`]) and the runtime's latency
 //!   histograms ([`latency`], which `/metrics` exports).
 
-pub mod latency;
+pub(crate) mod latency;
 pub mod stats;
 
 use std::sync::Arc;
@@ -26,9 +26,9 @@ use crate::plan::RouteErrorCode;
 use crate::site::Cell;
 
 /// Payload schema versions, sent in every payload's `schema` field.
-pub const LOCATION_SCHEMA: &str = "gangway.location/1";
-pub const PATH_SCHEMA: &str = "gangway.path/1";
-pub const GUIDANCE_SCHEMA: &str = "gangway.guidance/1";
+pub(crate) const LOCATION_SCHEMA: &str = "gangway.location/1";
+pub(crate) const PATH_SCHEMA: &str = "gangway.path/1";
+pub(crate) const GUIDANCE_SCHEMA: &str = "gangway.guidance/1";
 
 /// Everything a sink can be given, in the order it happened. Sinks take
 /// what they use and pass over the rest (`_ => {}`), so a new kind of output
@@ -161,7 +161,7 @@ pub struct RouteBody {
 
 impl RouteBody {
     /// The published form of a planned route.
-    pub fn new(
+    pub(crate) fn new(
         site: &crate::site::Site,
         planner: &dyn crate::plan::Planner,
         profile: crate::plan::Profile,
@@ -239,7 +239,7 @@ pub struct ErrorBody {
 }
 
 /// Schema id of the error answered to refused feedback.
-pub const FEEDBACK_ERROR_SCHEMA: &str = "gangway.feedback-error/1";
+pub(crate) const FEEDBACK_ERROR_SCHEMA: &str = "gangway.feedback-error/1";
 
 /// The answer to feedback on a route this gateway did not give the device
 /// (or that was scored already).
@@ -260,7 +260,7 @@ pub struct FeedbackError {
 }
 
 impl FeedbackRefused {
-    pub fn new(feedback: &crate::event::Feedback) -> FeedbackRefused {
+    pub(crate) fn new(feedback: &crate::event::Feedback) -> FeedbackRefused {
         FeedbackRefused {
             schema: FEEDBACK_ERROR_SCHEMA,
             device: feedback.device.clone(),

@@ -4,11 +4,11 @@
 
 use serde::Serialize;
 
-pub const STATS_SCHEMA: &str = "gangway.stats/1";
+pub(crate) const STATS_SCHEMA: &str = "gangway.stats/1";
 
 /// The counters in [`Stats`] that only grow, with a human name each (Home
 /// Assistant discovery makes one sensor per entry).
-pub const COUNTERS: [(&str, &str); 28] = [
+pub(crate) const COUNTERS: [(&str, &str); 28] = [
     ("sightings", "Sightings"),
     ("sightings_ignored", "Sightings ignored"),
     ("fixes", "Fixes"),
@@ -40,7 +40,7 @@ pub const COUNTERS: [(&str, &str); 28] = [
 ];
 
 /// Gauges (current values), with a human name each.
-pub const GAUGES: [(&str, &str); 5] = [
+pub(crate) const GAUGES: [(&str, &str); 5] = [
     ("queue_depth", "Offline queue depth"),
     ("tracked", "Tracked devices"),
     ("windows", "Open fingerprint windows"),

@@ -49,14 +49,14 @@ impl<W: Write + Send> JsonLines<W> {
 
 impl JsonLines<std::io::Stdout> {
     /// `--print`.
-    pub fn stdout(topics: Topics) -> Self {
+    pub(crate) fn stdout(topics: Topics) -> Self {
         JsonLines::new(topics, std::io::stdout(), "stdout")
     }
 }
 
 impl JsonLines<File> {
     /// `--out FILE`.
-    pub fn create(topics: Topics, path: &Path) -> anyhow::Result<Self> {
+    pub(crate) fn create(topics: Topics, path: &Path) -> anyhow::Result<Self> {
         let file =
             File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
         Ok(JsonLines::new(topics, file, &path.display().to_string()))

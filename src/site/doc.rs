@@ -24,7 +24,7 @@ use super::{Cell, LabelScheme, ReferencePoint, YAxis};
 /// JSON form is the TOML's: `beacon` and `gateway` are the arrays of tables.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct SiteDoc {
+pub(crate) struct SiteDoc {
     pub name: String,
     pub cell_m: f64,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -56,7 +56,7 @@ pub struct SiteDoc {
 /// `[floorplan]`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct FloorplanDoc {
+pub(crate) struct FloorplanDoc {
     pub image: String,
     pub reference: Vec<ReferencePoint>,
 }
@@ -64,14 +64,14 @@ pub struct FloorplanDoc {
 /// One `[[obstacles]]`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct ObstacleDoc {
+pub(crate) struct ObstacleDoc {
     pub polygon: Vec<[f64; 2]>,
 }
 
 /// One `[[walls]]`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct WallDoc {
+pub(crate) struct WallDoc {
     pub line: Vec<[f64; 2]>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub thickness_m: Option<f64>,
@@ -80,7 +80,7 @@ pub struct WallDoc {
 /// One `[[beacon]]`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct BeaconDoc {
+pub(crate) struct BeaconDoc {
     pub id: String,
     pub uuid: Uuid,
     pub major: u16,
@@ -98,7 +98,7 @@ pub struct BeaconDoc {
 /// One `[[gateway]]`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct GatewayDoc {
+pub(crate) struct GatewayDoc {
     pub id: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cell: Option<Cell>,
@@ -111,7 +111,7 @@ pub struct GatewayDoc {
 impl SiteDoc {
     /// The document of site TOML (not validated beyond its types: a
     /// document may be mid-edit).
-    pub fn parse(text: &str) -> Result<SiteDoc, toml::de::Error> {
+    pub(crate) fn parse(text: &str) -> Result<SiteDoc, toml::de::Error> {
         toml::from_str(text)
     }
 }
@@ -121,7 +121,7 @@ impl SiteDoc {
 /// included: keys are compared as data, arrays of tables entry by entry and
 /// places name by name. Without it (or when it does not parse), a new file
 /// in the order of `config/sites/README.md`.
-pub fn write_doc(doc: &SiteDoc, original: Option<&str>) -> String {
+pub(crate) fn write_doc(doc: &SiteDoc, original: Option<&str>) -> String {
     let opened = original.and_then(|text| {
         let old = SiteDoc::parse(text).ok()?;
         Some((text.parse::<DocumentMut>().ok()?, old))

@@ -22,14 +22,14 @@ const FORMATS: [(&str, &str); 4] = [
     ("webp", "image/webp"),
 ];
 /// The largest floor-plan image read, bytes: a scanned A0 sheet as a JPEG.
-pub const MAX_IMAGE_BYTES: u64 = 32 << 20;
+pub(crate) const MAX_IMAGE_BYTES: u64 = 32 << 20;
 /// Reference points closer than this on the image fix the scale too loosely.
 const MIN_REFERENCE_PX: f64 = 10.0;
 
 /// One reference point: where it is on the image and in the building.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct ReferencePoint {
+pub(crate) struct ReferencePoint {
     /// Pixels from the image's top-left corner, x right, y down.
     pub px: [f64; 2],
     /// World metres, in the site's frame (`origin_m`, `y_axis`).
@@ -46,7 +46,7 @@ pub(super) struct FloorplanEntry {
 
 /// A validated floor plan.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Floorplan {
+pub(crate) struct Floorplan {
     /// The image file, resolved against the site file's directory.
     pub image: PathBuf,
     /// The two reference points.
@@ -118,29 +118,23 @@ impl FloorplanEntry {
 }
 
 impl Floorplan {
-    /// Grid units of a pixel of the image.
-    pub fn grid_of_pixel(&self, [px, py]: [f64; 2]) -> [f64; 2] {
-        let [a, b, c, d, e, f] = self.pixels_to_grid;
-        [a * px + c * py + e, b * px + d * py + f]
-    }
-
     /// Reads the image's header: its MIME type and size in pixels, or why
     /// it cannot be shown (missing, too large, not the format its name says).
-    pub fn probe(&self) -> Result<ImageInfo, String> {
+    pub(crate) fn probe(&self) -> Result<ImageInfo, String> {
         probe_image(&self.image)
     }
 }
 
 /// What [`Floorplan::probe`] found.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct ImageInfo {
+pub(crate) struct ImageInfo {
     pub mime: &'static str,
     pub width: u32,
     pub height: u32,
 }
 
 /// The MIME type a floor-plan file name promises, or why it is refused.
-pub fn mime_of_name(name: &str) -> Result<&'static str, String> {
+pub(crate) fn mime_of_name(name: &str) -> Result<&'static str, String> {
     let ext = Path::new(name)
         .extension()
         .and_then(|e| e.to_str())
@@ -154,7 +148,7 @@ pub fn mime_of_name(name: &str) -> Result<&'static str, String> {
 }
 
 /// The MIME type of image bytes, by their magic numbers.
-pub fn mime_of_bytes(bytes: &[u8]) -> Option<&'static str> {
+pub(crate) fn mime_of_bytes(bytes: &[u8]) -> Option<&'static str> {
     match imagesize::image_type(bytes).ok()? {
         imagesize::ImageType::Png => Some("image/png"),
         imagesize::ImageType::Jpeg => Some("image/jpeg"),
@@ -164,7 +158,7 @@ pub fn mime_of_bytes(bytes: &[u8]) -> Option<&'static str> {
 }
 
 /// [`Floorplan::probe`] for any path.
-pub fn probe_image(path: &Path) -> Result<ImageInfo, String> {
+pub(crate) fn probe_image(path: &Path) -> Result<ImageInfo, String> {
     let shown = path.display();
     let meta = std::fs::metadata(path)
         .map_err(|e| format!("floor-plan image {shown}: cannot read it: {e}"))?;
@@ -224,6 +218,14 @@ fn similarity(from: [[f64; 2]; 2], to: [[f64; 2]; 2]) -> [f64; 6] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    impl Floorplan {
+        /// Grid units of a pixel of the image.
+        fn grid_of_pixel(&self, [px, py]: [f64; 2]) -> [f64; 2] {
+            let [a, b, c, d, e, f] = self.pixels_to_grid;
+            [a * px + c * py + e, b * px + d * py + f]
+        }
+    }
 
     #[test]
     fn two_points_fix_scale_rotation_and_shift() {

@@ -23,7 +23,7 @@ pub(super) const RSSI_UNAVAILABLE: i8 = 127;
 
 /// Why a record or an advert gave no sighting.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
-pub enum SkipReason {
+pub(crate) enum SkipReason {
     /// Commands, ACL/SCO/ISO data, monitor notes and index records (per record).
     NotAnEvent,
     /// HCI events other than LE Meta (per record).
@@ -60,7 +60,7 @@ pub enum SkipReason {
 impl SkipReason {
     /// Every reason, in declaration order: a reason's discriminant is its index
     /// here and in [`SkipCounts`].
-    pub const ALL: [SkipReason; 14] = [
+    pub(crate) const ALL: [SkipReason; 14] = [
         SkipReason::NotAnEvent,
         SkipReason::OtherEvent,
         SkipReason::OtherLeSubevent,
@@ -77,7 +77,7 @@ impl SkipReason {
         SkipReason::CorruptBlock,
     ];
 
-    pub fn as_str(self) -> &'static str {
+    pub(crate) fn as_str(self) -> &'static str {
         match self {
             SkipReason::NotAnEvent => "not_an_event",
             SkipReason::OtherEvent => "other_event",
@@ -105,15 +105,15 @@ impl fmt::Display for SkipReason {
 
 /// How many records or adverts were skipped, by reason.
 #[derive(Clone, Debug, Default)]
-pub struct SkipCounts([u64; SkipReason::ALL.len()]);
+pub(crate) struct SkipCounts([u64; SkipReason::ALL.len()]);
 
 impl SkipCounts {
-    pub fn add(&mut self, reason: SkipReason) {
+    pub(crate) fn add(&mut self, reason: SkipReason) {
         self.0[reason as usize] += 1;
     }
 
     /// The non-zero counts, in [`SkipReason::ALL`] order.
-    pub fn iter(&self) -> impl Iterator<Item = (SkipReason, u64)> + '_ {
+    pub(crate) fn iter(&self) -> impl Iterator<Item = (SkipReason, u64)> + '_ {
         SkipReason::ALL
             .iter()
             .zip(self.0)

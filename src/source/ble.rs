@@ -26,7 +26,7 @@ use btleplug::api::{
     Central, CentralEvent, CentralState, Manager as _, Peripheral as _, ScanFilter,
 };
 use btleplug::platform::PeripheralId;
-pub use btleplug::platform::{Adapter, Manager};
+pub(crate) use btleplug::platform::{Adapter, Manager};
 use futures::StreamExt;
 use futures::future::BoxFuture;
 use serde::Deserialize;
@@ -72,7 +72,7 @@ impl Default for BleConfig {
 }
 
 impl BleConfig {
-    pub fn validate(&self) -> Result<(), String> {
+    pub(crate) fn validate(&self) -> Result<(), String> {
         if !(self.silent_restart_s.is_finite() && self.silent_restart_s >= 0.0) {
             return Err(format!(
                 "[ble] `silent_restart_s` must be 0 (never) or positive seconds, not {}",
@@ -83,13 +83,13 @@ impl BleConfig {
     }
 
     /// How long a scan may stay silent before it is restarted.
-    pub fn silent_restart(&self) -> Option<Duration> {
+    pub(crate) fn silent_restart(&self) -> Option<Duration> {
         (self.silent_restart_s > 0.0).then(|| Duration::from_secs_f64(self.silent_restart_s))
     }
 }
 
 #[derive(Debug, thiserror::Error)]
-pub enum BleError {
+pub(crate) enum BleError {
     #[error(
         "cannot reach BlueZ over D-Bus ({0}); is the bluetooth service running \
          (systemctl status bluetooth) and is the system bus available?"
@@ -118,12 +118,12 @@ pub enum BleError {
 /// process scans: each one holds a D-Bus connection (and a task serving it)
 /// that stays open until the bus closes it, so connecting per attempt would
 /// leak one connection per retry.
-pub async fn connect() -> Result<Manager, BleError> {
+pub(crate) async fn connect() -> Result<Manager, BleError> {
     Manager::new().await.map_err(BleError::NoBluez)
 }
 
 /// Opens the configured adapter, which must be powered.
-pub async fn adapter(manager: &Manager, config: &BleConfig) -> Result<Adapter, BleError> {
+pub(crate) async fn adapter(manager: &Manager, config: &BleConfig) -> Result<Adapter, BleError> {
     let adapter = find(manager, config).await?;
     if adapter.adapter_state().await? != CentralState::PoweredOn {
         return Err(BleError::PoweredOff(name(&adapter).await));
@@ -160,7 +160,7 @@ async fn name(adapter: &Adapter) -> String {
 /// The radio as a source: scans for as long as the runtime runs, reopening
 /// the adapter after every failure, and publishes the radio's state on its
 /// status channel (the stats' `ble`, with the silent scans restarted).
-pub struct BleSource {
+pub(crate) struct BleSource {
     config: BleConfig,
     /// This host, the observer of what it hears.
     observer: Arc<str>,
@@ -169,7 +169,10 @@ pub struct BleSource {
 
 impl BleSource {
     /// The source and the radio's state for the stats.
-    pub fn new(config: BleConfig, observer: Arc<str>) -> (BleSource, watch::Receiver<BleStatus>) {
+    pub(crate) fn new(
+        config: BleConfig,
+        observer: Arc<str>,
+    ) -> (BleSource, watch::Receiver<BleStatus>) {
         let (status, rx) = watch::channel(BleStatus {
             state: "starting",
             ..BleStatus::default()
@@ -277,7 +280,7 @@ async fn open(manager: &mut Option<Manager>, config: &BleConfig) -> Result<Adapt
 /// after stopping discovery), or until the adapter fails, sending one
 /// [`Event::Advert`] per iBeacon advert heard; `observer` names this host. A
 /// scan silent for `silent_restart` is restarted and `restarted` called.
-pub async fn scan(
+pub(crate) async fn scan(
     adapter: &Adapter,
     observer: Arc<str>,
     silent_restart: Option<Duration>,

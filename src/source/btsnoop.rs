@@ -160,7 +160,11 @@ pub struct BtsnoopReader<R> {
 impl BtsnoopReader<BufReader<File>> {
     /// Opens a capture; every sighting is attributed to `observer`, since a
     /// capture does not name the host that made it.
-    pub fn open(path: &Path, observer: Arc<str>, skip_bad: bool) -> Result<Self, BtsnoopError> {
+    pub(crate) fn open(
+        path: &Path,
+        observer: Arc<str>,
+        skip_bad: bool,
+    ) -> Result<Self, BtsnoopError> {
         let file = File::open(path).map_err(|source| BtsnoopError::Io {
             path: path.to_owned(),
             source,
@@ -224,17 +228,8 @@ impl<R: Read> BtsnoopReader<R> {
         })
     }
 
-    pub fn datalink(&self) -> Datalink {
-        self.datalink
-    }
-
-    /// Records read so far.
-    pub fn records(&self) -> u64 {
-        self.record
-    }
-
     /// How many records or reports were skipped, by reason (zero counts left out).
-    pub fn skipped(&self) -> impl Iterator<Item = (SkipReason, u64)> + '_ {
+    pub(crate) fn skipped(&self) -> impl Iterator<Item = (SkipReason, u64)> + '_ {
         self.adverts.skipped().iter()
     }
 
@@ -346,7 +341,7 @@ impl BtsnoopWriter<BufWriter<File>> {
 
 impl<W: Write> BtsnoopWriter<W> {
     /// Writes the file header.
-    pub fn new(mut out: W, datalink: Datalink) -> io::Result<Self> {
+    pub(crate) fn new(mut out: W, datalink: Datalink) -> io::Result<Self> {
         out.write_all(&MAGIC)?;
         out.write_all(&VERSION.to_be_bytes())?;
         out.write_all(&datalink.code().to_be_bytes())?;
@@ -478,6 +473,12 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
     use uuid::Uuid;
+
+    impl<R> BtsnoopReader<R> {
+        fn datalink(&self) -> Datalink {
+            self.datalink
+        }
+    }
 
     const T0_US: i64 = 1_700_000_000_250_000; // 2023-11-14 22:13:20.25 UTC
 

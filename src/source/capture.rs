@@ -44,7 +44,7 @@ pub enum Format {
 
 impl Format {
     /// The format of a file to read, from its first bytes and its name.
-    pub fn detect(path: &Path) -> io::Result<Format> {
+    pub(crate) fn detect(path: &Path) -> io::Result<Format> {
         let mut magic = [0u8; MAGIC.len()];
         let mut file = File::open(path)?;
         let mut got = 0;
@@ -71,7 +71,7 @@ impl Format {
     }
 
     /// The format of a file to write, from its name.
-    pub fn for_output(path: &Path) -> Format {
+    pub(crate) fn for_output(path: &Path) -> Format {
         match extension(path).as_deref() {
             Some("btsnoop" | "snoop" | "cfa") => Format::Btsnoop,
             Some("csv") => Format::Csv,
@@ -116,9 +116,9 @@ pub struct ReadOptions {
 }
 
 /// Observer id of CSV scan logs when none is given: a survey's walker.
-pub const DEFAULT_CSV_DEVICE: &str = "survey";
+pub(crate) const DEFAULT_CSV_DEVICE: &str = "survey";
 /// Observer id of btsnoop and pcap captures when none is given.
-pub const DEFAULT_BTSNOOP_DEVICE: &str = "capture";
+pub(crate) const DEFAULT_BTSNOOP_DEVICE: &str = "capture";
 
 /// Any capture, read as events in file order (CSV: time order).
 pub enum CaptureReader {
@@ -168,7 +168,7 @@ impl CaptureReader {
         })
     }
 
-    pub fn format(&self) -> Format {
+    pub(crate) fn format(&self) -> Format {
         match self {
             CaptureReader::Jsonl(_) => Format::Jsonl,
             CaptureReader::Csv(_) => Format::Csv,
@@ -178,7 +178,7 @@ impl CaptureReader {
     }
 
     /// What was skipped so far, by reason, as `reason=count` pairs.
-    pub fn skipped(&self) -> String {
+    pub(crate) fn skipped(&self) -> String {
         let counts: Vec<(String, u64)> = match self {
             CaptureReader::Jsonl(r) => vec![("bad_lines".into(), r.skipped())],
             CaptureReader::Csv(r) => vec![

@@ -30,7 +30,7 @@ use crate::site::Site;
 
 /// How to read a scan log.
 #[derive(Clone, Debug)]
-pub struct CsvOptions {
+pub(crate) struct CsvOptions {
     /// The observer of every advert and the device of every truth event.
     pub device: Arc<str>,
     /// The RSSI value that means "not heard".
@@ -42,15 +42,22 @@ pub struct CsvOptions {
 /// A scan log's events in time order.
 pub struct CsvLog {
     events: std::vec::IntoIter<Event>,
+    #[cfg(test)]
     rows: u64,
     skipped_rows: u64,
     ignored_columns: Vec<String>,
+    /// Whether the rows had to be sorted (logged when read; kept for tests).
+    #[cfg(test)]
     reordered: bool,
 }
 
 impl CsvLog {
     /// Reads a scan log whose beacon columns are named after `site`'s beacons.
-    pub fn open(path: &Path, site: &Site, options: &CsvOptions) -> Result<CsvLog, SurveyError> {
+    pub(crate) fn open(
+        path: &Path,
+        site: &Site,
+        options: &CsvOptions,
+    ) -> Result<CsvLog, SurveyError> {
         let beacon_ids: Vec<String> = site.beacons.iter().map(|b| b.id.clone()).collect();
         let header_error = |reason: String| SurveyError::Header {
             path: path.to_owned(),
@@ -132,31 +139,23 @@ impl CsvLog {
         }
         Ok(CsvLog {
             events: events.into_iter(),
+            #[cfg(test)]
             rows: rows.len() as u64,
             skipped_rows,
             ignored_columns,
+            #[cfg(test)]
             reordered,
         })
     }
 
-    /// Rows read (not counting skipped ones).
-    pub fn rows(&self) -> u64 {
-        self.rows
-    }
-
     /// Bad rows skipped (only with `skip_bad`).
-    pub fn skipped_rows(&self) -> u64 {
+    pub(crate) fn skipped_rows(&self) -> u64 {
         self.skipped_rows
     }
 
     /// Columns ignored because they name no beacon (only with `skip_bad`).
-    pub fn ignored_columns(&self) -> &[String] {
+    pub(crate) fn ignored_columns(&self) -> &[String] {
         &self.ignored_columns
-    }
-
-    /// Whether the rows had to be sorted into time order.
-    pub fn reordered(&self) -> bool {
-        self.reordered
     }
 }
 
@@ -194,6 +193,18 @@ mod tests {
     use super::*;
     use crate::site::Cell;
     use std::io::Write;
+
+    impl CsvLog {
+        /// Rows read (not counting skipped ones).
+        fn rows(&self) -> u64 {
+            self.rows
+        }
+
+        /// Whether the rows had to be sorted into time order.
+        fn reordered(&self) -> bool {
+            self.reordered
+        }
+    }
 
     const SITE: &str = r#"
 name = "t"

@@ -17,16 +17,16 @@ use uuid::Uuid;
 use crate::sighting::BeaconId;
 
 /// Apple's Bluetooth SIG company identifier, which iBeacon frames carry.
-pub const APPLE_COMPANY_ID: u16 = 0x004C;
+pub(crate) const APPLE_COMPANY_ID: u16 = 0x004C;
 
 /// The AD type of manufacturer-specific data, where iBeacon frames travel.
-pub const AD_MANUFACTURER_SPECIFIC: u8 = 0xFF;
+pub(crate) const AD_MANUFACTURER_SPECIFIC: u8 = 0xFF;
 
 /// The iBeacon type (0x02) and remaining length (0x15 = 21 bytes).
 const IBEACON_PREFIX: [u8; 2] = [0x02, 0x15];
 
 /// Length of the payload after the company id: prefix, UUID, major, minor, power.
-pub const PAYLOAD_LEN: usize = 2 + 16 + 2 + 2 + 1;
+pub(crate) const PAYLOAD_LEN: usize = 2 + 16 + 2 + 2 + 1;
 
 /// What an iBeacon frame says about its sender.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -66,7 +66,7 @@ pub fn parse_payload(payload: &[u8]) -> Option<IBeacon> {
 /// The first iBeacon frame among an advert's AD structures
 /// (`length | type | data`; a zero length ends the list, and a structure that
 /// runs past the end ends the search).
-pub fn find_in_ad(mut ad: &[u8]) -> Option<IBeacon> {
+pub(crate) fn find_in_ad(mut ad: &[u8]) -> Option<IBeacon> {
     while let Some((&len, rest)) = ad.split_first() {
         let len = usize::from(len);
         if len == 0 || len > rest.len() {

@@ -141,7 +141,7 @@ fn required<T>(value: Option<T>, field: &str) -> Result<T, String> {
 }
 
 /// Longest line read, in bytes; a longer one is a bad line.
-pub const MAX_LINE_BYTES: usize = 1 << 20;
+pub(crate) const MAX_LINE_BYTES: usize = 1 << 20;
 /// Bad lines logged one by one with `skip_bad` before summaries start.
 const SKIP_WARN_FIRST: u64 = 10;
 /// Then one summary line per this period.
@@ -215,7 +215,7 @@ impl<R: BufRead> LogReader<R> {
     }
 
     /// Bad lines skipped so far (only with `skip_bad`).
-    pub fn skipped(&self) -> u64 {
+    pub(crate) fn skipped(&self) -> u64 {
         self.skipped
     }
 
@@ -368,7 +368,7 @@ impl LogWriter<BufWriter<File>> {
 }
 
 impl<W: Write> LogWriter<W> {
-    pub fn new(out: W) -> Self {
+    pub(crate) fn new(out: W) -> Self {
         LogWriter { out }
     }
 

@@ -78,12 +78,12 @@ pub struct SourceContext {
 /// The runtime is gone: the source should stop.
 #[derive(Debug, thiserror::Error)]
 #[error("the gateway's runtime stopped")]
-pub struct Closed;
+pub(crate) struct Closed;
 
 impl SourceContext {
     /// Sends own events (a batch, in time order); waits while the runtime is
     /// behind.
-    pub async fn events(&self, events: Vec<Event>) -> Result<(), Closed> {
+    pub(crate) async fn events(&self, events: Vec<Event>) -> Result<(), Closed> {
         self.events
             .send(Input::Events(events))
             .await
@@ -91,7 +91,7 @@ impl SourceContext {
     }
 
     /// Sends someone else's message; waits while the runtime is not taking them.
-    pub async fn inbound(&self, message: Inbound) -> Result<(), Closed> {
+    pub(crate) async fn inbound(&self, message: Inbound) -> Result<(), Closed> {
         self.inbound
             .send(Input::Inbound(message))
             .await
@@ -108,29 +108,29 @@ pub struct Shutdown {
 
 /// Starts shutdown for every [`Shutdown`] it made.
 #[derive(Debug)]
-pub struct ShutdownTrigger {
+pub(crate) struct ShutdownTrigger {
     notify: watch::Sender<bool>,
 }
 
 impl Shutdown {
     /// A trigger and the first receiver.
-    pub fn new() -> (ShutdownTrigger, Shutdown) {
+    pub(crate) fn new() -> (ShutdownTrigger, Shutdown) {
         let (notify, rx) = watch::channel(false);
         (ShutdownTrigger { notify }, Shutdown { notify: rx })
     }
 
-    pub fn is_shutdown(&self) -> bool {
+    pub(crate) fn is_shutdown(&self) -> bool {
         *self.notify.borrow()
     }
 
     /// Waits until shutdown starts (or the trigger is gone).
-    pub async fn recv(&mut self) {
+    pub(crate) async fn recv(&mut self) {
         let _ = self.notify.wait_for(|&down| down).await;
     }
 }
 
 impl ShutdownTrigger {
-    pub fn trigger(&self) {
+    pub(crate) fn trigger(&self) {
         self.notify.send_replace(true);
     }
 }

@@ -47,12 +47,12 @@ use std::sync::Arc;
 
 use super::adverts::{Adverts, SkipReason};
 use super::btsnoop::read_full;
-pub use super::pcap_link::Linktype;
+pub(crate) use super::pcap_link::Linktype;
 use crate::sighting::Sighting;
 
 /// The first four bytes of a pcapng file: a Section Header Block's type, the
 /// same in both byte orders.
-pub const PCAPNG_MAGIC: [u8; 4] = [0x0A, 0x0D, 0x0D, 0x0A];
+pub(crate) const PCAPNG_MAGIC: [u8; 4] = [0x0A, 0x0D, 0x0D, 0x0A];
 const PCAP_MAGIC_US: u32 = 0xA1B2_C3D4;
 const PCAP_MAGIC_NS: u32 = 0xA1B2_3C4D;
 const BYTE_ORDER_MAGIC: u32 = 0x1A2B_3C4D;
@@ -77,13 +77,13 @@ const OPT_IF_TSOFFSET: u16 = 14;
 /// through, not buffered.
 const MAX_PACKET_LEN: u32 = 1 << 20;
 /// Interfaces kept per pcapng section; a capture has a handful.
-pub const MAX_INTERFACES: usize = 1024;
+pub(crate) const MAX_INTERFACES: usize = 1024;
 /// Warnings (corrupt blocks, interfaces of other linktypes) logged one by
 /// one; later ones are only counted, so a hostile file cannot flood the log.
 const WARNINGS_LOGGED: u64 = 10;
 
 /// Whether a file starting with `magic` is a pcap or pcapng capture.
-pub fn is_magic(magic: [u8; 4]) -> bool {
+pub(crate) fn is_magic(magic: [u8; 4]) -> bool {
     magic == PCAPNG_MAGIC
         || [PCAP_MAGIC_US, PCAP_MAGIC_NS]
             .iter()
@@ -279,7 +279,7 @@ pub struct PcapReader<R> {
 impl PcapReader<BufReader<File>> {
     /// Opens a capture; every sighting is attributed to `observer`, since a
     /// capture does not name the host that made it.
-    pub fn open(path: &Path, observer: Arc<str>, skip_bad: bool) -> Result<Self, PcapError> {
+    pub(crate) fn open(path: &Path, observer: Arc<str>, skip_bad: bool) -> Result<Self, PcapError> {
         let file = File::open(path).map_err(|source| PcapError::Io {
             path: path.to_owned(),
             source,
@@ -377,7 +377,7 @@ impl<R: Read> PcapReader<R> {
     }
 
     /// How many packets or adverts were skipped, by reason (zero counts left out).
-    pub fn skipped(&self) -> impl Iterator<Item = (SkipReason, u64)> + '_ {
+    pub(crate) fn skipped(&self) -> impl Iterator<Item = (SkipReason, u64)> + '_ {
         self.adverts.skipped().iter()
     }
 

@@ -63,7 +63,7 @@ const NORDIC_EVENT_PACKET_DATA: u8 = 0x06;
 
 /// A linktype gangway decodes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Linktype {
+pub(crate) enum Linktype {
     /// 201: H4 HCI packets after a 4-byte direction header.
     HciH4WithPhdr,
     /// 251: link-layer packets, access address first.
@@ -76,10 +76,10 @@ pub enum Linktype {
 
 impl Linktype {
     /// The linktypes gangway reads, for error messages.
-    pub const SUPPORTED: &'static str = "201 (BLUETOOTH_HCI_H4_WITH_PHDR), 251 \
+    pub(crate) const SUPPORTED: &'static str = "201 (BLUETOOTH_HCI_H4_WITH_PHDR), 251 \
         (BLUETOOTH_LE_LL), 256 (BLUETOOTH_LE_LL_WITH_PHDR) and 272 (NORDIC_BLE)";
 
-    pub fn from_code(code: u32) -> Option<Linktype> {
+    pub(crate) fn from_code(code: u32) -> Option<Linktype> {
         match code {
             201 => Some(Linktype::HciH4WithPhdr),
             251 => Some(Linktype::LeLl),

@@ -19,11 +19,11 @@ use super::{Source, SourceContext};
 use crate::event::Event;
 
 /// Most events handed to the runtime at once.
-pub const BATCH: usize = 256;
+pub(crate) const BATCH: usize = 256;
 
 /// When each event of a played log is due.
 #[derive(Debug)]
-pub struct Pace {
+pub(crate) struct Pace {
     speed: f64,
     /// The first event's time and when it was played.
     start: Option<(f64, Instant)>,
@@ -31,12 +31,12 @@ pub struct Pace {
 
 impl Pace {
     /// `speed` 0 plays as fast as possible.
-    pub fn new(speed: f64) -> Pace {
+    pub(crate) fn new(speed: f64) -> Pace {
         Pace { speed, start: None }
     }
 
     /// When an event of time `t` is due; `None` as fast as possible.
-    pub fn due(&mut self, t: f64) -> Option<Instant> {
+    pub(crate) fn due(&mut self, t: f64) -> Option<Instant> {
         if self.speed <= 0.0 {
             return None;
         }
@@ -48,7 +48,7 @@ impl Pace {
 /// Plays `events` into the runtime at `speed`; stops at the first error (the
 /// reader decides what an error is: with `skip_bad` it skips and counts), at
 /// shutdown, or when the runtime is gone.
-pub async fn play<E>(
+pub(crate) async fn play<E>(
     events: impl Iterator<Item = Result<Event, E>>,
     speed: f64,
     cx: &mut SourceContext,

@@ -13,9 +13,9 @@ use crate::model::CellClassifierInput;
 use crate::site::Site;
 
 /// Readings further apart than this belong to different survey sessions.
-pub const SESSION_GAP_S: f64 = 20.0;
+pub(crate) const SESSION_GAP_S: f64 = 20.0;
 
-pub struct CellSet {
+pub(crate) struct CellSet {
     /// `[rows, anchors]` in [0, 1].
     pub features: Array2<f32>,
     /// Open-cell index per row.
@@ -25,7 +25,7 @@ pub struct CellSet {
 }
 
 impl CellSet {
-    pub fn from_survey(site: &Site, survey: &Survey) -> Result<CellSet, String> {
+    pub(crate) fn from_survey(site: &Site, survey: &Survey) -> Result<CellSet, String> {
         let anchors = survey.anchors.len();
         let mut features = Array2::zeros((survey.samples.len(), anchors));
         let mut labels = Vec::with_capacity(survey.samples.len());

@@ -14,7 +14,7 @@ use rand::{RngExt, SeedableRng};
 use super::mlp::{Act, Adam, Mlp, argmax_rows, softmax_cross_entropy};
 
 #[derive(Clone, Debug)]
-pub struct ClassifierConfig {
+pub(crate) struct ClassifierConfig {
     pub hidden: Vec<usize>,
     pub iterations: usize,
     pub batch: usize,
@@ -24,7 +24,7 @@ pub struct ClassifierConfig {
 
 /// Trains on the rows `train_rows` of `x` with `labels` (one per row of `x`);
 /// `progress` gets the iteration and the batch loss.
-pub fn train(
+pub(crate) fn train(
     x: ArrayView2<f32>,
     labels: &[usize],
     classes: usize,
@@ -57,7 +57,12 @@ pub fn train(
 }
 
 /// Share of `rows` whose most likely class is not their label.
-pub fn error_rate(net: &mut Mlp, x: ArrayView2<f32>, labels: &[usize], rows: &[usize]) -> f64 {
+pub(crate) fn error_rate(
+    net: &mut Mlp,
+    x: ArrayView2<f32>,
+    labels: &[usize],
+    rows: &[usize],
+) -> f64 {
     if rows.is_empty() {
         return f64::NAN;
     }
@@ -71,7 +76,7 @@ pub fn error_rate(net: &mut Mlp, x: ArrayView2<f32>, labels: &[usize], rows: &[u
 }
 
 /// The most likely class of each of `rows`.
-pub fn predict(net: &mut Mlp, x: ArrayView2<f32>, rows: &[usize]) -> Vec<usize> {
+pub(crate) fn predict(net: &mut Mlp, x: ArrayView2<f32>, rows: &[usize]) -> Vec<usize> {
     let mut picked = Array2::zeros((rows.len(), x.ncols()));
     for (i, &r) in rows.iter().enumerate() {
         picked.slice_mut(s![i, ..]).assign(&x.row(r));
@@ -84,7 +89,7 @@ pub fn predict(net: &mut Mlp, x: ArrayView2<f32>, rows: &[usize]) -> Vec<usize> 
 /// walker's repeats) cannot leak across. Within each stratum (e.g. class),
 /// about `heldout_share` of the groups are held out, at least one when the
 /// stratum has two or more groups.
-pub fn split_by_group(
+pub(crate) fn split_by_group(
     strata: &[usize],
     groups: &[usize],
     heldout_share: f64,

@@ -40,16 +40,16 @@ use crate::site::{Cell, Site};
 use crate::train::trajectory::Trajectory;
 
 /// Consecutive time folds of the cross-validation.
-pub const FOLDS: usize = 3;
+pub(crate) const FOLDS: usize = 3;
 /// Kernel widths tried, metres (converted to cells at the site's cell size).
-pub const SIGMAS_M: [f64; 8] = [0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0];
+pub(crate) const SIGMAS_M: [f64; 8] = [0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0];
 /// Shrinkage strengths tried.
-pub const SHRINKS: [f32; 8] = [0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0];
+pub(crate) const SHRINKS: [f32; 8] = [0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0];
 /// Prior weights tried, in walks' kernel weight (a walk at the request's
 /// own ends weighs 1).
-pub const PRIOR_WEIGHTS: [f32; 4] = [0.001, 0.03, 0.3, 3.0];
+pub(crate) const PRIOR_WEIGHTS: [f32; 4] = [0.001, 0.03, 0.3, 3.0];
 /// Kernel masses below which the prior answers alone, tried.
-pub const MIN_MASSES: [f32; 7] = [0.0, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0];
+pub(crate) const MIN_MASSES: [f32; 7] = [0.0, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0];
 
 /// One walk ready for the bank and for validation.
 struct Walk {

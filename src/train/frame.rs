@@ -22,7 +22,7 @@ pub struct Frame {
 }
 
 #[derive(Debug, thiserror::Error)]
-pub enum FrameError {
+pub(crate) enum FrameError {
     #[error("{path}: cannot read the frame: {source}")]
     Read {
         path: PathBuf,
@@ -39,7 +39,7 @@ pub enum FrameError {
 }
 
 impl Frame {
-    pub fn empty(width: u16, height: u16) -> Frame {
+    pub(crate) fn empty(width: u16, height: u16) -> Frame {
         Frame {
             width,
             height,
@@ -49,7 +49,7 @@ impl Frame {
 
     /// The frame of a walk through `cells` on `site` (cells off the grid are
     /// ignored; callers validate walks first).
-    pub fn from_cells(site: &Site, cells: &[Cell]) -> Frame {
+    pub(crate) fn from_cells(site: &Site, cells: &[Cell]) -> Frame {
         let mut frame = Frame::empty(site.width(), site.height());
         for &c in cells {
             if site.contains(c) {
@@ -61,7 +61,8 @@ impl Frame {
 
     /// A frame from model output or any row-major values: a cell is on the path
     /// when its value is above `threshold`.
-    pub fn from_values(width: u16, height: u16, values: &[f32], threshold: f32) -> Frame {
+    #[cfg(test)]
+    pub(crate) fn from_values(width: u16, height: u16, values: &[f32], threshold: f32) -> Frame {
         assert_eq!(values.len(), usize::from(width) * usize::from(height));
         Frame {
             width,
@@ -70,22 +71,14 @@ impl Frame {
         }
     }
 
-    pub fn width(&self) -> u16 {
-        self.width
-    }
-
-    pub fn height(&self) -> u16 {
-        self.height
-    }
-
-    pub fn get(&self, cell: Cell) -> bool {
+    pub(crate) fn get(&self, cell: Cell) -> bool {
         cell.x < self.width
             && cell.y < self.height
             && self.cells[usize::from(cell.y) * usize::from(self.width) + usize::from(cell.x)]
     }
 
     /// The path cells, row-major.
-    pub fn path_cells(&self) -> Vec<Cell> {
+    pub(crate) fn path_cells(&self) -> Vec<Cell> {
         let w = usize::from(self.width);
         self.cells
             .iter()
@@ -97,7 +90,7 @@ impl Frame {
 
     /// Path cells with exactly one 8-neighbour on the path, row-major. A clean
     /// walk has two; loops and blobs have other counts.
-    pub fn endpoints(&self) -> Vec<Cell> {
+    pub(crate) fn endpoints(&self) -> Vec<Cell> {
         self.path_cells()
             .into_iter()
             .filter(|&c| {
@@ -127,7 +120,7 @@ impl Frame {
     }
 
     /// Reads one of the paper's frame CSVs and checks it has `site`'s grid size.
-    pub fn read_csv(path: &Path, site: &Site) -> Result<Frame, FrameError> {
+    pub(crate) fn read_csv(path: &Path, site: &Site) -> Result<Frame, FrameError> {
         let text = std::fs::read_to_string(path).map_err(|source| FrameError::Read {
             path: path.to_owned(),
             source,
@@ -184,7 +177,8 @@ impl Frame {
     }
 
     /// The frame as CSV, the layout [`Frame::read_csv`] reads.
-    pub fn to_csv(&self) -> String {
+    #[cfg(test)]
+    pub(crate) fn to_csv(&self) -> String {
         let mut out = String::new();
         for row in self.cells.chunks(usize::from(self.width)) {
             let line: Vec<&str> = row.iter().map(|&c| if c { "1" } else { "0" }).collect();

@@ -36,13 +36,13 @@ use super::mlp::{Act, Adam, Mlp, bce_with_logits};
 /// With a target of 1 the discriminator grows overconfident, the generator's
 /// tanh saturates and, after a few thousand iterations, it collapses to one
 /// frame; 0.9 keeps it learning (measured on the sample site's walks).
-pub const REAL_LABEL: f32 = 0.9;
+pub(crate) const REAL_LABEL: f32 = 0.9;
 
 /// Noise dimension of the generator (the paper's 100).
-pub const NOISE_DIM: usize = 100;
+pub(crate) const NOISE_DIM: usize = 100;
 /// Hidden widths of the generator and the discriminator.
-pub const GENERATOR_HIDDEN: [usize; 3] = [256, 512, 1024];
-pub const DISCRIMINATOR_HIDDEN: [usize; 2] = [512, 256];
+pub(crate) const GENERATOR_HIDDEN: [usize; 3] = [256, 512, 1024];
+pub(crate) const DISCRIMINATOR_HIDDEN: [usize; 2] = [512, 256];
 
 /// Real paths to learn from.
 pub struct GanData {
@@ -62,7 +62,7 @@ pub struct GanConfig {
 /// The access penalty's settings: which cells no path may light, and how
 /// much lighting them costs.
 #[derive(Clone, Debug)]
-pub struct Access {
+pub(crate) struct Access {
     /// Frame indices of the cells outside the public-access area (the site's
     /// non-walkable cells).
     pub blocked: Vec<usize>,
@@ -101,7 +101,7 @@ pub fn train(data: &GanData, config: GanConfig, progress: impl FnMut(usize, GanL
 /// [`train`], with the `access` penalty in the generator's loss (`None`:
 /// none), and handing the networks to `checkpoint` after every `every`-th
 /// iteration (`None`: never); the first error it returns stops training.
-pub fn train_with_checkpoints<E>(
+pub(crate) fn train_with_checkpoints<E>(
     data: &GanData,
     config: GanConfig,
     access: Option<&Access>,
@@ -226,7 +226,7 @@ pub fn train_with_checkpoints<E>(
 /// Output above which a blocked cell counts as lit for [`access_penalty`]:
 /// halfway between off (−1) and the planner's brightness threshold (0), so a
 /// cell is pushed back before it reaches a route.
-pub const ACCESS_MARGIN: f32 = -0.5;
+pub(crate) const ACCESS_MARGIN: f32 = -0.5;
 
 /// The access penalty of a batch of generated frames `out` (tanh outputs): a
 /// hinge on each `blocked` cell's pre-activation `a = atanh(out)`,
@@ -241,7 +241,7 @@ pub const ACCESS_MARGIN: f32 = -0.5;
 /// pair, docs/trajectories.md). On `a` the gradient is a constant `weight /
 /// frames` for a lit cell, however saturated (through `out` it would vanish as
 /// `1 − out²`).
-pub fn access_penalty(
+pub(crate) fn access_penalty(
     out: ArrayView2<f32>,
     blocked: &[usize],
     weight: f32,

@@ -1,9 +1,11 @@
 //! What `gangway train` does: which models it trains from which data, what it
 //! measures on them and which files it writes.
 //!
-//! From walks: `path_classifier.onnx` (trained on ~80 % of the walks of each
+//! From walks: `desire_lines.onnx` ([`train_desire`], walks in JSON Lines),
+//! `path_classifier.onnx` (trained on ~80 % of the walks of each
 //! class, error measured on the rest), `generator.onnx` and
-//! `discriminator.onnx` (the paper's GAN on the classed walks) and, with
+//! `discriminator.onnx` (the paper's GAN on the classed walks; only when the
+//! walks have two classes or more) and, with
 //! `conditional`, `conditional_generator.onnx` and
 //! `conditional_discriminator.onnx` (on every walk, each in both directions).
 //! From a survey: `cell_classifier.onnx`, with sessions held out.
@@ -39,6 +41,7 @@ use super::mlp::{Adam, Mlp};
 use super::paths::PathSet;
 use super::trajectory::Trajectory;
 use crate::locate::survey::Survey;
+use crate::model::checks::{Check, checks};
 use crate::model::export::{self, ClipScale, Head, Spec, Weights};
 use crate::model::{CellClassifierInput, Kind, Metadata, condition};
 use crate::plan::frame::{bright, route_from_frame};
@@ -46,7 +49,7 @@ use crate::plan::{Connectivity, Origin, Profile, cells_off_area};
 use crate::site::{Cell, Site};
 
 #[derive(Clone, Debug)]
-pub struct Options {
+pub(crate) struct Options {
     pub iterations: usize,
     pub batch: usize,
     pub seed: u64,
@@ -61,91 +64,9 @@ pub struct Options {
     pub accept_failed: bool,
 }
 
-/// One figure a trained generator is held to.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Check {
-    /// The metric's key (as in the model's metadata).
-    pub metric: &'static str,
-    pub value: f64,
-    /// The bound it must meet: at least this, or at most (`at_most`).
-    pub bound: f64,
-    pub at_most: bool,
-}
-
-impl Check {
-    pub fn passed(&self) -> bool {
-        if self.at_most {
-            self.value <= self.bound
-        } else {
-            self.value >= self.bound
-        }
-    }
-
-    /// `metric 0.061 (needs ≥ 0.5)`.
-    pub fn describe(&self) -> String {
-        format!(
-            "{} {:.3} (needs {} {})",
-            self.metric,
-            self.value,
-            if self.at_most { "≤" } else { "≥" },
-            self.bound
-        )
-    }
-}
-
-/// The bounds a generator is held to: (metric, bound, at most). Set so that
-/// the shipped models pass with a margin (endpoint hits 0.93, walkable 0.995,
-/// distinct 0.27, 26 % of routes repaired; `models/README.md`) and the failures seen on
-/// real walks do not (issue 16: endpoints hit 0–6 %, 95–99 % of routes
-/// repaired, a plain generator lighting 23 % of its cells off the floor).
-const CONDITIONAL_CHECKS: [(&str, f64, bool); 4] = [
-    // Frames that light both requested ends: below half, routes come from
-    // the repair search more than from the model.
-    ("endpoint_hit_share", 0.5, false),
-    ("walkable_share", 0.95, false),
-    ("repaired_share", 0.5, true),
-    // Distinct frames among one generated per class: near 1/classes the
-    // generator collapsed to one frame whatever pair it is asked for.
-    ("distinct_class_share", 0.5, false),
-];
-const GENERATOR_CHECKS: [(&str, f64, bool); 3] = [
-    ("walkable_share", 0.9, false),
-    ("distinct_share", 0.05, false),
-    // Frames the path classifier recognises: Algorithm 1 can accept them.
-    ("confident_share", 0.5, false),
-];
-
-/// The bounds desire lines are held to, on what cross-validation over the
-/// training walks measured (`train::desire`): closer to later walkers than
-/// the any-angle route more often than not, and lines that mostly stand as
-/// learned (the issue's bound on repair).
-const DESIRE_CHECKS: [(&str, f64, bool); 2] = [
-    ("cv_closer_than_anyangle", 0.5, false),
-    ("cv_repaired_share", 0.3, true),
-];
-
-/// The checks of a model of `kind` on its measured `metrics`.
-fn checks(kind: Kind, metrics: &BTreeMap<String, f64>) -> Vec<Check> {
-    let table: &[(&str, f64, bool)] = match kind {
-        Kind::ConditionalGenerator => &CONDITIONAL_CHECKS,
-        Kind::Generator => &GENERATOR_CHECKS,
-        Kind::DesireLines => &DESIRE_CHECKS,
-        _ => &[],
-    };
-    table
-        .iter()
-        .map(|&(metric, bound, at_most)| Check {
-            metric,
-            value: metrics.get(metric).copied().unwrap_or(f64::NAN),
-            bound,
-            at_most,
-        })
-        .collect()
-}
-
 /// A model written by a training run.
 #[derive(Clone, Debug)]
-pub struct Trained {
+pub(crate) struct Trained {
     pub file: PathBuf,
     pub kind: Kind,
     pub parameters: usize,
@@ -158,13 +79,13 @@ pub struct Trained {
 
 impl Trained {
     /// Whether every check passed.
-    pub fn passed(&self) -> bool {
+    pub(crate) fn passed(&self) -> bool {
         self.checks.iter().all(Check::passed)
     }
 }
 
 /// Told about each training stage and iteration (the CLI draws progress bars).
-pub trait Progress {
+pub(crate) trait Progress {
     fn stage(&mut self, name: &str, iterations: usize);
     fn step(&mut self, iteration: usize, losses: &[(&str, f32)]);
     fn done(&mut self);
@@ -172,16 +93,36 @@ pub trait Progress {
 
 /// Generated samples drawn to measure a generator.
 const EVAL_SAMPLES: usize = 1024;
+/// Walks' endpoint pairs the conditional generator is measured on when the
+/// walks have no classes.
+const EVAL_PAIRS: usize = 64;
 /// A generated frame counts as recognised when the classifier gives its class
 /// at least this probability.
 const CONFIDENT: f32 = 0.9;
 
-/// Trains the path models on `set` and writes them to `out`; the conditional
-/// generator with the access penalty of `access_weight`
-/// ([`gan::access_penalty`], 0: the paper's plain loss). The unconditional
-/// GAN always keeps the paper's loss: its planner (the paper's Algorithm 1)
-/// rejects frames that leave the public-access area anyway.
-pub fn train_paths(
+/// Whether `set` has the classes the paper's models (path classifier and
+/// GAN, the rejection mode) need: `Err` says why not.
+pub(crate) fn rejection_trainable(set: &PathSet) -> Result<(), String> {
+    if set.classes.len() >= 2 {
+        Ok(())
+    } else {
+        Err(format!(
+            "the walks have {} source/destination pairs with enough walks to be a class; \
+             a path classifier needs at least 2",
+            set.classes.len()
+        ))
+    }
+}
+
+/// Trains the path models on `set` and writes them to `out`: the paper's
+/// path classifier and GAN when the walks have the classes for them
+/// ([`rejection_trainable`]; else only with `conditional`, which needs no
+/// classes), and with `conditional` the conditional generator with the
+/// access penalty of `access_weight` ([`gan::access_penalty`], 0: the
+/// paper's plain loss). The unconditional GAN always keeps the paper's loss:
+/// its planner (the paper's Algorithm 1) rejects frames that leave the
+/// public-access area anyway.
+pub(crate) fn train_paths(
     site: &Site,
     set: &PathSet,
     options: &Options,
@@ -189,15 +130,55 @@ pub fn train_paths(
     out: &Path,
     progress: &mut dyn Progress,
 ) -> anyhow::Result<Vec<Trained>> {
-    let classed = set.classed_rows();
-    anyhow::ensure!(
-        set.classes.len() >= 2,
-        "the walks have {} source/destination pairs with enough walks to be a class; \
-         a path classifier needs at least 2",
-        set.classes.len()
-    );
     let mut written = Vec::new();
+    match rejection_trainable(set) {
+        Ok(()) => written.extend(train_rejection(site, set, options, out, progress)?),
+        Err(why) if !options.conditional => anyhow::bail!(why),
+        Err(_) => {}
+    }
+    if options.conditional {
+        let frame_len = set.frames.ncols();
+        let conditional = GanRun {
+            stage: "conditional GAN",
+            kinds: [Kind::ConditionalGenerator, Kind::ConditionalDiscriminator],
+            data: conditional_data(set),
+            condition: Some(condition::len(set.width, set.height)),
+            access: Some(gan::Access {
+                blocked: site.blocked_indices().to_vec(),
+                weight: access_weight,
+            }),
+            meta: gan_metadata(
+                Kind::ConditionalGenerator,
+                site,
+                set,
+                options,
+                access_weight,
+            ),
+        };
+        written.extend(train_gan(
+            out,
+            conditional,
+            gan_config(options),
+            options,
+            frame_len,
+            progress,
+            |generator| measure_conditional(site, set, generator, options.seed),
+        )?);
+    }
+    Ok(written)
+}
 
+/// The paper's models (rejection mode): the path classifier, 0/1 frames →
+/// class, and the GAN on the classed walks.
+fn train_rejection(
+    site: &Site,
+    set: &PathSet,
+    options: &Options,
+    out: &Path,
+    progress: &mut dyn Progress,
+) -> anyhow::Result<Vec<Trained>> {
+    let classed = set.classed_rows();
+    let mut written = Vec::new();
     // Path classifier: 0/1 frames → class.
     let started = Instant::now();
     let labels: Vec<usize> = set.labels.iter().map(|l| l.unwrap_or(usize::MAX)).collect();
@@ -258,11 +239,6 @@ pub fn train_paths(
         frames,
         conditions: None,
     };
-    let gan_config = GanConfig {
-        iterations: options.iterations,
-        batch: options.batch,
-        seed: options.seed,
-    };
     let frame_len = set.frames.ncols();
     let plain = GanRun {
         stage: "GAN",
@@ -275,42 +251,21 @@ pub fn train_paths(
     written.extend(train_gan(
         out,
         plain,
-        gan_config,
+        gan_config(options),
         options,
         frame_len,
         progress,
         |generator| measure_generator(site, generator, &mut path_classifier, options.seed),
     )?);
-
-    if options.conditional {
-        let conditional = GanRun {
-            stage: "conditional GAN",
-            kinds: [Kind::ConditionalGenerator, Kind::ConditionalDiscriminator],
-            data: conditional_data(set),
-            condition: Some(condition::len(set.width, set.height)),
-            access: Some(gan::Access {
-                blocked: site.blocked_indices().to_vec(),
-                weight: access_weight,
-            }),
-            meta: gan_metadata(
-                Kind::ConditionalGenerator,
-                site,
-                set,
-                options,
-                access_weight,
-            ),
-        };
-        written.extend(train_gan(
-            out,
-            conditional,
-            gan_config,
-            options,
-            frame_len,
-            progress,
-            |generator| measure_conditional(site, set, generator, options.seed),
-        )?);
-    }
     Ok(written)
+}
+
+fn gan_config(options: &Options) -> GanConfig {
+    GanConfig {
+        iterations: options.iterations,
+        batch: options.batch,
+        seed: options.seed,
+    }
 }
 
 /// One GAN to train: its progress stage, what it learns from and the model
@@ -384,7 +339,7 @@ fn destination(out: &Path, checks: &[Check], options: &Options) -> anyhow::Resul
 /// Trains the desire lines on `walks` (cross-validating their settings) and
 /// writes `desire_lines.onnx` to `out`, or to `out/failed/` when it fails its
 /// checks (unless `accept_failed`).
-pub fn train_desire(
+pub(crate) fn train_desire(
     site: &Site,
     walks: &[Trajectory],
     options: &Options,
@@ -403,6 +358,14 @@ pub fn train_desire(
     let checks = checks(Kind::DesireLines, &meta.metrics);
     let dir = destination(out, &checks, options)?;
     let file = dir.join(format!("{}.onnx", Kind::DesireLines.name()));
+    if dir != out {
+        // Lines from an earlier run must not be served as this run's.
+        let stale = out.join(file.file_name().expect("a file name"));
+        if stale.is_file() {
+            std::fs::remove_file(&stale)
+                .with_context(|| format!("cannot remove {}", stale.display()))?;
+        }
+    }
     export::write_proto(&file, &trained.model.to_onnx(&meta))
         .with_context(|| format!("cannot write {}", file.display()))?;
     let m = &trained.model;
@@ -419,7 +382,7 @@ pub fn train_desire(
 }
 
 /// Trains the localization cell classifier on `survey` and writes it to `out`.
-pub fn train_cells(
+pub(crate) fn train_cells(
     site: &Site,
     survey: &Survey,
     options: &Options,
@@ -733,8 +696,8 @@ fn distinct_share(binary: &Array2<f32>) -> f64 {
     distinct.len() as f64 / binary.nrows().max(1) as f64
 }
 
-/// How well the conditional generator answers each class pair (both
-/// directions): the share of its frames that have both the source and the
+/// How well the conditional generator answers each class pair (or, without
+/// classes, up to [`EVAL_PAIRS`] walks' endpoint pairs; both directions): the share of its frames that have both the source and the
 /// destination on the path, their mean size (a frame with every cell on would
 /// hit trivially) and the share of their path cells that are walkable.
 fn measure_conditional(
@@ -743,21 +706,35 @@ fn measure_conditional(
     generator: &mut Mlp,
     seed: u64,
 ) -> BTreeMap<String, f64> {
-    let per_class = EVAL_SAMPLES / (2 * set.classes.len()).max(1) + 1;
-    let rows = per_class * 2 * set.classes.len();
+    // The classes' pairs; walks whose endpoints are all distinct pairs have
+    // no classes, and are asked for their own endpoints instead.
+    let mut pairs: Vec<(Cell, Cell)> = set
+        .classes
+        .iter()
+        .map(|c| (c.source, c.destination))
+        .collect();
+    if pairs.is_empty() {
+        let mut seen = std::collections::HashSet::new();
+        pairs = set
+            .walks
+            .iter()
+            .map(|w| (w.source, w.destination))
+            .filter(|p| seen.insert(*p))
+            .take(EVAL_PAIRS)
+            .collect();
+    }
+    let per_class = EVAL_SAMPLES / (2 * pairs.len()).max(1) + 1;
+    let rows = per_class * 2 * pairs.len();
     let len = condition::len(set.width, set.height);
     let mut input = Array2::zeros((rows, NOISE_DIM + len));
     input
         .slice_mut(s![.., ..NOISE_DIM])
         .assign(&noise(rows, seed));
     let mut ends = Vec::with_capacity(rows);
-    for (k, class) in set.classes.iter().enumerate() {
-        for (d, (from, to)) in [
-            (class.source, class.destination),
-            (class.destination, class.source),
-        ]
-        .into_iter()
-        .enumerate()
+    for (k, &(source, destination)) in pairs.iter().enumerate() {
+        for (d, (from, to)) in [(source, destination), (destination, source)]
+            .into_iter()
+            .enumerate()
         {
             for j in 0..per_class {
                 let row = (2 * k + d) * per_class + j;
@@ -800,7 +777,7 @@ fn measure_conditional(
     // One frame per class (its first sample, source to destination): a
     // generator that gives the same frame whatever pair it is asked for
     // collapsed; one that ignores only its noise did not.
-    let per_class_rows: Vec<usize> = (0..set.classes.len()).map(|k| 2 * k * per_class).collect();
+    let per_class_rows: Vec<usize> = (0..pairs.len()).map(|k| 2 * k * per_class).collect();
     let firsts = frames
         .select(Axis(0), &per_class_rows)
         .mapv(|v| f32::from(u8::from(v > 0.0)));

@@ -26,11 +26,11 @@ use rand::rngs::Xoshiro256PlusPlus;
 
 /// The activations and LeakyReLU slope of the exported graphs: the file
 /// format owns them, the trainer implements them.
-pub use crate::model::export::{Act, LEAKY_SLOPE};
+pub(crate) use crate::model::export::{Act, LEAKY_SLOPE};
 
 /// Adam hyper-parameters.
 #[derive(Clone, Copy, Debug)]
-pub struct Adam {
+pub(crate) struct Adam {
     pub lr: f32,
     pub beta1: f32,
     pub beta2: f32,
@@ -39,14 +39,14 @@ pub struct Adam {
 
 impl Adam {
     /// The DCGAN settings the paper's Keras code uses (lr 2e-4, β₁ 0.5).
-    pub const GAN: Adam = Adam {
+    pub(crate) const GAN: Adam = Adam {
         lr: 2e-4,
         beta1: 0.5,
         beta2: 0.999,
         eps: 1e-7,
     };
     /// Keras defaults, for classifiers.
-    pub const DEFAULT: Adam = Adam {
+    pub(crate) const DEFAULT: Adam = Adam {
         lr: 1e-3,
         beta1: 0.9,
         beta2: 0.999,
@@ -88,11 +88,11 @@ impl Dense {
         }
     }
 
-    pub fn inputs(&self) -> usize {
+    pub(crate) fn inputs(&self) -> usize {
         self.w.nrows()
     }
 
-    pub fn outputs(&self) -> usize {
+    pub(crate) fn outputs(&self) -> usize {
         self.w.ncols()
     }
 }
@@ -116,7 +116,7 @@ pub struct Mlp {
 
 impl Mlp {
     /// `sizes` are the widths from input to output; `acts` has one entry per layer.
-    pub fn new(sizes: &[usize], acts: &[Act], max_batch: usize, seed: u64) -> Mlp {
+    pub(crate) fn new(sizes: &[usize], acts: &[Act], max_batch: usize, seed: u64) -> Mlp {
         assert_eq!(sizes.len(), acts.len() + 1, "one activation per layer");
         let mut rng = rand::SeedableRng::seed_from_u64(seed);
         let layers: Vec<Dense> = sizes
@@ -146,22 +146,19 @@ impl Mlp {
         }
     }
 
-    pub fn inputs(&self) -> usize {
+    #[cfg(test)]
+    pub(crate) fn inputs(&self) -> usize {
         self.layers[0].inputs()
     }
 
-    pub fn outputs(&self) -> usize {
+    pub(crate) fn outputs(&self) -> usize {
         self.layers.last().expect("at least one layer").outputs()
-    }
-
-    pub fn max_batch(&self) -> usize {
-        self.max_batch
     }
 
     /// Rounds every weight matrix to the nearest float16, as
     /// [`Weights::F16`](crate::model::export::Weights::F16) stores it, so what
     /// is measured of this network is what is exported.
-    pub fn round_weights_to_f16(&mut self) {
+    pub(crate) fn round_weights_to_f16(&mut self) {
         for layer in &mut self.layers {
             layer
                 .w
@@ -170,7 +167,7 @@ impl Mlp {
     }
 
     /// The layers as [`crate::model::export`] writes them.
-    pub fn layer_views(&self) -> Vec<crate::model::export::Layer<'_>> {
+    pub(crate) fn layer_views(&self) -> Vec<crate::model::export::Layer<'_>> {
         self.layers
             .iter()
             .map(|l| crate::model::export::Layer {
@@ -181,14 +178,9 @@ impl Mlp {
             .collect()
     }
 
-    /// Number of trainable parameters.
-    pub fn parameters(&self) -> usize {
-        self.layers.iter().map(|l| l.w.len() + l.b.len()).sum()
-    }
-
     /// Runs a batch of `x.nrows() ≤ max_batch` rows and returns the last layer's
     /// output (after its activation). Keeps what `backward` needs.
-    pub fn forward(&mut self, x: ArrayView2<f32>) -> ArrayView2<'_, f32> {
+    pub(crate) fn forward(&mut self, x: ArrayView2<f32>) -> ArrayView2<'_, f32> {
         let n = x.nrows();
         assert!(n <= self.max_batch, "batch {n} over {}", self.max_batch);
         self.input.slice_mut(s![..n, ..]).assign(&x);
@@ -218,7 +210,7 @@ impl Mlp {
     /// gradients are stored for [`Mlp::adam_step`]; with `input_grad` the
     /// gradient with respect to the input is returned (for chaining networks, as
     /// the generator does through the discriminator).
-    pub fn backward(
+    pub(crate) fn backward(
         &mut self,
         grad_out: ArrayView2<f32>,
         param_grads: bool,
@@ -233,7 +225,7 @@ impl Mlp {
     /// the pre-activation must enter here, not through the output: in f32, tanh
     /// rounds to exactly ±1 beyond |a| ≈ 9, where the chain through the output
     /// would be ∞ · 0.
-    pub fn backward_with_logit_grad(
+    pub(crate) fn backward_with_logit_grad(
         &mut self,
         grad_out: ArrayView2<f32>,
         logit_grad: Option<ArrayView2<f32>>,
@@ -292,7 +284,7 @@ impl Mlp {
     }
 
     /// One Adam update from the gradients of the last `backward`.
-    pub fn adam_step(&mut self, opt: Adam) {
+    pub(crate) fn adam_step(&mut self, opt: Adam) {
         self.steps += 1;
         let t = self.steps;
         // Bias correction folded into the step size, as Keras and PyTorch do.
@@ -318,7 +310,7 @@ impl Mlp {
     }
 
     /// Runs any number of rows in chunks of `max_batch`, returning the outputs.
-    pub fn predict(&mut self, x: ArrayView2<f32>) -> Array2<f32> {
+    pub(crate) fn predict(&mut self, x: ArrayView2<f32>) -> Array2<f32> {
         let mut out = Array2::zeros((x.nrows(), self.outputs()));
         let step = self.max_batch;
         for start in (0..x.nrows()).step_by(step) {
@@ -344,7 +336,7 @@ fn adam_fused(p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32], opt: Adam,
 /// Binary cross-entropy on logits against `target`, averaged over rows; writes
 /// the gradient with respect to the logits into `grad` and returns the loss.
 /// The stable form: `max(z,0) − z·y + ln(1 + e^−|z|)`.
-pub fn bce_with_logits(logits: ArrayView2<f32>, target: f32, grad: &mut [f32]) -> f32 {
+pub(crate) fn bce_with_logits(logits: ArrayView2<f32>, target: f32, grad: &mut [f32]) -> f32 {
     let n = logits.nrows() as f32;
     let mut loss = 0.0;
     for (g, &z) in grad.iter_mut().zip(logits.iter()) {
@@ -354,14 +346,14 @@ pub fn bce_with_logits(logits: ArrayView2<f32>, target: f32, grad: &mut [f32]) -
     loss / n
 }
 
-pub fn sigmoid(z: f32) -> f32 {
+pub(crate) fn sigmoid(z: f32) -> f32 {
     1.0 / (1.0 + (-z).exp())
 }
 
 /// Softmax cross-entropy on logits for integer labels, averaged over rows;
 /// writes the gradient with respect to the logits into `grad` (same shape) and
 /// returns the loss.
-pub fn softmax_cross_entropy(
+pub(crate) fn softmax_cross_entropy(
     logits: ArrayView2<f32>,
     labels: &[usize],
     grad: &mut ndarray::ArrayViewMut2<f32>,
@@ -381,7 +373,7 @@ pub fn softmax_cross_entropy(
 }
 
 /// Index of the largest value of each row.
-pub fn argmax_rows(x: ArrayView2<f32>) -> Vec<usize> {
+pub(crate) fn argmax_rows(x: ArrayView2<f32>) -> Vec<usize> {
     x.rows()
         .into_iter()
         .map(|r| {

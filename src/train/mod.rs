@@ -14,13 +14,13 @@
 //! The models are written as ONNX by [`crate::model::export`] and run by
 //! [`crate::model::runtime`].
 
-pub mod cells;
-pub mod classifier;
+pub(crate) mod cells;
+pub(crate) mod classifier;
 pub mod desire;
-pub mod frame;
+pub(crate) mod frame;
 pub mod gan;
-pub mod job;
-pub mod mlp;
+pub(crate) mod job;
+pub(crate) mod mlp;
 pub mod paths;
-pub mod recorded;
+pub(crate) mod recorded;
 pub mod trajectory;

@@ -40,7 +40,7 @@ impl PathSet {
 
     /// Frames from the paper's CSVs (every `*.csv` in `dir`, sorted by name);
     /// each frame's class is its two endpoints in row-major order.
-    pub fn from_frame_dir(
+    pub(crate) fn from_frame_dir(
         site: &Site,
         dir: &Path,
         min_class_walks: usize,
@@ -115,7 +115,7 @@ impl PathSet {
     }
 
     /// Rows of walks that belong to a class.
-    pub fn classed_rows(&self) -> Vec<usize> {
+    pub(crate) fn classed_rows(&self) -> Vec<usize> {
         (0..self.walks.len())
             .filter(|&r| self.labels[r].is_some())
             .collect()

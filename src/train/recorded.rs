@@ -39,7 +39,7 @@ const MAX_GAP_S: f64 = 30.0;
 const NEUTRAL_COPIES: usize = 1;
 
 /// Walks recorded in the store at `path`, as training trajectories for `site`.
-pub fn walks_from_store(path: &Path, site: &Site) -> anyhow::Result<Vec<Trajectory>> {
+pub(crate) fn walks_from_store(path: &Path, site: &Site) -> anyhow::Result<Vec<Trajectory>> {
     let store = Store::open_read_only(path)?;
     let followed = store.adherence()?;
     let mut walks = Vec::new();
@@ -120,7 +120,7 @@ fn track_adherence(
 }
 
 /// Each walk repeated by its feedback weight (see [`NEUTRAL_COPIES`]).
-pub fn weighted(walks: Vec<Trajectory>) -> Vec<Trajectory> {
+pub(crate) fn weighted(walks: Vec<Trajectory>) -> Vec<Trajectory> {
     walks
         .into_iter()
         .flat_map(|w| {

@@ -75,7 +75,7 @@ impl Trajectory {
     }
 
     /// Why this walk cannot be used on `site`, naming the field.
-    pub fn check(&self, site: &Site) -> Result<(), String> {
+    pub(crate) fn check(&self, site: &Site) -> Result<(), String> {
         if self.site != site.name {
             return Err(format!(
                 "`site` is {:?}, but the site file is {:?}; these walks belong to another site",
@@ -167,7 +167,7 @@ pub fn read(path: &Path, site: &Site) -> Result<Vec<Trajectory>, TrajectoryError
 }
 
 /// Writes walks as JSON Lines.
-pub fn write(mut out: impl Write, walks: &[Trajectory]) -> std::io::Result<()> {
+pub(crate) fn write(mut out: impl Write, walks: &[Trajectory]) -> std::io::Result<()> {
     for walk in walks {
         serde_json::to_writer(&mut out, walk)?;
         out.write_all(b"\n")?;

@@ -15,7 +15,7 @@
 //! - [`scene`]: a site for a recorded scene, from its obstacle image or from
 //!   where people walked.
 
-pub mod scene;
+pub(crate) mod scene;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -28,7 +28,7 @@ use crate::train::trajectory::Trajectory;
 
 /// One person's recorded positions, in time order.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Track {
+pub(crate) struct Track {
     pub id: String,
     /// (seconds, world `[x, y]` metres), sorted by time.
     pub points: Vec<(f64, [f64; 2])>,
@@ -36,7 +36,7 @@ pub struct Track {
 
 /// Why a walk file was refused.
 #[derive(Debug, thiserror::Error)]
-pub enum WalkError {
+pub(crate) enum WalkError {
     #[error("{}: cannot read: {source}", path.display())]
     Read {
         path: PathBuf,
@@ -54,7 +54,7 @@ pub enum WalkError {
 
 /// The layouts [`read`] understands.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum Format {
+pub(crate) enum Format {
     /// CSV with a header naming `track`, `t` (seconds), `x`, `y` (other
     /// columns ignored).
     Csv,
@@ -65,7 +65,7 @@ pub enum Format {
 
 impl Format {
     /// `obsmat` for files named `obsmat*.txt`, otherwise `csv`.
-    pub fn guess(path: &Path) -> Format {
+    pub(crate) fn guess(path: &Path) -> Format {
         let name = path
             .file_name()
             .map(|n| n.to_string_lossy().to_lowercase())
@@ -80,7 +80,7 @@ impl Format {
 
 /// How a homography file addresses image pixels.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum PixelOrder {
+pub(crate) enum PixelOrder {
     /// `[column, row]` (x then y): the usual order.
     ColRow,
     /// `[row, column]`: the ETH files' `H.txt`.
@@ -89,7 +89,7 @@ pub enum PixelOrder {
 
 impl Homography {
     /// Reads `H.txt` for pixels given in `order`, as a `[column, row]` map.
-    pub fn load_ordered(path: &Path, order: PixelOrder) -> Result<Homography, WalkError> {
+    pub(crate) fn load_ordered(path: &Path, order: PixelOrder) -> Result<Homography, WalkError> {
         let h = Homography::load(path)?;
         Ok(match order {
             PixelOrder::ColRow => h,
@@ -100,7 +100,7 @@ impl Homography {
 
 /// How a file's numbers become tracks in world metres.
 #[derive(Clone, Debug)]
-pub struct ReadOptions {
+pub(crate) struct ReadOptions {
     pub format: Format,
     /// Pixel → world map for files in image pixels.
     pub homography: Option<Homography>,
@@ -111,7 +111,7 @@ pub struct ReadOptions {
 
 /// Reads the tracks of a walk file. Every problem names the file, the line
 /// and the field.
-pub fn read(path: &Path, options: &ReadOptions) -> Result<Vec<Track>, WalkError> {
+pub(crate) fn read(path: &Path, options: &ReadOptions) -> Result<Vec<Track>, WalkError> {
     let text = std::fs::read_to_string(path).map_err(|source| WalkError::Read {
         path: path.to_owned(),
         source,
@@ -270,11 +270,11 @@ fn frame_period(rows: &[(f64, String, [f64; 2], usize)], annotation_hz: f64) -> 
 /// A 3×3 homography from image pixels to world metres, as in `H.txt` (three
 /// rows of three numbers): `[x, y, w]ᵀ = H · [u, v, 1]ᵀ`, world `(x/w, y/w)`.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Homography(pub [[f64; 3]; 3]);
+pub(crate) struct Homography(pub [[f64; 3]; 3]);
 
 impl Homography {
     /// Reads `H.txt`: nine numbers, three per line.
-    pub fn load(path: &Path) -> Result<Homography, WalkError> {
+    pub(crate) fn load(path: &Path) -> Result<Homography, WalkError> {
         let text = std::fs::read_to_string(path).map_err(|source| WalkError::Read {
             path: path.to_owned(),
             source,
@@ -323,7 +323,7 @@ impl Homography {
     }
 
     /// The world point of `[u, v]`; `None` on the horizon line (w = 0).
-    pub fn apply(&self, [u, v]: [f64; 2]) -> Option<[f64; 2]> {
+    pub(crate) fn apply(&self, [u, v]: [f64; 2]) -> Option<[f64; 2]> {
         let m = &self.0;
         let x = m[0][0] * u + m[0][1] * v + m[0][2];
         let y = m[1][0] * u + m[1][1] * v + m[1][2];
@@ -332,7 +332,7 @@ impl Homography {
     }
 
     /// The inverse map (world → image); `None` for a singular matrix.
-    pub fn inverse(&self) -> Option<Homography> {
+    pub(crate) fn inverse(&self) -> Option<Homography> {
         let m = &self.0;
         let cofactor = |r: usize, c: usize| {
             let (r1, r2) = ((r + 1) % 3, (r + 2) % 3);
@@ -355,7 +355,7 @@ impl Homography {
 
     /// The same map for images addressed `[row, column]` instead of `[x, y]`
     /// (the ETH files' `H.txt` takes the row first).
-    pub fn row_first(&self) -> Homography {
+    pub(crate) fn row_first(&self) -> Homography {
         let m = &self.0;
         Homography([
             [m[0][1], m[0][0], m[0][2]],
@@ -367,7 +367,7 @@ impl Homography {
 
 /// How tracks become walks on a site.
 #[derive(Clone, Debug)]
-pub struct RasterOptions {
+pub(crate) struct RasterOptions {
     /// Pieces with fewer cells are dropped.
     pub min_cells: usize,
     /// Snap each end to a named place within this many metres.
@@ -376,7 +376,7 @@ pub struct RasterOptions {
 
 /// What rasterising tracks did, for the summary.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct RasterStats {
+pub(crate) struct RasterStats {
     pub tracks: usize,
     pub points: usize,
     /// Points off the grid or on a blocked cell (they end a piece).
@@ -396,7 +396,7 @@ pub struct RasterStats {
 /// jitter makes a person standing still step back and forth. Ends are then
 /// snapped to places (`snap_m`), and pieces shorter than `min_cells` dropped.
 /// Walk `device`s are the track id, with `#2`, `#3`… for later pieces.
-pub fn rasterise(
+pub(crate) fn rasterise(
     site: &Site,
     track: &Track,
     options: &RasterOptions,
@@ -521,7 +521,7 @@ fn snap_ends(site: &Site, piece: &mut Vec<(Cell, f64)>, radius_m: f64) -> usize 
 
 /// Splits walks by time: the last `holdout` share by start time are held
 /// out. Returns (training, held out, the first held-out start time).
-pub fn split_by_time(
+pub(crate) fn split_by_time(
     mut walks: Vec<Trajectory>,
     holdout: f64,
 ) -> (Vec<Trajectory>, Vec<Trajectory>, Option<f64>) {

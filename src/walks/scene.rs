@@ -22,7 +22,7 @@ use crate::site::{Cell, Site, YAxis};
 
 /// Which pixels of an obstacle image are obstacles.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum Obstacles {
+pub(crate) enum Obstacles {
     /// Dark pixels (below mid-grey).
     Dark,
     /// Light pixels (mid-grey and above): the ETH `map.png` files draw their
@@ -31,7 +31,7 @@ pub enum Obstacles {
 }
 
 /// An obstacle image with its pixel → world homography.
-pub struct ObstacleImage {
+pub(crate) struct ObstacleImage {
     pub pixels: image::GrayImage,
     /// `[column, row]` pixel → world metres.
     pub to_world: Homography,
@@ -39,7 +39,11 @@ pub struct ObstacleImage {
 }
 
 impl ObstacleImage {
-    pub fn load(path: &Path, to_world: Homography, obstacles: Obstacles) -> anyhow::Result<Self> {
+    pub(crate) fn load(
+        path: &Path,
+        to_world: Homography,
+        obstacles: Obstacles,
+    ) -> anyhow::Result<Self> {
         let pixels = image::open(path)
             .map_err(|e| anyhow::anyhow!("{}: cannot read the image: {e}", path.display()))?
             .to_luma8();
@@ -72,7 +76,7 @@ impl ObstacleImage {
 }
 
 /// What to build.
-pub struct Scene<'a> {
+pub(crate) struct Scene<'a> {
     pub name: String,
     pub cell_m: f64,
     pub y_axis: YAxis,
@@ -97,7 +101,7 @@ fn bounds(points: impl Iterator<Item = [f64; 2]>) -> ([f64; 2], [f64; 2]) {
 }
 
 /// The site file (TOML) for `scene`, and the site it parses to.
-pub fn build(scene: &Scene) -> anyhow::Result<(String, Site)> {
+pub(crate) fn build(scene: &Scene) -> anyhow::Result<(String, Site)> {
     anyhow::ensure!(
         scene.cell_m.is_finite() && scene.cell_m > 0.0,
         "--cell-m must be a positive number of metres"

@@ -32,18 +32,18 @@ const ASSETS: &[(&str, &str, &str)] = &[
     ),
 ];
 
-pub const MAP_PAGE: &str = include_str!("assets/map.html");
-pub const EDIT_PAGE: &str = include_str!("assets/edit.html");
+pub(super) const MAP_PAGE: &str = include_str!("assets/map.html");
+pub(super) const EDIT_PAGE: &str = include_str!("assets/edit.html");
 
-pub async fn map_page() -> Html<&'static str> {
+pub(super) async fn map_page() -> Html<&'static str> {
     Html(MAP_PAGE)
 }
 
-pub async fn edit_page() -> Html<&'static str> {
+pub(super) async fn edit_page() -> Html<&'static str> {
     Html(EDIT_PAGE)
 }
 
-pub async fn asset(Path(name): Path<String>) -> Response {
+pub(super) async fn asset(Path(name): Path<String>) -> Response {
     match ASSETS.iter().find(|(n, _, _)| *n == name) {
         Some((_, kind, body)) => (
             [

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 
 /// Name of the systemd credential read when `token_file` is unset.
-pub const TOKEN_CREDENTIAL: &str = "web-token";
+pub(crate) const TOKEN_CREDENTIAL: &str = "web-token";
 /// The shortest token taken: shorter ones are guessed.
 const MIN_TOKEN_LEN: usize = 16;
 
@@ -42,7 +42,7 @@ impl Default for WebConfig {
 }
 
 impl WebConfig {
-    pub fn resolve_paths(&mut self, base: &Path) {
+    pub(crate) fn resolve_paths(&mut self, base: &Path) {
         if let Some(file) = &mut self.token_file {
             *file = base.join(&*file);
         }
@@ -55,14 +55,14 @@ impl WebConfig {
     }
 
     /// Whether writes need the token: bound anywhere but loopback.
-    pub fn needs_token(&self) -> bool {
+    pub(crate) fn needs_token(&self) -> bool {
         !self.bind.ip().is_loopback()
     }
 
     /// The write token: from `token_file`, else the systemd credential, else
     /// none. A file that is named but unreadable, or a token too short to
     /// resist guessing, is an error.
-    pub fn token(&self) -> Result<Option<String>, String> {
+    pub(crate) fn token(&self) -> Result<Option<String>, String> {
         let path = match &self.token_file {
             Some(p) => p.clone(),
             None => match std::env::var_os("CREDENTIALS_DIRECTORY") {

@@ -40,7 +40,7 @@ const IMAGE_URL: &str = "/api/editor/image";
 /// How long a save waits for the gateway to apply it (models may load).
 const APPLY_WAIT: std::time::Duration = std::time::Duration::from_secs(20);
 
-pub struct Editor {
+pub(crate) struct Editor {
     /// The site file, absolute.
     path: PathBuf,
     /// Its directory, where floor-plan names resolve.
@@ -73,7 +73,7 @@ struct Opened {
 impl Editor {
     /// The editor of the site file at `path` (which need not exist yet),
     /// offering `image` as the floor plan of a site that names none.
-    pub fn open(path: &Path, image: Option<&Path>) -> anyhow::Result<Editor> {
+    pub(crate) fn open(path: &Path, image: Option<&Path>) -> anyhow::Result<Editor> {
         let path = std::path::absolute(path)?;
         let dir = path.parent().map_or_else(PathBuf::new, Path::to_owned);
         anyhow::ensure!(
@@ -130,7 +130,7 @@ impl Editor {
         self
     }
 
-    pub fn path(&self) -> &Path {
+    pub(crate) fn path(&self) -> &Path {
         &self.path
     }
 
@@ -201,7 +201,7 @@ fn relative(dir: &Path, target: &Path) -> anyhow::Result<String> {
 }
 
 /// `GET /api/editor`: the file as a document, and the plan image to show.
-pub async fn get(State(editor): State<Arc<Editor>>) -> Response {
+pub(super) async fn get(State(editor): State<Arc<Editor>>) -> Response {
     let (text, suggested) = {
         let opened = editor.lock();
         (opened.text.clone(), opened.suggested.clone())
@@ -230,13 +230,16 @@ pub async fn get(State(editor): State<Arc<Editor>>) -> Response {
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct DocBody {
+pub(super) struct DocBody {
     doc: SiteDoc,
 }
 
 /// `POST /api/editor/check`: the TOML the document would be saved as, and
 /// its problems or its view.
-pub async fn check(State(editor): State<Arc<Editor>>, Json(body): Json<DocBody>) -> Response {
+pub(super) async fn check(
+    State(editor): State<Arc<Editor>>,
+    Json(body): Json<DocBody>,
+) -> Response {
     let (toml, result) = editor.check(&body.doc);
     let (problems, view) = match result {
         Ok(site) => (Vec::new(), Some(SiteView::new(&site, None))),
@@ -255,7 +258,7 @@ pub async fn check(State(editor): State<Arc<Editor>>, Json(body): Json<DocBody>)
 /// gateway, applies it. The reply: `saved` (where), `applied` (true: the
 /// gateway serves it now; false: it does not; null: no gateway serves this
 /// file here) and `message`, what the page shows.
-pub async fn save(State(editor): State<Arc<Editor>>, Json(body): Json<DocBody>) -> Response {
+pub(super) async fn save(State(editor): State<Arc<Editor>>, Json(body): Json<DocBody>) -> Response {
     let (toml, result) = editor.check(&body.doc);
     if let Err(problems) = result {
         let message = format!("not saved: {}", problems.join("; "));
@@ -398,12 +401,15 @@ fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 }
 
 #[derive(Deserialize)]
-pub struct ImageQuery {
+pub(super) struct ImageQuery {
     name: String,
 }
 
 /// `GET /api/editor/image?name=…`: one of the images the editor knows.
-pub async fn image(State(editor): State<Arc<Editor>>, Query(q): Query<ImageQuery>) -> Response {
+pub(super) async fn image(
+    State(editor): State<Arc<Editor>>,
+    Query(q): Query<ImageQuery>,
+) -> Response {
     if !editor.lock().images.contains(&q.name) {
         return error(
             StatusCode::NOT_FOUND,
@@ -415,7 +421,7 @@ pub async fn image(State(editor): State<Arc<Editor>>, Query(q): Query<ImageQuery
 }
 
 /// A floor-plan image file as a response.
-pub fn image_file(path: &Path) -> Response {
+pub(super) fn image_file(path: &Path) -> Response {
     let info = match probe_image(path) {
         Ok(info) => info,
         Err(why) => return error(StatusCode::NOT_FOUND, "not_found", why),
@@ -435,7 +441,7 @@ pub fn image_file(path: &Path) -> Response {
 
 /// `PUT /api/editor/image?name=…`: stores an uploaded plan image beside the
 /// site file under that (plain) name.
-pub async fn upload(
+pub(super) async fn upload(
     State(editor): State<Arc<Editor>>,
     Query(q): Query<ImageQuery>,
     bytes: Bytes,

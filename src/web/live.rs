@@ -42,7 +42,7 @@ use crate::source::{Source, SourceContext};
 use crate::event::{Inbound, RouteRequest};
 
 /// Fixes kept per device for its trail.
-pub const TRAIL: usize = 20;
+pub(crate) const TRAIL: usize = 20;
 /// Pages streaming at once.
 const MAX_STREAMS: usize = 32;
 /// Events queued per page before it is resynchronised with a snapshot.
@@ -87,13 +87,13 @@ struct Tables {
 /// What became of the reloads so far: how many there were, and why the
 /// last was refused if it was.
 #[derive(Clone, Debug, Default)]
-pub struct Reloaded {
+pub(super) struct Reloaded {
     pub count: u64,
     pub refused: Option<String>,
 }
 
 /// What the pages stream from; shared by the sink, the source and the server.
-pub struct Live {
+pub(crate) struct Live {
     /// The site the map shows, replaced on reloads.
     pub(super) site: super::SiteCell,
     tables: Mutex<Tables>,
@@ -116,7 +116,7 @@ struct Frame {
 impl Live {
     /// The live state, the sink that feeds it and the source that carries
     /// the pages' requests.
-    pub fn new(
+    pub(crate) fn new(
         site: Arc<Site>,
         max_devices: usize,
         latency: Arc<crate::publish::latency::Latency>,
@@ -298,7 +298,7 @@ fn unix_ms() -> f64 {
 }
 
 /// The web UI as a sink of the gateway.
-pub struct WebSink {
+pub(crate) struct WebSink {
     live: Arc<Live>,
 }
 
@@ -344,7 +344,7 @@ impl Sink for WebSink {
 }
 
 /// The pages' route requests as a source of the gateway.
-pub struct WebSource {
+pub(crate) struct WebSource {
     requests: mpsc::Receiver<Inbound>,
 }
 
@@ -371,7 +371,7 @@ impl Source for WebSource {
 }
 
 /// `GET /api/live`: the event stream of one page.
-pub async fn stream(State(live): State<Arc<Live>>) -> Response {
+pub(super) async fn stream(State(live): State<Arc<Live>>) -> Response {
     if live.streams.fetch_add(1, Ordering::Relaxed) >= MAX_STREAMS {
         live.streams.fetch_sub(1, Ordering::Relaxed);
         return error(
@@ -421,14 +421,14 @@ impl Drop for StreamGuard {
 /// `POST /api/route`: a route request from a page.
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct RouteBody {
+pub(super) struct RouteBody {
     device: String,
     to: Destination,
     #[serde(default)]
     profile: Option<String>,
 }
 
-pub async fn route(State(live): State<Arc<Live>>, Json(body): Json<RouteBody>) -> Response {
+pub(super) async fn route(State(live): State<Arc<Live>>, Json(body): Json<RouteBody>) -> Response {
     if !crate::sighting::valid_device_id(&body.device) {
         return error(
             StatusCode::BAD_REQUEST,

@@ -14,7 +14,7 @@ use std::sync::{Arc, Mutex};
 use crate::publish::latency::Latency;
 use crate::publish::stats::{COUNTERS, GAUGES, Stats};
 
-pub struct Metrics {
+pub(super) struct Metrics {
     stats: Mutex<Option<serde_json::Value>>,
     /// Observed by the runtime.
     pub latency: Arc<Latency>,
@@ -23,7 +23,7 @@ pub struct Metrics {
 }
 
 impl Metrics {
-    pub fn new(latency: Arc<Latency>) -> Metrics {
+    pub(super) fn new(latency: Arc<Latency>) -> Metrics {
         Metrics {
             stats: Mutex::new(None),
             latency,
@@ -31,13 +31,13 @@ impl Metrics {
         }
     }
 
-    pub fn set_stats(&self, stats: &Stats) {
+    pub(super) fn set_stats(&self, stats: &Stats) {
         let json = serde_json::to_value(stats).expect("plain data serializes");
         *self.stats.lock().unwrap_or_else(|e| e.into_inner()) = Some(json);
     }
 
     /// The exposition text; `streams` pages are watching.
-    pub fn render(&self, streams: usize) -> String {
+    pub(super) fn render(&self, streams: usize) -> String {
         let mut out = String::new();
         let stats = self.stats.lock().unwrap_or_else(|e| e.into_inner()).clone();
         if let Some(stats) = &stats {

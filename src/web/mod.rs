@@ -13,7 +13,7 @@
 //! [`security::guard`], and the token is never served.
 
 mod assets;
-pub mod config;
+pub(crate) mod config;
 mod editor;
 mod live;
 mod metrics;
@@ -32,9 +32,9 @@ use axum::routing::get;
 use tokio::net::TcpListener;
 use tokio::sync::mpsc;
 
-pub use config::WebConfig;
-pub use editor::Editor;
-pub use live::{Live, TRAIL, WebSink, WebSource};
+pub(crate) use config::WebConfig;
+pub(crate) use editor::Editor;
+pub(crate) use live::{Live, WebSink, WebSource};
 pub use security::CONTENT_SECURITY_POLICY;
 
 use crate::publish::latency::Latency;
@@ -49,7 +49,7 @@ pub(crate) type SiteCell = Arc<std::sync::RwLock<Arc<Site>>>;
 const MAX_JSON_BYTES: usize = 4 << 20;
 
 /// What one server serves: the live map, the editor, or both.
-pub struct Ui {
+pub(crate) struct Ui {
     /// The gateway's live state (and the site it maps); none in an
     /// editor-only server.
     pub live: Option<Arc<Live>>,
@@ -59,7 +59,7 @@ pub struct Ui {
 
 impl Ui {
     /// The editor of one site file, alone.
-    pub fn editor(editor: Editor) -> Ui {
+    pub(crate) fn editor(editor: Editor) -> Ui {
         Ui {
             live: None,
             editor: Some(editor),
@@ -78,7 +78,7 @@ struct App {
 }
 
 /// The web UI of a running gateway, ready to join its runtime.
-pub struct Web {
+pub(crate) struct Web {
     sink: WebSink,
     source: WebSource,
     survey: Option<Arc<survey::Survey>>,
@@ -90,7 +90,7 @@ impl Web {
     /// map), its source (route requests from the pages), and survey mode's
     /// view of the sightings of every source already there. Returns the
     /// latency histograms `/metrics` serves, for the runtime to observe.
-    pub fn add_to(
+    pub(crate) fn add_to(
         self,
         sources: &mut Vec<Box<dyn Source>>,
         sinks: &mut Vec<Box<dyn Sink>>,
@@ -111,7 +111,7 @@ impl Web {
 /// saved in the editor is applied as SIGHUP applies it. A UI that cannot
 /// start never stops the gateway: why is logged and added to `fallbacks`,
 /// and the gateway serves without it.
-pub async fn start(
+pub(crate) async fn start(
     gateway: &crate::config::Config,
     site: Arc<Site>,
     fallbacks: &mut Vec<String>,
@@ -174,7 +174,7 @@ pub async fn start(
 }
 
 /// A bound, not yet serving, web server.
-pub struct Server {
+pub(crate) struct Server {
     listener: TcpListener,
     addr: SocketAddr,
     guard: Arc<security::Guard>,
@@ -184,7 +184,7 @@ impl Server {
     /// Binds `[web] bind` and reads the token. A token file that is named
     /// but unreadable is an error; none at all off loopback serves the map
     /// only (and says so).
-    pub async fn bind(config: &WebConfig) -> anyhow::Result<Server> {
+    pub(crate) async fn bind(config: &WebConfig) -> anyhow::Result<Server> {
         let token = config.token().map_err(anyhow::Error::msg)?;
         let listener = TcpListener::bind(config.bind)
             .await
@@ -207,12 +207,12 @@ impl Server {
     }
 
     /// Where it listens (the real port when `bind` asked for port 0).
-    pub fn addr(&self) -> SocketAddr {
+    pub(crate) fn addr(&self) -> SocketAddr {
         self.addr
     }
 
     /// Serves until `shutdown` completes.
-    pub async fn serve(
+    pub(crate) async fn serve(
         self,
         ui: Ui,
         shutdown: impl Future<Output = ()> + Send + 'static,

@@ -29,7 +29,7 @@ pub const CONTENT_SECURITY_POLICY: &str = "default-src 'none'; script-src 'self'
 
 /// The access rules of one server.
 #[derive(Debug)]
-pub struct Guard {
+pub(super) struct Guard {
     read_only: bool,
     /// Bound off loopback: writes need the token.
     needs_token: bool,
@@ -40,7 +40,7 @@ pub struct Guard {
 }
 
 impl Guard {
-    pub fn new(bind: SocketAddr, read_only: bool, token: Option<String>) -> Guard {
+    pub(super) fn new(bind: SocketAddr, read_only: bool, token: Option<String>) -> Guard {
         let loopback = bind.ip().is_loopback();
         Guard {
             read_only,
@@ -52,7 +52,7 @@ impl Guard {
 
     /// What the pages are told: whether they may offer writes, and whether
     /// they must ask for the token. Never the token itself.
-    pub fn access(&self) -> serde_json::Value {
+    pub(super) fn access(&self) -> serde_json::Value {
         serde_json::json!({
             "read_only": self.read_only || (self.needs_token && self.token.is_none()),
             "needs_token": self.needs_token,
@@ -157,13 +157,17 @@ fn same_secret(a: &[u8], b: &[u8]) -> bool {
 }
 
 /// An error reply in the shape every API error has.
-pub fn error(status: StatusCode, code: &str, message: impl Into<String>) -> Response {
+pub(super) fn error(status: StatusCode, code: &str, message: impl Into<String>) -> Response {
     let body = serde_json::json!({ "error": { "code": code, "message": message.into() } });
     (status, axum::Json(body)).into_response()
 }
 
 /// The middleware: host check, write rules, then the security headers.
-pub async fn guard(State(guard): State<Arc<Guard>>, request: Request, next: Next) -> Response {
+pub(super) async fn guard(
+    State(guard): State<Arc<Guard>>,
+    request: Request,
+    next: Next,
+) -> Response {
     let headers = request.headers();
     let mut response = if !guard.host_allowed(headers) {
         error(

@@ -42,7 +42,7 @@ const MAX_SAMPLES: usize = 600;
 /// What the file writes for an anchor not heard in a window.
 const NOT_HEARD: i16 = -200;
 
-pub struct Survey {
+pub(super) struct Survey {
     file: PathBuf,
     site: Arc<Site>,
     anchors: Vec<String>,
@@ -81,7 +81,7 @@ impl Survey {
     /// Survey mode writing to `file` (created with its header when missing;
     /// an existing file must be in the generic layout with this site's
     /// anchors, and is counted for coverage).
-    pub fn open(
+    pub(super) fn open(
         file: &Path,
         site: Arc<Site>,
         config: &crate::config::Config,
@@ -231,7 +231,7 @@ impl Survey {
     }
 
     /// A source whose sightings this survey sees too.
-    pub fn tap(self: &Arc<Self>, inner: Box<dyn Source>) -> Box<dyn Source> {
+    pub(super) fn tap(self: &Arc<Self>, inner: Box<dyn Source>) -> Box<dyn Source> {
         Box::new(Tap {
             inner,
             survey: self.clone(),
@@ -303,7 +303,7 @@ impl Source for Tap {
 }
 
 /// `GET /api/survey`: the spot being recorded and what the file covers.
-pub async fn status(State(survey): State<Arc<Survey>>) -> Response {
+pub(super) async fn status(State(survey): State<Arc<Survey>>) -> Response {
     let state = survey.lock();
     let spot = state.spot.as_ref().map(|s| {
         serde_json::json!({
@@ -336,7 +336,7 @@ pub async fn status(State(survey): State<Arc<Survey>>) -> Response {
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct SpotBody {
+pub(super) struct SpotBody {
     device: String,
     x_m: f64,
     y_m: f64,
@@ -345,7 +345,10 @@ pub struct SpotBody {
 }
 
 /// `POST /api/survey`: record `device` standing at (`x_m`, `y_m`).
-pub async fn start(State(survey): State<Arc<Survey>>, Json(body): Json<SpotBody>) -> Response {
+pub(super) async fn start(
+    State(survey): State<Arc<Survey>>,
+    Json(body): Json<SpotBody>,
+) -> Response {
     if !crate::sighting::valid_device_id(&body.device) {
         return error(
             StatusCode::BAD_REQUEST,
@@ -389,7 +392,7 @@ pub async fn start(State(survey): State<Arc<Survey>>, Json(body): Json<SpotBody>
 }
 
 /// `POST /api/survey/stop`: stop recording the current spot.
-pub async fn stop(State(survey): State<Arc<Survey>>) -> Response {
+pub(super) async fn stop(State(survey): State<Arc<Survey>>) -> Response {
     survey.lock().spot = None;
     Json(serde_json::json!({ "stopped": true })).into_response()
 }

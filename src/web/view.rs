@@ -9,7 +9,7 @@ use serde::Serialize;
 use crate::site::{Cell, Site};
 
 #[derive(Serialize)]
-pub struct SiteView {
+pub(super) struct SiteView {
     pub name: String,
     pub cell_m: f64,
     pub origin_m: [f64; 2],
@@ -27,7 +27,7 @@ pub struct SiteView {
 }
 
 #[derive(Serialize)]
-pub struct AnchorView {
+pub(super) struct AnchorView {
     pub id: String,
     /// Where it is mounted, grid units and metres; none when the file does
     /// not say.
@@ -36,14 +36,14 @@ pub struct AnchorView {
 }
 
 #[derive(Serialize)]
-pub struct PlaceView {
+pub(super) struct PlaceView {
     pub name: String,
     pub cell: Cell,
     pub label: Option<String>,
 }
 
 #[derive(Serialize)]
-pub struct FloorplanView {
+pub(super) struct FloorplanView {
     pub url: String,
     /// Pixels to grid units, an SVG `matrix(a, b, c, d, e, f)`.
     pub matrix: [f64; 6],
@@ -54,7 +54,7 @@ pub struct FloorplanView {
 impl SiteView {
     /// The view of `site`; `floorplan_url` is where the page fetches the
     /// image (none when it cannot be shown).
-    pub fn new(site: &Site, floorplan_url: Option<&str>) -> SiteView {
+    pub(super) fn new(site: &Site, floorplan_url: Option<&str>) -> SiteView {
         let anchor = |id: &str, mount: Option<crate::site::Mount>| AnchorView {
             id: id.to_owned(),
             grid: mount.map(|m| site.grid_of_world(m.at)),

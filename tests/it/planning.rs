@@ -375,3 +375,148 @@ fn desire_lines_answer_every_pair_with_a_valid_route_along_their_line() {
         }
     }
 }
+
+/// Walks across an open 16 × 9 m floor between the west and east edges, as
+/// `track,t,x,y` rows: each bowing `bow` metres north of its straight line.
+fn walks_csv(bow: f64) -> String {
+    let mut csv = String::from("track,t,x,y\n");
+    let mut t = 0.0;
+    for k in 0..30 {
+        let (ya, yb) = (1.5 + f64::from(k % 3), 1.5 + f64::from((k * 2) % 3));
+        for step in 0..=60 {
+            let s = f64::from(step) / 60.0;
+            let y = ya + (yb - ya) * s + bow * (std::f64::consts::PI * s).sin();
+            csv.push_str(&format!("w{k},{t:.1},{:.3},{y:.3}\n", 0.5 + 15.0 * s));
+            t += 0.4;
+        }
+        t += 5.0;
+    }
+    csv
+}
+
+/// The default planner (`learned`, what `gangway train` then `plan`/`run`
+/// serve without a config edit) serves the desire lines when they passed
+/// their training check on the site's walks, and passes over lines that
+/// failed it for the conditional generator, or for A* when nothing learned
+/// is servable; training says which on its summary and model card.
+#[test]
+fn default_planner_serves_desire_lines_only_when_they_passed_their_check() {
+    use common::{gangway, gangway_ok, write};
+    let dir = tempfile::tempdir().unwrap();
+    let d = |name: &str| dir.path().join(name).to_str().unwrap().to_owned();
+    let row = "#".repeat(16);
+    let map = vec![row; 9].join("\n");
+    write(
+        dir.path(),
+        "open.toml",
+        &format!("name = \"open\"\ncell_m = 1.0\nmap = '''\n{map}\n'''\n"),
+    );
+    let train = |walks: &str, out: &str, extra: &[&str]| {
+        let (site, walks, out) = (d("open.toml"), d(walks), d(out));
+        let mut args = vec![
+            "train",
+            "--site",
+            &site,
+            "--trajectories",
+            &walks,
+            "--out",
+            &out,
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        gangway(&args)
+    };
+    let served = |models: &str| -> String {
+        let route: serde_json::Value = serde_json::from_str(&gangway_ok(&[
+            "plan",
+            "--site",
+            &d("open.toml"),
+            "--models",
+            &d(models),
+            "--from",
+            "0,2",
+            "--to",
+            "15,3",
+            "--json",
+        ]))
+        .unwrap();
+        route["planner"].as_str().unwrap().to_owned()
+    };
+    for (name, bow) in [("bowed", 3.0), ("straight", 0.0)] {
+        write(dir.path(), &format!("{name}.csv"), &walks_csv(bow));
+        gangway_ok(&[
+            "walks",
+            "import",
+            "--site",
+            &d("open.toml"),
+            "--from",
+            &d(&format!("{name}.csv")),
+            "--train",
+            &d(&format!("{name}.jsonl")),
+            "--holdout",
+            "0",
+        ]);
+    }
+    // Walks that bow the same way: the lines beat the straight any-angle
+    // route on later walkers, and serve.
+    let out = train("bowed.jsonl", "bowed", &["--desire-only"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(summary["default_planner"]["serves"], "desire", "{summary}");
+    assert_eq!(served("bowed"), "desire");
+    let card = std::fs::read_to_string(dir.path().join("bowed/MODEL_CARD.md")).unwrap();
+    assert!(card.contains("serves **desire**"), "{card}");
+
+    // Straight walks: the lines cannot beat any-angle and fail their check.
+    // Written anyway (--accept-failed) beside a conditional generator, the
+    // default passes them over for the generator.
+    let out = train(
+        "straight.jsonl",
+        "both",
+        &["--conditional", "--iterations", "3", "--accept-failed"],
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let default = &summary["default_planner"];
+    assert_eq!(default["serves"], "conditional", "{summary}");
+    assert!(
+        default["because"]
+            .as_str()
+            .unwrap()
+            .contains("cv_closer_than_anyangle")
+    );
+    assert!(dir.path().join("both/desire_lines.onnx").is_file());
+    assert_eq!(served("both"), "conditional");
+    // The explicit mode still serves what it is told to.
+    let route = gangway_ok(&[
+        "plan",
+        "--site",
+        &d("open.toml"),
+        "--models",
+        &d("both"),
+        "--mode",
+        "desire",
+        "--from",
+        "0,2",
+        "--to",
+        "15,3",
+    ]);
+    assert!(route.contains("desire"), "{route}");
+
+    // Only failed lines: nothing learned to serve, so training fails and
+    // the default plans with A*.
+    let out = train("straight.jsonl", "none", &["--desire-only"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(err.contains("desire_lines failed its checks"), "{err}");
+    assert!(dir.path().join("none/failed/desire_lines.onnx").is_file());
+    assert_eq!(served("none"), "astar");
+}

@@ -212,7 +212,7 @@ fn checkpoints_are_written_loaded_and_plotted_with_sample_routes() {
     write(
         dir.path(),
         "gangway.toml",
-        "gateway_id = \"gw\"\nsite = \"site.toml\"\n[planner.models]\n\
+        "gateway_id = \"gw\"\nsite = \"site.toml\"\n[planner]\nmode = \"astar\"\n[planner.models]\n\
          generator = \"models/generator.onnx\"\n\
          path_classifier = \"models/path_classifier.onnx\"\n\
          conditional_generator = \"models/conditional_generator.onnx\"\n",

@@ -29,10 +29,10 @@ use std::sync::Arc;
 use rand::rngs::Xoshiro256PlusPlus;
 use rand::{RngExt, SeedableRng};
 
-pub mod phone;
-pub mod walks;
+pub(crate) mod phone;
+pub(crate) mod walks;
 
-pub use phone::Phone;
+pub(crate) use phone::Phone;
 pub use walks::{WalkConfig, simulate_walks};
 
 use crate::event::{Event, RouteRequest, Truth};
@@ -88,7 +88,10 @@ impl Default for SimConfig {
 impl SimConfig {
     /// The defaults, with phones hearing the beacons as the gateway config's
     /// survey-free radio model (and its calibration file) describes them.
-    pub fn hearing(config: &crate::config::Config, site: &Site) -> anyhow::Result<SimConfig> {
+    pub(crate) fn hearing(
+        config: &crate::config::Config,
+        site: &Site,
+    ) -> anyhow::Result<SimConfig> {
         let pathloss = config.localizer.pathloss.clone();
         let calibration = match &pathloss.calibration {
             Some(path) => Some(Calibration::load(path, site)?),

@@ -18,7 +18,7 @@ use crate::site::{Cell, Site};
 
 /// What a simulated phone hears in one scan: beacons by the path-loss
 /// model, or with a survey a real reading taken in (or nearest to) its cell.
-pub struct Phone<'a> {
+pub(crate) struct Phone<'a> {
     site: &'a Site,
     config: &'a SimConfig,
     survey: Option<&'a Survey>,
@@ -30,7 +30,7 @@ pub struct Phone<'a> {
 }
 
 impl<'a> Phone<'a> {
-    pub fn new(site: &'a Site, config: &'a SimConfig, survey: Option<&'a Survey>) -> Self {
+    pub(crate) fn new(site: &'a Site, config: &'a SimConfig, survey: Option<&'a Survey>) -> Self {
         let beacons = pathloss::anchors(
             site,
             Orientation::Observer,
@@ -57,7 +57,7 @@ impl<'a> Phone<'a> {
     /// One scan at `t` by `observer` in `cell`, at `pos` (in grid units, from
     /// the map's corner: see [`Site::world_of_grid`]): appends the adverts
     /// heard to `events`.
-    pub fn scan(
+    pub(crate) fn scan(
         &self,
         cell: Cell,
         pos: (f64, f64),
