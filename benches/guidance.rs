@@ -35,11 +35,8 @@ fn guidance(c: &mut Criterion) {
     // A fix as the pipeline passes it: the cell and the belief's mean (a
     // little off the cell's centre), both projected on the route.
     let located = |cell: Cell| {
-        let (x, y) = site.metres(cell);
-        Located {
-            cell,
-            mean_m: Some((x + 0.3, y - 0.2)),
-        }
+        let centre = [f64::from(cell.x) + 0.5, f64::from(cell.y) + 0.5];
+        Located::with_mean(&site, cell, [centre[0] + 0.3, centre[1] - 0.2])
     };
     let start = |guide: &mut Guide, route: &Route, t: f64| {
         guide.start(&site, "phone", None, Profile::Default, route, t, false);

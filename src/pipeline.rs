@@ -307,13 +307,8 @@ impl Pipeline {
         {
             out.push(Output::Heard(heard));
         }
-        let located = cell.map(|cell| {
-            let [x, y] = self.site.world_of_grid(fix.mean.map(f64::from));
-            Located {
-                cell,
-                mean_m: Some((x, y)),
-            }
-        });
+        let located =
+            cell.map(|cell| Located::with_mean(&self.site, cell, fix.mean.map(f64::from)));
         if let Some(guidance) = self
             .guide
             .update(&self.site, &fp.entity, located, fp.t, now)

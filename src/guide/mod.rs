@@ -260,6 +260,18 @@ pub struct Located {
     pub mean_m: Option<(f64, f64)>,
 }
 
+impl Located {
+    /// The tracker's `cell` with its belief's mean at `mean_grid` (grid
+    /// coordinates, cell centres at + 0.5: [`crate::locate::tracker::Fix`]).
+    pub fn with_mean(site: &Site, cell: Cell, mean_grid: [f64; 2]) -> Located {
+        let [x, y] = site.world_of_grid(mean_grid);
+        Located {
+            cell,
+            mean_m: Some((x, y)),
+        }
+    }
+}
+
 impl From<Cell> for Located {
     fn from(cell: Cell) -> Located {
         Located { cell, mean_m: None }
