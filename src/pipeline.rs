@@ -14,7 +14,7 @@ use std::time::Instant;
 
 use crate::config::Config;
 use crate::event::{Event, RouteRequest};
-use crate::guide::{GuidanceEvent, Guide};
+use crate::guide::{GuidanceEvent, Guide, Located};
 use crate::locate::tracker::Tracker;
 use crate::locate::window::{Fingerprint, Orientation, Windows};
 use crate::locate::{self, Localizer};
@@ -307,7 +307,12 @@ impl Pipeline {
         {
             out.push(Output::Heard(heard));
         }
-        if let Some(guidance) = self.guide.update(&self.site, &fp.entity, cell, fp.t, now) {
+        let located =
+            cell.map(|cell| Located::with_mean(&self.site, cell, fix.mean.map(f64::from)));
+        if let Some(guidance) = self
+            .guide
+            .update(&self.site, &fp.entity, located, fp.t, now)
+        {
             let off_route = guidance.event == Some(GuidanceEvent::OffRoute);
             out.push(Output::Guidance(Box::new(guidance)));
             if off_route {

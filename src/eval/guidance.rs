@@ -112,6 +112,8 @@ pub(crate) struct Report {
 
 /// The route a walker is following, as served.
 struct Served {
+    /// The route's cells, as the reply listed them.
+    cells: Vec<Cell>,
     line: RouteLine,
     /// Decision points: where, and metres from the route's start.
     decisions: Vec<(Cell, f64)>,
@@ -137,7 +139,13 @@ impl Served {
             .map(|m| (m.at, m.along_m))
             .collect();
         Some(Served {
-            line: RouteLine::new(site, &Route { cells }),
+            line: RouteLine::new(
+                site,
+                &Route {
+                    cells: cells.clone(),
+                },
+            ),
+            cells,
             passed: vec![false; decisions.len()],
             announced: vec![None; decisions.len()],
             decisions,
@@ -561,7 +569,7 @@ pub(crate) fn paces(tracks: &[Track]) -> Vec<Vec<f64>> {
 /// where they stand, joins the route where it is, as any walker would; they
 /// do not walk back to the cell the fix put them in.
 fn follow(site: &Site, from: Cell, served: &Served) -> Walker {
-    let cells = served.line.cells();
+    let cells = &served.cells;
     let join = (0..cells.len())
         .min_by(|&a, &b| {
             from.distance(cells[a])
@@ -589,7 +597,7 @@ fn stray_walk(
     corridor_m: f64,
     rng: &mut Xoshiro256PlusPlus,
 ) -> Option<Vec<Cell>> {
-    let cells = served.line.cells();
+    let cells = &served.cells;
     let mut candidates: Vec<Cell> = site
         .open_cells()
         .iter()

@@ -1,30 +1,83 @@
 //! A route as a polyline of cell centres in metres, and the projection of a
 //! point onto it: how far along the route a fix stands, how far from it,
 //! and which way the route goes there.
+//!
+//! The route is held as a chain code: its first cell, then each step to a
+//! neighbouring cell as one of eight directions in half a byte. Every
+//! guided session holds its route for as long as it lasts, so the route
+//! costs half a byte a cell instead of four (a served route only steps to
+//! neighbours: [`crate::plan::Route::validate_for`]).
 
 use crate::plan::Route;
 use crate::site::{Cell, Site};
 
+/// The eight steps to a neighbouring cell, by their code.
+const STEPS: [(i32, i32); 8] = [
+    (1, 0),
+    (1, 1),
+    (0, 1),
+    (-1, 1),
+    (-1, 0),
+    (-1, -1),
+    (0, -1),
+    (1, -1),
+];
+
 #[derive(Clone, Debug)]
 pub(crate) struct RouteLine {
-    cells: Vec<Cell>,
+    start: Cell,
+    end: Cell,
+    /// The steps from `start`, two to a byte (the low half first).
+    steps: Vec<u8>,
+    step_count: u32,
     /// Metres from the start to the end (f32: millimetres on any
-    /// building's routes, and every guided session holds one). Distances
-    /// to each cell are summed as the route is walked through rather than
-    /// kept: a session's state stays small.
+    /// building's routes). Distances to each cell are summed as the route
+    /// is walked through rather than kept: a session's state stays small.
     length_m: f32,
 }
 
 impl RouteLine {
+    /// The line of `route`. A step between cells that are not neighbours
+    /// (never in a served route) is held as neighbour steps towards the
+    /// next cell: the diagonal first, then straight.
     pub(crate) fn new(site: &Site, route: &Route) -> RouteLine {
-        RouteLine {
-            cells: route.cells.clone(),
-            length_m: route.length_m(site) as f32,
+        let start = *route.cells.first().expect("a route has cells");
+        let mut line = RouteLine {
+            start,
+            end: start,
+            steps: Vec::new(),
+            step_count: 0,
+            length_m: 0.0,
+        };
+        for &next in &route.cells[1..] {
+            while line.end != next {
+                let (dx, dy) = (
+                    (i32::from(next.x) - i32::from(line.end.x)).signum(),
+                    (i32::from(next.y) - i32::from(line.end.y)).signum(),
+                );
+                let code = STEPS.iter().position(|&s| s == (dx, dy)).expect("a step") as u8;
+                if line.step_count.is_multiple_of(2) {
+                    line.steps.push(code);
+                } else {
+                    *line.steps.last_mut().expect("pushed") |= code << 4;
+                }
+                line.step_count += 1;
+                line.end = step(line.end, code);
+            }
         }
+        line.steps.shrink_to_fit();
+        line.length_m = line.segments(site).last().map_or(0.0, |s| s.3) as f32;
+        line
     }
 
-    pub(crate) fn cells(&self) -> &[Cell] {
-        &self.cells
+    /// The route's cells, from the start.
+    pub(crate) fn cells(&self) -> impl Iterator<Item = Cell> + '_ {
+        let codes =
+            (0..self.step_count as usize).map(|i| (self.steps[i / 2] >> (4 * (i % 2))) & 0xF);
+        std::iter::once(self.start).chain(codes.scan(self.start, |at, code| {
+            *at = step(*at, code);
+            Some(*at)
+        }))
     }
 
     pub(crate) fn length_m(&self) -> f64 {
@@ -33,24 +86,38 @@ impl RouteLine {
 
     /// The cell the route ends at.
     pub(crate) fn destination(&self) -> Cell {
-        *self.cells.last().expect("a route has cells")
+        self.end
     }
 
     /// Bytes held on the heap.
     pub(crate) fn heap_bytes(&self) -> usize {
-        self.cells.capacity() * std::mem::size_of::<Cell>()
+        self.steps.capacity()
     }
 
-    /// Each segment: its ends in metres and metres from the start to them.
+    /// The steps' codes, from the start.
+    fn codes(&self) -> impl Iterator<Item = u8> + '_ {
+        (0..self.step_count as usize).map(|i| (self.steps[i / 2] >> (4 * (i % 2))) & 0xF)
+    }
+
+    /// Each straight run of the route (the steps between two turns, as one
+    /// segment: projecting on it is projecting on its steps, for a fraction
+    /// of the work): its ends in metres and metres from the start to them.
     fn segments<'a>(
         &'a self,
         site: &'a Site,
     ) -> impl Iterator<Item = ((f64, f64), (f64, f64), f64, f64)> + 'a {
-        let mut along = 0.0;
-        self.cells.windows(2).map(move |w| {
+        let mut codes = self.codes().peekable();
+        let (mut from, mut along) = (self.start, 0.0);
+        std::iter::from_fn(move || {
+            let code = codes.next()?;
+            let mut to = step(from, code);
+            while let Some(c) = codes.next_if_eq(&code) {
+                to = step(to, c);
+            }
             let start = along;
-            along += w[0].distance(w[1]) * site.cell_m;
-            (site.metres(w[0]), site.metres(w[1]), start, along)
+            along += from.distance(to) * site.cell_m;
+            let a = std::mem::replace(&mut from, to);
+            Some((site.metres(a), site.metres(to), start, along))
         })
     }
 
@@ -65,8 +132,8 @@ impl RouteLine {
         progress_m: f64,
         back_m: f64,
     ) -> (f64, f64) {
-        if self.cells.len() == 1 {
-            let (cx, cy) = site.metres(self.cells[0]);
+        if self.step_count == 0 {
+            let (cx, cy) = site.metres(self.start);
             return ((cx - x).hypot(cy - y), 0.0);
         }
         let mut nearest = f64::INFINITY;
@@ -107,6 +174,12 @@ impl RouteLine {
     }
 }
 
+/// The cell one step of `code` from `at`.
+fn step(at: Cell, code: u8) -> Cell {
+    let (dx, dy) = STEPS[usize::from(code)];
+    Cell::new((i32::from(at.x) + dx) as u16, (i32::from(at.y) + dy) as u16)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -136,5 +209,47 @@ mod tests {
         // the site's y axis runs).
         assert!(corner.0.abs() < 1e-9 && (corner.1.abs() - 1.0).abs() < 1e-9);
         assert_eq!(line.direction(&site, 99.0), corner);
+    }
+
+    #[test]
+    fn holds_the_cells_in_half_a_byte_each() {
+        let text = "name = \"t\"\ncell_m = 1.0\nmap = '''\n######\n######\n######\n'''\n";
+        let site = Site::parse(text, Path::new("t.toml")).unwrap();
+        // Six of the directions, and a step over a cell (held as two).
+        let cells = [
+            (0, 0),
+            (1, 1),
+            (2, 2),
+            (3, 1),
+            (4, 0),
+            (5, 0),
+            (5, 1),
+            (4, 2),
+            (3, 2),
+            (1, 2),
+        ]
+        .map(|(x, y)| Cell::new(x, y))
+        .to_vec();
+        let route = Route {
+            cells: cells.clone(),
+        };
+        let line = RouteLine::new(&site, &route);
+        let mut walked = cells.clone();
+        walked.insert(9, Cell::new(2, 2));
+        assert_eq!(line.cells().collect::<Vec<_>>(), walked);
+        assert_eq!(line.destination(), Cell::new(1, 2));
+        assert!((line.length_m() - route.length_m(&site)).abs() < 1e-6);
+        assert_eq!(line.heap_bytes(), 5, "ten steps");
+        // The other two.
+        let back = [(1, 2), (0, 1), (0, 0), (1, 0)]
+            .map(|(x, y)| Cell::new(x, y))
+            .to_vec();
+        let line = RouteLine::new(
+            &site,
+            &Route {
+                cells: back.clone(),
+            },
+        );
+        assert_eq!(line.cells().collect::<Vec<_>>(), back);
     }
 }

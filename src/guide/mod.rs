@@ -248,6 +248,36 @@ pub struct Guide {
     finished: VecDeque<Adherence>,
 }
 
+/// A located fix as guidance follows it: the tracker's cell, and where its
+/// belief is on average (metres; the cell's centre when not given).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Located {
+    pub cell: Cell,
+    /// The mean of the tracker's belief: how far along the route the walker
+    /// is reads off it rather than off the cell, which moves a whole cell
+    /// at a time and sticks while the belief drifts on (`gangway eval
+    /// guidance`, docs/guidance.md: announcements 85.0 % → 85.7 %).
+    pub mean_m: Option<(f64, f64)>,
+}
+
+impl Located {
+    /// The tracker's `cell` with its belief's mean at `mean_grid` (grid
+    /// coordinates, cell centres at + 0.5: [`crate::locate::tracker::Fix`]).
+    pub fn with_mean(site: &Site, cell: Cell, mean_grid: [f64; 2]) -> Located {
+        let [x, y] = site.world_of_grid(mean_grid);
+        Located {
+            cell,
+            mean_m: Some((x, y)),
+        }
+    }
+}
+
+impl From<Cell> for Located {
+    fn from(cell: Cell) -> Located {
+        Located { cell, mean_m: None }
+    }
+}
+
 impl Guide {
     /// `fix_lag_s`: how long ago the walker was where a fix places them
     /// ([`GuidanceConfig::fix_lag_s`]).
@@ -351,7 +381,8 @@ impl Guide {
         first
     }
 
-    /// Follows one fix of `device` (`None`: location unknown) of time `t`
+    /// Follows one fix of `device` (a cell or a [`Located`]; `None`:
+    /// location unknown) of time `t`
     /// (the end of its window), made at `now` (the event that closed the
     /// window). Returns a message when the device has a session and the
     /// fix was known, or when the session just expired; a session that
@@ -363,7 +394,7 @@ impl Guide {
         &mut self,
         site: &Site,
         device: &str,
-        cell: Option<Cell>,
+        fix: Option<impl Into<Located>>,
         t: f64,
         now: f64,
     ) -> Option<Guidance> {
@@ -375,7 +406,8 @@ impl Guide {
             self.finish(device, &session, t, Ending::Expired);
             return last;
         }
-        let message = session.update(site, &self.config, self.fix_lag_s, device, cell, t, now);
+        let fix = fix.map(Into::into);
+        let message = session.update(site, &self.config, self.fix_lag_s, device, fix, t, now);
         if session.is_over(&self.config)
             && let Some(session) = self.sessions.remove(device)
         {
@@ -556,7 +588,7 @@ mod tests {
         );
         // Unknown fixes between stray ones neither count nor reset.
         guide.update(&site, "p", off, 3.0, 3.0);
-        assert_eq!(guide.update(&site, "p", None, 4.0, 4.0), None);
+        assert_eq!(guide.update(&site, "p", None::<Cell>, 4.0, 4.0), None);
         assert_eq!(
             state(guide.update(&site, "p", off, 5.0, 5.0)),
             Some((SessionState::OffRoute, Some(GuidanceEvent::OffRoute), 2))
@@ -682,6 +714,51 @@ mod tests {
         start(&mut guide, &site, "p", 0.0);
         let bytes = guide.session("p").unwrap().state_bytes();
         assert!(bytes < 1024, "{bytes} bytes for a 35 m route");
+    }
+
+    #[test]
+    fn a_long_route_is_guided_through_a_window_of_its_maneuvers() {
+        // A 40 × 40 floor walked to and fro along every third row (3 m
+        // apart: never as near the destination as `arrive_m` before it).
+        let row = "#".repeat(40);
+        let map = vec![row; 40].join("\n");
+        let text = format!("name = \"t\"\ncell_m = 1.0\nmap = '''\n{map}\n'''\n");
+        let site = Site::parse(&text, Path::new("t.toml")).unwrap();
+        let mut cells = Vec::new();
+        for y in 0..=36u16 {
+            match y % 6 {
+                0 => cells.extend((0..40).map(|x| Cell::new(x, y))),
+                3 => cells.extend((0..40).rev().map(|x| Cell::new(x, y))),
+                1 | 2 => cells.push(Cell::new(39, y)),
+                _ => cells.push(Cell::new(0, y)),
+            }
+        }
+        let route = Route { cells };
+        let all = crate::plan::instructions::maneuvers(&site, &route, Profile::Default);
+        assert!(all.len() > 4 * session::WINDOW_MANEUVERS, "{}", all.len());
+        let mut guide = Guide::new(GuidanceConfig::default(), 0.0);
+        guide.start(&site, "p", None, Profile::Default, &route, 0.0, false);
+        // Walked cell by cell with exact fixes: every maneuver is next in
+        // turn, in the route's order, and the session stays small.
+        let mut told = vec![all[1].at];
+        let mut largest = 0;
+        for (i, &cell) in route.cells.iter().enumerate().skip(1) {
+            let t = i as f64 / 1.2;
+            let m = guide.update(&site, "p", Some(cell), t, t).unwrap();
+            largest = largest.max(guide.session("p").unwrap().state_bytes());
+            if let Some(next) = m.next
+                && told.last() != Some(&next.at)
+            {
+                told.push(next.at);
+            }
+            if m.state == SessionState::Arrived {
+                break;
+            }
+        }
+        let expected: Vec<Cell> = all[1..].iter().map(|m| m.at).collect();
+        assert_eq!(told, expected);
+        let metres = route.length_m(&site);
+        assert!(largest < 1024, "{largest} bytes for a {metres} m route");
     }
 
     #[test]

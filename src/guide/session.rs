@@ -4,7 +4,7 @@
 //!
 //! Progress is where the walker is by now along the route's polyline of cell
 //! centres ([`RouteLine`]), in metres from the start: each fix's projection
-//! on it, filtered and predicted forward from the moment the walker was
+//! on it (of the tracker's mean belief when given, [`super::Located`]), filtered and predicted forward from the moment the walker was
 //! there ([`Progress`]). Announcements and arrival are judged on that at
 //! every event of the device, not only at its fixes (sightings arrive many
 //! times a second, fixes every stride), so a decision point is announced
@@ -20,10 +20,16 @@
 //! corridor); a fix stalled off the route neither counts nor resets, and
 //! anything else resets the count.
 //!
-//! The state kept is the route (4 bytes a cell), its maneuvers and a few
-//! numbers: under 1 KB for the routes of a floor.
+//! The state kept is bounded so that a session stays under 1 KB however
+//! long its route: the route as a chain code (half a byte a cell,
+//! [`RouteLine`]), a window of the next [`WINDOW_MANEUVERS`] maneuvers
+//! (each some 60 bytes with its place's name; those of a longer route are
+//! worked out again from the route as the walker reaches the end of the
+//! window), the destination's name and a few numbers.
 
-use super::{Adherence, Ending, GuidanceConfig, GuidanceEvent, Progress, RouteLine, SessionState};
+use super::{
+    Adherence, Ending, GuidanceConfig, GuidanceEvent, Located, Progress, RouteLine, SessionState,
+};
 use crate::plan::instructions::{Maneuver, first_sentence, maneuvers};
 use crate::plan::{Profile, Route};
 use crate::publish::{GUIDANCE_SCHEMA, Guidance, NextManeuver};
@@ -33,6 +39,16 @@ use crate::site::{Cell, Site};
 /// there for the move to count as turning off it, degrees: what the
 /// maneuvers call a plain turn (a slight bend is under 60°).
 const TURNING_OFF_DEG: f64 = 60.0;
+
+/// Most maneuvers a session holds at once, from the next one on: enough
+/// for the next decision point and those close after it that are
+/// announced with it. A route with more has the rest worked out again
+/// from the route when fewer than [`MANEUVERS_AHEAD`] are left in the
+/// window.
+pub(crate) const WINDOW_MANEUVERS: usize = 6;
+
+/// Maneuvers from the next one on that the window keeps loaded.
+const MANEUVERS_AHEAD: usize = 3;
 
 /// What a session has seen of the walk, carried across re-routes: what its
 /// adherence is made of.
@@ -73,8 +89,16 @@ pub(crate) struct Session {
     request_id: Option<String>,
     profile: Profile,
     line: RouteLine,
-    maneuvers: Vec<Maneuver>,
-    /// Index in `maneuvers` of the next decision point.
+    /// The route's maneuvers from `window_start` on, at most
+    /// [`WINDOW_MANEUVERS`] of them.
+    window: Vec<Maneuver>,
+    /// Index in the route's maneuvers of `window[0]`.
+    window_start: u16,
+    /// How many maneuvers the route has.
+    maneuver_count: u16,
+    /// The named place or landmark the route arrives at.
+    destination_place: Option<String>,
+    /// Index in the route's maneuvers of the next decision point.
     next: usize,
     /// Maneuvers before this index have been announced.
     announced: usize,
@@ -111,9 +135,9 @@ impl Session {
         rerouted_from: Option<Walked>,
     ) -> Session {
         let line = RouteLine::new(site, route);
-        // Held as long as the session: no room spare.
-        let mut maneuvers = maneuvers(site, route, profile);
-        maneuvers.shrink_to_fit();
+        let all = maneuvers(site, route, profile);
+        let destination_place = all.last().and_then(|m| m.place.clone());
+        let maneuver_count = u16::try_from(all.len()).unwrap_or(u16::MAX);
         let walked = match rerouted_from {
             Some(before) => Walked {
                 reroutes: before.reroutes + 1,
@@ -133,7 +157,10 @@ impl Session {
             request_id,
             profile,
             line,
-            maneuvers,
+            window: Vec::new(),
+            window_start: 0,
+            maneuver_count,
+            destination_place,
             next: 1,
             announced: 1,
             state: if reroutes > 0 {
@@ -151,6 +178,47 @@ impl Session {
             since_arrival: 0,
             walked,
         }
+        .with_window(all, 0)
+    }
+
+    /// Keeps the maneuvers of `all` (the route's) from `start` on in the
+    /// window.
+    fn with_window(mut self, all: Vec<Maneuver>, start: usize) -> Session {
+        self.load_window(all, start);
+        self
+    }
+
+    fn load_window(&mut self, mut all: Vec<Maneuver>, start: usize) {
+        let start = start.min(all.len());
+        all.truncate((start + WINDOW_MANEUVERS).min(all.len()));
+        all.drain(..start);
+        // Held as long as the window: no room spare.
+        all.shrink_to_fit();
+        self.window = all;
+        self.window_start = start as u16;
+    }
+
+    /// The route's maneuver `k`, when the window holds it.
+    fn maneuver(&self, k: usize) -> Option<&Maneuver> {
+        self.window
+            .get(k.checked_sub(usize::from(self.window_start))?)
+    }
+
+    /// Works the window out again from the route when fewer than
+    /// [`MANEUVERS_AHEAD`] maneuvers from the next one on are in it and
+    /// the route has more (only routes with more than
+    /// [`WINDOW_MANEUVERS`] maneuvers ever do this).
+    fn refill_window(&mut self, site: &Site) {
+        let loaded_to = usize::from(self.window_start) + self.window.len();
+        let count = usize::from(self.maneuver_count);
+        if loaded_to >= count || self.next + MANEUVERS_AHEAD <= loaded_to {
+            return;
+        }
+        let route = Route {
+            cells: self.line.cells().collect(),
+        };
+        let all = maneuvers(site, &route, self.profile);
+        self.load_window(all, self.next);
     }
 
     pub(crate) fn state(&self) -> SessionState {
@@ -213,12 +281,13 @@ impl Session {
     pub(crate) fn state_bytes(&self) -> usize {
         std::mem::size_of::<Session>()
             + self.line.heap_bytes()
-            + self.maneuvers.capacity() * std::mem::size_of::<Maneuver>()
+            + self.window.capacity() * std::mem::size_of::<Maneuver>()
             + self
-                .maneuvers
+                .window
                 .iter()
                 .filter_map(|m| m.place.as_ref().map(String::capacity))
                 .sum::<usize>()
+            + self.destination_place.as_ref().map_or(0, String::capacity)
             + self.request_id.as_ref().map_or(0, String::capacity)
     }
 
@@ -229,7 +298,9 @@ impl Session {
         } else {
             GuidanceEvent::Depart
         };
-        let text = first_sentence(site, self.line.cells(), &self.maneuvers);
+        // The first maneuvers, in the window until the walker moves on.
+        let start: Vec<Cell> = self.line.cells().take(4).collect();
+        let text = first_sentence(site, &start, &self.window);
         self.message(device, t, Some(event), text)
     }
 
@@ -255,13 +326,15 @@ impl Session {
         config: &GuidanceConfig,
         fix_lag_s: f64,
         device: &str,
-        cell: Option<Cell>,
+        fix: Option<Located>,
         fix_t: f64,
         now: f64,
     ) -> Option<Guidance> {
         self.last_t = fix_t;
-        let cell = cell?;
-        let (x, y) = site.metres(cell);
+        let fix = fix?;
+        // Leaving the route is judged on the cell (a belief split between
+        // two corridors has its mean in neither); progress on the mean.
+        let (x, y) = site.metres(fix.cell);
         // When the walker was where the fix places them (not before the
         // route was served: they stood at its start).
         let was_t = (fix_t - fix_lag_s).max(self.walked.started_t);
@@ -269,6 +342,14 @@ impl Session {
             self.line
                 .project(site, (x, y), self.track.at(was_t), config.corridor_m);
         let leaving = self.leaving(site, config, fix_lag_s, (x, y, fix_t), off_m, along_m);
+        let along_m = match fix.mean_m {
+            Some(mean) => {
+                self.line
+                    .project(site, mean, self.track.at(was_t), config.corridor_m)
+                    .1
+            }
+            None => along_m,
+        };
         self.last_fix = Some(LastFix {
             x: x as f32,
             y: y as f32,
@@ -293,7 +374,10 @@ impl Session {
                 return Some(self.message(device, fix_t, None, None));
             }
             self.state = SessionState::OffRoute;
-            self.next = self.next.min(self.maneuvers.len().saturating_sub(1));
+            self.next = self
+                .next
+                .min(usize::from(self.maneuver_count).saturating_sub(1));
+            self.refill_window(site);
             self.walked.detours += 1;
             let text = if arrived {
                 "You have walked on past the destination; finding the way back.".to_owned()
@@ -427,11 +511,13 @@ impl Session {
             filtered
         };
         self.progress_m = self.track.at_speed(now, speed).clamp(0.0, length_m);
-        while self.next < self.maneuvers.len()
-            // Progress is summed in f32: a millimetre short is there.
-            && self.maneuvers[self.next].along_m <= self.progress_m + 1e-3
+        // Progress is summed in f32: a millimetre short is there.
+        while self
+            .maneuver(self.next)
+            .is_some_and(|m| m.along_m <= self.progress_m + 1e-3)
         {
             self.next += 1;
+            self.refill_window(site);
         }
         self.announced = self.announced.max(self.next);
         let last = self.last_fix?;
@@ -448,8 +534,8 @@ impl Session {
             && self.progress_m >= config.arrive_progress_share * length_m;
         let said = if predicted || at_it {
             self.state = SessionState::Arrived;
-            self.next = self.maneuvers.len();
-            let place = self.maneuvers.last().and_then(|m| m.place.as_ref());
+            self.next = usize::from(self.maneuver_count);
+            let place = self.destination_place.as_ref();
             Some((
                 GuidanceEvent::Arrived,
                 match place {
@@ -457,7 +543,7 @@ impl Session {
                     None => "You have arrived.".to_owned(),
                 },
             ))
-        } else if let Some(m) = self.maneuvers.get(self.next) {
+        } else if let Some(m) = self.maneuver(self.next) {
             let ahead = m.along_m - self.progress_m;
             // Half the walk until the next judgement (as long again as
             // since this one): the moment nearest the distance says so.
@@ -488,10 +574,12 @@ impl Session {
     /// closer than `announce_m` (there is no room to announce them on their
     /// own after it), marking them all announced.
     fn announcement(&mut self, announce_m: f64) -> String {
-        let first = &self.maneuvers[self.next];
+        let Some(first) = self.maneuver(self.next) else {
+            return String::new();
+        };
         let mut text = first.sentence(first.along_m - self.progress_m);
         let mut k = self.next + 1;
-        while let Some(m) = self.maneuvers.get(k)
+        while let Some(m) = self.maneuver(k)
             && m.distance_m < announce_m
         {
             text.push_str(" After that, ");
@@ -519,7 +607,7 @@ impl Session {
             state: self.state,
             event,
             text,
-            next: self.maneuvers.get(self.next).map(|m| NextManeuver {
+            next: self.maneuver(self.next).map(|m| NextManeuver {
                 kind: m.kind,
                 modifier: m.modifier,
                 distance_m: (m.along_m - self.progress_m).max(0.0),

@@ -82,6 +82,8 @@ pub struct Fix {
     pub cell: Cell,
     /// Posterior probability of being within one cell of `cell`.
     pub confidence: f32,
+    /// The belief's mean, in grid coordinates (cell centres at + 0.5).
+    pub mean: [f32; 2],
 }
 
 struct Track {
@@ -192,6 +194,7 @@ impl Tracker {
             fix: Fix {
                 cell: Cell::new(0, 0),
                 confidence: 0.0,
+                mean: [0.5, 0.5],
             },
         });
         let likelihood = model.likelihood(log_likelihood);
@@ -424,9 +427,22 @@ fn estimate(how: Estimate, site: &Site, belief: &[f32]) -> Fix {
         Estimate::Median => spatial_median(cells, belief),
     };
     let cell = cells[best];
+    let (mut sum, mut mx, mut my) = (0.0f64, 0.0f64, 0.0f64);
+    for (c, &b) in cells.iter().zip(belief) {
+        let b = f64::from(b);
+        sum += b;
+        mx += b * (f64::from(c.x) + 0.5);
+        my += b * (f64::from(c.y) + 0.5);
+    }
+    let mean = if sum > 0.0 {
+        [(mx / sum) as f32, (my / sum) as f32]
+    } else {
+        [f32::from(cell.x) + 0.5, f32::from(cell.y) + 0.5]
+    };
     Fix {
         cell,
         confidence: within_one_cell(site, cell, belief),
+        mean,
     }
 }
 
