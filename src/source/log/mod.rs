@@ -33,6 +33,8 @@ use crate::sighting::{BeaconId, Sighting};
 use crate::site::Cell;
 use crate::throttle::Throttle;
 
+mod fast;
+
 /// One line of the log, read and written.
 ///
 /// One flat struct rather than an enum tagged by `type`: serde reads a tagged
@@ -234,9 +236,14 @@ impl<R: BufRead> LogReader<R> {
         if text.is_empty() {
             return Ok(None);
         }
-        let line: Line = serde_json::from_str(text).map_err(|e| {
-            format!("{e}; each line must be one JSON event (see the README, \"Advert log format\")")
-        })?;
+        let line = match fast::advert(text) {
+            Some(line) => line,
+            None => serde_json::from_str(text).map_err(|e| {
+                format!(
+                    "{e}; each line must be one JSON event (see the README, \"Advert log format\")"
+                )
+            })?,
+        };
         if let Some(field) = line.foreign_field() {
             return Err(format!(
                 "unknown field `{field}` in a `{}` line",
