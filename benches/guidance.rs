@@ -8,22 +8,27 @@
 //! request would. `guidance_update_straying`: the same walker misses the
 //! route's first turn and walks straight on until told they left the route,
 //! then starts again: fixes off the route, whose move the leaving test
-//! projects ahead.
+//! projects ahead. `guidance_walk_prior` against `guidance_tracker_step`:
+//! what a guided device's fix costs the tracker more (the route's cells
+//! paired with those a walk ahead, and a second belief moved by them).
 //! Run: `cargo bench --bench guidance`.
 
 use std::hint::black_box;
 use std::path::Path;
+use std::sync::Arc;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use gangway::guide::{GuidanceConfig, Guide, Located};
+use gangway::locate::tracker::{Tracker, TrackerConfig};
 use gangway::mqtt::topics::Topics;
 use gangway::plan::{Connectivity, Profile, Route, astar};
 use gangway::publish::Output;
 use gangway::site::{Cell, Site};
 
 fn guidance(c: &mut Criterion) {
-    let site =
-        Site::load(Path::new("config/sites/waldo.toml")).expect("run from the repository root");
+    let site = Arc::new(
+        Site::load(Path::new("config/sites/waldo.toml")).expect("run from the repository root"),
+    );
     let (from, to) = (
         site.place("west entrance").unwrap(),
         site.place("group rooms").unwrap(),
@@ -111,6 +116,45 @@ fn guidance(c: &mut Criterion) {
             black_box(message.and_then(|m| topics.encode(&Output::Guidance(Box::new(m)))))
         })
     });
+    // What the walk prior adds to a guided device's fix: the route's cells
+    // paired with those a walk ahead, and the tracker's second belief
+    // moved by it (`guidance_walk_prior`, against `guidance_tracker_step`,
+    // the same fix of a device nobody guides). Evidence peaked at the
+    // walker's cell, as a good fix's is.
+    let evidence: Vec<Vec<f32>> = walk
+        .iter()
+        .map(|&at| {
+            site.open_cells()
+                .iter()
+                .map(|&c| -2.0 * c.distance(at) as f32)
+                .collect()
+        })
+        .collect();
+    for (name, guided) in [
+        ("guidance_tracker_step", false),
+        ("guidance_walk_prior", true),
+    ] {
+        let mut guide = Guide::new(GuidanceConfig::default(), 2.0);
+        let mut tracker = Tracker::new(TrackerConfig::default(), site.clone());
+        let device: Arc<str> = "phone".into();
+        let (mut i, mut t) = (0, 0.0);
+        c.bench_function(name, |b| {
+            b.iter(|| {
+                if i == 0 {
+                    start(&mut guide, &route, t);
+                }
+                t += 2.0;
+                let walk_prior = guided
+                    .then(|| guide.expected_walk(&site, "phone", t))
+                    .flatten();
+                let (fix, mean) =
+                    tracker.update_walking(&device, t, &evidence[i], walk_prior.as_ref());
+                guide.update(&site, "phone", Some(located(walk[i])), t, t);
+                i = (i + 1) % walk.len();
+                black_box((fix, mean))
+            })
+        });
+    }
     println!(
         "route of {} cells, {:.0} m; straying: {} cells past the corner at cell {corner}",
         route.cells.len(),

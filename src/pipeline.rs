@@ -185,9 +185,11 @@ impl Pipeline {
         }
     }
 
-    /// The guidance sessions.
-    pub(crate) fn guide(&self) -> &Guide {
-        &self.guide
+    /// Bytes held for guiding `device`, if it has a session: the session
+    /// and its tracker's belief of a walker walking the route.
+    pub(crate) fn guided_bytes(&self, device: &str) -> Option<usize> {
+        let session = self.guide.session(device)?;
+        Some(session.state_bytes() + self.tracker.walking_bytes(device))
     }
 
     /// Number of entities with a track.
@@ -279,7 +281,10 @@ impl Pipeline {
         }
         self.localizer
             .log_likelihood(&fp.rssi, &fp.heard, &mut self.log_likelihood);
-        let fix = self.tracker.update(&fp.entity, fp.t, &self.log_likelihood);
+        let walk = self.guide.expected_walk(&self.site, &fp.entity, fp.t);
+        let (fix, walked_mean) =
+            self.tracker
+                .update_walking(&fp.entity, fp.t, &self.log_likelihood, walk.as_ref());
         self.stats.fixes += 1;
         let confidence = self.localizer.confidence(fix.confidence);
         let known = confidence >= self.min_confidence;
@@ -307,8 +312,10 @@ impl Pipeline {
         {
             out.push(Output::Heard(heard));
         }
-        let located =
-            cell.map(|cell| Located::with_mean(&self.site, cell, fix.mean.map(f64::from)));
+        // Leaving the route is judged on the fix, progress along it on the
+        // belief of a walker walking it ([`Tracker::update_walking`]).
+        let mean = walked_mean.unwrap_or(fix.mean);
+        let located = cell.map(|cell| Located::with_mean(&self.site, cell, mean.map(f64::from)));
         if let Some(guidance) = self
             .guide
             .update(&self.site, &fp.entity, located, fp.t, now)

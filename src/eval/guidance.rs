@@ -106,7 +106,8 @@ pub(crate) struct Report {
     /// (`[guidance] fix_lag_s`).
     pub fix_lag_m_p50: Option<f64>,
     pub fix_lag_s_p50: Option<f64>,
-    /// Largest state of one session seen, bytes.
+    /// Largest state of one session seen, bytes: the session's and its
+    /// tracker's belief of a walker walking the route.
     pub max_session_bytes: usize,
 }
 
@@ -394,8 +395,8 @@ pub(crate) fn evaluate(
                         Some(GuidanceEvent::Arrived) => arrived_fix = arrived_fix.or(Some(fixes)),
                         _ => {}
                     }
-                    if let Some(s) = pipeline.guide().session(&device) {
-                        report.max_session_bytes = report.max_session_bytes.max(s.state_bytes());
+                    if let Some(bytes) = pipeline.guided_bytes(&device) {
+                        report.max_session_bytes = report.max_session_bytes.max(bytes);
                     }
                 } else if let Output::Route(reply) = &output
                     && matches!(&reply.outcome, RouteOutcome::Route(b) if b.reason == Some("off_route"))

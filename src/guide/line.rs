@@ -80,6 +80,40 @@ impl RouteLine {
         }))
     }
 
+    /// Each cell of the route with the cell `ahead_m` further along it
+    /// (the nearest cell to that point; the destination for cells nearer
+    /// it than that): where a walker following the route would be.
+    pub(crate) fn ahead(&self, site: &Site, ahead_m: f64) -> Vec<(Cell, Cell)> {
+        let mut along = 0.0;
+        let mut last = self.start;
+        let cells: Vec<(Cell, f64)> = self
+            .cells()
+            .map(|c| {
+                along += last.distance(c) * site.cell_m;
+                last = c;
+                (c, along)
+            })
+            .collect();
+        let mut moves = Vec::with_capacity(cells.len());
+        let mut j = 0;
+        for (i, &(cell, at)) in cells.iter().enumerate() {
+            let target = at + ahead_m;
+            j = j.max(i);
+            while j + 1 < cells.len() && cells[j + 1].1 <= target {
+                j += 1;
+            }
+            // The nearer of the cells either side of the point.
+            let to = match cells.get(j + 1) {
+                Some(&(next, next_at)) if next_at - target < target - cells[j].1 => next,
+                _ => cells[j].0,
+            };
+            if to != cell {
+                moves.push((cell, to));
+            }
+        }
+        moves
+    }
+
     pub(crate) fn length_m(&self) -> f64 {
         f64::from(self.length_m)
     }
@@ -209,6 +243,33 @@ mod tests {
         // the site's y axis runs).
         assert!(corner.0.abs() < 1e-9 && (corner.1.abs() - 1.0).abs() < 1e-9);
         assert_eq!(line.direction(&site, 99.0), corner);
+    }
+
+    #[test]
+    fn pairs_each_cell_with_the_one_a_walk_ahead() {
+        let text = "name = \"t\"\ncell_m = 2.0\nmap = '''\n####\n####\n'''\n";
+        let site = Site::parse(text, Path::new("t.toml")).unwrap();
+        let cells = [(0, 0), (1, 0), (2, 0), (3, 0), (3, 1)].map(|(x, y)| Cell::new(x, y));
+        let line = RouteLine::new(
+            &site,
+            &Route {
+                cells: cells.to_vec(),
+            },
+        );
+        // 4.5 m ahead on 2 m cells: two cells on (4 m is nearer than 6 m),
+        // and the destination for those less than that from it.
+        let moves = line.ahead(&site, 4.5);
+        assert_eq!(
+            moves,
+            vec![
+                (cells[0], cells[2]),
+                (cells[1], cells[3]),
+                (cells[2], cells[4]),
+                (cells[3], cells[4]),
+            ]
+        );
+        // Less than half a cell: nobody moves.
+        assert!(line.ahead(&site, 0.9).is_empty());
     }
 
     #[test]

@@ -34,6 +34,7 @@ pub(crate) use line::RouteLine;
 pub(crate) use progress::Progress;
 pub(crate) use session::Session;
 
+use crate::locate::tracker::ExpectedWalk;
 use crate::plan::{Profile, Route};
 use crate::publish::Guidance;
 use crate::site::{Cell, Site};
@@ -69,6 +70,10 @@ pub struct GuidanceConfig {
     /// middle of its window). `gangway eval guidance` reports the lag it
     /// measured (`fix_lag_s_p50`).
     pub fix_lag_s: Option<f64>,
+    /// Share of a guided walker's belief the tracker moves along their
+    /// route at their pace from one fix to the next (the rest spreads as
+    /// anyone's does): people told the way walk it. 0: none.
+    pub walk_prior: f32,
     /// Most sessions kept at once; starting one more ends the least
     /// recently updated.
     pub max_sessions: usize,
@@ -88,6 +93,7 @@ impl Default for GuidanceConfig {
             arrive_progress_share: 0.5,
             fix_spread_m: 2.0,
             fix_lag_s: None,
+            walk_prior: 0.5,
             max_sessions: 1024,
             expire_after_s: 600.0,
         }
@@ -114,6 +120,9 @@ impl GuidanceConfig {
         }
         if !(0.0..=1.0).contains(&self.arrive_progress_share) {
             return Err("[guidance] `arrive_progress_share` must be between 0 and 1".into());
+        }
+        if !(0.0..=1.0).contains(&self.walk_prior) {
+            return Err("[guidance] `walk_prior` must be between 0 and 1".into());
         }
         if self
             .fix_lag_s
@@ -424,6 +433,19 @@ impl Guide {
     pub fn tick(&mut self, site: &Site, device: &str, now: f64) -> Option<Guidance> {
         let session = self.sessions.get_mut(device)?;
         session.tick(site, &self.config, self.fix_lag_s, device, now)
+    }
+
+    /// How `device`, if it is being guided and following its route, is
+    /// expected to have walked by the fix of time `t`: for its tracker.
+    pub fn expected_walk(&self, site: &Site, device: &str, t: f64) -> Option<ExpectedWalk> {
+        if self.config.walk_prior <= 0.0 {
+            return None;
+        }
+        let moves = self.sessions.get(device)?.expected_walk(site, t)?;
+        Some(ExpectedWalk {
+            moves,
+            share: self.config.walk_prior,
+        })
     }
 
     /// Ends the session of `device`, if it has one (one that has arrived

@@ -271,6 +271,31 @@ impl Session {
         self.last_t
     }
 
+    /// Where the walker would be by `t` (a fix's time) had they walked on
+    /// along the route at the pace progress is predicted at since the last
+    /// fix: each cell of the route and the cell that far ahead of it.
+    /// `None` unless following the route (not off it, not on the way off
+    /// it, not arrived) and walking.
+    pub(super) fn expected_walk(&self, site: &Site, t: f64) -> Option<Vec<(Cell, Cell)>> {
+        let following = matches!(self.state, SessionState::Active | SessionState::Rerouted)
+            && self.off_route_fixes == 0;
+        let walk_m = self.speed_mps() * (t - self.last_t);
+        (following && walk_m > 0.0).then(|| self.line.ahead(site, walk_m))
+    }
+
+    /// The pace progress is predicted on: the profile's once the walker is
+    /// walking (the filtered speed follows the tracker's stalls and jumps),
+    /// the filtered one while they stand.
+    fn speed_mps(&self) -> f64 {
+        let pace = self.profile.walking_speed_mps();
+        let filtered = self.track.speed_mps();
+        if filtered >= pace / 4.0 {
+            pace
+        } else {
+            filtered
+        }
+    }
+
     /// Whether the session is over: arrived, and watched long enough that
     /// the walker did not walk on off the route.
     pub(super) fn is_over(&self, config: &GuidanceConfig) -> bool {
@@ -500,16 +525,8 @@ impl Session {
         let since_s = (now - self.judged_t).max(0.0);
         self.judged_t = self.judged_t.max(now);
         let length_m = self.line.length_m();
-        // Predicted on at the profile's pace once the walker is walking
-        // (the filtered speed follows the tracker's stalls and jumps); not
-        // at all while they stand.
         let pace = self.profile.walking_speed_mps();
-        let filtered = self.track.speed_mps();
-        let speed = if filtered >= pace / 4.0 {
-            pace
-        } else {
-            filtered
-        };
+        let speed = self.speed_mps();
         self.progress_m = self.track.at_speed(now, speed).clamp(0.0, length_m);
         // Progress is summed in f32: a millimetre short is there.
         while self

@@ -86,9 +86,22 @@ pub struct Fix {
     pub mean: [f32; 2],
 }
 
+/// Where an entity is expected to have walked since its last window: of
+/// the belief in each `from` cell, `share` moves to its `to` cell before
+/// the rest spreads as anyone's does. A walker being guided along a route
+/// walks it (`crate::guide`): without this the lazy random walk, which
+/// would rather they stood still, holds them back for fixes after they set
+/// off and then lets them jump (docs/guidance.md, "Measured").
+pub struct ExpectedWalk {
+    pub(crate) moves: Vec<(Cell, Cell)>,
+    pub(crate) share: f32,
+}
+
 struct Track {
     t: f64,
     belief: Vec<f32>,
+    /// The belief given an [`ExpectedWalk`], while there is one.
+    walking: Sparse,
     fix: Fix,
 }
 
@@ -100,6 +113,10 @@ pub struct Tracker {
     neighbours: Vec<Vec<u32>>,
     tracks: HashMap<Arc<str>, Track>,
     scratch: Vec<f32>,
+    /// Belief moved by an [`ExpectedWalk`] in the step being made.
+    carried: Vec<(u32, f32)>,
+    /// A walking belief, unpacked for the step being made.
+    walking: Vec<f32>,
     bounds: Bounds,
     /// Entities forgotten since the last [`Tracker::take_evicted`].
     evicted: VecDeque<Arc<str>>,
@@ -134,6 +151,8 @@ impl Tracker {
             neighbours,
             tracks: HashMap::default(),
             scratch: Vec::new(),
+            carried: Vec::new(),
+            walking: Vec::new(),
             bounds: Bounds::default(),
             evicted: VecDeque::new(),
         }
@@ -166,9 +185,34 @@ impl Tracker {
         self.tracks.len()
     }
 
+    /// Heap bytes of an entity's belief given its expected walk (none
+    /// while it has none).
+    pub(crate) fn walking_bytes(&self, entity: &str) -> usize {
+        self.tracks
+            .get(entity)
+            .map_or(0, |t| t.walking.heap_bytes())
+    }
+
     /// Folds one window's log-likelihoods (one per open cell) into the entity's
     /// track and returns the new fix.
     pub fn update(&mut self, entity: &Arc<str>, t: f64, log_likelihood: &[f32]) -> Fix {
+        self.update_walking(entity, t, log_likelihood, None).0
+    }
+
+    /// [`Tracker::update`] for an entity expected to have walked `walk`
+    /// since its last window (when it has a track to move), which also
+    /// returns where, given that walk, it is on average (grid coordinates,
+    /// as [`Fix::mean`]): the mean of a second belief, started from the
+    /// track's own and moved by the walk before the same evidence weighs
+    /// it. The fix itself stays the track's, the walk aside: whether the
+    /// entity still walks it is for the fixes to show.
+    pub fn update_walking(
+        &mut self,
+        entity: &Arc<str>,
+        t: f64,
+        log_likelihood: &[f32],
+        walk: Option<&ExpectedWalk>,
+    ) -> (Fix, Option<[f32; 2]>) {
         let model = MotionModel {
             config: &self.config,
             neighbours: &self.neighbours,
@@ -191,6 +235,7 @@ impl Tracker {
         let track = self.tracks.entry(entity.clone()).or_insert_with(|| Track {
             t: f64::NEG_INFINITY,
             belief: Vec::new(),
+            walking: Sparse::default(),
             fix: Fix {
                 cell: Cell::new(0, 0),
                 confidence: 0.0,
@@ -199,10 +244,42 @@ impl Tracker {
         });
         let likelihood = model.likelihood(log_likelihood);
         let steps = model.steps(t - track.t);
-        model.filter(&mut track.belief, steps, &likelihood, &mut self.scratch);
+        let walked_mean = match (walk, steps) {
+            (Some(walk), Some(_)) => {
+                let walking = &mut self.walking;
+                if track.walking.is_empty() {
+                    walking.clone_from(&track.belief);
+                } else {
+                    track.walking.unpack(walking, track.belief.len());
+                }
+                self.carried.clear();
+                carry(&self.site, walk, walking, &mut self.carried);
+                model.filter(
+                    walking,
+                    steps,
+                    &likelihood,
+                    &self.carried,
+                    &mut self.scratch,
+                );
+                track.walking.pack(walking, &mut self.scratch);
+                mean(&self.site, walking)
+            }
+            _ => {
+                // Nobody walks this one: its memory goes.
+                track.walking = Sparse::default();
+                None
+            }
+        };
+        model.filter(
+            &mut track.belief,
+            steps,
+            &likelihood,
+            &[],
+            &mut self.scratch,
+        );
         track.t = t;
         track.fix = estimate(self.config.estimate, &self.site, &track.belief);
-        track.fix
+        (track.fix, walked_mean)
     }
 
     /// Fixed-lag smoothing of one recorded trajectory, given as (time,
@@ -333,7 +410,7 @@ impl MotionModel<'_> {
         for (t, log_likelihood) in windows {
             let likelihood = self.likelihood(log_likelihood);
             let s = self.steps(t - last_t);
-            self.filter(&mut belief, s, &likelihood, &mut scratch);
+            self.filter(&mut belief, s, &likelihood, &[], &mut scratch);
             forward.filtered.push(belief.clone());
             forward.likelihoods.push(likelihood);
             forward.steps.push(s);
@@ -352,14 +429,16 @@ impl MotionModel<'_> {
         continues.then(|| ((self.config.max_speed_mps * dt / self.cell_m).ceil() as usize).max(1))
     }
 
-    /// One forward step: predict `steps` moves, then weigh by the evidence. A
-    /// restart, or evidence that contradicts the prior everywhere, starts from
-    /// the evidence alone.
+    /// One forward step: predict `steps` moves (and put back the mass
+    /// `carried` elsewhere, as (open cell, mass), taken out of `belief`
+    /// before), then weigh by the evidence. A restart, or evidence that
+    /// contradicts the prior everywhere, starts from the evidence alone.
     fn filter(
         &self,
         belief: &mut Vec<f32>,
         steps: Option<usize>,
         likelihood: &[f32],
+        carried: &[(u32, f32)],
         scratch: &mut Vec<f32>,
     ) {
         if let Some(steps) = steps {
@@ -371,6 +450,9 @@ impl MotionModel<'_> {
                     scratch,
                 );
                 std::mem::swap(belief, scratch);
+            }
+            for &(to, mass) in carried {
+                belief[to as usize] += mass;
             }
             let recovery = self.config.recovery;
             let floor = recovery / belief.len() as f32;
@@ -419,6 +501,21 @@ impl MotionModel<'_> {
     }
 }
 
+/// Takes `walk.share` of the belief in each of the walk's `from` cells out
+/// of `belief` into `carried`, as (open cell it moves to, mass): moved,
+/// never lost (a cell listed twice gives twice; one not open, nothing).
+fn carry(site: &Site, walk: &ExpectedWalk, belief: &mut [f32], carried: &mut Vec<(u32, f32)>) {
+    let share = walk.share.clamp(0.0, 1.0);
+    for &(from, to) in &walk.moves {
+        let (Some(from), Some(to)) = (site.open_index(from), site.open_index(to)) else {
+            continue;
+        };
+        let mass = belief[from] * share;
+        belief[from] -= mass;
+        carried.push((to as u32, mass));
+    }
+}
+
 /// The reported fix of a belief over the site's open cells.
 fn estimate(how: Estimate, site: &Site, belief: &[f32]) -> Fix {
     let cells = site.open_cells();
@@ -427,22 +524,91 @@ fn estimate(how: Estimate, site: &Site, belief: &[f32]) -> Fix {
         Estimate::Median => spatial_median(cells, belief),
     };
     let cell = cells[best];
+    Fix {
+        cell,
+        confidence: within_one_cell(site, cell, belief),
+        mean: mean(site, belief).unwrap_or([f32::from(cell.x) + 0.5, f32::from(cell.y) + 0.5]),
+    }
+}
+
+/// A belief's mean in grid coordinates (cell centres at + 0.5); `None`
+/// for an empty one.
+fn mean(site: &Site, belief: &[f32]) -> Option<[f32; 2]> {
     let (mut sum, mut mx, mut my) = (0.0f64, 0.0f64, 0.0f64);
-    for (c, &b) in cells.iter().zip(belief) {
+    for (c, &b) in site.open_cells().iter().zip(belief) {
         let b = f64::from(b);
         sum += b;
         mx += b * (f64::from(c.x) + 0.5);
         my += b * (f64::from(c.y) + 0.5);
     }
-    let mean = if sum > 0.0 {
-        [(mx / sum) as f32, (my / sum) as f32]
-    } else {
-        [f32::from(cell.x) + 0.5, f32::from(cell.y) + 0.5]
-    };
-    Fix {
-        cell,
-        confidence: within_one_cell(site, cell, belief),
-        mean,
+    (sum > 0.0).then(|| [(mx / sum) as f32, (my / sum) as f32])
+}
+
+/// Least share of its largest mass a cell of a [`Sparse`] belief holds to
+/// be kept: less changes no mean a guide reads off it.
+const KEPT_SHARE: f32 = 1e-4;
+
+/// Most cells a [`Sparse`] belief keeps (those of the largest mass): 6
+/// bytes each, held for all of them while a device is guided (240 bytes),
+/// so a guided session stays under 1 KB. A guided walker's
+/// belief is a few metres of the route: tens of cells, unless the evidence
+/// is poor, when a coarser mean still serves.
+const MAX_KEPT: usize = 40;
+
+/// A belief kept small, however large the site: the open cells holding at
+/// least [`KEPT_SHARE`] of its largest mass, at most [`MAX_KEPT`] of them
+/// (the rest taken as none), each mass in bfloat16, the upper half of an
+/// f32 (three significant digits).
+#[derive(Default)]
+struct Sparse {
+    cells: Vec<u32>,
+    mass: Vec<u16>,
+}
+
+impl Sparse {
+    fn is_empty(&self) -> bool {
+        self.cells.is_empty()
+    }
+
+    /// Keeps `belief` (`scratch`: room to find the largest masses in).
+    fn pack(&mut self, belief: &[f32], scratch: &mut Vec<f32>) {
+        let peak = belief.iter().copied().fold(0.0, f32::max);
+        let mut least = (peak * KEPT_SHARE).max(f32::MIN_POSITIVE);
+        if belief.iter().filter(|&&b| b >= least).count() > MAX_KEPT {
+            scratch.clear();
+            scratch.extend(belief.iter().copied().filter(|&b| b >= least));
+            least = *scratch
+                .select_nth_unstable_by(MAX_KEPT - 1, |a, b| b.total_cmp(a))
+                .1;
+        }
+        if self.cells.capacity() == 0 {
+            // Room for the most it keeps, once: the same bytes a fix later.
+            self.cells.reserve_exact(MAX_KEPT);
+            self.mass.reserve_exact(MAX_KEPT);
+        }
+        self.cells.clear();
+        self.mass.clear();
+        for (i, &b) in (0..).zip(belief) {
+            if b >= least && self.cells.len() < MAX_KEPT {
+                self.cells.push(i);
+                // Rounded to nearest: beliefs are finite and non-negative.
+                self.mass.push(((b.to_bits() + 0x8000) >> 16) as u16);
+            }
+        }
+    }
+
+    /// The belief over `n` open cells.
+    fn unpack(&self, belief: &mut Vec<f32>, n: usize) {
+        belief.clear();
+        belief.resize(n, 0.0);
+        for (&i, &m) in self.cells.iter().zip(&self.mass) {
+            belief[i as usize] = f32::from_bits(u32::from(m) << 16);
+        }
+    }
+
+    fn heap_bytes(&self) -> usize {
+        self.cells.capacity() * std::mem::size_of::<u32>()
+            + self.mass.capacity() * std::mem::size_of::<u16>()
     }
 }
 
@@ -573,6 +739,43 @@ mod tests {
         let next = tracker.update(&me, 1.0, &peak_at(&site, Cell::new(4, 0), 2.0));
         assert_eq!(next.cell, Cell::new(4, 0));
         assert!(next.confidence > 0.5);
+    }
+
+    #[test]
+    fn an_expected_walk_carries_the_belief_on_without_evidence_for_it() {
+        let text = "name = \"c\"\ncell_m = 1.0\nmap = '''\n##########\n'''\n";
+        let site = Arc::new(Site::parse(text, Path::new("c.toml")).unwrap());
+        let mut tracker = Tracker::new(TrackerConfig::default(), site.clone());
+        let flat = vec![0.0; site.open_cells().len()];
+        let me: Arc<str> = "me".into();
+        let start = peak_at(&site, Cell::new(1, 0), 10.0);
+        assert_eq!(tracker.update_walking(&me, 0.0, &start, None).1, None);
+        // Two metres along the corridor a second, told nothing new.
+        let walk = ExpectedWalk {
+            moves: (0..8)
+                .map(|x| (Cell::new(x, 0), Cell::new(x + 2, 0)))
+                .collect(),
+            share: 0.8,
+        };
+        let mut walked = None;
+        for t in [1.0, 2.0] {
+            let (fix, mean) = tracker.update_walking(&me, t, &flat, Some(&walk));
+            // The fix is the track's own, as if nobody walked.
+            assert_eq!(fix.cell, Cell::new(1, 0), "{fix:?}");
+            walked = mean;
+        }
+        let [x, _] = walked.expect("walking");
+        assert!((4.0..6.0).contains(&x), "two seconds on from 1.5: {x}");
+        // Evidence against the walk still wins: the walker turned back.
+        for t in [3.0, 4.0] {
+            let (_, mean) = tracker.update_walking(&me, t, &start, Some(&walk));
+            walked = mean;
+        }
+        let [x, _] = walked.expect("walking");
+        assert!(x < 2.5, "back at 1.5: {x}");
+        // Once nobody walks it, none is kept.
+        assert_eq!(tracker.update_walking(&me, 5.0, &start, None).1, None);
+        assert!(tracker.tracks[&me].walking.is_empty());
     }
 
     #[test]

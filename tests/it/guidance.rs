@@ -176,9 +176,8 @@ fn eval_on_the_survey(extra: &[&str]) -> Option<Value> {
 
 /// The gate: what guidance reached (docs/guidance.md, BENCHMARKS.md
 /// "Guidance") may not slip. Floors a little short of the measured figures
-/// (0.10 false off-route /km, wrong turns p90 3 fixes, arrival 0.98,
-/// announcements 0.85); the announcement window, not at its target (0.90),
-/// is held where it is.
+/// (0.10 false off-route /km, wrong turns p90 3 fixes, arrival 0.985,
+/// announcements 0.90, largest session 916 bytes).
 #[test]
 fn guidance_with_real_localization_noise_holds_what_it_reached() {
     let Some(report) = eval_on_the_survey(&[]) else {
@@ -188,12 +187,12 @@ fn guidance_with_real_localization_noise_holds_what_it_reached() {
     assert!(figure("false_off_route_per_km") <= 0.5, "{report}");
     assert!(figure("wrong_turn_detect_fixes_p90") <= 3.0, "{report}");
     assert!(figure("arrival_detected_share") >= 0.96, "{report}");
-    assert!(figure("announced_in_window_share") >= 0.82, "{report}");
+    assert!(figure("announced_in_window_share") >= 0.88, "{report}");
     assert!(figure("max_session_bytes") < 1024.0, "{report}");
 }
 
 /// The same with walkers at the second-by-second pace of real people
-/// (measured 0.20 /km, p90 4, arrival 0.93, announcements 0.72: the last
+/// (measured 0.20 /km, p90 4, arrival 0.935, announcements 0.76: the last
 /// three short of their targets, held where they are).
 #[test]
 fn guidance_at_the_pace_of_real_walks_holds_what_it_reached() {
@@ -211,5 +210,5 @@ fn guidance_at_the_pace_of_real_walks_holds_what_it_reached() {
     assert!(figure("false_off_route_per_km") <= 0.5, "{report}");
     assert!(figure("wrong_turn_detect_fixes_p90") <= 4.0, "{report}");
     assert!(figure("arrival_detected_share") >= 0.90, "{report}");
-    assert!(figure("announced_in_window_share") >= 0.68, "{report}");
+    assert!(figure("announced_in_window_share") >= 0.72, "{report}");
 }
