@@ -113,10 +113,8 @@ pub struct Tracker {
     neighbours: Vec<Vec<u32>>,
     tracks: HashMap<Arc<str>, Track>,
     scratch: Vec<f32>,
-    /// Belief moved by an [`ExpectedWalk`] in the step being made.
-    carried: Vec<(u32, f32)>,
-    /// A walking belief, unpacked for the step being made.
-    walking: Vec<f32>,
+    /// Room for the step of a walking belief.
+    walked: WalkStep,
     bounds: Bounds,
     /// Entities forgotten since the last [`Tracker::take_evicted`].
     evicted: VecDeque<Arc<str>>,
@@ -151,8 +149,7 @@ impl Tracker {
             neighbours,
             tracks: HashMap::default(),
             scratch: Vec::new(),
-            carried: Vec::new(),
-            walking: Vec::new(),
+            walked: WalkStep::default(),
             bounds: Bounds::default(),
             evicted: VecDeque::new(),
         }
@@ -245,24 +242,26 @@ impl Tracker {
         let likelihood = model.likelihood(log_likelihood);
         let steps = model.steps(t - track.t);
         let walked_mean = match (walk, steps) {
-            (Some(walk), Some(_)) => {
-                let walking = &mut self.walking;
+            (Some(walk), Some(steps)) => {
                 if track.walking.is_empty() {
-                    walking.clone_from(&track.belief);
-                } else {
-                    track.walking.unpack(walking, track.belief.len());
+                    // Starts where the track's belief is.
+                    track.walking.pack((0..).zip(track.belief.iter().copied()));
                 }
-                self.carried.clear();
-                carry(&self.site, walk, walking, &mut self.carried);
-                model.filter(
-                    walking,
+                let mean = self.walked.step(
+                    &self.site,
+                    &self.neighbours,
+                    (self.config.stay_probability, self.config.recovery),
+                    &mut track.walking,
+                    walk,
                     steps,
                     &likelihood,
-                    &self.carried,
-                    &mut self.scratch,
                 );
-                track.walking.pack(walking, &mut self.scratch);
-                mean(&self.site, walking)
+                if mean.is_none() {
+                    // The evidence denies the walk everywhere: start again
+                    // from the track's belief at the next fix.
+                    track.walking = Sparse::default();
+                }
+                mean
             }
             _ => {
                 // Nobody walks this one: its memory goes.
@@ -270,13 +269,7 @@ impl Tracker {
                 None
             }
         };
-        model.filter(
-            &mut track.belief,
-            steps,
-            &likelihood,
-            &[],
-            &mut self.scratch,
-        );
+        model.filter(&mut track.belief, steps, &likelihood, &mut self.scratch);
         track.t = t;
         track.fix = estimate(self.config.estimate, &self.site, &track.belief);
         (track.fix, walked_mean)
@@ -410,7 +403,7 @@ impl MotionModel<'_> {
         for (t, log_likelihood) in windows {
             let likelihood = self.likelihood(log_likelihood);
             let s = self.steps(t - last_t);
-            self.filter(&mut belief, s, &likelihood, &[], &mut scratch);
+            self.filter(&mut belief, s, &likelihood, &mut scratch);
             forward.filtered.push(belief.clone());
             forward.likelihoods.push(likelihood);
             forward.steps.push(s);
@@ -429,16 +422,14 @@ impl MotionModel<'_> {
         continues.then(|| ((self.config.max_speed_mps * dt / self.cell_m).ceil() as usize).max(1))
     }
 
-    /// One forward step: predict `steps` moves (and put back the mass
-    /// `carried` elsewhere, as (open cell, mass), taken out of `belief`
-    /// before), then weigh by the evidence. A restart, or evidence that
-    /// contradicts the prior everywhere, starts from the evidence alone.
+    /// One forward step: predict `steps` moves, then weigh by the evidence. A
+    /// restart, or evidence that contradicts the prior everywhere, starts from
+    /// the evidence alone.
     fn filter(
         &self,
         belief: &mut Vec<f32>,
         steps: Option<usize>,
         likelihood: &[f32],
-        carried: &[(u32, f32)],
         scratch: &mut Vec<f32>,
     ) {
         if let Some(steps) = steps {
@@ -450,9 +441,6 @@ impl MotionModel<'_> {
                     scratch,
                 );
                 std::mem::swap(belief, scratch);
-            }
-            for &(to, mass) in carried {
-                belief[to as usize] += mass;
             }
             let recovery = self.config.recovery;
             let floor = recovery / belief.len() as f32;
@@ -501,21 +489,6 @@ impl MotionModel<'_> {
     }
 }
 
-/// Takes `walk.share` of the belief in each of the walk's `from` cells out
-/// of `belief` into `carried`, as (open cell it moves to, mass): moved,
-/// never lost (a cell listed twice gives twice; one not open, nothing).
-fn carry(site: &Site, walk: &ExpectedWalk, belief: &mut [f32], carried: &mut Vec<(u32, f32)>) {
-    let share = walk.share.clamp(0.0, 1.0);
-    for &(from, to) in &walk.moves {
-        let (Some(from), Some(to)) = (site.open_index(from), site.open_index(to)) else {
-            continue;
-        };
-        let mass = belief[from] * share;
-        belief[from] -= mass;
-        carried.push((to as u32, mass));
-    }
-}
-
 /// The reported fix of a belief over the site's open cells.
 fn estimate(how: Estimate, site: &Site, belief: &[f32]) -> Fix {
     let cells = site.open_cells();
@@ -527,15 +500,18 @@ fn estimate(how: Estimate, site: &Site, belief: &[f32]) -> Fix {
     Fix {
         cell,
         confidence: within_one_cell(site, cell, belief),
-        mean: mean(site, belief).unwrap_or([f32::from(cell.x) + 0.5, f32::from(cell.y) + 0.5]),
+        mean: mean(site, (0..).zip(belief.iter().copied()))
+            .unwrap_or([f32::from(cell.x) + 0.5, f32::from(cell.y) + 0.5]),
     }
 }
 
-/// A belief's mean in grid coordinates (cell centres at + 0.5); `None`
-/// for an empty one.
-fn mean(site: &Site, belief: &[f32]) -> Option<[f32; 2]> {
+/// A belief's mean in grid coordinates (cell centres at + 0.5), given as
+/// (open cell, mass); `None` for an empty one.
+fn mean(site: &Site, belief: impl Iterator<Item = (u32, f32)>) -> Option<[f32; 2]> {
+    let cells = site.open_cells();
     let (mut sum, mut mx, mut my) = (0.0f64, 0.0f64, 0.0f64);
-    for (c, &b) in site.open_cells().iter().zip(belief) {
+    for (i, b) in belief {
+        let c = cells[i as usize];
         let b = f64::from(b);
         sum += b;
         mx += b * (f64::from(c.x) + 0.5);
@@ -570,14 +546,17 @@ impl Sparse {
         self.cells.is_empty()
     }
 
-    /// Keeps `belief` (`scratch`: room to find the largest masses in).
-    fn pack(&mut self, belief: &[f32], scratch: &mut Vec<f32>) {
-        let peak = belief.iter().copied().fold(0.0, f32::max);
+    /// Keeps `belief`, given as (open cell, mass).
+    fn pack(&mut self, belief: impl Iterator<Item = (u32, f32)> + Clone) {
+        let peak = belief.clone().fold(0.0, |peak, (_, b)| b.max(peak));
         let mut least = (peak * KEPT_SHARE).max(f32::MIN_POSITIVE);
-        if belief.iter().filter(|&&b| b >= least).count() > MAX_KEPT {
-            scratch.clear();
-            scratch.extend(belief.iter().copied().filter(|&b| b >= least));
-            least = *scratch
+        let mut kept: Vec<f32> = belief
+            .clone()
+            .map(|(_, b)| b)
+            .filter(|&b| b >= least)
+            .collect();
+        if kept.len() > MAX_KEPT {
+            least = *kept
                 .select_nth_unstable_by(MAX_KEPT - 1, |a, b| b.total_cmp(a))
                 .1;
         }
@@ -588,7 +567,7 @@ impl Sparse {
         }
         self.cells.clear();
         self.mass.clear();
-        for (i, &b) in (0..).zip(belief) {
+        for (i, b) in belief {
             if b >= least && self.cells.len() < MAX_KEPT {
                 self.cells.push(i);
                 // Rounded to nearest: beliefs are finite and non-negative.
@@ -597,18 +576,120 @@ impl Sparse {
         }
     }
 
-    /// The belief over `n` open cells.
-    fn unpack(&self, belief: &mut Vec<f32>, n: usize) {
-        belief.clear();
-        belief.resize(n, 0.0);
-        for (&i, &m) in self.cells.iter().zip(&self.mass) {
-            belief[i as usize] = f32::from_bits(u32::from(m) << 16);
-        }
+    /// The kept cells and their masses.
+    fn iter(&self) -> impl Iterator<Item = (u32, f32)> + '_ {
+        self.cells
+            .iter()
+            .zip(&self.mass)
+            .map(|(&i, &m)| (i, f32::from_bits(u32::from(m) << 16)))
     }
 
     fn heap_bytes(&self) -> usize {
         self.cells.capacity() * std::mem::size_of::<u32>()
             + self.mass.capacity() * std::mem::size_of::<u16>()
+    }
+}
+
+/// One step of a walking belief, over its own cells and those it spreads
+/// to only (tens, whatever the site's size), in buffers kept between
+/// steps: a dense belief over the open cells that is zero but where it is
+/// in use, and a mark per open cell.
+#[derive(Default)]
+struct WalkStep {
+    now: Vec<f32>,
+    next: Vec<f32>,
+    marked: Vec<bool>,
+    cells: Vec<u32>,
+    next_cells: Vec<u32>,
+}
+
+impl WalkStep {
+    /// Moves `walking` by `walk` and `steps` moves of the lazy random walk
+    /// (the share of the walk first, the rest spreading), weighs it by the
+    /// evidence and returns its mean; `None` when the evidence leaves it
+    /// nothing.
+    #[allow(clippy::too_many_arguments)]
+    fn step(
+        &mut self,
+        site: &Site,
+        neighbours: &[Vec<u32>],
+        (stay, recovery): (f32, f32),
+        walking: &mut Sparse,
+        walk: &ExpectedWalk,
+        steps: usize,
+        likelihood: &[f32],
+    ) -> Option<[f32; 2]> {
+        let n = neighbours.len();
+        for v in [&mut self.now, &mut self.next] {
+            v.resize(n, 0.0);
+        }
+        self.marked.resize(n, false);
+        self.cells.clear();
+        for (i, b) in walking.iter() {
+            self.now[i as usize] = b;
+            self.cells.push(i);
+        }
+        let share = walk.share.clamp(0.0, 1.0);
+        let mut carried = Vec::new();
+        for &(from, to) in &walk.moves {
+            let (Some(from), Some(to)) = (site.open_index(from), site.open_index(to)) else {
+                continue;
+            };
+            let mass = self.now[from] * share;
+            if mass > 0.0 {
+                self.now[from] -= mass;
+                carried.push((to as u32, mass));
+            }
+        }
+        for _ in 0..steps {
+            self.next_cells.clear();
+            for &i in &self.cells {
+                for &j in &neighbours[i as usize] {
+                    if !std::mem::replace(&mut self.marked[j as usize], true) {
+                        self.next_cells.push(j);
+                    }
+                }
+                spread_cell(
+                    &neighbours[i as usize],
+                    stay,
+                    std::mem::take(&mut self.now[i as usize]),
+                    &mut self.next,
+                );
+            }
+            for &j in &self.next_cells {
+                self.marked[j as usize] = false;
+            }
+            std::mem::swap(&mut self.now, &mut self.next);
+            std::mem::swap(&mut self.cells, &mut self.next_cells);
+        }
+        for &i in &self.cells {
+            self.marked[i as usize] = true;
+        }
+        for (to, mass) in carried {
+            if !std::mem::replace(&mut self.marked[to as usize], true) {
+                self.cells.push(to);
+            }
+            self.now[to as usize] += mass;
+        }
+        for &i in &self.cells {
+            self.marked[i as usize] = false;
+        }
+        // The recovery mass, as the tracker's own belief has (what lets
+        // evidence ahead of the walk take hold): over every open cell.
+        let floor = recovery / n as f32;
+        let mut sum = 0.0;
+        for (b, &l) in self.now.iter_mut().zip(likelihood) {
+            *b = (*b * (1.0 - recovery) + floor) * l;
+            sum += *b;
+        }
+        let now = &self.now;
+        let belief = (0..).zip(now.iter().map(|&b| b / sum));
+        let mean = (sum.is_finite() && sum > 0.0).then(|| {
+            walking.pack(belief.clone());
+            mean(site, belief)
+        });
+        self.now.fill(0.0);
+        mean.flatten()
     }
 }
 
@@ -667,18 +748,24 @@ fn spatial_median(cells: &[Cell], belief: &[f32]) -> usize {
 fn spread(neighbours: &[Vec<u32>], stay: f32, from: &[f32], to: &mut Vec<f32>) {
     to.clear();
     to.resize(from.len(), 0.0);
-    for (i, n) in neighbours.iter().enumerate() {
-        // n[0] is the cell itself.
-        let moves = &n[1..];
-        if moves.is_empty() {
-            to[i] += from[i];
-            continue;
-        }
-        to[i] += from[i] * stay;
-        let share = from[i] * (1.0 - stay) / moves.len() as f32;
-        for &j in moves {
-            to[j as usize] += share;
-        }
+    for (n, &mass) in neighbours.iter().zip(from) {
+        spread_cell(n, stay, mass, to);
+    }
+}
+
+/// One cell's share of [`spread`]: of `mass` in the cell whose neighbours
+/// are `n` (the cell itself first), `stay` stays, the rest goes to the
+/// allowed moves equally.
+fn spread_cell(n: &[u32], stay: f32, mass: f32, to: &mut [f32]) {
+    let moves = &n[1..];
+    if moves.is_empty() {
+        to[n[0] as usize] += mass;
+        return;
+    }
+    to[n[0] as usize] += mass * stay;
+    let share = mass * (1.0 - stay) / moves.len() as f32;
+    for &j in moves {
+        to[j as usize] += share;
     }
 }
 

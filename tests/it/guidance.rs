@@ -177,7 +177,7 @@ fn eval_on_the_survey(extra: &[&str]) -> Option<Value> {
 /// The gate: what guidance reached (docs/guidance.md, BENCHMARKS.md
 /// "Guidance") may not slip. Floors a little short of the measured figures
 /// (0.10 false off-route /km, wrong turns p90 3 fixes, arrival 0.985,
-/// announcements 0.90, largest session 916 bytes).
+/// announcements 0.90, largest session 922 bytes).
 #[test]
 fn guidance_with_real_localization_noise_holds_what_it_reached() {
     let Some(report) = eval_on_the_survey(&[]) else {
