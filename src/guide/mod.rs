@@ -70,9 +70,10 @@ pub struct GuidanceConfig {
     /// middle of its window). `gangway eval guidance` reports the lag it
     /// measured (`fix_lag_s_p50`).
     pub fix_lag_s: Option<f64>,
-    /// Share of a guided walker's belief the tracker moves along their
-    /// route at their pace from one fix to the next (the rest spreads as
-    /// anyone's does): people told the way walk it. 0: none.
+    /// Share of a guided walker's mass the tracker walks on along their
+    /// route at their pace from one fix to the next, in the second belief
+    /// progress is read off (the rest spreads as anyone's does): people
+    /// told the way walk it. 0: none.
     pub walk_prior: f32,
     /// Most sessions kept at once; starting one more ends the least
     /// recently updated.
@@ -262,10 +263,12 @@ pub struct Guide {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Located {
     pub cell: Cell,
-    /// The mean of the tracker's belief: how far along the route the walker
-    /// is reads off it rather than off the cell, which moves a whole cell
-    /// at a time and sticks while the belief drifts on (`gangway eval
-    /// guidance`, docs/guidance.md: announcements 85.0 % → 85.7 %).
+    /// The mean of the tracker's belief (the pipeline passes that of the
+    /// belief walked along the route, `Tracker::update_walking`, while
+    /// there is one): how far along the route the walker is reads off it
+    /// rather than off the cell, which moves a whole cell at a time and
+    /// sticks while the belief drifts on (`gangway eval guidance`,
+    /// docs/guidance.md: announcements 85.0 % → 85.7 %; 90.1 % walked).
     pub mean_m: Option<(f64, f64)>,
 }
 

@@ -4,7 +4,7 @@
 //!
 //! Progress is where the walker is by now along the route's polyline of cell
 //! centres ([`RouteLine`]), in metres from the start: each fix's projection
-//! on it (of the tracker's mean belief when given, [`super::Located`]), filtered and predicted forward from the moment the walker was
+//! on it (of the mean belief when given, [`super::Located`]), filtered and predicted forward from the moment the walker was
 //! there ([`Progress`]). Announcements and arrival are judged on that at
 //! every event of the device, not only at its fixes (sightings arrive many
 //! times a second, fixes every stride), so a decision point is announced

@@ -7,6 +7,11 @@
 //! (a lazy random walk that never crosses a blocked cell or cuts its corner), so
 //! a fix on the far side of a wall or across the building in two seconds gets no
 //! prior mass. The `none` tracker is the plain per-window argmax.
+//!
+//! An entity expected to walk somewhere (a walker guided along a route,
+//! [`ExpectedWalk`]) also gets a second, small belief moved that way before
+//! the same evidence weighs it ([`Tracker::update_walking`]); its fix stays
+//! the first belief's.
 
 use foldhash::HashMap;
 use std::collections::VecDeque;
@@ -601,6 +606,8 @@ struct WalkStep {
     marked: Vec<bool>,
     cells: Vec<u32>,
     next_cells: Vec<u32>,
+    /// Mass the walk moves, as (open cell it moves to, mass).
+    carried: Vec<(u32, f32)>,
 }
 
 impl WalkStep {
@@ -630,7 +637,7 @@ impl WalkStep {
             self.cells.push(i);
         }
         let share = walk.share.clamp(0.0, 1.0);
-        let mut carried = Vec::new();
+        self.carried.clear();
         for &(from, to) in &walk.moves {
             let (Some(from), Some(to)) = (site.open_index(from), site.open_index(to)) else {
                 continue;
@@ -638,7 +645,7 @@ impl WalkStep {
             let mass = self.now[from] * share;
             if mass > 0.0 {
                 self.now[from] -= mass;
-                carried.push((to as u32, mass));
+                self.carried.push((to as u32, mass));
             }
         }
         for _ in 0..steps {
@@ -665,7 +672,7 @@ impl WalkStep {
         for &i in &self.cells {
             self.marked[i as usize] = true;
         }
-        for (to, mass) in carried {
+        for &(to, mass) in &self.carried {
             if !std::mem::replace(&mut self.marked[to as usize], true) {
                 self.cells.push(to);
             }
