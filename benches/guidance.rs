@@ -20,10 +20,10 @@ use std::sync::Arc;
 use criterion::{Criterion, criterion_group, criterion_main};
 use gangway::guide::{GuidanceConfig, Guide, Located};
 use gangway::locate::tracker::{Tracker, TrackerConfig};
-use gangway::mqtt::topics::Topics;
 use gangway::plan::{Connectivity, Profile, Route, astar};
 use gangway::publish::Output;
 use gangway::site::{Cell, Site};
+use gangway::topics::Topics;
 
 fn guidance(c: &mut Criterion) {
     let site = Arc::new(

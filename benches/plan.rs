@@ -129,8 +129,9 @@ fn quantile(sorted: &[f64], q: f64) -> f64 {
 }
 
 fn scale(c: &mut Criterion) {
-    use gangway::model::{Kind, Metadata, export};
-    use gangway::source::simulate::{WalkConfig, simulate_walks};
+    use gangway::model::{Kind, Metadata};
+    use gangway::simulate::{WalkConfig, simulate_walks};
+    use gangway::train::write_proto;
     let dir = tempfile::tempdir().unwrap();
     // (walkable cells, train s, desire p50, p99, A* p99, Theta* p99)
     let mut rows: Vec<[f64; 6]> = Vec::new();
@@ -150,7 +151,7 @@ fn scale(c: &mut Criterion) {
         let train_s = started.elapsed().as_secs_f64();
         let file = dir.path().join(format!("desire-{side}.onnx"));
         let meta = Metadata::for_site(Kind::DesireLines, &site);
-        export::write_proto(&file, &trained.model.to_onnx(&meta)).unwrap();
+        write_proto(&file, &trained.model.to_onnx(&meta)).unwrap();
         let mut config = PlannerConfig::default();
         config.models.desire_lines = file;
         let desire = plan::build_mode(&config, PlannerMode::Desire, site.clone()).unwrap();

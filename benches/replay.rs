@@ -16,14 +16,14 @@ use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_mai
 use gangway::config::Config;
 use gangway::daemon::{self, state::Loaded};
 use gangway::event::Event;
-use gangway::mqtt::topics::Topics;
 use gangway::pipeline::Pipeline;
 use gangway::plan::PlannerMode;
+use gangway::simulate::{SimConfig, simulate};
 use gangway::sink::jsonl::JsonLines;
 use gangway::site::Site;
 use gangway::source::capture::{CaptureReader, CaptureWriter, ReadOptions};
 use gangway::source::playback::CaptureSource;
-use gangway::source::simulate::{SimConfig, simulate};
+use gangway::topics::Topics;
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -65,7 +65,7 @@ fn benches(c: &mut Criterion) {
     group.sample_size(20);
     group.bench_function("jsonl end to end", |b| {
         b.iter_batched(
-            || Pipeline::new(&config, site.clone()).expect("pipeline"),
+            || Pipeline::new(&config.pipeline(), site.clone()).expect("pipeline"),
             |pipeline| {
                 let reader = CaptureReader::open(
                     &log,

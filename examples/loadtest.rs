@@ -26,8 +26,8 @@ use std::time::{Duration, Instant};
 
 use clap::Parser;
 use gangway::config::Config;
-use gangway::mqtt::topics::Topics;
 use gangway::site::Site;
+use gangway::topics::Topics;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use support::{Guard, gangway, mosquitto, percentile, simulate_busy_walk, usage};
 

@@ -1,45 +1,35 @@
 //! gangway: a BLE edge gateway.
 //!
-//! Data flows one way, one module per stage:
+//! The workspace's crates, one layer each (docs/architecture.md has the code
+//! map; a test keeps it and the crates' dependencies in agreement):
 //!
 //! ```text
-//! source ──Event──▶ locate::window ──Fingerprint──▶ Localizer ──▶ locate::tracker
-//! (ble, capture, mqtt)                                                  │ Fix
-//!                     sink ◀──publish::Output── pipeline ◀── plan, guide
-//!     (mqtt, jsonl, store, score)
+//! gangway-core     sightings, events, site, locate, plan, guide, models, outputs, pipeline (no I/O)
+//! gangway-io       sources, sinks, MQTT, web, store, config            (imports the core)
+//! gangway-offline  training, evaluation, walks, simulation, pictures   (imports core, io)
+//! gangway          the runtime (daemon) and the CLI                    (imports all three)
 //! ```
 //!
-//! [`site`] and [`config`] describe the building and the gateway; [`pipeline`]
-//! wires the stages together without doing I/O and returns typed outputs
-//! ([`publish`]); the runtime ([`daemon`]) runs it between [`source`]s and
-//! [`sink`]s, and the [`cli`] wires them. [`mqtt`] is the broker as a source
-//! and a sink, [`store`] keeps what the daemon saw for training, and [`score`]
-//! compares a replay's fixes with its log's ground truth.
+//! This crate is the runtime ([`daemon`]: the pipeline between sources and
+//! sinks, reloads, admission, recalibration) and the [`cli`] that wires it.
+//! The other crates' modules are re-exported under their own names for the
+//! binary, the integration tests, benches and examples, which see the
+//! product as one `gangway`.
+//!
+//! # Errors
+//!
+//! The binary's edge is where errors end: `main` prints the chain (`{:#}`)
+//! and exits non-zero for a command; the daemon logs a failing source, sink,
+//! reload or recalibration and goes on serving with what it has (a reload
+//! that fails keeps the running pipeline; a model that does not load at
+//! start-up is replaced by `astar` or `pathloss`). The crates below return
+//! typed errors where the runtime acts on the kind.
 
-// The outside surface is what main.rs, tests/it, benches, examples and fuzz
-// use; everything else is pub(crate), so dead code is a warning. A `pub` that
-// nothing outside can reach is one too (`cargo fix` makes it pub(crate)).
-#![warn(unreachable_pub)]
+pub use gangway_core::{
+    clock, event, guide, locate, model, pipeline, plan, publish, sighting, site,
+};
+pub use gangway_io::{config, latency, mqtt, score, sink, source, store, throttle, topics, web};
+pub use gangway_offline::{eval, picture, simulate, train, walks};
 
 pub mod cli;
-pub mod config;
 pub mod daemon;
-pub mod eval;
-pub mod event;
-pub mod guide;
-pub mod locate;
-pub mod model;
-pub mod mqtt;
-pub mod pipeline;
-pub mod plan;
-pub mod publish;
-pub(crate) mod score;
-pub mod sighting;
-pub mod sink;
-pub mod site;
-pub mod source;
-pub mod store;
-pub(crate) mod throttle;
-pub mod train;
-pub(crate) mod walks;
-pub mod web;

@@ -11,7 +11,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 /// Kills the child when dropped, so nothing outlives the run.
-pub struct Guard(pub Child);
+pub(crate) struct Guard(pub Child);
 
 impl Drop for Guard {
     fn drop(&mut self) {
@@ -20,7 +20,7 @@ impl Drop for Guard {
     }
 }
 
-pub fn free_port() -> u16 {
+pub(crate) fn free_port() -> u16 {
     TcpListener::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
@@ -29,7 +29,7 @@ pub fn free_port() -> u16 {
 }
 
 /// The release binary next to the running example.
-pub fn gangway() -> PathBuf {
+pub(crate) fn gangway() -> PathBuf {
     let exe = std::env::current_exe().unwrap();
     // target/release/examples/<example> → target/release/gangway
     let bin = exe.parent().unwrap().parent().unwrap().join("gangway");
@@ -43,7 +43,7 @@ pub fn gangway() -> PathBuf {
 /// Starts mosquitto (Debian package `mosquitto`) on a free loopback port with
 /// its files in `dir` and `extra` configuration lines; returns it and its port
 /// once it listens.
-pub fn mosquitto(dir: &Path, extra: &str) -> (Guard, u16) {
+pub(crate) fn mosquitto(dir: &Path, extra: &str) -> (Guard, u16) {
     let port = free_port();
     let user = Command::new("id").arg("-un").output().unwrap().stdout;
     let conf = dir.join("mosquitto.conf");
@@ -73,7 +73,7 @@ pub fn mosquitto(dir: &Path, extra: &str) -> (Guard, u16) {
 }
 
 /// (CPU seconds, RSS now and at its peak in KiB) of a process, from /proc.
-pub fn usage(pid: u32) -> (f64, u64, u64) {
+pub(crate) fn usage(pid: u32) -> (f64, u64, u64) {
     let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
     let fields: Vec<&str> = stat
         .rsplit(')')
@@ -96,7 +96,7 @@ pub fn usage(pid: u32) -> (f64, u64, u64) {
     (ticks / 100.0, kib("VmRSS:"), kib("VmHWM:")) // USER_HZ is 100 on Linux
 }
 
-pub fn percentile(sorted: &[f64], p: f64) -> f64 {
+pub(crate) fn percentile(sorted: &[f64], p: f64) -> f64 {
     if sorted.is_empty() {
         return f64::NAN;
     }
@@ -109,7 +109,7 @@ pub fn percentile(sorted: &[f64], p: f64) -> f64 {
 /// nothing too weak to report), so the load is that of a BLE scan reporting
 /// every advert, as gateways on a busy floor see it; returns how many adverts
 /// the log holds.
-pub fn simulate_busy_walk(
+pub(crate) fn simulate_busy_walk(
     dir: &Path,
     site: &Path,
     walkers: usize,

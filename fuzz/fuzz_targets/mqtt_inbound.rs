@@ -3,7 +3,7 @@
 #![no_main]
 
 use gangway::mqtt::inbound::Inbox;
-use gangway::mqtt::topics::Topics;
+use gangway::topics::Topics;
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|input: (u8, &[u8])| {

@@ -34,7 +34,7 @@ pub(super) struct Args {
     #[arg(long)]
     out: PathBuf,
     /// EM iterations.
-    #[arg(long, default_value_t = crate::eval::localization::CALIBRATION_ITERATIONS)]
+    #[arg(long, default_value_t = crate::locate::calibrate::CALIBRATION_ITERATIONS)]
     iterations: usize,
     /// Then refine a radio map per cell by EM, for this many iterations
     /// (default 8 when given without a value): for captures of the phones and

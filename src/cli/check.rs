@@ -24,7 +24,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
             Ok(site) => {
                 problems.extend(site.check_floorplan());
                 let site = Arc::new(site);
-                if let Err(e) = Pipeline::new(&config, site.clone()) {
+                if let Err(e) = Pipeline::new(&config.pipeline(), site.clone()) {
                     problems.push(format!("{}: {e:#}", args.config.display()));
                 }
                 if problems.is_empty() {

@@ -79,7 +79,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         }
     }
     if let Some(path) = args.png.as_ref().or(args.svg.as_ref()) {
-        plan::picture::draw(&site, &planned.route, path)?;
+        crate::picture::draw(&site, &planned.route, path)?;
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -48,11 +48,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         let (stop, shutdown) = Shutdown::new();
         // A scan has no messages from others: that queue goes nowhere.
         let (nobody, _) = mpsc::channel(1);
-        let mut cx = SourceContext {
-            events: tx,
-            inbound: nobody,
-            shutdown,
-        };
+        let mut cx = SourceContext::new(tx, nobody, shutdown);
         let silent_restart = config.silent_restart();
         let scan =
             async move { ble::scan(&adapter, observer, silent_restart, &mut cx, || {}).await };

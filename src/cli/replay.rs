@@ -12,12 +12,13 @@ use std::time::Instant;
 use tokio::sync::mpsc;
 
 use crate::daemon::{self, state::Loaded};
-use crate::mqtt::{self, topics::Topics};
+use crate::mqtt;
 use crate::pipeline::Pipeline;
 use crate::score::Scorer;
 use crate::sink::{Sink, jsonl::JsonLines};
 use crate::source::capture::{CaptureReader, Format, ReadOptions};
 use crate::source::playback::CaptureSource;
+use crate::topics::Topics;
 
 #[derive(clap::Args)]
 pub(super) struct Args {
@@ -103,7 +104,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         tolerance_s >= 0.0 && tolerance_s.is_finite(),
         "--tolerance-s must be a number of seconds, 0 or more"
     );
-    let pipeline = Pipeline::new(&config, site.clone())?;
+    let pipeline = Pipeline::new(&config.pipeline(), site.clone())?;
 
     let score = super::batch_runtime()?.block_on(async {
         let topics = Topics::new(config.topic_prefix());
@@ -128,7 +129,11 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
             (None, url) => url.clone(),
         };
         if let Some(url) = &url {
-            sinks.push(Box::new(mqtt::sink::publisher(&config, &site, url)?));
+            sinks.push(Box::new(mqtt::sink::publisher(
+                &config.mqtt,
+                &config.broker_identity(&site),
+                url,
+            )?));
         }
         if sinks.is_empty() {
             tracing::warn!(
@@ -144,7 +149,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
                 web: crate::web::WebConfig { bind, ..config.web.clone() },
                 ..config.clone()
             };
-            if let Some(web) = crate::web::start(&config, site.clone(), &mut Vec::new(), None).await {
+            if let Some(web) = crate::web::start(&config.web, &config.site, &config.window, config.limits.max_devices, site.clone(), &mut Vec::new(), None).await {
                 latency = Some(web.add_to(&mut sources, &mut sinks));
             }
         }

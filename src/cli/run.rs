@@ -11,14 +11,15 @@ use tokio::signal::unix::{SignalKind, signal};
 use tokio::sync::{mpsc, watch};
 
 use crate::daemon::{self, state};
-use crate::mqtt::{self, topics::Topics};
+use crate::mqtt;
 use crate::publish::stats::BleStatus;
-use crate::sighting::unix_now;
 use crate::sink::{Sink, jsonl::JsonLines, recorder::Recorder};
 use crate::source::Source;
 use crate::source::ble::BleSource;
 use crate::source::capture::{CaptureReader, ReadOptions};
 use crate::source::playback::CaptureSource;
+use crate::source::unix_now;
+use crate::topics::Topics;
 
 #[derive(clap::Args)]
 pub(super) struct Args {
@@ -57,7 +58,8 @@ async fn serve(args: Args) -> anyhow::Result<()> {
     let config = &serving.config;
     let site = serving.site.clone();
     let url = mqtt::broker_url(&config.mqtt, args.mqtt_url)?;
-    let (broker, subscriptions) = mqtt::sink::gateway(config, &site, &url)?;
+    let (broker, subscriptions) =
+        mqtt::sink::gateway(&config.mqtt, &config.broker_identity(&site), &site, &url)?;
     let mut sources: Vec<Box<dyn Source>> = vec![Box::new(subscriptions)];
     let mut sinks: Vec<Box<dyn Sink>> = vec![Box::new(broker)];
     let radio = match &args.replay {
@@ -105,7 +107,16 @@ async fn serve(args: Args) -> anyhow::Result<()> {
     }
     let (shutdown, reload, reloads, recalibrate) = signals()?;
     // The editor applies a saved site through the same reloads as SIGHUP.
-    let web = crate::web::start(config, site.clone(), &mut fallbacks, Some(reload)).await;
+    let web = crate::web::start(
+        &config.web,
+        &config.site,
+        &config.window,
+        config.limits.max_devices,
+        site.clone(),
+        &mut fallbacks,
+        Some(reload),
+    )
+    .await;
     let latency = web.map(|web| web.add_to(&mut sources, &mut sinks));
     if let Some(out) = &args.out {
         sinks.push(Box::new(JsonLines::create(
@@ -117,7 +128,7 @@ async fn serve(args: Args) -> anyhow::Result<()> {
         broker = %url,
         prefix = config.topic_prefix(),
         site = site.name,
-        sharing = mqtt::sink::shares_sightings(config),
+        sharing = config.shares_sightings(),
         "gateway {} serving",
         config.gateway_id
     );
@@ -125,7 +136,7 @@ async fn serve(args: Args) -> anyhow::Result<()> {
         config_path: Some(args.config.clone()),
         stats: true,
         until_sources_end: false,
-        share_sightings: mqtt::sink::shares_sightings(config),
+        share_sightings: config.shares_sightings(),
         radio: Some(radio),
         fallbacks,
         latency,

@@ -9,9 +9,9 @@ use anyhow::Context;
 
 use crate::config::Config;
 use crate::locate::survey::Survey;
+use crate::simulate::{SimConfig, WalkConfig, simulate, simulate_walks};
 use crate::site::Site;
 use crate::source::log::LogWriter;
-use crate::source::simulate::{SimConfig, WalkConfig, simulate, simulate_walks};
 use crate::train::trajectory;
 
 #[derive(clap::Args)]

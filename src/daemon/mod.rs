@@ -23,7 +23,7 @@
 //!   nothing from others is taken while a sink is backed up;
 //! - reloads ([`state`]): the new config, site and pipeline are built off the
 //!   event loop and swapped in whole, or refused whole;
-//! - recalibration (`[localizer.recalibration]`, [`crate::locate::recalibrate`]):
+//! - recalibration (`[localizer.recalibration]`, [`recalibration`]):
 //!   on its schedule or on request, the survey-free model is refitted from
 //!   what the store gathered, on a blocking thread, and the pipeline built
 //!   with it is swapped in like a reload;
@@ -37,6 +37,7 @@
 //! daemon, the rest keeps serving).
 
 mod admission;
+mod recalibration;
 pub mod state;
 
 use std::future::Future;
@@ -51,15 +52,17 @@ use tokio::time::{Instant, MissedTickBehavior};
 use admission::{Admit, Issued, PerSecond, Requests};
 use state::Loaded;
 
-use crate::locate::recalibrate::{self, Job, Recalibrated, Schedule};
+use crate::locate::recalibrate::{self, Schedule};
 use crate::locate::window::Orientation;
 use crate::pipeline;
 use crate::plan::RouteErrorCode;
 use crate::publish::stats::{BleStatus, STATS_SCHEMA, Stats};
 use crate::publish::{FeedbackRefused, Output, RouteOutcome};
-use crate::sighting::{Sighting, unix_now};
+use crate::sighting::Sighting;
 use crate::sink::Sink;
+use crate::source::unix_now;
 use crate::source::{Input, Shutdown, Source, SourceContext};
+use recalibration::{Job, Recalibrated};
 
 use crate::event::{Event, Feedback, Inbound, RouteRequest};
 use crate::throttle::Throttle;
@@ -109,7 +112,7 @@ pub struct Options {
     /// the stats' fallbacks.
     pub fallbacks: Vec<String>,
     /// Where to observe how long inputs take to reach the sinks.
-    pub latency: Option<Arc<crate::publish::latency::Latency>>,
+    pub latency: Option<Arc<crate::latency::Latency>>,
     /// Requests to recalibrate now (`[localizer.recalibration]`).
     pub recalibrate: Option<mpsc::Receiver<()>>,
 }
@@ -133,11 +136,11 @@ pub async fn run(
     let mut tasks = JoinSet::new();
     for source in sources {
         let name = source.name();
-        let cx = SourceContext {
-            events: events_tx.clone(),
-            inbound: inbound_tx.clone(),
-            shutdown: sources_shutdown.clone(),
-        };
+        let cx = SourceContext::new(
+            events_tx.clone(),
+            inbound_tx.clone(),
+            sources_shutdown.clone(),
+        );
         tasks.spawn(async move { (name, source.run(cx).await) });
     }
     // Only the sources hold senders: a queue closes when they are all done.
@@ -450,7 +453,7 @@ struct Runtime {
     /// The last status line given to systemd.
     status: String,
     started: Instant,
-    latency: Option<Arc<crate::publish::latency::Latency>>,
+    latency: Option<Arc<crate::latency::Latency>>,
     /// When the input of this turn entered the runtime.
     entered: std::time::Instant,
     recalibration: Option<Recalibration>,
@@ -855,7 +858,7 @@ impl Runtime {
             "recalibrating the radio model from what was heard"
         );
         r.task = Some(tokio::task::spawn_blocking(move || {
-            let done = recalibrate::run(&job)?;
+            let done = recalibration::run(&job)?;
             let loaded = state::recalibrated(&config, &site, &done.path)?;
             Ok((done, loaded))
         }));

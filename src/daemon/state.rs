@@ -41,13 +41,13 @@ fn load_with(config_path: &Path, fall_back: bool) -> anyhow::Result<Loaded> {
     let mut config = Config::load(config_path)?;
     let site = Arc::new(Site::load(&config.site)?);
     // What an earlier recalibration learned outlives restarts and reloads.
-    config.localizer = recalibrate::serving(&config.localizer, &config.store, &site);
+    config.localizer = super::recalibration::serving(&config.localizer, &config.store, &site);
     let context = || format!("{}", config_path.display());
     let (pipeline, fallbacks) = if fall_back {
-        Pipeline::with_fallbacks(&config, site.clone()).with_context(context)?
+        Pipeline::with_fallbacks(&config.pipeline(), site.clone()).with_context(context)?
     } else {
         (
-            Pipeline::new(&config, site.clone()).with_context(context)?,
+            Pipeline::new(&config.pipeline(), site.clone()).with_context(context)?,
             Vec::new(),
         )
     };
@@ -69,7 +69,7 @@ pub(crate) fn recalibrated(
 ) -> anyhow::Result<Loaded> {
     let mut config = config.clone();
     config.localizer = recalibrate::with_calibration(&config.localizer, path);
-    let pipeline = Pipeline::new(&config, site.clone())?;
+    let pipeline = Pipeline::new(&config.pipeline(), site.clone())?;
     Ok(Loaded {
         config,
         site: site.clone(),

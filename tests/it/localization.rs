@@ -709,7 +709,7 @@ async fn the_daemon_recalibrates_from_what_it_heard_and_serves_it() {
     let serving = state::load_at_start(&config).unwrap();
     // Heard in the last minutes: the store prunes what is older than its
     // retention.
-    let now = gangway::sighting::unix_now();
+    let now = gangway::source::unix_now();
     let recorder = gangway::sink::recorder::Recorder::open(&serving.config.store, now)
         .unwrap()
         .keep_heard(serving.config.localizer.recalibration.max_windows);
@@ -779,7 +779,7 @@ async fn the_daemon_recalibrates_from_what_it_heard_and_serves_it() {
     .await;
     let file = dir.path().join("calibration.toml");
     let site = gangway::site::Site::load(&dir.path().join("workshop.toml")).unwrap();
-    let calibration = gangway::locate::calibrate::Calibration::load(&file, &site).unwrap();
+    let calibration = gangway::locate::calibration::Calibration::load(&file, &site).unwrap();
     assert_eq!(calibration.anchors.len(), 4);
     assert!(calibration.windows >= 300, "{}", calibration.windows);
     assert!(!calibration.cells.is_empty(), "cells refined by default");

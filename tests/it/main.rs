@@ -11,6 +11,7 @@ mod common;
 mod mqtt_support;
 mod web_support;
 
+mod architecture;
 mod bluez;
 mod captures;
 mod check;

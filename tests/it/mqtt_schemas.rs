@@ -11,19 +11,19 @@ use gangway::config::Config;
 use gangway::event::{Event, Inbound};
 use gangway::mqtt::inbound::Inbox;
 use gangway::mqtt::sightings;
-use gangway::mqtt::topics::Topics;
 use gangway::pipeline::Pipeline;
 use gangway::plan::RouteErrorCode;
 use gangway::publish::Output;
 use gangway::site::Site;
 use gangway::source::log::LogReader;
+use gangway::topics::Topics;
 use serde_json::json;
 
 fn pipeline() -> (Pipeline, Topics) {
     let config = Config::load(&repo().join("config/gangway.toml")).unwrap();
     let site = Arc::new(Site::load(&config.site).unwrap());
     (
-        Pipeline::new(&config, site).unwrap(),
+        Pipeline::new(&config.pipeline(), site).unwrap(),
         Topics::new(config.topic_prefix()),
     )
 }

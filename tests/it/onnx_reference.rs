@@ -135,7 +135,7 @@ fn shipped_models_run_in_tract_and_write_reference_outputs() {
     let site_arc = std::sync::Arc::new(site.clone());
     let trained = gangway::train::desire::train(&site_arc, &walks[..300]).unwrap();
     let meta = gangway::model::Metadata::for_site(Kind::DesireLines, &site);
-    gangway::model::export::write_proto(&desire, &trained.model.to_onnx(&meta)).unwrap();
+    gangway::train::write_proto(&desire, &trained.model.to_onnx(&meta)).unwrap();
     models.push(desire);
     let all = [
         Kind::Generator,

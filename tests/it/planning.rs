@@ -312,7 +312,8 @@ fn a_budget_exhausted_answer_keeps_to_the_public_area() {
 /// the route's cells are the line's.
 #[test]
 fn desire_lines_answer_every_pair_with_a_valid_route_along_their_line() {
-    use gangway::model::{Kind, Metadata, export};
+    use gangway::model::{Kind, Metadata};
+    use gangway::train::write_proto;
     let site = waldo();
     let walks = gangway::train::trajectory::read(
         &common::root().join("fixtures/trajectories/waldo.jsonl"),
@@ -324,7 +325,7 @@ fn desire_lines_answer_every_pair_with_a_valid_route_along_their_line() {
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("desire_lines.onnx");
     let meta = Metadata::for_site(Kind::DesireLines, &site);
-    export::write_proto(&file, &trained.model.to_onnx(&meta)).unwrap();
+    write_proto(&file, &trained.model.to_onnx(&meta)).unwrap();
     let pairs = gangway::eval::planning::pairs(&site, 200, 7);
     for connectivity in [Connectivity::Eight, Connectivity::Four] {
         let mut config = PlannerConfig {

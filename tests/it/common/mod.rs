@@ -5,12 +5,12 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 /// The repository root (tests run with it as the working directory).
-pub fn root() -> PathBuf {
+pub(crate) fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
 /// Runs `gangway` with `args` from the repository root.
-pub fn gangway(args: &[&str]) -> Output {
+pub(crate) fn gangway(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_gangway"))
         .args(args)
         .current_dir(root())
@@ -21,7 +21,7 @@ pub fn gangway(args: &[&str]) -> Output {
 
 /// Runs `gangway` and returns its stdout, failing the test with stderr if it
 /// exits non-zero.
-pub fn gangway_ok(args: &[&str]) -> String {
+pub(crate) fn gangway_ok(args: &[&str]) -> String {
     let out = gangway(args);
     assert!(
         out.status.success(),
@@ -34,14 +34,14 @@ pub fn gangway_ok(args: &[&str]) -> String {
 /// The real survey beside the checkout (`../shared/data/uci-ble-rssi`). In CI
 /// (`CI` set) it must be there; elsewhere a test that needs it is skipped with
 /// a note.
-pub fn uci_survey() -> Option<PathBuf> {
+pub(crate) fn uci_survey() -> Option<PathBuf> {
     shared_data("uci-ble-rssi/iBeacon_RSSI_Labeled.csv")
 }
 
 /// A file or directory under `../shared/data`, the real data beside the
 /// checkout: in CI (`CI` set) it must be there; elsewhere a test that needs
 /// it is skipped with a note.
-pub fn shared_data(relative: &str) -> Option<PathBuf> {
+pub(crate) fn shared_data(relative: &str) -> Option<PathBuf> {
     let p = root().join("../shared/data").join(relative);
     if p.exists() {
         return Some(p);
@@ -56,7 +56,7 @@ pub fn shared_data(relative: &str) -> Option<PathBuf> {
 }
 
 /// Writes `text` to `name` inside `dir` and returns the path.
-pub fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+pub(crate) fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
     let p = dir.join(name);
     std::fs::write(&p, text).expect("write a test file");
     p

@@ -13,13 +13,13 @@ use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use serde_json::Value;
 use tokio::sync::mpsc;
 
-pub const WAIT: Duration = Duration::from_secs(30);
+pub(crate) const WAIT: Duration = Duration::from_secs(30);
 
-pub fn repo() -> PathBuf {
+pub(crate) fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-pub fn free_port() -> u16 {
+pub(crate) fn free_port() -> u16 {
     TcpListener::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
@@ -42,20 +42,20 @@ fn mosquitto_binary() -> PathBuf {
 /// A mosquitto of the test's own, with persistence in a temporary directory
 /// so that a stop (SIGTERM) and restart keeps sessions, as a production
 /// broker would.
-pub struct Broker {
+pub(crate) struct Broker {
     pub port: u16,
     dir: tempfile::TempDir,
     child: Option<Child>,
 }
 
 impl Broker {
-    pub fn start() -> Broker {
+    pub(crate) fn start() -> Broker {
         Broker::start_with(|_| "allow_anonymous true\n".into())
     }
 
     /// A broker whose listener and security options `settings` writes, given
     /// the broker's directory (for certificate and password files).
-    pub fn start_with(settings: impl FnOnce(&Path) -> String) -> Broker {
+    pub(crate) fn start_with(settings: impl FnOnce(&Path) -> String) -> Broker {
         let dir = tempfile::tempdir().unwrap();
         let port = free_port();
         let conf = dir.path().join("mosquitto.conf");
@@ -83,7 +83,7 @@ impl Broker {
     }
 
     /// A broker that something else (the gateway's embedded one) runs.
-    pub fn at_port(port: u16) -> Broker {
+    pub(crate) fn at_port(port: u16) -> Broker {
         let deadline = Instant::now() + Duration::from_secs(20);
         while TcpStream::connect(("127.0.0.1", port)).is_err() {
             assert!(Instant::now() < deadline, "nothing listens on port {port}");
@@ -96,7 +96,7 @@ impl Broker {
         }
     }
 
-    pub fn url(&self) -> String {
+    pub(crate) fn url(&self) -> String {
         format!("mqtt://127.0.0.1:{}", self.port)
     }
 
@@ -120,14 +120,14 @@ impl Broker {
     }
 
     /// Stops the broker (SIGTERM: it saves its sessions) and waits for it.
-    pub fn stop(&mut self) {
+    pub(crate) fn stop(&mut self) {
         if let Some(mut child) = self.child.take() {
             signal(&child, "TERM");
             child.wait().unwrap();
         }
     }
 
-    pub fn restart(&mut self) {
+    pub(crate) fn restart(&mut self) {
         self.stop();
         self.spawn();
     }
@@ -143,7 +143,7 @@ impl Drop for Broker {
 }
 
 /// Sends a signal (`"TERM"`, `"KILL"`, `"HUP"`, `"INT"`) to a child.
-pub fn signal(child: &Child, name: &str) {
+pub(crate) fn signal(child: &Child, name: &str) {
     use rustix::process::{Pid, Signal, kill_process};
     let sig = match name {
         "TERM" => Signal::TERM,
@@ -157,12 +157,12 @@ pub fn signal(child: &Child, name: &str) {
 }
 
 /// A gateway config in a temporary directory. `extra` is appended (TOML).
-pub struct GatewayConfig {
+pub(crate) struct GatewayConfig {
     pub dir: tempfile::TempDir,
     pub path: PathBuf,
 }
 
-pub fn gateway_config(
+pub(crate) fn gateway_config(
     gateway_id: &str,
     site: &Path,
     broker: &Broker,
@@ -174,7 +174,13 @@ pub fn gateway_config(
     GatewayConfig { dir, path }
 }
 
-pub fn write_config(path: &Path, gateway_id: &str, site: &Path, broker: &Broker, extra: &str) {
+pub(crate) fn write_config(
+    path: &Path,
+    gateway_id: &str,
+    site: &Path,
+    broker: &Broker,
+    extra: &str,
+) {
     std::fs::write(
         path,
         format!(
@@ -193,7 +199,7 @@ pub fn write_config(path: &Path, gateway_id: &str, site: &Path, broker: &Broker,
 /// Tests run at once: a gateway's web UI must be off or on port 0, never
 /// on the default port, which two gateways would compete for (the loser
 /// would serve without its UI, listed in its fallbacks).
-pub fn assert_web_ui_on_a_port_of_its_own(config: &Path) {
+pub(crate) fn assert_web_ui_on_a_port_of_its_own(config: &Path) {
     let text = std::fs::read_to_string(config).unwrap();
     let config: toml::Table = toml::from_str(&text).unwrap();
     let web = config.get("web").and_then(|w| w.as_table());
@@ -232,12 +238,12 @@ fn test_logs() -> Stdio {
 }
 
 /// A gateway process; killed when dropped.
-pub struct Gateway {
+pub(crate) struct Gateway {
     pub child: Child,
 }
 
 impl Gateway {
-    pub fn start(config: &Path, args: &[&str]) -> Gateway {
+    pub(crate) fn start(config: &Path, args: &[&str]) -> Gateway {
         Gateway::spawn(
             config,
             args,
@@ -248,7 +254,7 @@ impl Gateway {
 
     /// A gateway whose log (at `filter`, e.g. `debug`) goes to `log`, for
     /// tests that read it.
-    pub fn start_logged(config: &Path, args: &[&str], filter: &str, log: &Path) -> Gateway {
+    pub(crate) fn start_logged(config: &Path, args: &[&str], filter: &str, log: &Path) -> Gateway {
         let file = std::fs::File::create(log).unwrap();
         Gateway::spawn(config, args, filter, Stdio::from(file))
     }
@@ -269,7 +275,7 @@ impl Gateway {
     }
 
     /// SIGTERM, then the exit status (within the timeout).
-    pub fn terminate(&mut self) -> std::process::ExitStatus {
+    pub(crate) fn terminate(&mut self) -> std::process::ExitStatus {
         signal(&self.child, "TERM");
         let deadline = Instant::now() + WAIT;
         loop {
@@ -294,25 +300,25 @@ impl Drop for Gateway {
 
 /// One received message.
 #[derive(Clone, Debug)]
-pub struct Received {
+pub(crate) struct Received {
     pub topic: String,
     pub payload: Vec<u8>,
     pub retain: bool,
 }
 
 impl Received {
-    pub fn json(&self) -> Value {
+    pub(crate) fn json(&self) -> Value {
         serde_json::from_slice(&self.payload).unwrap_or(Value::Null)
     }
 
-    pub fn text(&self) -> String {
+    pub(crate) fn text(&self) -> String {
         String::from_utf8_lossy(&self.payload).into_owned()
     }
 }
 
 /// A test client: a persistent session that reconnects and resubscribes, so it
 /// receives what was published for it while the broker was down.
-pub struct Client {
+pub(crate) struct Client {
     pub client: AsyncClient,
     rx: mpsc::UnboundedReceiver<Received>,
     /// Everything received so far, in order.
@@ -320,7 +326,7 @@ pub struct Client {
 }
 
 impl Client {
-    pub async fn connect(broker: &Broker, id: &str, filters: &[&str]) -> Client {
+    pub(crate) async fn connect(broker: &Broker, id: &str, filters: &[&str]) -> Client {
         let mut options = MqttOptions::new(id, "127.0.0.1", broker.port);
         options.set_keep_alive(Duration::from_secs(5));
         options.set_clean_session(false);
@@ -328,7 +334,7 @@ impl Client {
         Client::connect_with(options, filters).await
     }
 
-    pub async fn connect_with(options: MqttOptions, filters: &[&str]) -> Client {
+    pub(crate) async fn connect_with(options: MqttOptions, filters: &[&str]) -> Client {
         let (client, mut eventloop) = AsyncClient::new(options, 100);
         let (tx, rx) = mpsc::unbounded_channel();
         let filters: Vec<String> = filters.iter().map(|f| f.to_string()).collect();
@@ -363,7 +369,7 @@ impl Client {
         }
     }
 
-    pub async fn publish(&self, topic: &str, payload: impl Into<Vec<u8>>) {
+    pub(crate) async fn publish(&self, topic: &str, payload: impl Into<Vec<u8>>) {
         self.client
             .publish(topic, QoS::AtLeastOnce, false, payload)
             .await
@@ -372,7 +378,7 @@ impl Client {
 
     /// Returns once the subscriptions are in place: a message published on
     /// `topic` (which the filters must match) has come back.
-    pub async fn ready(&mut self, topic: &str) {
+    pub(crate) async fn ready(&mut self, topic: &str) {
         let deadline = Instant::now() + WAIT;
         loop {
             self.publish(topic, "probe").await;
@@ -389,7 +395,7 @@ impl Client {
     }
 
     /// Moves everything received so far into `seen`, without waiting.
-    pub fn drain(&mut self) {
+    pub(crate) fn drain(&mut self) {
         while let Ok(m) = self.rx.try_recv() {
             check_no_web_fallback(&m);
             self.seen.push(m);
@@ -397,7 +403,7 @@ impl Client {
     }
 
     /// Waits for the first message (already seen or new) that `pred` accepts.
-    pub async fn wait_for(
+    pub(crate) async fn wait_for(
         &mut self,
         what: &str,
         mut pred: impl FnMut(&Received) -> bool,
@@ -431,7 +437,13 @@ impl Client {
 
     /// Asks for a route from `device`'s position to the place `to` and waits
     /// for the reply.
-    pub async fn route(&mut self, prefix: &str, device: &str, to: &str, request_id: &str) -> Value {
+    pub(crate) async fn route(
+        &mut self,
+        prefix: &str,
+        device: &str,
+        to: &str,
+        request_id: &str,
+    ) -> Value {
         let request = serde_json::json!({"to": to, "request_id": request_id});
         self.publish(
             &format!("{prefix}/devices/{device}/route/set"),
@@ -443,7 +455,7 @@ impl Client {
 
     /// Publishes `scan` as `device`'s phone scan every half second until the
     /// gateway publishes the device's location (at most 30 s); returns it.
-    pub async fn scan_until_located(
+    pub(crate) async fn scan_until_located(
         &mut self,
         prefix: &str,
         device: &str,
@@ -463,7 +475,7 @@ impl Client {
     }
 
     /// Waits for the reply on `…/devices/<device>/path` to `request_id`.
-    pub async fn reply(&mut self, prefix: &str, device: &str, request_id: &str) -> Value {
+    pub(crate) async fn reply(&mut self, prefix: &str, device: &str, request_id: &str) -> Value {
         let topic = format!("{prefix}/devices/{device}/path");
         self.wait_for(&format!("the reply to {request_id}"), |m| {
             m.topic == topic && m.json()["request_id"] == request_id
@@ -474,7 +486,7 @@ impl Client {
 }
 
 /// Validates `value` against `docs/schemas/<name>.schema.json`.
-pub fn check_schema(name: &str, value: &Value) -> Result<(), String> {
+pub(crate) fn check_schema(name: &str, value: &Value) -> Result<(), String> {
     let path = repo().join(format!("docs/schemas/{name}.schema.json"));
     let schema: Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
     let validator = jsonschema::options()
@@ -494,7 +506,7 @@ pub fn check_schema(name: &str, value: &Value) -> Result<(), String> {
 
 /// The schema of what the gateway publishes on `topic`, if it has one of ours
 /// (status is plain text; Home Assistant configs follow Home Assistant's).
-pub fn schema_of(topic: &str) -> Option<&'static str> {
+pub(crate) fn schema_of(topic: &str) -> Option<&'static str> {
     if topic.ends_with("/config") {
         return None;
     }
@@ -512,7 +524,7 @@ pub fn schema_of(topic: &str) -> Option<&'static str> {
 }
 
 /// Every gateway message seen so far matches its schema.
-pub fn assert_all_valid(seen: &[Received]) -> usize {
+pub(crate) fn assert_all_valid(seen: &[Received]) -> usize {
     let mut checked = 0;
     for m in seen {
         if let Some(name) = schema_of(&m.topic) {

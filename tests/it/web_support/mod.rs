@@ -15,11 +15,11 @@ use serde_json::{Value, json};
 /// A child process killed when dropped; with its whole process group when
 /// it leads one (chromedriver: the browsers it starts must not outlive a
 /// failed test).
-pub struct Proc(pub Child);
+pub(crate) struct Proc(pub Child);
 
 impl Proc {
     /// Spawns `command` leading a process group of its own.
-    pub fn group(mut command: Command) -> Proc {
+    pub(crate) fn group(mut command: Command) -> Proc {
         use std::os::unix::process::CommandExt;
         Proc(command.process_group(0).spawn().expect("the program runs"))
     }
@@ -40,7 +40,7 @@ impl Drop for Proc {
 
 /// chromedriver and a headless chromium session, or none (skip) when they
 /// are not installed outside CI.
-pub struct Browser {
+pub(crate) struct Browser {
     pub client: Client,
     _driver: Proc,
     _profile: tempfile::TempDir,
@@ -49,12 +49,12 @@ pub struct Browser {
 
 impl Browser {
     /// Starts chromium, saving screenshots in `screenshots`.
-    pub async fn start(screenshots: &Path) -> Option<Browser> {
+    pub(crate) async fn start(screenshots: &Path) -> Option<Browser> {
         Browser::start_with(screenshots, &[]).await
     }
 
     /// Starts chromium with `extra` command-line switches.
-    pub async fn start_with(screenshots: &Path, extra: &[&str]) -> Option<Browser> {
+    pub(crate) async fn start_with(screenshots: &Path, extra: &[&str]) -> Option<Browser> {
         let (chromium, driver) = (
             Path::new("/usr/bin/chromium"),
             Path::new("/usr/bin/chromedriver"),
@@ -118,7 +118,7 @@ impl Browser {
         })
     }
 
-    pub async fn js(&self, script: &str) -> Value {
+    pub(crate) async fn js(&self, script: &str) -> Value {
         self.client
             .execute(script, vec![])
             .await
@@ -127,7 +127,7 @@ impl Browser {
 
     /// Waits until `script` returns true (a timeout fails the test with
     /// what `describe` returns then).
-    pub async fn until(&self, what: &str, script: &str, describe: &str) {
+    pub(crate) async fn until(&self, what: &str, script: &str, describe: &str) {
         let deadline = Instant::now() + Duration::from_secs(20);
         loop {
             if self.js(script).await == Value::Bool(true) {
@@ -141,7 +141,7 @@ impl Browser {
         }
     }
 
-    pub async fn text(&self, id: &str) -> String {
+    pub(crate) async fn text(&self, id: &str) -> String {
         self.js(&format!(
             "return document.getElementById('{id}').textContent"
         ))
@@ -151,7 +151,7 @@ impl Browser {
         .to_owned()
     }
 
-    pub async fn click_id(&self, id: &str) {
+    pub(crate) async fn click_id(&self, id: &str) {
         self.client
             .find(Locator::Id(id))
             .await
@@ -162,12 +162,12 @@ impl Browser {
     }
 
     /// Presses Enter on the element `locator` finds (the keyboard's click).
-    pub async fn enter_on(&self, locator: Locator<'_>) {
+    pub(crate) async fn enter_on(&self, locator: Locator<'_>) {
         let element = self.client.find(locator).await.unwrap();
         element.send_keys("\u{e007}").await.unwrap();
     }
 
-    pub async fn tool(&self, name: &str) {
+    pub(crate) async fn tool(&self, name: &str) {
         self.client
             .find(Locator::Css(&format!("input[name=tool][value={name}]")))
             .await
@@ -177,14 +177,14 @@ impl Browser {
             .unwrap();
     }
 
-    pub async fn type_into(&self, id: &str, text: &str) {
+    pub(crate) async fn type_into(&self, id: &str, text: &str) {
         let input = self.client.find(Locator::Id(id)).await.unwrap();
         input.clear().await.unwrap();
         input.send_keys(text).await.unwrap();
     }
 
     /// Viewport coordinates of pixels of the floor-plan image.
-    pub async fn image_points(&self, pixels: &[[f64; 2]]) -> Vec<[f64; 2]> {
+    pub(crate) async fn image_points(&self, pixels: &[[f64; 2]]) -> Vec<[f64; 2]> {
         let script = format!(
             "const m = document.querySelector('.layer-floorplan image').getScreenCTM();
              return {}.map(p => {{ const q = new DOMPoint(p[0], p[1]).matrixTransform(m); return [q.x, q.y]; }});",
@@ -193,7 +193,7 @@ impl Browser {
         serde_json::from_value(self.js(&script).await).unwrap()
     }
 
-    pub async fn click_at(&self, [x, y]: [f64; 2]) {
+    pub(crate) async fn click_at(&self, [x, y]: [f64; 2]) {
         let mouse = MouseActions::new("mouse".into())
             .then(PointerAction::MoveTo {
                 duration: None,
@@ -211,7 +211,7 @@ impl Browser {
     }
 
     /// A Shift-drag from `a` to `b`.
-    pub async fn shift_drag(&self, a: [f64; 2], b: [f64; 2]) {
+    pub(crate) async fn shift_drag(&self, a: [f64; 2], b: [f64; 2]) {
         let shift = '\u{e008}';
         let keys = KeyActions::new("keys".into())
             .then(KeyAction::Down { value: shift })
@@ -244,13 +244,13 @@ impl Browser {
         self.client.release_actions().await.unwrap();
     }
 
-    pub async fn screenshot(&self, name: &str) {
+    pub(crate) async fn screenshot(&self, name: &str) {
         let png = self.client.screenshot().await.unwrap();
         std::fs::write(self.screenshots.join(name), png).unwrap();
     }
 }
 
-pub fn free_port() -> u16 {
+pub(crate) fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
@@ -261,10 +261,10 @@ pub fn free_port() -> u16 {
 /// Spawns a gateway (`gangway run` or `replay --web`) whose web UI binds
 /// port 0, and returns it with the UI's base URL, read from its log (the
 /// rest of the log is drained so the gateway never blocks on it).
-pub fn with_web_ui(mut command: Command) -> (Proc, String) {
+pub(crate) fn with_web_ui(mut command: Command) -> (Proc, String) {
     use std::io::{BufRead, BufReader};
     let mut child = command
-        .env("RUST_LOG", "warn,gangway::web=info")
+        .env("RUST_LOG", "warn,gangway_io::web=info")
         .env("NO_COLOR", "1")
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
@@ -294,7 +294,7 @@ pub fn with_web_ui(mut command: Command) -> (Proc, String) {
 
 impl Browser {
     /// Viewport coordinates of grid points of the plan (`#plan`, in grid units).
-    pub async fn grid_points(&self, points: &[[f64; 2]]) -> Vec<[f64; 2]> {
+    pub(crate) async fn grid_points(&self, points: &[[f64; 2]]) -> Vec<[f64; 2]> {
         let script = format!(
             "const m = document.getElementById('plan').getScreenCTM();
              return {}.map(p => {{ const q = new DOMPoint(p[0], p[1]).matrixTransform(m); return [q.x, q.y]; }});",
@@ -305,7 +305,7 @@ impl Browser {
 
     /// The plan's visible labels (place names, beacon ids) that overlap
     /// another or stand out of the plan, as text, and how many are visible.
-    pub async fn label_problems(&self) -> Value {
+    pub(crate) async fn label_problems(&self) -> Value {
         self.js(
             "const plan = document.getElementById('plan').getBoundingClientRect();
              const shown = [...document.querySelectorAll('#plan .label')]
@@ -327,7 +327,7 @@ impl Browser {
 
 impl Browser {
     /// Moves the pointer to `[x, y]` (viewport coordinates).
-    pub async fn move_to(&self, [x, y]: [f64; 2]) {
+    pub(crate) async fn move_to(&self, [x, y]: [f64; 2]) {
         let mouse = MouseActions::new("mouse".into()).then(PointerAction::MoveTo {
             duration: None,
             x: x.round(),

@@ -1,0 +1,252 @@
+//! Localization: fingerprint windows → per-cell likelihoods → tracked position.
+//!
+//! - [`window`] turns sightings into one fingerprint per entity and stride;
+//! - a [`Localizer`] scores every walkable cell of the site for a fingerprint
+//!   (a log-likelihood per cell, not just an argmax, so the tracker can fuse it
+//!   with motion);
+//! - [`tracker`] keeps a belief per entity that respects walls and walking speed.
+
+pub mod auto;
+pub mod bounds;
+pub mod calibrate;
+pub mod calibration;
+pub(crate) mod crossval;
+pub mod knn;
+pub mod onnx;
+pub mod pathloss;
+pub mod radiomap;
+pub mod recalibrate;
+pub(crate) mod reliability;
+pub mod strongest;
+pub mod survey;
+pub mod tracker;
+pub mod window;
+
+use std::path::Path;
+use std::sync::Arc;
+
+use serde::Deserialize;
+
+use crate::site::Site;
+
+/// Scores the site's walkable cells for one fingerprint.
+pub trait Localizer: Send + Sync {
+    /// The method name, as in the config.
+    fn method(&self) -> &'static str;
+
+    /// Writes into `out` (one slot per cell of `Site::open_cells`) the
+    /// log-likelihood, up to an additive constant, of hearing `rssi` (with the
+    /// anchors flagged in `heard`) at each cell.
+    fn log_likelihood(&mut self, rssi: &[f32], heard: &[bool], out: &mut [f32]);
+
+    /// The published confidence of a fix whose raw confidence (the tracker's
+    /// belief within one cell) is `raw`: localizers that have held-out truth
+    /// to learn from map it so that it means what it says
+    /// ([`reliability::ConfidenceMap`]).
+    fn confidence(&self, raw: f32) -> f32 {
+        raw
+    }
+}
+
+impl Default for LocalizerConfig {
+    fn default() -> Self {
+        LocalizerConfig {
+            method: Method::default(),
+            min_confidence: default_min_confidence(),
+            pathloss: Default::default(),
+            knn: Default::default(),
+            radiomap: Default::default(),
+            onnx: Default::default(),
+            recalibration: Default::default(),
+        }
+    }
+}
+
+/// `[localizer]` in the gateway config.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LocalizerConfig {
+    #[serde(default)]
+    pub method: Method,
+    /// A fix whose published confidence (the chance it is within one cell)
+    /// is under this is published as an unknown location, not a guessed cell.
+    #[serde(default = "default_min_confidence")]
+    pub min_confidence: f32,
+    /// `[localizer.pathloss]`: the radio model.
+    #[serde(default)]
+    pub pathloss: pathloss::PathLossConfig,
+    /// `[localizer.knn]`: the survey and the vote.
+    #[serde(default)]
+    pub knn: knn::KnnConfig,
+    /// `[localizer.radiomap]`: the survey and, optionally, fixed map settings.
+    #[serde(default)]
+    pub radiomap: radiomap::RadioMapConfig,
+    /// `[localizer.onnx]`: the trained cell classifier.
+    #[serde(default)]
+    pub onnx: onnx::OnnxConfig,
+    /// `[localizer.recalibration]`: refitting the survey-free model from what
+    /// the gateway hears.
+    #[serde(default)]
+    pub recalibration: recalibrate::RecalibrationConfig,
+}
+
+fn default_min_confidence() -> f32 {
+    0.15
+}
+
+impl LocalizerConfig {
+    /// Checks `[localizer]` and its sections: a message naming the key and
+    /// what to do.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(0.0..=1.0).contains(&self.min_confidence) {
+            return Err("[localizer] `min_confidence` must be between 0 and 1".into());
+        }
+        self.pathloss
+            .validate()
+            .map_err(|e| format!("[localizer.pathloss] {e}"))?;
+        self.knn
+            .validate()
+            .map_err(|e| format!("[localizer.knn] {e}"))?;
+        self.recalibration
+            .validate()
+            .map_err(|e| format!("[localizer.recalibration] {e}"))
+    }
+
+    /// Makes the survey, model and calibration paths relative to `base` (the
+    /// config file's directory).
+    pub fn resolve_paths(&mut self, base: &Path) {
+        for survey in [&mut self.knn.survey, &mut self.radiomap.survey]
+            .into_iter()
+            .flatten()
+        {
+            *survey = base.join(&*survey);
+        }
+        self.onnx.model = base.join(&self.onnx.model);
+        if let Some(calibration) = &mut self.pathloss.calibration {
+            *calibration = base.join(&*calibration);
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// The surveyed method that cross-validates best when a survey is
+    /// configured, else `pathloss` (with its calibration file, if set).
+    #[default]
+    Auto,
+    /// Log-distance path loss from the anchors' positions; needs no survey.
+    Pathloss,
+    /// Weighted k-nearest neighbours over a survey.
+    Knn,
+    /// A radio map interpolated from a survey, its settings cross-validated.
+    Radiomap,
+    /// The MLP cell classifier trained by `gangway train --survey`.
+    Onnx,
+    /// The cell nearest the anchor heard loudest: the baseline rule.
+    Strongest,
+}
+
+impl Method {
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Auto => "auto",
+            Method::Pathloss => "pathloss",
+            Method::Knn => "knn",
+            Method::Radiomap => "radiomap",
+            Method::Onnx => "onnx",
+            Method::Strongest => "strongest",
+        }
+    }
+}
+
+/// Why a localizer could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum LocalizerError {
+    #[error(
+        "the pathloss localizer needs anchor positions, and no anchor of the site has a \
+         `cell` or `pos`; add `cell = [x, y]` or `pos = [x_m, y_m]` to the site's beacons or \
+         gateways"
+    )]
+    NoAnchorPositions,
+    #[error(
+        "the knn and radiomap localizers need a survey: set `survey` in [localizer.knn] or \
+         [localizer.radiomap]"
+    )]
+    NoSurvey,
+    #[error(
+        "[localizer.radiomap] and [localizer.knn] name different surveys ({} and {}); \
+         method = \"auto\" chooses between them on one survey: name the same file or one of them",
+        radiomap.display(),
+        knn.display()
+    )]
+    TwoSurveys {
+        radiomap: std::path::PathBuf,
+        knn: std::path::PathBuf,
+    },
+    #[error("the survey has no rows to learn from")]
+    EmptySurvey,
+    #[error(
+        "the survey has readings at {0}, which the site map blocks; open that cell or fix the survey"
+    )]
+    SurveyOnBlockedCell(crate::site::Cell),
+    #[error(transparent)]
+    Survey(#[from] survey::SurveyError),
+    #[error(transparent)]
+    Calibration(#[from] calibration::CalibrationError),
+    #[error(transparent)]
+    Model(#[from] crate::model::ModelError),
+}
+
+impl LocalizerError {
+    /// Whether a file the localizer reads (its survey or model) failed, as
+    /// opposed to the config or the site: only then can another method serve
+    /// in its place ([`crate::pipeline::Pipeline::with_fallbacks`]).
+    pub(crate) fn is_file_failure(&self) -> bool {
+        matches!(
+            self,
+            LocalizerError::EmptySurvey
+                | LocalizerError::SurveyOnBlockedCell(_)
+                | LocalizerError::Survey(_)
+                | LocalizerError::Calibration(_)
+                | LocalizerError::Model(_)
+        )
+    }
+}
+
+/// Builds the configured localizer for a site and the windows that feed it
+/// (the radio map cross-validates its settings with `tracker`).
+pub fn build(
+    config: &LocalizerConfig,
+    site: &Arc<Site>,
+    windows: &window::WindowConfig,
+    tracker: &tracker::TrackerConfig,
+) -> Result<Box<dyn Localizer>, LocalizerError> {
+    Ok(match config.method {
+        Method::Auto => auto::build(config, site, windows, tracker)?,
+        Method::Pathloss => Box::new(pathloss::PathLoss::new(
+            &config.pathloss,
+            site,
+            windows.orientation,
+        )?),
+        Method::Knn => Box::new(knn::Knn::load(
+            &config.knn,
+            site,
+            &window::anchor_ids(site, windows.orientation),
+            windows.missing_dbm,
+        )?),
+        Method::Radiomap => Box::new(radiomap::RadioMap::load(
+            &config.radiomap,
+            site,
+            &window::anchor_ids(site, windows.orientation),
+            windows.orientation,
+            tracker,
+        )?),
+        Method::Onnx => Box::new(onnx::Onnx::load(&config.onnx.model, site)?),
+        Method::Strongest => Box::new(strongest::Strongest::new(
+            &config.pathloss,
+            site,
+            windows.orientation,
+        )?),
+    })
+}

@@ -1,0 +1,908 @@
+//! Tracking: one belief per entity over the site's walkable cells, fused from
+//! the localizer's per-cell likelihoods and a motion model.
+//!
+//! The `hmm` tracker is a forward filter. Between two fixes `dt` seconds apart a
+//! person walks at most `max_speed_mps · dt` metres, through walkable cells only;
+//! the prediction step spreads the belief that many steps over the access graph
+//! (a lazy random walk that never crosses a blocked cell or cuts its corner), so
+//! a fix on the far side of a wall or across the building in two seconds gets no
+//! prior mass. The `none` tracker is the plain per-window argmax.
+//!
+//! An entity expected to walk somewhere (a walker guided along a route,
+//! [`ExpectedWalk`]) also gets a second, small belief moved that way before
+//! the same evidence weighs it ([`Tracker::update_walking`]); its fix stays
+//! the first belief's.
+
+use foldhash::HashMap;
+use std::collections::VecDeque;
+use std::sync::Arc;
+
+use serde::Deserialize;
+
+use super::bounds::Bounds;
+use crate::plan::Connectivity;
+use crate::site::{Cell, Site};
+
+/// Forgotten entities kept for [`Tracker::take_evicted`] at most; a caller
+/// that never takes them loses the oldest.
+const MAX_EVICTED_KEPT: usize = 65_536;
+
+/// `[tracker]` in the gateway config.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrackerConfig {
+    pub kind: TrackerKind,
+    /// Fastest plausible walking speed, metres per second.
+    pub max_speed_mps: f64,
+    /// Probability of staying in the cell in each step of the motion model;
+    /// the rest is shared equally by the allowed moves. People pause often.
+    pub stay_probability: f32,
+    /// Weight of the localizer's log-likelihood against the motion prior; below
+    /// 1 when the localizer is over-confident (anchors are not independent).
+    pub likelihood_weight: f32,
+    /// Probability mass spread uniformly over the site each step, so that a
+    /// track that went wrong can recover.
+    pub recovery: f32,
+    /// Gaps longer than this (seconds) restart the track from the likelihood.
+    pub reset_after_s: f64,
+    /// Which cell of the belief is reported.
+    pub estimate: Estimate,
+}
+
+/// How a belief becomes one reported cell.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Estimate {
+    /// The most probable cell.
+    Mode,
+    /// The cell with the least expected distance to the true one: fewer exact
+    /// hits than `mode` when the belief is split, but smaller errors.
+    Median,
+}
+
+impl TrackerConfig {
+    /// Checks what serde cannot: a message naming the key and what to do.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.max_speed_mps.is_nan() || self.max_speed_mps <= 0.0 {
+            return Err("[tracker] `max_speed_mps` must be positive".into());
+        }
+        if !(0.0..=1.0).contains(&self.stay_probability) {
+            return Err("[tracker] `stay_probability` must be between 0 and 1".into());
+        }
+        Ok(())
+    }
+}
+
+impl Default for TrackerConfig {
+    fn default() -> Self {
+        TrackerConfig {
+            kind: TrackerKind::Hmm,
+            max_speed_mps: 1.5,
+            stay_probability: 0.9,
+            likelihood_weight: 1.0,
+            recovery: 1e-3,
+            reset_after_s: 30.0,
+            estimate: Estimate::Median,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum TrackerKind {
+    None,
+    Hmm,
+}
+
+/// A position estimate.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Fix {
+    pub cell: Cell,
+    /// Posterior probability of being within one cell of `cell`.
+    pub confidence: f32,
+    /// The belief's mean, in grid coordinates (cell centres at + 0.5).
+    pub mean: [f32; 2],
+}
+
+/// Where an entity is expected to have walked since its last window: of
+/// the belief in each `from` cell, `share` moves to its `to` cell before
+/// the rest spreads as anyone's does. A walker being guided along a route
+/// walks it (`crate::guide`): without this the lazy random walk, which
+/// would rather they stood still, holds them back for fixes after they set
+/// off and then lets them jump (docs/guidance.md, "Measured").
+pub struct ExpectedWalk {
+    pub(crate) moves: Vec<(Cell, Cell)>,
+    pub(crate) share: f32,
+}
+
+struct Track {
+    t: f64,
+    belief: Vec<f32>,
+    /// The belief given an [`ExpectedWalk`], while there is one.
+    walking: Sparse,
+    fix: Fix,
+}
+
+/// The tracks of all entities on one site.
+pub struct Tracker {
+    config: TrackerConfig,
+    site: Arc<Site>,
+    /// For each open cell: itself first, then the open cells one allowed step away.
+    neighbours: Vec<Vec<u32>>,
+    tracks: HashMap<Arc<str>, Track>,
+    scratch: Vec<f32>,
+    /// Room for the step of a walking belief.
+    walked: WalkStep,
+    bounds: Bounds,
+    /// Entities forgotten since the last [`Tracker::take_evicted`].
+    evicted: VecDeque<Arc<str>>,
+}
+
+impl Tracker {
+    pub fn new(config: TrackerConfig, site: Arc<Site>) -> Self {
+        let neighbours = site
+            .open_cells()
+            .iter()
+            .map(|&c| {
+                let mut n = vec![site.open_index(c).expect("open") as u32];
+                for dy in -1i16..=1 {
+                    for dx in -1i16..=1 {
+                        let (Some(x), Some(y)) =
+                            (c.x.checked_add_signed(dx), c.y.checked_add_signed(dy))
+                        else {
+                            continue;
+                        };
+                        let next = Cell::new(x, y);
+                        if Connectivity::Eight.step_ok(&site, c, next) {
+                            n.push(site.open_index(next).expect("walkable") as u32);
+                        }
+                    }
+                }
+                n
+            })
+            .collect();
+        Tracker {
+            config,
+            site,
+            neighbours,
+            tracks: HashMap::default(),
+            scratch: Vec::new(),
+            walked: WalkStep::default(),
+            bounds: Bounds::default(),
+            evicted: VecDeque::new(),
+        }
+    }
+
+    /// Keeps at most `max` tracks, and none without a window for `idle_s`
+    /// seconds (see [`Bounds`]).
+    pub(crate) fn bound(mut self, max: usize, idle_s: f64) -> Self {
+        self.bounds = Bounds::new(max, idle_s);
+        self
+    }
+
+    /// Tracks forgotten since start.
+    pub(crate) fn evicted_count(&self) -> u64 {
+        self.bounds.evicted()
+    }
+
+    /// The entities forgotten since the last call (whoever announced them
+    /// can withdraw them).
+    pub(crate) fn take_evicted(&mut self) -> Vec<Arc<str>> {
+        std::mem::take(&mut self.evicted).into()
+    }
+
+    /// The latest fix of an entity.
+    pub(crate) fn last_fix(&self, entity: &str) -> Option<Fix> {
+        self.tracks.get(entity).map(|t| t.fix)
+    }
+
+    pub(crate) fn len(&self) -> usize {
+        self.tracks.len()
+    }
+
+    /// Heap bytes of an entity's belief given its expected walk (none
+    /// while it has none).
+    pub(crate) fn walking_bytes(&self, entity: &str) -> usize {
+        self.tracks
+            .get(entity)
+            .map_or(0, |t| t.walking.heap_bytes())
+    }
+
+    /// Folds one window's log-likelihoods (one per open cell) into the entity's
+    /// track and returns the new fix.
+    pub fn update(&mut self, entity: &Arc<str>, t: f64, log_likelihood: &[f32]) -> Fix {
+        self.update_walking(entity, t, log_likelihood, None).0
+    }
+
+    /// [`Tracker::update`] for an entity expected to have walked `walk`
+    /// since its last window (when it has a track to move), which also
+    /// returns where, given that walk, it is on average (grid coordinates,
+    /// as [`Fix::mean`]): the mean of a second belief, started from the
+    /// track's own and moved by the walk before the same evidence weighs
+    /// it. The fix itself stays the track's, the walk aside: whether the
+    /// entity still walks it is for the fixes to show.
+    pub fn update_walking(
+        &mut self,
+        entity: &Arc<str>,
+        t: f64,
+        log_likelihood: &[f32],
+        walk: Option<&ExpectedWalk>,
+    ) -> (Fix, Option<[f32; 2]>) {
+        let model = MotionModel {
+            config: &self.config,
+            neighbours: &self.neighbours,
+            cell_m: self.site.cell_m,
+        };
+        let full = self.tracks.len() >= self.bounds.max() && !self.tracks.contains_key(entity);
+        let evicted = &mut self.evicted;
+        self.bounds.make_room(
+            &mut self.tracks,
+            t,
+            full,
+            |track| track.t,
+            |id| {
+                if evicted.len() >= MAX_EVICTED_KEPT {
+                    evicted.pop_front();
+                }
+                evicted.push_back(id.clone());
+            },
+        );
+        let track = self.tracks.entry(entity.clone()).or_insert_with(|| Track {
+            t: f64::NEG_INFINITY,
+            belief: Vec::new(),
+            walking: Sparse::default(),
+            fix: Fix {
+                cell: Cell::new(0, 0),
+                confidence: 0.0,
+                mean: [0.5, 0.5],
+            },
+        });
+        let likelihood = model.likelihood(log_likelihood);
+        let steps = model.steps(t - track.t);
+        let walked_mean = match (walk, steps) {
+            (Some(walk), Some(steps)) => {
+                if track.walking.is_empty() {
+                    // Starts where the track's belief is.
+                    track.walking.pack((0..).zip(track.belief.iter().copied()));
+                }
+                let mean = self.walked.step(
+                    &self.site,
+                    &self.neighbours,
+                    (self.config.stay_probability, self.config.recovery),
+                    &mut track.walking,
+                    walk,
+                    steps,
+                    &likelihood,
+                );
+                if mean.is_none() {
+                    // The evidence denies the walk everywhere: start again
+                    // from the track's belief at the next fix.
+                    track.walking = Sparse::default();
+                }
+                mean
+            }
+            _ => {
+                // Nobody walks this one: its memory goes.
+                track.walking = Sparse::default();
+                None
+            }
+        };
+        model.filter(&mut track.belief, steps, &likelihood, &mut self.scratch);
+        track.t = t;
+        track.fix = estimate(self.config.estimate, &self.site, &track.belief);
+        (track.fix, walked_mean)
+    }
+
+    /// Fixed-lag smoothing of one recorded trajectory, given as (time,
+    /// log-likelihoods) per window in time order: each fix also uses the
+    /// evidence of up to `lag` later windows (the forward filter of
+    /// [`Tracker::update`], then a backward pass over the lag). A live gateway
+    /// would publish each such fix `lag` windows late; recorded walks can
+    /// afford it. With `lag` 0 this is the online filter.
+    pub fn smooth(&self, windows: &[(f64, Vec<f32>)], lag: usize) -> Vec<Fix> {
+        let model = self.model();
+        let forward = model.forward(windows);
+        let n = windows.len();
+        let mut scratch = Vec::new();
+        (0..n)
+            .map(|k| {
+                let mut backward = vec![1.0f32; forward.filtered[k].len()];
+                for j in (k + 1..=(k + lag).min(n.saturating_sub(1))).rev() {
+                    forward.pull_back_through(&model, j, &mut backward, &mut scratch);
+                }
+                let smoothed = forward.combine(k, &backward);
+                estimate(self.config.estimate, &self.site, &smoothed)
+            })
+            .collect()
+    }
+
+    /// The belief over open cells at every window of one recorded trajectory,
+    /// given all of it (forward-backward): what calibration weighs each
+    /// window's evidence by when no position is known.
+    pub(crate) fn posteriors(&self, windows: &[(f64, Vec<f32>)]) -> Vec<Vec<f32>> {
+        let model = self.model();
+        let forward = model.forward(windows);
+        let n = windows.len();
+        let mut out = vec![Vec::new(); n];
+        let mut backward = vec![1.0f32; self.neighbours.len()];
+        let mut scratch = Vec::new();
+        for k in (0..n).rev() {
+            out[k] = forward.combine(k, &backward);
+            if k > 0 {
+                forward.pull_back_through(&model, k, &mut backward, &mut scratch);
+            }
+        }
+        out
+    }
+
+    fn model(&self) -> MotionModel<'_> {
+        MotionModel {
+            config: &self.config,
+            neighbours: &self.neighbours,
+            cell_m: self.site.cell_m,
+        }
+    }
+}
+
+/// The forward pass over one trajectory, kept for a backward pass.
+struct Forward {
+    filtered: Vec<Vec<f32>>,
+    likelihoods: Vec<Vec<f32>>,
+    /// Motion steps into each window; `None` where the track restarted.
+    steps: Vec<Option<usize>>,
+}
+
+impl Forward {
+    /// Moves a backward message from window `j` to window `j − 1`.
+    fn pull_back_through(
+        &self,
+        model: &MotionModel,
+        j: usize,
+        backward: &mut Vec<f32>,
+        scratch: &mut Vec<f32>,
+    ) {
+        let Some(s) = self.steps[j] else {
+            // The track restarted at j: nothing after it informs j − 1.
+            backward.fill(1.0);
+            return;
+        };
+        for (b, l) in backward.iter_mut().zip(&self.likelihoods[j]) {
+            *b *= l;
+        }
+        model.pull_back(backward, s, scratch);
+    }
+
+    /// The smoothed belief at window `k` given its backward message.
+    fn combine(&self, k: usize, backward: &[f32]) -> Vec<f32> {
+        let mut smoothed: Vec<f32> = self.filtered[k]
+            .iter()
+            .zip(backward)
+            .map(|(a, b)| a * b)
+            .collect();
+        if !normalize(&mut smoothed) {
+            smoothed.clone_from(&self.filtered[k]);
+        }
+        smoothed
+    }
+}
+
+/// The tracker's hidden Markov model: how far belief spreads between windows,
+/// and how evidence is weighed.
+struct MotionModel<'a> {
+    config: &'a TrackerConfig,
+    neighbours: &'a [Vec<u32>],
+    cell_m: f64,
+}
+
+impl MotionModel<'_> {
+    /// Relative likelihood per cell (max 1), weighted.
+    fn likelihood(&self, log_likelihood: &[f32]) -> Vec<f32> {
+        let max_ll = log_likelihood
+            .iter()
+            .copied()
+            .fold(f32::NEG_INFINITY, f32::max);
+        let weight = self.config.likelihood_weight;
+        log_likelihood
+            .iter()
+            .map(|&ll| ((ll - max_ll) * weight).exp())
+            .collect()
+    }
+
+    /// The forward filter over a whole trajectory.
+    fn forward(&self, windows: &[(f64, Vec<f32>)]) -> Forward {
+        let mut scratch = Vec::new();
+        let mut forward = Forward {
+            filtered: Vec::with_capacity(windows.len()),
+            likelihoods: Vec::with_capacity(windows.len()),
+            steps: Vec::with_capacity(windows.len()),
+        };
+        let mut belief = Vec::new();
+        let mut last_t = f64::NEG_INFINITY;
+        for (t, log_likelihood) in windows {
+            let likelihood = self.likelihood(log_likelihood);
+            let s = self.steps(t - last_t);
+            self.filter(&mut belief, s, &likelihood, &mut scratch);
+            forward.filtered.push(belief.clone());
+            forward.likelihoods.push(likelihood);
+            forward.steps.push(s);
+            last_t = *t;
+        }
+        forward
+    }
+
+    /// Motion steps for a gap of `dt` seconds since the last window, or `None`
+    /// when the track restarts (no tracking, first window, a long gap, or time
+    /// running backwards).
+    fn steps(&self, dt: f64) -> Option<usize> {
+        let continues =
+            self.config.kind == TrackerKind::Hmm && (0.0..=self.config.reset_after_s).contains(&dt);
+        // As far as one can walk in the gap, at least one step.
+        continues.then(|| ((self.config.max_speed_mps * dt / self.cell_m).ceil() as usize).max(1))
+    }
+
+    /// One forward step: predict `steps` moves, then weigh by the evidence. A
+    /// restart, or evidence that contradicts the prior everywhere, starts from
+    /// the evidence alone.
+    fn filter(
+        &self,
+        belief: &mut Vec<f32>,
+        steps: Option<usize>,
+        likelihood: &[f32],
+        scratch: &mut Vec<f32>,
+    ) {
+        if let Some(steps) = steps {
+            for _ in 0..steps {
+                spread(
+                    self.neighbours,
+                    self.config.stay_probability,
+                    belief,
+                    scratch,
+                );
+                std::mem::swap(belief, scratch);
+            }
+            let recovery = self.config.recovery;
+            let floor = recovery / belief.len() as f32;
+            for (b, l) in belief.iter_mut().zip(likelihood) {
+                *b = (*b * (1.0 - recovery) + floor) * l;
+            }
+            if normalize(belief) {
+                return;
+            }
+        }
+        belief.clear();
+        belief.extend_from_slice(likelihood);
+        normalize(belief);
+    }
+
+    /// The backward step of [`MotionModel::filter`]'s prediction: for each cell,
+    /// the expected `message` one window later, over `steps` moves and the
+    /// recovery mass.
+    fn pull_back(&self, message: &mut Vec<f32>, steps: usize, scratch: &mut Vec<f32>) {
+        let stay = self.config.stay_probability;
+        for _ in 0..steps {
+            scratch.clear();
+            scratch.extend(self.neighbours.iter().enumerate().map(|(i, n)| {
+                let moves = &n[1..];
+                if moves.is_empty() {
+                    message[i]
+                } else {
+                    let away: f32 = moves.iter().map(|&j| message[j as usize]).sum();
+                    stay * message[i] + (1.0 - stay) * away / moves.len() as f32
+                }
+            }));
+            std::mem::swap(message, scratch);
+        }
+        let recovery = self.config.recovery;
+        let mean = message.iter().sum::<f32>() / message.len() as f32;
+        let peak = message
+            .iter()
+            .copied()
+            .fold(0.0, f32::max)
+            .max(f32::MIN_POSITIVE);
+        for m in message.iter_mut() {
+            // Rescaled by the peak: only ratios matter, and this keeps long
+            // lags from underflowing.
+            *m = ((1.0 - recovery) * *m + recovery * mean) / peak;
+        }
+    }
+}
+
+/// The reported fix of a belief over the site's open cells.
+fn estimate(how: Estimate, site: &Site, belief: &[f32]) -> Fix {
+    let cells = site.open_cells();
+    let best = match how {
+        Estimate::Mode => argmax(belief),
+        Estimate::Median => spatial_median(cells, belief),
+    };
+    let cell = cells[best];
+    Fix {
+        cell,
+        confidence: within_one_cell(site, cell, belief),
+        mean: mean(site, (0..).zip(belief.iter().copied()))
+            .unwrap_or([f32::from(cell.x) + 0.5, f32::from(cell.y) + 0.5]),
+    }
+}
+
+/// A belief's mean in grid coordinates (cell centres at + 0.5), given as
+/// (open cell, mass); `None` for an empty one.
+fn mean(site: &Site, belief: impl Iterator<Item = (u32, f32)>) -> Option<[f32; 2]> {
+    let cells = site.open_cells();
+    let (mut sum, mut mx, mut my) = (0.0f64, 0.0f64, 0.0f64);
+    for (i, b) in belief {
+        let c = cells[i as usize];
+        let b = f64::from(b);
+        sum += b;
+        mx += b * (f64::from(c.x) + 0.5);
+        my += b * (f64::from(c.y) + 0.5);
+    }
+    (sum > 0.0).then(|| [(mx / sum) as f32, (my / sum) as f32])
+}
+
+/// Least share of its largest mass a cell of a [`Sparse`] belief holds to
+/// be kept: less changes no mean a guide reads off it.
+const KEPT_SHARE: f32 = 1e-4;
+
+/// Most cells a [`Sparse`] belief keeps (those of the largest mass): 6
+/// bytes each, held for all of them while a device is guided (240 bytes),
+/// so a guided session stays under 1 KB. A guided walker's
+/// belief is a few metres of the route: tens of cells, unless the evidence
+/// is poor, when a coarser mean still serves.
+const MAX_KEPT: usize = 40;
+
+/// A belief kept small, however large the site: the open cells holding at
+/// least [`KEPT_SHARE`] of its largest mass, at most [`MAX_KEPT`] of them
+/// (the rest taken as none), each mass in bfloat16, the upper half of an
+/// f32 (three significant digits).
+#[derive(Default)]
+struct Sparse {
+    cells: Vec<u32>,
+    mass: Vec<u16>,
+}
+
+impl Sparse {
+    fn is_empty(&self) -> bool {
+        self.cells.is_empty()
+    }
+
+    /// Keeps `belief`, given as (open cell, mass).
+    fn pack(&mut self, belief: impl Iterator<Item = (u32, f32)> + Clone) {
+        let peak = belief.clone().fold(0.0, |peak, (_, b)| b.max(peak));
+        let mut least = (peak * KEPT_SHARE).max(f32::MIN_POSITIVE);
+        let mut kept: Vec<f32> = belief
+            .clone()
+            .map(|(_, b)| b)
+            .filter(|&b| b >= least)
+            .collect();
+        if kept.len() > MAX_KEPT {
+            least = *kept
+                .select_nth_unstable_by(MAX_KEPT - 1, |a, b| b.total_cmp(a))
+                .1;
+        }
+        if self.cells.capacity() == 0 {
+            // Room for the most it keeps, once: the same bytes a fix later.
+            self.cells.reserve_exact(MAX_KEPT);
+            self.mass.reserve_exact(MAX_KEPT);
+        }
+        self.cells.clear();
+        self.mass.clear();
+        for (i, b) in belief {
+            if b >= least && self.cells.len() < MAX_KEPT {
+                self.cells.push(i);
+                // Rounded to nearest: beliefs are finite and non-negative.
+                self.mass.push(((b.to_bits() + 0x8000) >> 16) as u16);
+            }
+        }
+    }
+
+    /// The kept cells and their masses.
+    fn iter(&self) -> impl Iterator<Item = (u32, f32)> + '_ {
+        self.cells
+            .iter()
+            .zip(&self.mass)
+            .map(|(&i, &m)| (i, f32::from_bits(u32::from(m) << 16)))
+    }
+
+    fn heap_bytes(&self) -> usize {
+        self.cells.capacity() * std::mem::size_of::<u32>()
+            + self.mass.capacity() * std::mem::size_of::<u16>()
+    }
+}
+
+/// One step of a walking belief, over its own cells and those it spreads
+/// to only (tens, whatever the site's size), in buffers kept between
+/// steps: a dense belief over the open cells that is zero but where it is
+/// in use, and a mark per open cell.
+#[derive(Default)]
+struct WalkStep {
+    now: Vec<f32>,
+    next: Vec<f32>,
+    marked: Vec<bool>,
+    cells: Vec<u32>,
+    next_cells: Vec<u32>,
+    /// Mass the walk moves, as (open cell it moves to, mass).
+    carried: Vec<(u32, f32)>,
+}
+
+impl WalkStep {
+    /// Moves `walking` by `walk` and `steps` moves of the lazy random walk
+    /// (the share of the walk first, the rest spreading), weighs it by the
+    /// evidence and returns its mean; `None` when the evidence leaves it
+    /// nothing.
+    #[allow(clippy::too_many_arguments)]
+    fn step(
+        &mut self,
+        site: &Site,
+        neighbours: &[Vec<u32>],
+        (stay, recovery): (f32, f32),
+        walking: &mut Sparse,
+        walk: &ExpectedWalk,
+        steps: usize,
+        likelihood: &[f32],
+    ) -> Option<[f32; 2]> {
+        let n = neighbours.len();
+        for v in [&mut self.now, &mut self.next] {
+            v.resize(n, 0.0);
+        }
+        self.marked.resize(n, false);
+        self.cells.clear();
+        for (i, b) in walking.iter() {
+            self.now[i as usize] = b;
+            self.cells.push(i);
+        }
+        let share = walk.share.clamp(0.0, 1.0);
+        self.carried.clear();
+        for &(from, to) in &walk.moves {
+            let (Some(from), Some(to)) = (site.open_index(from), site.open_index(to)) else {
+                continue;
+            };
+            let mass = self.now[from] * share;
+            if mass > 0.0 {
+                self.now[from] -= mass;
+                self.carried.push((to as u32, mass));
+            }
+        }
+        for _ in 0..steps {
+            self.next_cells.clear();
+            for &i in &self.cells {
+                for &j in &neighbours[i as usize] {
+                    if !std::mem::replace(&mut self.marked[j as usize], true) {
+                        self.next_cells.push(j);
+                    }
+                }
+                spread_cell(
+                    &neighbours[i as usize],
+                    stay,
+                    std::mem::take(&mut self.now[i as usize]),
+                    &mut self.next,
+                );
+            }
+            for &j in &self.next_cells {
+                self.marked[j as usize] = false;
+            }
+            std::mem::swap(&mut self.now, &mut self.next);
+            std::mem::swap(&mut self.cells, &mut self.next_cells);
+        }
+        for &i in &self.cells {
+            self.marked[i as usize] = true;
+        }
+        for &(to, mass) in &self.carried {
+            if !std::mem::replace(&mut self.marked[to as usize], true) {
+                self.cells.push(to);
+            }
+            self.now[to as usize] += mass;
+        }
+        for &i in &self.cells {
+            self.marked[i as usize] = false;
+        }
+        // The recovery mass, as the tracker's own belief has (what lets
+        // evidence ahead of the walk take hold): over every open cell.
+        let floor = recovery / n as f32;
+        let mut sum = 0.0;
+        for (b, &l) in self.now.iter_mut().zip(likelihood) {
+            *b = (*b * (1.0 - recovery) + floor) * l;
+            sum += *b;
+        }
+        let now = &self.now;
+        let belief = (0..).zip(now.iter().map(|&b| b / sum));
+        let mean = (sum.is_finite() && sum > 0.0).then(|| {
+            walking.pack(belief.clone());
+            mean(site, belief)
+        });
+        self.now.fill(0.0);
+        mean.flatten()
+    }
+}
+
+/// The belief that the entity is within one cell of `cell` (the cell or one
+/// of its four edge neighbours): what a published `confidence` promises.
+fn within_one_cell(site: &Site, cell: Cell, belief: &[f32]) -> f32 {
+    let near = [(0, 0), (-1, 0), (1, 0), (0, -1), (0, 1)];
+    near.iter()
+        .filter_map(|&(dx, dy)| {
+            let x = cell.x.checked_add_signed(dx)?;
+            let y = cell.y.checked_add_signed(dy)?;
+            site.open_index(Cell::new(x, y))
+        })
+        .map(|i| belief[i])
+        .sum::<f32>()
+        .min(1.0)
+}
+
+fn argmax(v: &[f32]) -> usize {
+    v.iter()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(b.1))
+        .map_or(0, |(i, _)| i)
+}
+
+/// The cell with the least expected distance to where the entity is under the
+/// belief. Cells holding under 0.1% of the peak are left out of the sum, and
+/// only the most probable cells are candidates: the answer lies among them in
+/// practice, and this keeps a diffuse belief from costing O(cells²).
+fn spatial_median(cells: &[Cell], belief: &[f32]) -> usize {
+    const CANDIDATES: usize = 24;
+    let peak = belief.iter().copied().fold(0.0, f32::max);
+    let support: Vec<usize> = (0..belief.len())
+        .filter(|&i| belief[i] >= peak * 1e-3)
+        .collect();
+    let mut candidates = support.clone();
+    if candidates.len() > CANDIDATES {
+        candidates.select_nth_unstable_by(CANDIDATES - 1, |&a, &b| belief[b].total_cmp(&belief[a]));
+        candidates.truncate(CANDIDATES);
+    }
+    candidates
+        .iter()
+        .map(|&c| {
+            let cost: f64 = support
+                .iter()
+                .map(|&j| f64::from(belief[j]) * cells[c].distance(cells[j]))
+                .sum();
+            (c, cost)
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
+        .map_or(0, |(c, _)| c)
+}
+
+/// One step of the lazy random walk: each cell keeps `stay` of its mass and
+/// passes equal shares of the rest to each allowed neighbour.
+fn spread(neighbours: &[Vec<u32>], stay: f32, from: &[f32], to: &mut Vec<f32>) {
+    to.clear();
+    to.resize(from.len(), 0.0);
+    for (n, &mass) in neighbours.iter().zip(from) {
+        spread_cell(n, stay, mass, to);
+    }
+}
+
+/// One cell's share of [`spread`]: of `mass` in the cell whose neighbours
+/// are `n` (the cell itself first), `stay` stays, the rest goes to the
+/// allowed moves equally.
+fn spread_cell(n: &[u32], stay: f32, mass: f32, to: &mut [f32]) {
+    let moves = &n[1..];
+    if moves.is_empty() {
+        to[n[0] as usize] += mass;
+        return;
+    }
+    to[n[0] as usize] += mass * stay;
+    let share = mass * (1.0 - stay) / moves.len() as f32;
+    for &j in moves {
+        to[j as usize] += share;
+    }
+}
+
+/// Scales to sum 1; false when the sum is zero or not finite.
+fn normalize(v: &mut [f32]) -> bool {
+    let sum: f32 = v.iter().sum();
+    if !(sum.is_finite() && sum > 0.0) {
+        return false;
+    }
+    v.iter_mut().for_each(|x| *x /= sum);
+    true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    fn site() -> Arc<Site> {
+        // Two rooms joined by a door at the bottom: x=0..2 and x=4..6.
+        let text = "name = \"t\"\ncell_m = 1.0\nmap = '''\n###.###\n###.###\n#######\n'''\n";
+        Arc::new(Site::parse(text, Path::new("t.toml")).unwrap())
+    }
+
+    /// Log-likelihoods falling off with distance from `cell`.
+    fn peak_at(site: &Site, cell: Cell, sharpness: f32) -> Vec<f32> {
+        site.open_cells()
+            .iter()
+            .map(|&c| -sharpness * c.distance(cell) as f32)
+            .collect()
+    }
+
+    #[test]
+    fn a_jump_through_a_wall_is_not_believed_at_once() {
+        let site = site();
+        let mut tracker = Tracker::new(TrackerConfig::default(), site.clone());
+        let me: Arc<str> = "me".into();
+        let start = tracker.update(&me, 0.0, &peak_at(&site, Cell::new(2, 0), 10.0));
+        assert_eq!(start.cell, Cell::new(2, 0));
+        // One second later the evidence says "other room, just through the wall":
+        // the wall means that is 6 steps away, beyond 1.5 m/s.
+        let next = tracker.update(&me, 1.0, &peak_at(&site, Cell::new(4, 0), 2.0));
+        assert_ne!(next.cell, Cell::new(4, 0));
+        assert!(next.cell.x <= 2, "stays in the first room: {:?}", next.cell);
+    }
+
+    #[test]
+    fn without_tracking_the_argmax_wins() {
+        let site = site();
+        let config = TrackerConfig {
+            kind: TrackerKind::None,
+            estimate: Estimate::Mode,
+            ..TrackerConfig::default()
+        };
+        let mut tracker = Tracker::new(config, site.clone());
+        let me: Arc<str> = "me".into();
+        tracker.update(&me, 0.0, &peak_at(&site, Cell::new(2, 0), 10.0));
+        let next = tracker.update(&me, 1.0, &peak_at(&site, Cell::new(4, 0), 2.0));
+        assert_eq!(next.cell, Cell::new(4, 0));
+        assert!(next.confidence > 0.5);
+    }
+
+    #[test]
+    fn an_expected_walk_carries_the_belief_on_without_evidence_for_it() {
+        let text = "name = \"c\"\ncell_m = 1.0\nmap = '''\n##########\n'''\n";
+        let site = Arc::new(Site::parse(text, Path::new("c.toml")).unwrap());
+        let mut tracker = Tracker::new(TrackerConfig::default(), site.clone());
+        let flat = vec![0.0; site.open_cells().len()];
+        let me: Arc<str> = "me".into();
+        let start = peak_at(&site, Cell::new(1, 0), 10.0);
+        assert_eq!(tracker.update_walking(&me, 0.0, &start, None).1, None);
+        // Two metres along the corridor a second, told nothing new.
+        let walk = ExpectedWalk {
+            moves: (0..8)
+                .map(|x| (Cell::new(x, 0), Cell::new(x + 2, 0)))
+                .collect(),
+            share: 0.8,
+        };
+        let mut walked = None;
+        for t in [1.0, 2.0] {
+            let (fix, mean) = tracker.update_walking(&me, t, &flat, Some(&walk));
+            // The fix is the track's own, as if nobody walked.
+            assert_eq!(fix.cell, Cell::new(1, 0), "{fix:?}");
+            walked = mean;
+        }
+        let [x, _] = walked.expect("walking");
+        assert!((4.0..6.0).contains(&x), "two seconds on from 1.5: {x}");
+        // Evidence against the walk still wins: the walker turned back.
+        for t in [3.0, 4.0] {
+            let (_, mean) = tracker.update_walking(&me, t, &start, Some(&walk));
+            walked = mean;
+        }
+        let [x, _] = walked.expect("walking");
+        assert!(x < 2.5, "back at 1.5: {x}");
+        // Once nobody walks it, none is kept.
+        assert_eq!(tracker.update_walking(&me, 5.0, &start, None).1, None);
+        assert!(tracker.tracks[&me].walking.is_empty());
+    }
+
+    #[test]
+    fn smoothing_lets_later_evidence_revise_an_ambiguous_window() {
+        let text = "name = \"c\"\ncell_m = 1.0\nmap = '''\n##########\n'''\n";
+        let site = Arc::new(Site::parse(text, Path::new("c.toml")).unwrap());
+        let tracker = Tracker::new(TrackerConfig::default(), site.clone());
+        let flat = vec![0.0; site.open_cells().len()];
+        let windows = vec![
+            (0.0, peak_at(&site, Cell::new(2, 0), 10.0)),
+            (1.0, flat),
+            (2.0, peak_at(&site, Cell::new(4, 0), 10.0)),
+        ];
+        let online = tracker.smooth(&windows, 0);
+        let smoothed = tracker.smooth(&windows, 1);
+        // Online, the silent window stays where the walk was; knowing where it
+        // went next, the smoother puts it on the way.
+        assert_eq!(online[1].cell, Cell::new(2, 0));
+        assert_eq!(smoothed[1].cell, Cell::new(3, 0));
+        assert_eq!(smoothed[0].cell, Cell::new(2, 0));
+        assert_eq!(smoothed[2].cell, Cell::new(4, 0));
+    }
+}

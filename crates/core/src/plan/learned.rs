@@ -1,0 +1,156 @@
+//! The default planner (`[planner] mode = "learned"`, or `mode` unset): the
+//! learned planner that was measured on the site's own walks, without a
+//! config edit after `gangway train`.
+//!
+//! In order, the first that is servable answers:
+//! 1. the desire lines ([`super::desire`]), when `desire_lines.onnx` loads
+//!    for the site and its metadata says it passed its training check
+//!    (closer than the any-angle route on the training walks' later time
+//!    folds, lines that mostly stand: [`crate::model::checks`]). That check
+//!    is the same comparison `gangway eval planning` makes on held-out walks,
+//!    so a model that fails it would serve routes worse than any-angle;
+//! 2. the conditional generator ([`super::conditional`]), when it loads:
+//!    walks the lines did not learn from (simulated walks that come pair by
+//!    pair, where whole pairs are held out) are still the GAN's to learn;
+//! 3. A*, with a warning: nothing learned is servable for the site.
+//!
+//! Which one answers, and why, is logged at start-up, written on the model
+//! card by `gangway train`, reported by `gangway eval planning` (`serves`,
+//! `serves_because`) and sent with every route (its `planner`). The explicit
+//! modes (`desire`, `conditional`, `rejection`: the paper's Algorithm 1,
+//! `astar`) are unaffected: they serve their model or fail naming its file.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use super::{BuildError, Planner, PlannerConfig, PlannerMode, build_mode, desire};
+use crate::model::checks::{Check, checks};
+use crate::model::runtime::DesireModel;
+use crate::model::{Kind, ModelError};
+use crate::site::Site;
+
+/// Which planner the default serves, and why.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Choice {
+    /// The mode that answers requests: desire, conditional or astar.
+    pub serves: PlannerMode,
+    /// One sentence: what passed, or what was missing or failed.
+    pub because: String,
+}
+
+impl Choice {
+    /// Says which planner serves and why: a warning when it is A*.
+    pub(crate) fn log(&self) {
+        let name = self.serves.name();
+        if self.serves == PlannerMode::Astar {
+            tracing::warn!(
+                planner = name,
+                "[planner] mode = \"learned\": {}",
+                self.because
+            );
+        } else {
+            tracing::info!(
+                planner = name,
+                "[planner] mode = \"learned\": {}",
+                self.because
+            );
+        }
+    }
+}
+
+/// The default planner for `site` from `config`'s models, and why it is
+/// the one ([`Choice::log`] says so). Never fails on a model: a model that is missing, for
+/// another site or failed its check is passed over (and named in
+/// [`Choice::because`]).
+pub fn build(
+    config: &PlannerConfig,
+    site: Arc<Site>,
+) -> Result<(Box<dyn Planner>, Choice), BuildError> {
+    let desire_lines = &config.models.desire_lines;
+    let desire_said = match DesireModel::load(desire_lines, &site) {
+        Ok(model) => {
+            let failed = failed_checks(model.model().metadata());
+            if failed.is_empty() {
+                let because = format!(
+                    "the desire lines ({}) passed their training check on the site's walks ({})",
+                    desire_lines.display(),
+                    described(&checks(
+                        Kind::DesireLines,
+                        &model.model().metadata().metrics
+                    ))
+                );
+                let planner = desire::Desire::new(site, config.connectivity, model, config.clock);
+                return Ok((
+                    Box::new(planner),
+                    Choice {
+                        serves: PlannerMode::Desire,
+                        because,
+                    },
+                ));
+            }
+            format!(
+                "the desire lines ({}) failed their training check: {}",
+                desire_lines.display(),
+                described(&failed)
+            )
+        }
+        Err(e) => missing_desire(desire_lines, &site, e),
+    };
+    let (planner, serves, because) =
+        match build_mode(config, PlannerMode::Conditional, site.clone()) {
+            Ok(planner) => (
+                planner,
+                PlannerMode::Conditional,
+                format!(
+                    "{desire_said}; the conditional generator ({}) serves",
+                    config.models.conditional_generator.display()
+                ),
+            ),
+            Err(e) => (
+                build_mode(config, PlannerMode::Astar, site)?,
+                PlannerMode::Astar,
+                format!(
+                    "{desire_said}; and no conditional generator ({}): nothing learned is \
+                     servable, A* serves (train the site's models with `gangway train`)",
+                    e.cause()
+                ),
+            ),
+        };
+    Ok((planner, Choice { serves, because }))
+}
+
+/// The checks a model's metadata says it failed.
+fn failed_checks(meta: &crate::model::Metadata) -> Vec<Check> {
+    checks(meta.kind, &meta.metrics)
+        .into_iter()
+        .filter(|c| !c.passed())
+        .collect()
+}
+
+fn described(checks: &[Check]) -> String {
+    checks
+        .iter()
+        .map(Check::describe)
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// Why desire lines at `path` cannot serve: `error`, or, when the file is
+/// missing and training put a failed one in `failed/` beside it, what that
+/// one failed.
+fn missing_desire(path: &Path, site: &Site, error: ModelError) -> String {
+    if let ModelError::Read { .. } = error
+        && let Some(dir) = path.parent()
+        && let Some(name) = path.file_name()
+    {
+        let failed = dir.join("failed").join(name);
+        if let Ok(model) = DesireModel::load(&failed, site) {
+            return format!(
+                "the desire lines failed their training check ({}: {})",
+                failed.display(),
+                described(&failed_checks(model.model().metadata()))
+            );
+        }
+    }
+    format!("no desire lines ({error})")
+}

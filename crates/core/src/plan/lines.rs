@@ -1,0 +1,159 @@
+//! How alike two lines in metres are: dynamic time warping and the discrete
+//! Fréchet distance, on both lines resampled at the same spacing so that
+//! neither measure depends on how densely a line was drawn (a route's three
+//! vertices and a walk's sixty cells cover the same ground). Used to judge
+//! routes against people's walks (`gangway eval planning`, re-exported by
+//! `eval::similarity`) and by training, which cross-validates the desire
+//! lines by the same measure (`train::desire`): it sits here, below both.
+
+use crate::site::{Cell, Site};
+
+/// A line through points in metres, in walking order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Polyline(pub Vec<[f64; 2]>);
+
+impl Polyline {
+    /// The line through the centres of `cells` on `site`.
+    pub fn of_cells(site: &Site, cells: &[Cell]) -> Polyline {
+        Polyline(
+            cells
+                .iter()
+                .map(|&c| {
+                    let (x, y) = site.metres(c);
+                    [x, y]
+                })
+                .collect(),
+        )
+    }
+
+    /// Length in metres.
+    pub fn length_m(&self) -> f64 {
+        self.0.windows(2).map(|w| dist(w[0], w[1])).sum()
+    }
+
+    /// Points every `step_m` metres along the line, from its first point to
+    /// its last (both kept), so two lines are compared at the same density.
+    pub(crate) fn resampled(&self, step_m: f64) -> Vec<[f64; 2]> {
+        let Some(&first) = self.0.first() else {
+            return Vec::new();
+        };
+        let mut out = vec![first];
+        // Distance still to walk before the next sample.
+        let mut until_next = step_m;
+        for w in self.0.windows(2) {
+            let (a, b) = (w[0], w[1]);
+            let len = dist(a, b);
+            let mut along = 0.0;
+            while len - along >= until_next {
+                along += until_next;
+                let t = along / len;
+                out.push([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]);
+                until_next = step_m;
+            }
+            until_next -= len - along;
+        }
+        let last = *self.0.last().expect("not empty");
+        if out.last().is_none_or(|&p| dist(p, last) > 1e-9) {
+            out.push(last);
+        }
+        out
+    }
+}
+
+fn dist(a: [f64; 2], b: [f64; 2]) -> f64 {
+    (a[0] - b[0]).hypot(a[1] - b[1])
+}
+
+/// How far apart two lines are, in metres, both resampled every `step_m`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Shape {
+    /// Dynamic time warping: the mean distance between matched points along
+    /// the cheapest monotone matching (its total over its number of pairs).
+    pub dtw_m: f64,
+    /// Discrete Fréchet distance: the longest leash two walkers need to walk
+    /// the two lines forwards, each at its own pace.
+    pub frechet_m: f64,
+}
+
+/// [`Shape`] of `a` against `b`; `None` when either line is empty.
+pub fn shape(a: &Polyline, b: &Polyline, step_m: f64) -> Option<Shape> {
+    let (p, q) = (a.resampled(step_m), b.resampled(step_m));
+    if p.is_empty() || q.is_empty() {
+        return None;
+    }
+    let m = q.len();
+    // Row by row: DTW's total and pair count along its cheapest path, and the
+    // Fréchet coupling, each from the three cells before.
+    let mut prev: Vec<(f64, u32, f64)> = Vec::with_capacity(m);
+    let mut row: Vec<(f64, u32, f64)> = Vec::with_capacity(m);
+    for (i, &pi) in p.iter().enumerate() {
+        row.clear();
+        for (j, &qj) in q.iter().enumerate() {
+            let d = dist(pi, qj);
+            let before = [
+                (i > 0).then(|| prev[j]),
+                (j > 0).then(|| row[j - 1]),
+                (i > 0 && j > 0).then(|| prev[j - 1]),
+            ];
+            let cheapest = before
+                .iter()
+                .flatten()
+                .min_by(|x, y| x.0.total_cmp(&y.0))
+                .map_or((0.0, 0), |&(sum, n, _)| (sum, n));
+            let leash = before
+                .iter()
+                .flatten()
+                .map(|x| x.2)
+                .reduce(f64::min)
+                .unwrap_or(0.0);
+            row.push((cheapest.0 + d, cheapest.1 + 1, leash.max(d)));
+        }
+        std::mem::swap(&mut prev, &mut row);
+    }
+    let (sum, pairs, frechet) = prev[m - 1];
+    Some(Shape {
+        dtw_m: sum / f64::from(pairs),
+        frechet_m: frechet,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn resampling_keeps_the_ends_and_the_spacing() {
+        let line = Polyline(vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.5]]);
+        let points = line.resampled(0.5);
+        assert_eq!(points.len(), 6);
+        assert_eq!(points[0], [0.0, 0.0]);
+        assert_eq!(points[2], [1.0, 0.0]);
+        assert_eq!(points[5], [1.0, 1.5]);
+        for w in points.windows(2) {
+            assert!((dist(w[0], w[1]) - 0.5).abs() < 1e-9, "{w:?}");
+        }
+        assert_eq!(line.length_m(), 2.5);
+    }
+
+    #[test]
+    fn dtw_and_frechet_in_metres() {
+        let a = Polyline(vec![[0.0, 0.0], [4.0, 0.0]]);
+        // The same line drawn with more points is at distance 0.
+        let dense = Polyline((0..=8).map(|i| [f64::from(i) * 0.5, 0.0]).collect());
+        let same = shape(&a, &dense, 0.25).unwrap();
+        assert!(same.dtw_m < 1e-9 && same.frechet_m < 1e-9, "{same:?}");
+        // A parallel line 1 m away: every matched pair is 1 m apart.
+        let parallel = Polyline(vec![[0.0, 1.0], [4.0, 1.0]]);
+        let s = shape(&a, &parallel, 0.25).unwrap();
+        assert!((s.dtw_m - 1.0).abs() < 1e-9 && (s.frechet_m - 1.0).abs() < 1e-9);
+        // A detour 2 m out in the middle: the leash is 2 m, the mean less.
+        let detour = Polyline(vec![[0.0, 0.0], [2.0, 2.0], [4.0, 0.0]]);
+        let s = shape(&a, &detour, 0.25).unwrap();
+        assert!((s.frechet_m - 2.0).abs() < 0.2, "{s:?}");
+        assert!(s.dtw_m > 0.3 && s.dtw_m < 1.5, "{s:?}");
+        // Walked the other way, the Fréchet distance is the whole length.
+        let back = Polyline(vec![[4.0, 0.0], [0.0, 0.0]]);
+        assert!((shape(&a, &back, 0.25).unwrap().frechet_m - 4.0).abs() < 1e-9);
+        assert!(shape(&a, &Polyline(Vec::new()), 0.25).is_none());
+    }
+}

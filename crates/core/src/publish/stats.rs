@@ -1,0 +1,141 @@
+//! The retained `<prefix>/stats` payload: the gateway's counters, published
+//! every `[mqtt] stats_interval_s` and whenever the BLE state changes. Schema:
+//! docs/schemas/stats.schema.json.
+
+use serde::Serialize;
+
+pub const STATS_SCHEMA: &str = "gangway.stats/1";
+
+/// The counters in [`Stats`] that only grow, with a human name each (Home
+/// Assistant discovery makes one sensor per entry).
+pub const COUNTERS: [(&str, &str); 28] = [
+    ("sightings", "Sightings"),
+    ("sightings_ignored", "Sightings ignored"),
+    ("fixes", "Fixes"),
+    ("requests", "Route requests"),
+    ("routes", "Routes"),
+    ("request_errors", "Route errors"),
+    ("feedback", "Feedback"),
+    ("scans", "Phone scans"),
+    ("shared_in", "Shared sightings received"),
+    ("shared_out", "Shared sightings sent"),
+    ("rejected_messages", "Rejected messages"),
+    ("oversized_messages", "Oversized messages"),
+    ("inbound_dropped", "Incoming messages dropped"),
+    ("bad_device_ids", "Unpublishable device ids"),
+    ("queue_dropped", "Offline queue drops"),
+    ("reconnects", "Reconnects"),
+    ("reloads", "Reloads"),
+    ("reload_failures", "Refused reloads"),
+    ("recorded", "Learning records"),
+    ("store_errors", "Learning store errors"),
+    ("store_quota_deleted", "Learning rows over quota"),
+    ("overloaded", "Requests refused: overloaded"),
+    ("rate_limited", "Messages refused: rate limit"),
+    ("feedback_refused", "Feedback refused"),
+    ("evicted_devices", "Devices forgotten"),
+    ("disconnects", "Broker connections lost"),
+    ("unpublishable", "Unpublishable messages"),
+    ("scan_restarts", "Silent scan restarts"),
+];
+
+/// Gauges (current values), with a human name each.
+pub const GAUGES: [(&str, &str); 5] = [
+    ("queue_depth", "Offline queue depth"),
+    ("tracked", "Tracked devices"),
+    ("windows", "Open fingerprint windows"),
+    ("announced", "Announced device trackers"),
+    ("pending_requests", "Route requests waiting"),
+];
+
+/// One stats message.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Stats {
+    pub schema: &'static str,
+    pub gateway: String,
+    /// Seconds since the epoch.
+    pub t: f64,
+    pub uptime_s: f64,
+    pub sightings: u64,
+    /// Sightings of anchors the site does not know.
+    pub sightings_ignored: u64,
+    pub fixes: u64,
+    pub requests: u64,
+    pub routes: u64,
+    pub request_errors: u64,
+    pub feedback: u64,
+    pub scans: u64,
+    pub shared_in: u64,
+    pub shared_out: u64,
+    /// Incoming messages refused (bad topic, device id or payload).
+    pub rejected_messages: u64,
+    /// Incoming messages over `[mqtt] max_payload_bytes`.
+    pub oversized_messages: u64,
+    /// Incoming messages dropped because the pipeline was behind.
+    pub inbound_dropped: u64,
+    /// Fixes not published because the device id cannot be a topic level.
+    pub bad_device_ids: u64,
+    pub queue_depth: u64,
+    pub queue_bytes: u64,
+    pub queue_dropped: u64,
+    pub reconnects: u64,
+    /// SIGHUP reloads applied, and refused (the old config kept serving).
+    pub reloads: u64,
+    pub reload_failures: u64,
+    /// Rows written to the learning store, and failed writes.
+    pub recorded: u64,
+    pub store_errors: u64,
+    /// Rows the learning store deleted to stay within its quotas.
+    pub store_quota_deleted: u64,
+    /// Route requests answered `overloaded` (too many waiting, or waited past
+    /// `[limits] request_deadline_s`).
+    pub overloaded: u64,
+    /// Scans dropped and route requests answered `rate_limited` (`[limits]`).
+    pub rate_limited: u64,
+    /// Feedback for a route this gateway did not give (or already scored).
+    pub feedback_refused: u64,
+    /// Devices (tracks) and fingerprint windows forgotten: idle, or least
+    /// recently seen past `[limits] max_devices`.
+    pub evicted_devices: u64,
+    pub evicted_windows: u64,
+    /// MQTT connections lost after they were up.
+    pub disconnects: u64,
+    /// Outgoing messages no broker would take (a bad topic), dropped.
+    pub unpublishable: u64,
+    /// Bluetooth scans restarted after `[ble] silent_restart_s` of silence.
+    pub scan_restarts: u64,
+    pub tracked: u64,
+    /// Entities with an open fingerprint window.
+    pub windows: u64,
+    /// Devices with a Home Assistant tracker config on the broker.
+    pub announced: u64,
+    /// Route requests waiting to be planned.
+    pub pending_requests: u64,
+    /// `connected`, `disconnected`, or `flapping` (lost repeatedly within a
+    /// minute: the gateway cannot stay connected).
+    pub mqtt: &'static str,
+    /// The site's name and map hash, so a reload is visible.
+    pub site: String,
+    pub site_hash: String,
+    /// Components that failed to load at start-up, each with what serves
+    /// instead (empty: everything configured is serving).
+    pub fallbacks: Vec<String>,
+    pub ble: BleStatus,
+}
+
+/// The radio's state, visible to operators.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct BleStatus {
+    /// `scanning`, `retrying` (adapter lost or missing), `starting`, or
+    /// `replay` when events come from a log.
+    pub state: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// Failed attempts since the last successful start.
+    pub failures: u64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub retry_in_s: Option<f64>,
+    /// Silent scans restarted; published as the top-level `scan_restarts`.
+    #[serde(skip)]
+    pub scan_restarts: u64,
+}

@@ -1,0 +1,450 @@
+//! Messages the gateway subscribes to, from topic and bytes to what the
+//! runtime consumes. Nothing here panics or gives up on bad input: every
+//! message becomes an [`Inbound`] or a [`Rejected`] that says why.
+//!
+//! - `<prefix>/devices/<device>/route/set`: `{"to": place | [x, y], "profile"?, "request_id"?}`;
+//!   a request that cannot be read still becomes a reply ([`Inbound::BadRoute`]);
+//! - `<prefix>/devices/<device>/route/cancel`: any payload (empty, `{}`);
+//!   ends the device's guidance session;
+//! - `<prefix>/devices/<device>/feedback`: `{"request_id": "...", "score": 1..5}`;
+//! - `<prefix>/scans/<device>`: `[{"uuid", "major", "minor", "rssi", "tx_power"?}]`,
+//!   a phone's own scan, localized with the phone as observer;
+//! - `<site prefix>/sightings/<gateway>`: another gateway's sightings.
+
+use std::sync::Arc;
+
+use serde::Deserialize;
+use uuid::Uuid;
+
+use super::sightings;
+use crate::event::{Feedback, Inbound, RouteRequest};
+use crate::plan::{Destination, RouteErrorCode};
+use crate::sighting::valid_device_id;
+use crate::sighting::{BeaconId, Sighting};
+use crate::topics::Topics;
+
+/// Why a message was not used; the daemon logs it and counts it.
+#[derive(Debug, PartialEq, thiserror::Error)]
+pub enum Rejected {
+    #[error("{topic}: not a topic this gateway serves")]
+    UnknownTopic { topic: String },
+    #[error(
+        "{topic}: the device id cannot be a topic level (empty, over 128 bytes, or `+`, `#`, `/`, control characters)"
+    )]
+    BadDevice { topic: String },
+    #[error(
+        "{topic}: payload of {size} bytes is over the {max}-byte limit ([mqtt] max_payload_bytes)"
+    )]
+    TooLarge {
+        topic: String,
+        size: usize,
+        max: usize,
+    },
+    #[error("{topic}: {reason}")]
+    BadPayload { topic: String, reason: String },
+    /// This gateway's own shared sightings, echoed by the broker.
+    #[error("{topic}: own sightings")]
+    Own { topic: String },
+}
+
+impl Rejected {
+    pub(crate) fn is_oversized(&self) -> bool {
+        matches!(self, Rejected::TooLarge { .. })
+    }
+}
+
+/// Reads the topics one gateway subscribes to.
+pub struct Inbox {
+    topics: Topics,
+    site_prefix: String,
+    gateway_id: String,
+    max_payload: usize,
+    /// Whether shared sightings are exchanged (advertiser orientation).
+    share: bool,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RouteSet {
+    to: Destination,
+    #[serde(default)]
+    profile: Option<String>,
+    #[serde(default)]
+    request_id: Option<String>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FeedbackBody {
+    request_id: String,
+    score: u8,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ScanEntry {
+    uuid: Uuid,
+    major: u16,
+    minor: u16,
+    rssi: i16,
+    #[serde(default)]
+    tx_power: Option<i8>,
+}
+
+impl Inbox {
+    pub fn new(
+        topics: Topics,
+        site_prefix: String,
+        gateway_id: String,
+        max_payload: usize,
+        share: bool,
+    ) -> Self {
+        Inbox {
+            topics,
+            site_prefix,
+            gateway_id,
+            max_payload,
+            share,
+        }
+    }
+
+    /// The topic filters to subscribe to.
+    pub(crate) fn subscriptions(&self) -> Vec<String> {
+        let mut filters = vec![
+            self.topics.route_set("+"),
+            self.topics.route_cancel("+"),
+            self.topics.feedback("+"),
+            self.topics.scans("+"),
+        ];
+        if self.share {
+            filters.push(sightings::topic(&self.site_prefix, "+"));
+        }
+        filters
+    }
+
+    /// Reads one message received at `now` (seconds since the epoch).
+    pub fn read(&self, topic: &str, payload: &[u8], now: f64) -> Result<Inbound, Rejected> {
+        self.read_sized(topic, payload, payload.len(), now)
+    }
+
+    /// [`Inbox::read`] of a message of `size` bytes whose payload the link
+    /// cut off (empty) for being over the limit.
+    pub(crate) fn read_sized(
+        &self,
+        topic: &str,
+        payload: &[u8],
+        size: usize,
+        now: f64,
+    ) -> Result<Inbound, Rejected> {
+        let unknown = || Rejected::UnknownTopic {
+            topic: topic.to_owned(),
+        };
+        let (kind, id) = self.classify(topic).ok_or_else(unknown)?;
+        if !valid_device_id(id) {
+            return Err(Rejected::BadDevice {
+                topic: topic.to_owned(),
+            });
+        }
+        let too_large = size.max(payload.len()) > self.max_payload;
+        let bad = |reason: String| Rejected::BadPayload {
+            topic: topic.to_owned(),
+            reason,
+        };
+        match kind {
+            Kind::RouteSet => Ok(self.route(id, payload, size, now)),
+            _ if too_large => Err(Rejected::TooLarge {
+                topic: topic.to_owned(),
+                size,
+                max: self.max_payload,
+            }),
+            // What a cancel says is all in its topic.
+            Kind::RouteCancel => Ok(Inbound::Cancel {
+                device: id.to_owned(),
+                t: now,
+            }),
+            Kind::Feedback => {
+                let body: FeedbackBody = serde_json::from_slice(payload).map_err(|e| {
+                    bad(format!(
+                        "{e}; feedback is {{\"request_id\": \"...\", \"score\": 1..5}}"
+                    ))
+                })?;
+                if !(1..=5).contains(&body.score) {
+                    return Err(bad(format!("score {} is not 1..5", body.score)));
+                }
+                if !valid_request_id(&body.request_id) {
+                    return Err(bad(REQUEST_ID_RULE.to_owned()));
+                }
+                Ok(Inbound::Feedback(Feedback {
+                    t: now,
+                    device: id.to_owned(),
+                    request_id: body.request_id,
+                    score: body.score,
+                }))
+            }
+            Kind::Scan => {
+                let entries: Vec<ScanEntry> = serde_json::from_slice(payload).map_err(|e| {
+                    bad(format!(
+                        "{e}; a scan is [{{\"uuid\", \"major\", \"minor\", \"rssi\"}}, ...]"
+                    ))
+                })?;
+                let observer: Arc<str> = id.into();
+                Ok(Inbound::Scan(
+                    entries
+                        .into_iter()
+                        .map(|e| Sighting {
+                            t: now,
+                            observer: observer.clone(),
+                            advertiser: BeaconId {
+                                uuid: e.uuid,
+                                major: e.major,
+                                minor: e.minor,
+                            },
+                            tx_power: e.tx_power,
+                            rssi: e.rssi,
+                        })
+                        .collect(),
+                ))
+            }
+            Kind::Sightings if id == self.gateway_id => Err(Rejected::Own {
+                topic: topic.to_owned(),
+            }),
+            Kind::Sightings => sightings::decode(id, payload)
+                .map(Inbound::Shared)
+                .map_err(bad),
+        }
+    }
+
+    fn route(&self, device: &str, payload: &[u8], size: usize, now: f64) -> Inbound {
+        let bad = |request_id, code, message| Inbound::BadRoute {
+            device: device.to_owned(),
+            request_id,
+            code,
+            message,
+        };
+        if size.max(payload.len()) > self.max_payload {
+            return bad(
+                None,
+                RouteErrorCode::PayloadTooLarge,
+                format!(
+                    "the request is {size} bytes; the limit is {}",
+                    self.max_payload
+                ),
+            );
+        }
+        let value: serde_json::Value = match serde_json::from_slice(payload) {
+            Ok(v) => v,
+            Err(e) => {
+                return bad(
+                    None,
+                    RouteErrorCode::InvalidJson,
+                    format!("the request is not JSON: {e}"),
+                );
+            }
+        };
+        // Echo the request id even when the rest of the request is wrong
+        // (but not one too long to be an id: it would be echoed and stored).
+        let request_id = value
+            .get("request_id")
+            .and_then(|id| id.as_str())
+            .filter(|id| valid_request_id(id))
+            .map(str::to_owned);
+        match serde_json::from_value::<RouteSet>(value) {
+            Ok(r) if !r.request_id.as_deref().is_none_or(valid_request_id) => bad(
+                None,
+                RouteErrorCode::InvalidRequest,
+                REQUEST_ID_RULE.to_owned(),
+            ),
+            Ok(r) => Inbound::Route(RouteRequest {
+                t: now,
+                device: device.to_owned(),
+                to: r.to,
+                profile: r.profile,
+                request_id: r.request_id,
+            }),
+            Err(e) => bad(
+                request_id,
+                RouteErrorCode::InvalidRequest,
+                format!(
+                    "{e}; a request is {{\"to\": \"<place>\" or [x, y], \"profile\"?: \"...\", \"request_id\"?: \"...\"}}"
+                ),
+            ),
+        }
+    }
+
+    fn classify<'t>(&self, topic: &'t str) -> Option<(Kind, &'t str)> {
+        if let Some(rest) = strip(topic, self.topics.prefix()) {
+            if let Some(device) = rest.strip_prefix("scans/") {
+                return Some((Kind::Scan, device));
+            }
+            let rest = rest.strip_prefix("devices/")?;
+            if let Some(device) = rest.strip_suffix("/route/set") {
+                return Some((Kind::RouteSet, device));
+            }
+            if let Some(device) = rest.strip_suffix("/route/cancel") {
+                return Some((Kind::RouteCancel, device));
+            }
+            if let Some(device) = rest.strip_suffix("/feedback") {
+                return Some((Kind::Feedback, device));
+            }
+            return None;
+        }
+        let gateway = strip(topic, &self.site_prefix)?.strip_prefix("sightings/")?;
+        self.share.then_some((Kind::Sightings, gateway))
+    }
+}
+
+/// Longest request id, in bytes: ids are echoed in replies and kept in the
+/// learning store, so a client cannot make them large.
+pub(crate) const MAX_REQUEST_ID_BYTES: usize = 128;
+const REQUEST_ID_RULE: &str = "`request_id` must be 1 to 128 bytes without control characters";
+
+fn valid_request_id(id: &str) -> bool {
+    !id.is_empty() && id.len() <= MAX_REQUEST_ID_BYTES && !id.chars().any(char::is_control)
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Kind {
+    RouteSet,
+    RouteCancel,
+    Feedback,
+    Scan,
+    Sightings,
+}
+
+/// `topic` without `prefix/`.
+fn strip<'t>(topic: &'t str, prefix: &str) -> Option<&'t str> {
+    topic.strip_prefix(prefix)?.strip_prefix('/')
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn inbox() -> Inbox {
+        Inbox::new(
+            Topics::new("gangway/gw"),
+            "gangway/sites/s".into(),
+            "gw".into(),
+            1000,
+            true,
+        )
+    }
+
+    fn code(inbound: Inbound) -> (RouteErrorCode, Option<String>) {
+        match inbound {
+            Inbound::BadRoute {
+                code, request_id, ..
+            } => (code, request_id),
+            other => panic!("expected an error reply, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_route_request_is_read_from_its_topic() {
+        let r = inbox()
+            .read(
+                "gangway/gw/devices/phone-1/route/set",
+                br#"{"to":"help desk","request_id":"r1"}"#,
+                5.0,
+            )
+            .unwrap();
+        assert_eq!(
+            r,
+            Inbound::Route(RouteRequest {
+                t: 5.0,
+                device: "phone-1".into(),
+                to: Destination::Place("help desk".into()),
+                profile: None,
+                request_id: Some("r1".into()),
+            })
+        );
+    }
+
+    #[test]
+    fn unreadable_route_requests_become_error_replies_with_their_id() {
+        let i = inbox();
+        let t = "gangway/gw/devices/p/route/set";
+        assert_eq!(
+            code(i.read(t, b"{nope", 0.0).unwrap()),
+            (RouteErrorCode::InvalidJson, None)
+        );
+        assert_eq!(
+            code(
+                i.read(t, br#"{"request_id":"r9","to":{"x":1}}"#, 0.0)
+                    .unwrap()
+            ),
+            (RouteErrorCode::InvalidRequest, Some("r9".into()))
+        );
+        assert_eq!(
+            code(i.read(t, &vec![b' '; 1001], 0.0).unwrap()).0,
+            RouteErrorCode::PayloadTooLarge
+        );
+        // Cut off by the link: empty, with the size it had.
+        assert_eq!(
+            code(i.read_sized(t, b"", 16 << 20, 0.0).unwrap()).0,
+            RouteErrorCode::PayloadTooLarge
+        );
+        let long_id = format!(r#"{{"to":"x","request_id":"{}"}}"#, "i".repeat(129));
+        assert_eq!(
+            code(i.read(t, long_id.as_bytes(), 0.0).unwrap()),
+            (RouteErrorCode::InvalidRequest, None)
+        );
+    }
+
+    #[test]
+    fn a_cancel_is_read_from_its_topic_whatever_its_payload() {
+        let i = inbox();
+        let t = "gangway/gw/devices/phone-1/route/cancel";
+        for payload in [&b""[..], b"{}", b"please stop"] {
+            assert_eq!(
+                i.read(t, payload, 5.0),
+                Ok(Inbound::Cancel {
+                    device: "phone-1".into(),
+                    t: 5.0
+                })
+            );
+        }
+        assert!(
+            i.subscriptions()
+                .contains(&"gangway/gw/devices/+/route/cancel".to_owned())
+        );
+        assert!(matches!(
+            i.read(t, &vec![b' '; 1001], 0.0),
+            Err(Rejected::TooLarge { .. })
+        ));
+    }
+
+    #[test]
+    fn scans_feedback_and_shared_sightings_are_read_or_refused() {
+        let i = inbox();
+        let scan = br#"[{"uuid":"5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84","major":1,"minor":3001,"rssi":-70}]"#;
+        let Inbound::Scan(s) = i.read("gangway/gw/scans/phone-2", scan, 9.0).unwrap() else {
+            panic!()
+        };
+        assert_eq!((&*s[0].observer, s[0].t, s[0].rssi), ("phone-2", 9.0, -70));
+        assert!(matches!(
+            i.read(
+                "gangway/gw/devices/p/feedback",
+                br#"{"request_id":"r","score":6}"#,
+                0.0
+            ),
+            Err(Rejected::BadPayload { .. })
+        ));
+        assert!(matches!(
+            i.read("gangway/gw/scans/p", &vec![b'['; 2000], 0.0),
+            Err(Rejected::TooLarge { .. })
+        ));
+        assert!(matches!(
+            i.read("gangway/sites/s/sightings/gw", b"{}", 0.0),
+            Err(Rejected::Own { .. })
+        ));
+        assert!(matches!(
+            i.read("gangway/gw/devices/a\u{1}b/route/set", b"{}", 0.0),
+            Err(Rejected::BadDevice { .. })
+        ));
+        assert!(matches!(
+            i.read("gangway/gw/other", b"{}", 0.0),
+            Err(Rejected::UnknownTopic { .. })
+        ));
+    }
+}

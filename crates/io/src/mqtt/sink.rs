@@ -1,0 +1,382 @@
+//! The broker as a sink: every output is published as [`Topics::encode`]
+//! writes it, over the [`Link`] (which reconnects, queues while the broker is
+//! away and redelivers). A gateway's sink also keeps Home Assistant informed
+//! (a tracker announced before a device's first location, its presence
+//! before each location, withdrawn when the device is forgotten, bounded like
+//! the tracks by `[limits]`) and publishes the retained occupancy counts
+//! whenever they change.
+//!
+//! Two uses: the daemon's ([`gateway`]), which never waits for the broker
+//! (the offline queue keeps the newest messages while it is away, so the
+//! gateway keeps locating), and a replay's ([`publisher`]), which waits for
+//! room instead and so loses nothing however fast the log plays.
+
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+
+use foldhash::HashMap;
+use futures::future::BoxFuture;
+
+use super::MqttConfig;
+use super::discovery::Discovery;
+use super::inbound::Inbox;
+use super::occupancy::Occupancy;
+use super::source::MqttSource;
+use super::{Link, LinkStats, MqttError, sightings};
+use crate::locate::bounds::Bounds;
+use crate::publish::Output;
+use crate::publish::stats::Stats;
+use crate::sink::Sink;
+use crate::site::Site;
+use crate::source::unix_now;
+use crate::topics::{Message, Topics};
+
+/// Publishes outputs to the broker.
+pub struct MqttSink {
+    link: Link,
+    topics: Topics,
+    /// The site's prefix and this gateway's id: where shared sightings go.
+    site_prefix: String,
+    gateway_id: String,
+    /// Home Assistant discovery, when `[mqtt] ha_discovery`.
+    discovery: Option<Discovery>,
+    discovery_prefix: String,
+    /// Devices with a published tracker config, with the time of their
+    /// latest location.
+    announced: HashMap<Arc<str>, f64>,
+    announced_bounds: Bounds,
+    /// Devices per named place (the gateway's sink only).
+    occupancy: Option<Occupancy>,
+    /// Wait for room rather than let the offline queue drop (a replay).
+    lossless: bool,
+    /// Messages to hand to the link at the next flush, in one batch.
+    pending: Vec<Message>,
+}
+
+/// Who this gateway is on the broker, and what it keeps per device: what
+/// the sink needs from the config file beyond `[mqtt]` (the config composes
+/// it, `Config::broker_identity`, so this module never reads the whole file).
+#[derive(Clone, Debug)]
+pub struct Identity {
+    pub gateway_id: String,
+    pub client_id: String,
+    /// This gateway's topics (`Topics::new`).
+    pub topic_prefix: String,
+    /// The topics the site's gateways share.
+    pub site_prefix: String,
+    /// The site's gateways exchange sightings (they are the anchors).
+    pub shares_sightings: bool,
+    /// Devices announced to Home Assistant, bounded like the tracks
+    /// (`[limits]`).
+    pub max_devices: usize,
+    pub device_idle_s: f64,
+}
+
+/// The daemon's connection to `url`: a sink for everything it publishes
+/// (with a retained `online`/`offline` status and Home Assistant discovery)
+/// and a source of what it subscribes to (route requests, feedback, phone
+/// scans, other gateways' sightings).
+pub fn gateway(
+    config: &MqttConfig,
+    identity: &Identity,
+    site: &Site,
+    url: &str,
+) -> anyhow::Result<(MqttSink, MqttSource)> {
+    let topics = Topics::new(identity.topic_prefix.clone());
+    let site_prefix = identity.site_prefix.clone();
+    anyhow::ensure!(
+        super::config::valid_prefix(&site_prefix),
+        "the site name {:?} cannot be part of a topic ({site_prefix:?}); set [mqtt] site_prefix",
+        site.name
+    );
+    let inbox = Inbox::new(
+        topics.clone(),
+        site_prefix.clone(),
+        identity.gateway_id.clone(),
+        config.max_payload_bytes,
+        identity.shares_sightings,
+    );
+    let settings = super::link_settings(
+        config,
+        url,
+        &identity.client_id,
+        Some(topics.status()),
+        inbox.subscriptions(),
+        true,
+    )?;
+    let (link, inbound) = Link::start(settings);
+    let mut sink = MqttSink::new(config, identity, link, topics, false);
+    if config.ha_discovery {
+        let discovery = sink.discovery_for(site);
+        sink.link.set_birth(&discovery.gateway(), true);
+        sink.discovery = Some(discovery);
+    }
+    sink.occupancy = Some(occupancy(site));
+    sink.publish_occupancy();
+    Ok((sink, MqttSource::new(inbound, inbox)))
+}
+
+/// A replay's connection to `url`: publishes outputs and waits for the broker
+/// rather than drop any; no status, no subscriptions, no discovery.
+pub fn publisher(
+    config: &MqttConfig,
+    identity: &Identity,
+    url: &str,
+) -> Result<MqttSink, MqttError> {
+    let client_id = format!("{}-replay", identity.client_id);
+    // Nobody waits for a reply: let the kernel gather messages into packets.
+    let settings = super::link_settings(config, url, &client_id, None, Vec::new(), false)?;
+    let (link, _) = Link::start(settings);
+    let topics = Topics::new(identity.topic_prefix.clone());
+    Ok(MqttSink::new(config, identity, link, topics, true))
+}
+
+/// Occupancy of the site's places, everyone away.
+fn occupancy(site: &Site) -> Occupancy {
+    Occupancy::new(site.places().keys().map(String::as_str))
+}
+
+impl MqttSink {
+    fn new(
+        config: &MqttConfig,
+        identity: &Identity,
+        link: Link,
+        topics: Topics,
+        lossless: bool,
+    ) -> MqttSink {
+        MqttSink {
+            link,
+            topics,
+            site_prefix: identity.site_prefix.clone(),
+            gateway_id: identity.gateway_id.clone(),
+            discovery: None,
+            discovery_prefix: config.discovery_prefix.clone(),
+            announced: HashMap::default(),
+            announced_bounds: Bounds::new(identity.max_devices, identity.device_idle_s),
+            occupancy: None,
+            lossless,
+            pending: Vec::new(),
+        }
+    }
+
+    /// Home Assistant discovery for `site`'s places.
+    fn discovery_for(&self, site: &Site) -> Discovery {
+        Discovery::new(
+            &self.discovery_prefix,
+            &self.gateway_id,
+            self.topics.clone(),
+            site.places().keys().map(String::as_str),
+        )
+    }
+
+    /// Hands what is pending to the link now (before a command that must
+    /// come after it).
+    fn hand_over(&mut self) {
+        self.link.publish_batch(std::mem::take(&mut self.pending));
+    }
+
+    /// Notes a location of `device` at `t`; the first one announces it.
+    fn announce(&mut self, device: &str, t: f64) {
+        if self.discovery.is_none() {
+            return;
+        }
+        if let Some(seen) = self.announced.get_mut(device) {
+            *seen = seen.max(t);
+            return;
+        }
+        self.hand_over();
+        let discovery = self.discovery.as_ref().expect("checked above");
+        let mut forgotten = Vec::new();
+        let full = self.announced.len() >= self.announced_bounds.max();
+        self.announced_bounds.make_room(
+            &mut self.announced,
+            t,
+            full,
+            |&seen| seen,
+            |id| forgotten.push(id.clone()),
+        );
+        for id in forgotten {
+            self.link
+                .clear_retained(discovery.tracker_config_topic(&id));
+        }
+        self.announced.insert(device.into(), t);
+        // Sent now and kept for every reconnect (a restarted broker may have
+        // lost it); the link keeps births by topic, so this costs one config.
+        self.link
+            .set_birth(&[discovery.device_tracker(device)], true);
+    }
+
+    /// Removes a forgotten device from the occupancy counts, and its tracker
+    /// from Home Assistant (an empty retained config) and from the configs
+    /// re-sent after a reconnect.
+    fn withdraw(&mut self, device: &str) {
+        if let Some(occupancy) = &mut self.occupancy {
+            occupancy.forget(device);
+        }
+        if self.discovery.is_some() && self.announced.remove(device).is_some() {
+            self.hand_over();
+            let discovery = self.discovery.as_ref().expect("checked above");
+            self.link
+                .clear_retained(discovery.tracker_config_topic(device));
+        }
+    }
+
+    /// The occupancy counts, if they changed since they were last sent.
+    fn publish_occupancy(&mut self) {
+        if let Some(counts) = self
+            .occupancy
+            .as_mut()
+            .and_then(|o| o.update(&self.topics, unix_now()))
+        {
+            self.pending.push(counts);
+        }
+    }
+}
+
+impl Sink for MqttSink {
+    fn name(&self) -> &'static str {
+        "mqtt"
+    }
+
+    /// Publishes each output, announcing new devices to Home Assistant
+    /// before their first location (one config per new device), withdrawing
+    /// those forgotten, and giving each tracker its state before the
+    /// location that carries its attributes; then the occupancy counts, if
+    /// they changed.
+    fn send(&mut self, outputs: &[Output]) -> anyhow::Result<()> {
+        for output in outputs {
+            match output {
+                Output::Location(location) => {
+                    if self.discovery.is_some() {
+                        self.announce(&location.device, location.t);
+                        let (topic, state) = self
+                            .discovery
+                            .as_ref()
+                            .expect("checked above")
+                            .presence(location);
+                        self.pending.push(Message {
+                            topic,
+                            payload: state.into_bytes(),
+                            retain: false,
+                        });
+                    }
+                    if let Some(occupancy) = &mut self.occupancy {
+                        occupancy.observe(location);
+                    }
+                }
+                Output::Forgotten(device) => self.withdraw(device),
+                Output::Sightings(batch) => {
+                    let message = sightings::encode(&self.site_prefix, &self.gateway_id, batch);
+                    self.pending.push(message);
+                }
+                _ => {}
+            }
+            if let Some(message) = self.topics.encode(output) {
+                self.pending.push(message);
+            }
+        }
+        self.publish_occupancy();
+        Ok(())
+    }
+
+    /// Hands the messages of the last outputs to the link in one batch; a
+    /// lossless sink hands over only what fits under the link's bound at a
+    /// time, waiting for the broker in between.
+    fn flush(&mut self) -> BoxFuture<'_, anyhow::Result<()>> {
+        Box::pin(async move {
+            if !self.lossless {
+                self.hand_over();
+                return Ok(());
+            }
+            while !self.pending.is_empty() {
+                self.link.wait_for_room().await;
+                let n = self.link.room().min(self.pending.len());
+                let batch: Vec<Message> = self.pending.drain(..n).collect();
+                self.link.publish_batch(batch);
+            }
+            Ok(())
+        })
+    }
+
+    /// After a reload: occupancy starts afresh with the tracks, and Home
+    /// Assistant gets sensors for the new site's places (and loses those of
+    /// places it no longer has).
+    fn reload(&mut self, site: &Site) {
+        if self.occupancy.is_some() {
+            self.occupancy = Some(occupancy(site));
+            self.publish_occupancy();
+        }
+        let Some(old) = self.discovery.take() else {
+            return;
+        };
+        let new = self.discovery_for(site);
+        for place in old.place_names() {
+            let topic = old.occupancy_config_topic(place);
+            if let Some(gone) =
+                topic.filter(|t| new.occupancy_config_topic(place).as_ref() != Some(t))
+            {
+                self.link.clear_retained(gone);
+            }
+        }
+        // Sent now and kept for every reconnect, by topic.
+        self.link.set_birth(&new.gateway(), true);
+        self.discovery = Some(new);
+    }
+
+    fn report(&self, stats: &mut Stats) {
+        let link = self.link.stats();
+        let count = |c: &std::sync::atomic::AtomicU64| c.load(Ordering::Relaxed);
+        stats.inbound_dropped = count(&link.inbound_dropped);
+        stats.disconnects = count(&link.disconnects);
+        stats.unpublishable = count(&link.unpublishable);
+        stats.queue_depth = count(&link.queue_depth);
+        stats.queue_bytes = count(&link.queue_bytes);
+        stats.queue_dropped = count(&link.queue_dropped);
+        stats.reconnects = count(&link.reconnects);
+        stats.mqtt = state(link);
+        stats.announced = self.announced.len() as u64;
+    }
+
+    fn has_room(&self) -> bool {
+        self.link.has_room()
+    }
+
+    fn is_alive(&self) -> bool {
+        self.link.is_alive()
+    }
+
+    fn status(&self) -> Option<String> {
+        let link = self.link.stats();
+        Some(match state(link) {
+            "connected" => "broker connected".to_owned(),
+            "flapping" => format!(
+                "CANNOT STAY CONNECTED to the broker ({} connections lost; see the log)",
+                link.disconnects.load(Ordering::Relaxed)
+            ),
+            _ => "broker unreachable, retrying (see the log)".to_owned(),
+        })
+    }
+
+    fn shutdown(mut self: Box<Self>) -> BoxFuture<'static, anyhow::Result<()>> {
+        Box::pin(async move {
+            self.flush().await?;
+            let dropped = self.link.stats().queue_dropped.load(Ordering::Relaxed);
+            if dropped > 0 {
+                tracing::warn!(dropped, "MQTT messages dropped from the full offline queue");
+            }
+            self.link.shutdown().await;
+            Ok(())
+        })
+    }
+}
+
+/// The connection's state for the stats and systemd's status line.
+fn state(link: &LinkStats) -> &'static str {
+    if link.flapping.load(Ordering::Relaxed) {
+        "flapping"
+    } else if link.connected.load(Ordering::Relaxed) {
+        "connected"
+    } else {
+        "disconnected"
+    }
+}

@@ -1,0 +1,488 @@
+//! Localization on a labelled survey: split the rows, build the localizer from
+//! the training part, locate every held-out row (through the tracker, in time
+//! order, when one is used) and compare with the label.
+//!
+//! Two splits, 70/30, averaged over seeds:
+//! - `random`: by row. Neighbouring rows of the same walk are nearly identical,
+//!   so this leaks: a held-out row usually has a twin in training.
+//! - `session`: by whole walking sessions (a gap over 20 s starts a new one), the
+//!   honest protocol: it is what a new visitor meets.
+//!
+//! In both, the held-out rows of one session form one sequence for the tracker,
+//! in time order. Errors are Euclidean distances between cell centres, in cells.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use rand::SeedableRng;
+use rand::rngs::Xoshiro256PlusPlus;
+use rand::seq::SliceRandom;
+use serde::Serialize;
+
+use crate::locate::calibrate::{DEFAULT_CELL_PRIOR_READINGS, FitOptions, Window, fit};
+use crate::locate::calibration::Calibration;
+use crate::locate::knn::Knn;
+use crate::locate::onnx::Onnx;
+use crate::locate::pathloss::PathLoss;
+use crate::locate::pathloss::anchors;
+use crate::locate::radiomap::RadioMap;
+use crate::locate::strongest::Strongest;
+use crate::locate::survey::{Sample, Survey, sessions};
+use crate::locate::tracker::TrackerConfig;
+use crate::locate::tracker::{Tracker, TrackerKind};
+use crate::locate::window::WindowConfig;
+use crate::locate::{Localizer, LocalizerConfig, LocalizerError, Method};
+use crate::score::ErrorSummary;
+use crate::site::Site;
+use crate::train::job::{Options, Progress, train_cells};
+
+pub use crate::locate::survey::SESSION_GAP_S;
+
+/// Share of rows (random) or sessions (session) held out for testing.
+const TEST_SHARE: f64 = 0.3;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Split {
+    Random,
+    Session,
+}
+
+/// Which rows are held out: drawn per seed, or fixed (`--train`/`--test`).
+#[derive(Clone, Debug)]
+pub enum Holdout {
+    Drawn(Split),
+    /// `true` for the test rows; evaluated once.
+    Fixed(Vec<bool>),
+}
+
+/// What to evaluate.
+#[derive(Clone, Debug)]
+pub struct Setup {
+    pub holdout: Holdout,
+    /// A gap longer than this (seconds) between rows starts a new walking session.
+    pub session_gap_s: f64,
+    pub seeds: u64,
+    pub method: Method,
+    pub localizer: LocalizerConfig,
+    pub window: WindowConfig,
+    pub tracker: TrackerConfig,
+    /// Fixed-lag smoothing over this many later windows (0: the online filter).
+    pub smooth_lag: usize,
+    /// Unlabelled scans the survey-free model is calibrated on first.
+    pub calibrate_from: Option<UnlabelledRows>,
+    /// EM iterations refining a radio map per cell in that calibration (0: none).
+    pub calibrate_cells: usize,
+}
+
+/// The figures, averaged over seeds, and the reliability of the published
+/// confidence over all seeds' fixes.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Metrics {
+    #[serde(flatten)]
+    pub errors: ErrorSummary,
+    /// Localizer plus tracker time per fix, single-threaded.
+    pub us_per_fix: f64,
+    /// Fixes by published confidence, in tenths.
+    pub reliability: Vec<ReliabilityBin>,
+    /// The largest |mean confidence − share within one cell| over the bins
+    /// holding at least [`RELIABLE_BIN`] fixes: 0 is perfectly calibrated.
+    pub confidence_gap_max: f64,
+}
+
+/// Fixes whose confidence fell in `[from, to)`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct ReliabilityBin {
+    pub from: f64,
+    pub to: f64,
+    pub fixes: usize,
+    pub mean_confidence: f64,
+    /// Share of them within one cell of the truth (what confidence promises).
+    pub within_1: f64,
+}
+
+/// Bins with fewer fixes are listed but too noisy to judge calibration by.
+pub const RELIABLE_BIN: usize = 30;
+
+/// The reliability table of (confidence, error in cells) pairs.
+fn reliability(fixes: &[(f32, f64)]) -> (Vec<ReliabilityBin>, f64) {
+    let mut bins: Vec<ReliabilityBin> = (0..10)
+        .map(|i| ReliabilityBin {
+            from: f64::from(i) / 10.0,
+            to: f64::from(i + 1) / 10.0,
+            ..ReliabilityBin::default()
+        })
+        .collect();
+    for &(confidence, error) in fixes {
+        let bin = &mut bins[((confidence * 10.0) as usize).min(9)];
+        bin.fixes += 1;
+        bin.mean_confidence += f64::from(confidence);
+        bin.within_1 += f64::from(u8::from(error <= 1.0 + 1e-9));
+    }
+    let mut gap = 0.0f64;
+    for bin in &mut bins {
+        if bin.fixes > 0 {
+            bin.mean_confidence /= bin.fixes as f64;
+            bin.within_1 /= bin.fixes as f64;
+        }
+        if bin.fixes >= RELIABLE_BIN {
+            gap = gap.max((bin.mean_confidence - bin.within_1).abs());
+        }
+    }
+    (bins, gap)
+}
+
+/// Metrics plus every error (all seeds), for plotting.
+pub struct Outcome {
+    pub metrics: Metrics,
+    pub errors: Vec<f64>,
+    /// Every held-out row's fix, for `--rows`.
+    pub rows: Vec<RowFix>,
+}
+
+/// One held-out row's fix.
+#[derive(Clone, Debug)]
+pub struct RowFix {
+    pub seed: u64,
+    pub session: usize,
+    /// The row's index in the survey file (0 = first data row).
+    pub row: usize,
+    pub t: f64,
+    pub truth: crate::site::Cell,
+    pub cell: crate::site::Cell,
+    pub confidence: f32,
+    pub error_cells: f64,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error("the survey has no time column; sessions and tracking need `date` or `t`")]
+    NoTime,
+    #[error(
+        "too few rows or sessions to split 70/30: {rows} rows in {sessions} walking sessions \
+         (a gap over {gap_s} s starts one); try --split random, a smaller --session-gap, or \
+         --train and --test"
+    )]
+    TooSmall {
+        rows: usize,
+        sessions: usize,
+        gap_s: f64,
+    },
+    #[error(transparent)]
+    Localizer(#[from] LocalizerError),
+    #[error("training the cell classifier: {0:#}")]
+    Training(anyhow::Error),
+}
+
+/// Iterations of the cell classifier trained for each split (as `gangway train`).
+const CELL_CLASSIFIER_ITERATIONS: usize = 3_000;
+
+/// Trains the `onnx` localizer's cell classifier on a training split, writes it
+/// as ONNX and loads it back through tract, exactly as a deployed model runs.
+fn train_cell_classifier(site: &Site, train: &Survey, seed: u64) -> Result<Onnx, EvalError> {
+    struct Silent;
+    impl Progress for Silent {
+        fn stage(&mut self, _: &str, _: usize) {}
+        fn step(&mut self, _: usize, _: &[(&str, f32)]) {}
+        fn done(&mut self) {}
+    }
+    let dir = tempfile::tempdir().map_err(|e| EvalError::Training(e.into()))?;
+    let options = Options {
+        iterations: 0,
+        batch: 64,
+        seed,
+        conditional: false,
+        classifier_iterations: CELL_CLASSIFIER_ITERATIONS,
+        heldout_share: 0.0,
+        checkpoint_every: None,
+        accept_failed: false,
+    };
+    let trained =
+        train_cells(site, train, &options, dir.path(), &mut Silent).map_err(EvalError::Training)?;
+    Ok(Onnx::load(&trained.file, site)?)
+}
+
+pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outcome, EvalError> {
+    let needs_time = matches!(setup.holdout, Holdout::Drawn(Split::Session))
+        || setup.tracker.kind == TrackerKind::Hmm;
+    let times: Vec<f64> = if needs_time {
+        survey
+            .samples
+            .iter()
+            .map(|s| s.t.ok_or(EvalError::NoTime))
+            .collect::<Result<_, _>>()?
+    } else {
+        (0..survey.samples.len()).map(|i| i as f64).collect()
+    };
+    let walks = Sessions::of(&times, setup.session_gap_s);
+    let (session, sessions) = (&walks.session, walks.count);
+    let walk_rows = walks.sequences();
+    // Survey-free with calibration: fitted once, on unlabelled rows only, so
+    // it is the same for every split.
+    let calibrated = match (&setup.calibrate_from, setup.method) {
+        (Some(rows), Method::Pathloss) => Some(calibration(site, survey, setup, rows)?),
+        _ => None,
+    };
+
+    let mut per_seed = Vec::new();
+    let mut errors = Vec::new();
+    let mut confidences = Vec::new();
+    let mut row_fixes = Vec::new();
+    let seeds = match setup.holdout {
+        Holdout::Fixed(_) => 1,
+        Holdout::Drawn(_) => setup.seeds,
+    };
+    for seed in 0..seeds {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+        let test: Vec<bool> = match &setup.holdout {
+            Holdout::Fixed(test) => test.clone(),
+            Holdout::Drawn(Split::Random) => {
+                let mut rows: Vec<usize> = (0..survey.samples.len()).collect();
+                rows.shuffle(&mut rng);
+                let n_test = (rows.len() as f64 * TEST_SHARE).round() as usize;
+                let mut test = vec![false; rows.len()];
+                rows[..n_test].iter().for_each(|&r| test[r] = true);
+                test
+            }
+            Holdout::Drawn(Split::Session) => {
+                let mut ids: Vec<usize> = (0..sessions).collect();
+                ids.shuffle(&mut rng);
+                let n_test = (sessions as f64 * TEST_SHARE).round() as usize;
+                let held: Vec<bool> = (0..sessions).map(|s| ids[..n_test].contains(&s)).collect();
+                session.iter().map(|&s| held[s]).collect()
+            }
+        };
+        let train_rows: Vec<usize> = (0..survey.samples.len()).filter(|&i| !test[i]).collect();
+        let train: Vec<&Sample> = train_rows.iter().map(|&i| &survey.samples[i]).collect();
+        if train.is_empty() || test.iter().all(|t| !t) {
+            return Err(EvalError::TooSmall {
+                rows: survey.samples.len(),
+                sessions,
+                gap_s: setup.session_gap_s,
+            });
+        }
+        let mut localizer: Box<dyn Localizer> = match setup.method {
+            Method::Knn => Box::new(Knn::new(
+                &setup.localizer.knn,
+                site,
+                &train,
+                setup.window.missing_dbm,
+            )?),
+            Method::Radiomap => Box::new(RadioMap::new(
+                &setup.localizer.radiomap,
+                site,
+                &survey.anchors,
+                setup.window.orientation,
+                &setup.tracker,
+                &train,
+            )?),
+            Method::Onnx => Box::new(train_cell_classifier(
+                site,
+                &survey.subset(&train_rows),
+                seed,
+            )?),
+            Method::Auto => crate::locate::auto::surveyed(
+                &setup.localizer,
+                site,
+                &survey.anchors,
+                &setup.window,
+                &setup.tracker,
+                &train,
+            )?,
+            Method::Strongest => Box::new(Strongest::new(
+                &setup.localizer.pathloss,
+                site,
+                setup.window.orientation,
+            )?),
+            Method::Pathloss => match &calibrated {
+                Some(calibration) => Box::new(PathLoss::calibrated(
+                    site,
+                    setup.window.orientation,
+                    &setup.localizer.pathloss,
+                    Some(calibration),
+                )?),
+                None => Box::new(PathLoss::new(
+                    &setup.localizer.pathloss,
+                    site,
+                    setup.window.orientation,
+                )?),
+            },
+        };
+        let mut tracker = Tracker::new(setup.tracker.clone(), site.clone());
+        let entities: Vec<Arc<str>> = (0..sessions)
+            .map(|s| Arc::from(format!("session-{s}")))
+            .collect();
+        let mut rssi = vec![0.0f32; survey.anchors.len()];
+        let mut heard = vec![false; survey.anchors.len()];
+        let mut seed_errors = Vec::new();
+        let started = Instant::now();
+        // Held-out rows, one time-ordered sequence per session.
+        let sequences: Vec<Vec<usize>> = walk_rows
+            .iter()
+            .map(|rows| rows.iter().copied().filter(|&r| test[r]).collect())
+            .collect();
+        for (s, rows) in sequences.iter().enumerate().filter(|(_, r)| !r.is_empty()) {
+            let mut windows = Vec::with_capacity(rows.len());
+            for &row in rows {
+                for (a, r) in survey.samples[row].rssi.iter().enumerate() {
+                    heard[a] = r.is_some();
+                    rssi[a] = r.map_or(setup.window.missing_dbm, f32::from);
+                }
+                let mut ll = vec![0.0f32; site.open_cells().len()];
+                localizer.log_likelihood(&rssi, &heard, &mut ll);
+                windows.push((times[row], ll));
+            }
+            let fixes = if setup.smooth_lag == 0 {
+                windows
+                    .iter()
+                    .map(|(t, ll)| tracker.update(&entities[s], *t, ll))
+                    .collect()
+            } else {
+                tracker.smooth(&windows, setup.smooth_lag)
+            };
+            for (fix, &row) in fixes.iter().zip(rows) {
+                let truth = survey.samples[row].cell;
+                let error = fix.cell.distance(truth);
+                let confidence = localizer.confidence(fix.confidence);
+                seed_errors.push(error);
+                confidences.push((confidence, error));
+                row_fixes.push(RowFix {
+                    seed,
+                    session: session[row],
+                    row,
+                    t: times[row],
+                    truth,
+                    cell: fix.cell,
+                    confidence,
+                    error_cells: error,
+                });
+            }
+        }
+        let us_per_fix = started.elapsed().as_secs_f64() * 1e6 / seed_errors.len() as f64;
+        per_seed.push(metrics(&seed_errors, site.cell_m, us_per_fix));
+        errors.extend(seed_errors);
+    }
+    let (reliability, confidence_gap_max) = reliability(&confidences);
+    Ok(Outcome {
+        metrics: Metrics {
+            reliability,
+            confidence_gap_max,
+            ..average(&per_seed)
+        },
+        errors,
+        rows: row_fixes,
+    })
+}
+
+/// Rows in time order (the UCI file is newest first) and the walking session
+/// of each: a gap over `gap_s` starts a new one.
+struct Sessions {
+    order: Vec<usize>,
+    session: Vec<usize>,
+    count: usize,
+}
+
+impl Sessions {
+    fn of(times: &[f64], gap_s: f64) -> Sessions {
+        let (order, session) = sessions(times, gap_s);
+        let count = order.last().map_or(0, |&i| session[i] + 1);
+        Sessions {
+            order,
+            session,
+            count,
+        }
+    }
+
+    /// The rows of each session, in time order.
+    fn sequences(&self) -> Vec<Vec<usize>> {
+        let mut out = vec![Vec::new(); self.count];
+        for &row in &self.order {
+            out[self.session[row]].push(row);
+        }
+        out
+    }
+}
+
+/// Unlabelled scans for calibration: one row per window, as the evaluation
+/// localizes them.
+#[derive(Clone, Debug)]
+pub struct UnlabelledRows {
+    pub rows: Vec<(f64, Vec<Option<i16>>)>,
+}
+
+/// The survey-free model fitted by EM to unlabelled rows (whole sessions,
+/// positions unknown), starting from the configured model.
+fn calibration(
+    site: &Arc<Site>,
+    survey: &Survey,
+    setup: &Setup,
+    unlabelled: &UnlabelledRows,
+) -> Result<Calibration, EvalError> {
+    let times: Vec<f64> = unlabelled.rows.iter().map(|r| r.0).collect();
+    let trajectories: Vec<Vec<Window>> = Sessions::of(&times, setup.session_gap_s)
+        .sequences()
+        .into_iter()
+        .map(|rows| {
+            rows.into_iter()
+                .map(|i| Window {
+                    t: unlabelled.rows[i].0,
+                    rssi: unlabelled.rows[i]
+                        .1
+                        .iter()
+                        .map(|r| r.map(f32::from))
+                        .collect(),
+                    cell: None,
+                })
+                .collect()
+        })
+        .collect();
+    let start = anchors(
+        site,
+        setup.window.orientation,
+        &setup.localizer.pathloss,
+        None,
+    );
+    let options = FitOptions {
+        iterations: crate::locate::calibrate::CALIBRATION_ITERATIONS,
+        cell_iterations: setup.calibrate_cells,
+        cell_prior_readings: DEFAULT_CELL_PRIOR_READINGS,
+    };
+    let fitted = fit(
+        site,
+        &survey.anchors,
+        &start,
+        &setup.tracker,
+        &trajectories,
+        &options,
+    )?;
+    Ok(fitted.calibration)
+}
+
+fn metrics(errors: &[f64], cell_m: f64, us_per_fix: f64) -> Metrics {
+    Metrics {
+        errors: ErrorSummary::of(errors, cell_m).expect("a split holds out at least one row"),
+        us_per_fix,
+        ..Metrics::default()
+    }
+}
+
+fn average(all: &[Metrics]) -> Metrics {
+    let n = all.len() as f64;
+    let mean = |f: fn(&Metrics) -> f64| all.iter().map(f).sum::<f64>() / n;
+    Metrics {
+        errors: ErrorSummary {
+            exact: mean(|m| m.errors.exact),
+            within_1: mean(|m| m.errors.within_1),
+            within_2: mean(|m| m.errors.within_2),
+            mean_error_cells: mean(|m| m.errors.mean_error_cells),
+            mean_error_m: mean(|m| m.errors.mean_error_m),
+            median_error_cells: mean(|m| m.errors.median_error_cells),
+            p75_error_cells: mean(|m| m.errors.p75_error_cells),
+            p90_error_cells: mean(|m| m.errors.p90_error_cells),
+            median_error_m: mean(|m| m.errors.median_error_m),
+            p75_error_m: mean(|m| m.errors.p75_error_m),
+            p90_error_m: mean(|m| m.errors.p90_error_m),
+        },
+        us_per_fix: mean(|m| m.us_per_fix),
+        ..Metrics::default()
+    }
+}

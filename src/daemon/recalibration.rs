@@ -1,0 +1,368 @@
+//! The runtime's half of recalibration (the computing half is the core's
+//! `locate::recalibrate`): a [`Job`] reads the newest windows the gateway
+//! heard back from the learning store, fits them with
+//! [`recalibrate::fit_heard`], writes the calibration file atomically (a
+//! temporary file renamed over the old one) and returns it. It blocks for
+//! seconds and touches nothing the event loop holds, so it runs on a blocking
+//! thread; the daemon then builds its pipeline anew with the file and swaps
+//! it in only if that succeeds, as a reload does. Restarts and reloads serve
+//! the newest recalibrated file ([`serving`]).
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use gangway_core::locate::LocalizerConfig;
+use gangway_core::locate::calibrate::{CellChange, Change};
+use gangway_core::locate::calibration::Calibration;
+use gangway_core::locate::pathloss::PathLossConfig;
+use gangway_core::locate::recalibrate::{self, FitError, RecalibrationConfig};
+use gangway_core::locate::tracker::TrackerConfig;
+use gangway_core::locate::window::Orientation;
+use gangway_core::site::Site;
+use gangway_io::store::{Store, StoreConfig, StoreError};
+
+/// The localizer config a gateway serves with: with recalibration on and a
+/// recalibrated file that loads, that file; else `config` as it is.
+pub(crate) fn serving(
+    config: &LocalizerConfig,
+    store: &StoreConfig,
+    site: &Site,
+) -> LocalizerConfig {
+    if !(config.recalibration.enabled && recalibrate::applies(config)) {
+        return config.clone();
+    }
+    let path = config.recalibration.out_path(&store.resolved_path());
+    if !path.exists() {
+        return config.clone();
+    }
+    match Calibration::load(&path, site) {
+        Ok(_) => recalibrate::with_calibration(config, &path),
+        Err(e) => {
+            tracing::error!("{e}; serving the configured calibration instead");
+            config.clone()
+        }
+    }
+}
+
+/// Everything a recalibration reads, owned, so the job can run on another
+/// thread while the daemon serves.
+#[derive(Clone, Debug)]
+pub(crate) struct Job {
+    pub site: Arc<Site>,
+    pub orientation: Orientation,
+    /// The configured model EM starts from (its calibration file unused).
+    pub pathloss: PathLossConfig,
+    pub tracker: TrackerConfig,
+    pub config: RecalibrationConfig,
+    /// The learning store the windows are in.
+    pub store: PathBuf,
+}
+
+impl Job {
+    /// The job of a gateway config's parts.
+    pub(crate) fn new(
+        site: &Arc<Site>,
+        orientation: Orientation,
+        localizer: &LocalizerConfig,
+        tracker: &TrackerConfig,
+        store: &Path,
+    ) -> Job {
+        Job {
+            site: site.clone(),
+            orientation,
+            pathloss: localizer.pathloss.clone(),
+            tracker: tracker.clone(),
+            config: localizer.recalibration.clone(),
+            store: store.to_owned(),
+        }
+    }
+}
+
+/// A finished recalibration.
+#[derive(Debug)]
+pub(crate) struct Recalibrated {
+    /// What was written to `path` (the daemon reloads it from there).
+    #[cfg(test)]
+    pub calibration: Calibration,
+    /// The file written.
+    pub path: PathBuf,
+    pub windows: usize,
+    pub trajectories: usize,
+    pub changes: Vec<Change>,
+    pub cells: Option<CellChange>,
+    pub seconds: f64,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum RecalibrationError {
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    #[error(transparent)]
+    Fit(#[from] FitError),
+    #[error("{}: cannot write the calibration: {source}", path.display())]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+/// Runs one recalibration (blocking; see the module doc).
+pub(crate) fn run(job: &Job) -> Result<Recalibrated, RecalibrationError> {
+    let started = std::time::Instant::now();
+    let store = Store::open_read_only(&job.store)?;
+    let rows = store.heard(job.config.max_windows)?;
+    drop(store);
+    let done = recalibrate::fit_heard(
+        &job.site,
+        job.orientation,
+        &job.pathloss,
+        &job.tracker,
+        &job.config,
+        &rows,
+    )?;
+    let path = job.config.out_path(&job.store);
+    let text = format!(
+        "# Written by the gateway's recalibration from {} fingerprint windows it heard \
+         ({} trajectories) in {}.\n{}",
+        done.windows,
+        done.trajectories,
+        job.store.display(),
+        done.fitted.calibration.to_toml()
+    );
+    write_atomically(&path, &text).map_err(|source| RecalibrationError::Write {
+        path: path.clone(),
+        source,
+    })?;
+    Ok(Recalibrated {
+        #[cfg(test)]
+        calibration: done.fitted.calibration,
+        path,
+        windows: done.windows,
+        trajectories: done.trajectories,
+        changes: done.fitted.changes,
+        cells: done.fitted.cells,
+        seconds: started.elapsed().as_secs_f64(),
+    })
+}
+
+/// Writes `text` to a temporary file beside `path`, then renames it over
+/// `path`: a reader sees the old file or the new one, never half of one.
+fn write_atomically(path: &Path, text: &str) -> std::io::Result<()> {
+    use std::io::Write;
+    let mut temporary = path.as_os_str().to_owned();
+    temporary.push(format!(".tmp-{}", std::process::id()));
+    let temporary = PathBuf::from(temporary);
+    let mut file = std::fs::File::create(&temporary)?;
+    file.write_all(text.as_bytes())?;
+    file.sync_all()?;
+    drop(file);
+    std::fs::rename(&temporary, path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use gangway_core::locate::Method;
+    use gangway_core::locate::pathloss::Radio;
+    use gangway_core::locate::recalibrate::{Heard, with_calibration};
+    use gangway_core::locate::window::{Fingerprint, anchor_ids};
+    use gangway_io::store::Record;
+    use rand::{RngExt, SeedableRng};
+
+    /// A corridor of 12 cells with a beacon at each end and one halfway.
+    fn site() -> Arc<Site> {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/sites/corridor.toml");
+        Arc::new(Site::load(Path::new(path)).unwrap())
+    }
+
+    /// Walkers pacing the corridor heard through `radio`, one window per 2 s,
+    /// each with the cell column it was heard in.
+    fn walks(site: &Site, radio: &Radio, seed: u64) -> Vec<(Fingerprint, u16)> {
+        let mut rng = rand::rngs::Xoshiro256PlusPlus::seed_from_u64(seed);
+        let mut out = Vec::new();
+        for walker in 0..6 {
+            let entity: Arc<str> = format!("phone-{walker}").into();
+            let mut x = rng.random_range(0.0..11.0f64);
+            let mut dir = 1.0;
+            for step in 0..200 {
+                x += dir * rng.random_range(0.0..1.5);
+                if !(0.0..=11.0).contains(&x) {
+                    dir = -dir;
+                    x = x.clamp(0.0, 11.0);
+                }
+                let here = [x + 0.5, -0.5];
+                let (mut rssi, mut heard) = (Vec::new(), Vec::new());
+                for b in &site.beacons {
+                    let d = b.mount.unwrap().distance_m(here);
+                    let h = rng.random_bool(radio.detection(d));
+                    let noise: f64 = rng.random_range(-4.0..4.0);
+                    heard.push(h);
+                    rssi.push(if h {
+                        (radio.expected_rssi(d) + noise) as f32
+                    } else {
+                        -105.0
+                    });
+                }
+                let window = Fingerprint {
+                    entity: entity.clone(),
+                    t: f64::from(step) * 2.0,
+                    rssi,
+                    heard,
+                };
+                out.push((window, x.floor() as u16));
+            }
+        }
+        out
+    }
+
+    /// The whole loop on a made-up floor: windows heard through a radio the
+    /// configured defaults know nothing of go through the store, and the
+    /// recalibration finds that radio, writes a file the localizer loads,
+    /// and locates the walkers better with it than with the defaults.
+    #[test]
+    fn a_recalibration_from_the_store_learns_the_floor_and_writes_a_loadable_file() {
+        let site = site();
+        let truth = Radio {
+            tx_dbm: -74.0,
+            exponent: 2.5,
+            shadowing_db: 3.0,
+            range_m: 3.0,
+            range_slope: 3.0,
+            max_detection: 0.9,
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let store_path = dir.path().join("learning.sqlite");
+        let mut store = Store::open(&store_path).unwrap();
+        let ids = anchor_ids(&site, Orientation::Observer);
+        let records: Vec<Record> = walks(&site, &truth, 1)
+            .iter()
+            .filter_map(|(window, _)| Heard::of(window, &ids))
+            .map(|h| Record::Heard {
+                device: h.device,
+                t: h.t,
+                readings: h.readings,
+            })
+            .collect();
+        store.write(&records).unwrap();
+        drop(store);
+        let gathered = records.len();
+
+        let localizer = LocalizerConfig {
+            recalibration: RecalibrationConfig {
+                enabled: true,
+                min_windows: 500,
+                ..RecalibrationConfig::default()
+            },
+            ..LocalizerConfig::default()
+        };
+        let tracker = TrackerConfig::default();
+        let job = Job::new(
+            &site,
+            Orientation::Observer,
+            &localizer,
+            &tracker,
+            &store_path,
+        );
+        let done = run(&job).unwrap();
+        assert_eq!(done.path, dir.path().join("calibration.toml"));
+        assert_eq!(done.windows, gathered, "every stored window is read back");
+        for change in &done.changes {
+            assert!(
+                (change.after.tx_dbm - truth.tx_dbm).abs() < 6.0,
+                "{}: tx {:.1} dBm, truly {}",
+                change.id,
+                change.after.tx_dbm,
+                truth.tx_dbm
+            );
+        }
+        assert!(done.cells.as_ref().is_some_and(|c| c.cells > 0));
+
+        // The file loads, and locates fresh walks (no tracker) better than
+        // the defaults it started from.
+        let loaded = Calibration::load(&done.path, &site).unwrap();
+        assert_eq!(loaded.cells.len(), done.calibration.cells.len());
+        let windows = gangway_core::locate::window::WindowConfig::default();
+        let error = |config: &LocalizerConfig| {
+            let mut model = gangway_core::locate::build(config, &site, &windows, &tracker).unwrap();
+            let test = walks(&site, &truth, 2);
+            let mut ll = vec![0.0; site.open_cells().len()];
+            let mut total = 0.0;
+            for (w, x) in &test {
+                model.log_likelihood(&w.rssi, &w.heard, &mut ll);
+                let best = (0..ll.len())
+                    .max_by(|&a, &b| ll[a].total_cmp(&ll[b]))
+                    .unwrap();
+                total += f64::from(site.open_cells()[best].x.abs_diff(*x));
+            }
+            total / test.len() as f64
+        };
+        let (before, after) = (
+            error(&localizer),
+            error(&with_calibration(&localizer, &done.path)),
+        );
+        assert!(
+            after < 0.8 * before,
+            "mean error {after:.2} cells recalibrated against {before:.2} with the defaults"
+        );
+    }
+
+    #[test]
+    fn too_few_windows_refuse_to_recalibrate() {
+        let site = site();
+        let dir = tempfile::tempdir().unwrap();
+        let store_path = dir.path().join("learning.sqlite");
+        Store::open(&store_path).unwrap();
+        let job = Job::new(
+            &site,
+            Orientation::Observer,
+            &LocalizerConfig::default(),
+            &TrackerConfig::default(),
+            &store_path,
+        );
+        let e = run(&job).unwrap_err();
+        assert!(e.to_string().contains("min_windows"), "{e}");
+        assert!(!dir.path().join("calibration.toml").exists());
+    }
+
+    #[test]
+    fn a_gateway_serves_the_recalibrated_file_only_when_on_and_loadable() {
+        let site = site();
+        let dir = tempfile::tempdir().unwrap();
+        let store = StoreConfig {
+            enabled: true,
+            path: Some(dir.path().join("learning.sqlite")),
+            ..StoreConfig::default()
+        };
+        let on = LocalizerConfig {
+            recalibration: RecalibrationConfig {
+                enabled: true,
+                ..RecalibrationConfig::default()
+            },
+            ..LocalizerConfig::default()
+        };
+        let file = dir.path().join("calibration.toml");
+        // No file yet: the configured calibration.
+        assert_eq!(serving(&on, &store, &site).pathloss.calibration, None);
+        let calibration = Calibration {
+            site: "corridor".into(),
+            windows: 1,
+            iterations: 1,
+            anchors: Vec::new(),
+            cells: Vec::new(),
+        };
+        std::fs::write(&file, calibration.to_toml()).unwrap();
+        assert_eq!(
+            serving(&on, &store, &site).pathloss.calibration.as_deref(),
+            Some(file.as_path())
+        );
+        // Off, or surveyed: the file is not what serves.
+        let off = LocalizerConfig::default();
+        assert_eq!(serving(&off, &store, &site).pathloss.calibration, None);
+        let mut surveyed = on.clone();
+        surveyed.method = Method::Knn;
+        assert_eq!(serving(&surveyed, &store, &site).pathloss.calibration, None);
+        // A broken file: the configured calibration, not a failure.
+        std::fs::write(&file, "anchor = 3").unwrap();
+        assert_eq!(serving(&on, &store, &site).pathloss.calibration, None);
+    }
+}
