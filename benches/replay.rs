@@ -103,7 +103,8 @@ fn benches(c: &mut Criterion) {
                         std::future::pending(),
                         reloads,
                     ))
-                    .expect("replay");
+                    .expect("replay")
+                    .stats;
                 assert_eq!(stats.sightings, adverts as u64);
                 stats.fixes
             },

@@ -332,7 +332,7 @@ async fn main() {
     };
     let browser = web_support::Browser::start_with(&shots, extra)
         .await
-        .expect("chromium and chromedriver (Debian: apt install chromium chromium-driver)");
+        .unwrap_or_else(|missing| panic!("{missing}"));
     let mut off = Vec::new();
     let mut on = Vec::new();
     for _ in 0..args.runs.max(1) {

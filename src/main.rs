@@ -6,11 +6,13 @@ use tracing_subscriber::EnvFilter;
 
 fn main() -> ExitCode {
     // RUST_LOG filters. The embedded broker's chatter stays at warn, and its
-    // connection module is silenced: it logs every client disconnect as an
-    // error (`router-drop`), and its one real failure, a busy port, is
+    // connection and routing modules are silenced: they log every client
+    // disconnect as an error (`router-drop`, and at shutdown "no-connection
+    // id 0 is already gone"), and its one real failure, a busy port, is
     // checked before it starts (`mqtt::broker`).
-    let filter = EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| EnvFilter::new("info,rumqttd=warn,rumqttd::server::broker=off"));
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| {
+        EnvFilter::new("info,rumqttd=warn,rumqttd::server::broker=off,rumqttd::router::routing=off")
+    });
     // GANGWAY_LOG_FORMAT=json gives one JSON object per line (log shippers,
     // files); otherwise the human format, coloured only on a terminal.
     let json = std::env::var("GANGWAY_LOG_FORMAT").is_ok_and(|f| f.eq_ignore_ascii_case("json"));

@@ -17,8 +17,8 @@ use crate::source::capture::{CaptureReader, Format, ReadOptions};
 
 #[derive(clap::Args)]
 pub(super) struct Args {
-    #[arg(long, default_value_os_t = super::default_config())]
-    config: PathBuf,
+    #[command(flatten)]
+    config: super::ConfigFile,
     /// Captures heard on this site (any format `replay` reads: JSON Lines
     /// advert logs, CSV scan logs with or without positions, btsnoop, pcap). Rows
     /// with a position (a few surveyed points) are used as such.
@@ -50,7 +50,7 @@ pub(super) struct Args {
 }
 
 pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
-    let (config, site) = super::load(&args.config)?;
+    let (config, site) = super::load(&args.config.path)?;
     let orientation = config.window.orientation;
     let ids = anchor_ids(&site, orientation);
     let mut trajectories = Vec::new();

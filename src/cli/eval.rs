@@ -35,8 +35,8 @@ enum What {
 
 #[derive(clap::Args)]
 struct GuidanceArgs {
-    #[arg(long, default_value_os_t = super::default_config())]
-    config: PathBuf,
+    #[command(flatten)]
+    config: super::ConfigFile,
     /// A labelled survey (CSV): phones hear real readings resampled in the
     /// walker's cell instead of the path-loss model.
     #[arg(long)]
@@ -123,8 +123,10 @@ struct LocalizationArgs {
     /// Seeds to average over.
     #[arg(long, default_value_t = 5)]
     seeds: u64,
-    #[arg(long, value_enum, default_value = "knn")]
-    method: Method,
+    /// The localizer [default: what the daemon would use: `--config`'s
+    /// `[localizer] method`, else `auto`, the default with a survey].
+    #[arg(long, value_enum)]
+    method: Option<Method>,
     #[arg(long, value_enum, default_value = "hmm")]
     tracker: TrackerKind,
     /// Smooth each recorded walk over this many later windows (fixed-lag
@@ -170,7 +172,7 @@ fn guidance(args: GuidanceArgs) -> anyhow::Result<ExitCode> {
         (0.0..=1.0).contains(&args.wrong_turn_probability),
         "--wrong-turn-probability must be between 0 and 1"
     );
-    let config = Config::load(&args.config)?;
+    let config = Config::load(&args.config.path)?;
     let site = Arc::new(Site::load(&config.site)?);
     let survey = match &args.survey {
         Some(path) => Some(Survey::load(
@@ -326,7 +328,8 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
         calibrate_from: calibrate_from.clone(),
         calibrate_cells: args.calibrate_cells.unwrap_or(0),
     };
-    let outcome = evaluate(&site, &survey, &setup(args.method, args.tracker))?;
+    let method = args.method.unwrap_or(localizer.method);
+    let outcome = evaluate(&site, &survey, &setup(method, args.tracker))?;
     if let Some(path) = &args.rows {
         write_rows(path, &outcome.rows)?;
     }
@@ -342,7 +345,7 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
                 Holdout::Drawn(split) => format!("{split:?} split, {} seeds", args.seeds),
                 Holdout::Fixed(_) => "fixed split".to_owned(),
             },
-            args.method.name(),
+            method.name(),
             args.tracker
         );
         let e = &m.errors;

@@ -5,6 +5,7 @@
 mod calibrate;
 mod check;
 mod eval;
+pub mod examples;
 mod plan;
 mod record;
 mod replay;
@@ -22,7 +23,7 @@ use clap::{Parser, Subcommand};
 /// BLE edge gateway: hears iBeacons, locates people and devices on a site grid,
 /// and publishes locations and walkable routes over MQTT.
 #[derive(Parser)]
-#[command(name = "gangway", version, about, long_about = None)]
+#[command(name = "gangway", version, about, long_about = None, after_long_help = examples::GANGWAY)]
 pub struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -31,32 +32,71 @@ pub struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Scan with the local Bluetooth adapter and write what this host hears to a log.
+    #[command(after_long_help = examples::RECORD)]
     Record(record::Args),
     /// Run the gateway pipeline over a recorded log.
+    #[command(after_long_help = examples::REPLAY)]
     Replay(replay::Args),
     /// Simulate walkers on a site and write their adverts, truth and requests to a log.
+    #[command(after_long_help = examples::SIMULATE)]
     Simulate(simulate::Args),
     /// Run the gateway daemon: scan BLE, locate, plan, publish over MQTT.
+    #[command(after_long_help = examples::RUN)]
     Run(run::Args),
     /// Fit the survey-free radio model to captures, with no positions needed.
+    #[command(after_long_help = examples::CALIBRATE)]
     Calibrate(calibrate::Args),
     /// Load and validate a config with its site, survey and models.
+    #[command(after_long_help = examples::CHECK)]
     Check(check::Args),
     /// Plan one route on a site and print it.
+    #[command(after_long_help = examples::PLAN)]
     Plan(plan::Args),
     /// Train path models from walks and the localization cell classifier from a survey.
+    #[command(after_long_help = examples::TRAIN)]
     Train(train::Args),
-    /// Evaluate localization on a labelled survey.
+    /// Evaluate localization, planning or guidance against known answers.
+    #[command(after_long_help = examples::EVAL)]
     Eval(eval::Args),
     /// Real walks in: import recorded tracks onto a site, build a scene's site.
+    #[command(after_long_help = examples::WALKS)]
     Walks(walks::Args),
     /// Site files: edit one over its floor plan in the browser.
+    #[command(after_long_help = examples::SITE)]
     Site(site::Args),
 }
 
-/// Where `--config` points when it is not given.
+/// The sample config of a checkout of the repository, relative to it.
+const CHECKOUT_CONFIG: &str = "config/gangway.toml";
+/// The config the Debian package installs (and the systemd unit runs).
+const INSTALLED_CONFIG: &str = "/etc/gangway/gangway.toml";
+
+/// Where `--config` points when neither it nor `GANGWAY_CONFIG` is given:
+/// the checkout's sample when gangway runs in a checkout, else the
+/// installed config. Run from anywhere else, an installed gateway finds its
+/// config without being told.
 fn default_config() -> PathBuf {
-    PathBuf::from("config/gangway.toml")
+    if std::path::Path::new(CHECKOUT_CONFIG).is_file() {
+        PathBuf::from(CHECKOUT_CONFIG)
+    } else {
+        PathBuf::from(INSTALLED_CONFIG)
+    }
+}
+
+/// `--config FILE`, for the commands that need a gateway config.
+#[derive(clap::Args)]
+struct ConfigFile {
+    /// The gateway config [default: config/gangway.toml in a checkout of the
+    /// repository, else /etc/gangway/gangway.toml].
+    #[arg(
+        id = "config",
+        long = "config",
+        value_name = "FILE",
+        env = "GANGWAY_CONFIG",
+        default_value_os_t = default_config(),
+        hide_default_value = true
+    )]
+    path: PathBuf,
 }
 
 impl Cli {
@@ -92,8 +132,10 @@ fn load(
 /// writing a config.
 #[derive(clap::Args)]
 struct PlannerSource {
-    /// The gateway config [default: config/gangway.toml unless --site is given].
-    #[arg(long)]
+    /// The gateway config [default: config/gangway.toml in a checkout of the
+    /// repository, else /etc/gangway/gangway.toml; neither when --site is
+    /// given].
+    #[arg(long, value_name = "FILE", env = "GANGWAY_CONFIG")]
     config: Option<PathBuf>,
     /// Plan on this site file instead of the config's (without --config, the
     /// planner settings are the defaults).

@@ -15,12 +15,14 @@ use crate::daemon::{self, state::Loaded};
 use crate::mqtt;
 use crate::pipeline::Pipeline;
 use crate::score::Scorer;
+use crate::sighting::heard::HeardBeacon;
 use crate::sink::{Sink, jsonl::JsonLines};
 use crate::source::capture::{CaptureReader, Format, ReadOptions};
 use crate::source::playback::CaptureSource;
 use crate::topics::Topics;
 
 #[derive(clap::Args)]
+#[command(group(clap::ArgGroup::new("reports").args(["score", "heard"]).multiple(true)))]
 pub(super) struct Args {
     /// The capture: a JSON Lines advert log, a CSV scan log, a btsnoop file or
     /// a pcap/pcapng capture.
@@ -37,8 +39,8 @@ pub(super) struct Args {
     /// RSSI value that means "not heard" in CSV scan logs.
     #[arg(long, default_value_t = -200, allow_negative_numbers = true)]
     not_heard: i16,
-    #[arg(long, default_value_os_t = super::default_config())]
-    config: PathBuf,
+    #[command(flatten)]
+    config: super::ConfigFile,
     /// Playback speed: 1 is real time, 10 ten times faster, 0 as fast as possible.
     #[arg(long, default_value_t = 0.0)]
     speed: f64,
@@ -64,8 +66,13 @@ pub(super) struct Args {
     /// (instead of the messages).
     #[arg(long, conflicts_with = "print")]
     score: bool,
-    /// With --score: print the score as one JSON object.
-    #[arg(long, requires = "score")]
+    /// After the replay, list every iBeacon heard, known to the site or not:
+    /// UUID, major, minor, how often, RSSI median and maximum, who heard it.
+    #[arg(long)]
+    heard: bool,
+    /// With --score or --heard: print each as one JSON object per line
+    /// (`{"heard": [...]}` for --heard).
+    #[arg(long, requires = "reports")]
     json: bool,
     /// Serve the live map (and route requests from it) at this address while
     /// the log plays, with --speed 1 as it happened; the replay then ends
@@ -97,7 +104,14 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         args.speed >= 0.0 && args.speed.is_finite(),
         "--speed must be 0 (as fast as possible) or a positive factor"
     );
-    let (config, site) = super::load(&args.config)?;
+    let (config, site) = super::load(&args.config.path)?;
+    if std::fs::metadata(&args.log).is_ok_and(|m| m.len() == 0) {
+        tracing::warn!(
+            "{}: the capture is empty (0 bytes): nothing to replay",
+            args.log.display()
+        );
+        return Ok(ExitCode::FAILURE);
+    }
     let reader = open(&args, &site)?;
     let tolerance_s = args.tolerance_s.unwrap_or(config.window.length_s);
     anyhow::ensure!(
@@ -106,7 +120,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
     );
     let pipeline = Pipeline::new(&config.pipeline(), site.clone())?;
 
-    let score = super::batch_runtime()?.block_on(async {
+    let replayed = super::batch_runtime()?.block_on(async {
         let topics = Topics::new(config.topic_prefix());
         let mut sinks: Vec<Box<dyn Sink>> = Vec::new();
         if args.print {
@@ -135,7 +149,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
                 url,
             )?));
         }
-        if sinks.is_empty() {
+        if sinks.is_empty() && !args.heard {
             tracing::warn!(
                 "nothing to send the outputs to: only the counts are reported \
                  (--print, --out FILE, --score, --mqtt-url URL or --embedded-broker send them somewhere)"
@@ -161,6 +175,9 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         };
         let options = daemon::Options {
             until_sources_end: true,
+            // The live map's gateway panel shows the stats: from the first
+            // snapshot on, as under `run`.
+            stats: args.web.is_some(),
             latency,
             ..daemon::Options::default()
         };
@@ -171,7 +188,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
             let _ = tokio::signal::ctrl_c().await;
         };
         let started = Instant::now();
-        let stats = daemon::run(
+        let finished = daemon::run(
             serving,
             options,
             sources,
@@ -180,9 +197,12 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
             reloads,
         )
         .await?;
+        let stats = &finished.stats;
         tracing::info!(
             sightings = stats.sightings,
             unknown_anchor = stats.sightings_ignored,
+            beacons_heard = stats.heard,
+            beacons_not_in_site = stats.heard_unknown,
             fixes = stats.fixes,
             requests = stats.requests,
             routes = stats.routes,
@@ -191,11 +211,22 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
             seconds = started.elapsed().as_secs_f64(),
             "replay done"
         );
-        anyhow::Ok(match score {
+        if stats.heard_unknown > 0 && !args.heard {
+            tracing::warn!(
+                "{} of the {} beacons heard are not in the site file, so their sightings \
+                 located nothing; `gangway replay {} --heard` lists them",
+                stats.heard_unknown,
+                stats.heard,
+                args.log.display()
+            );
+        }
+        let score = match score {
             Some(score) => Some(score.await?),
             None => None,
-        })
+        };
+        anyhow::Ok((finished, score))
     })?;
+    let (finished, score) = replayed;
     if let Some(score) = score {
         if args.json {
             println!("{}", serde_json::to_string(&score)?);
@@ -203,5 +234,55 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
             println!("{score}");
         }
     }
+    if args.heard {
+        if args.json {
+            println!(
+                "{}",
+                serde_json::to_string(&serde_json::json!({ "heard": finished.heard }))?
+            );
+        } else {
+            print!("{}", heard_table(&finished.heard));
+        }
+    }
+    if finished.stats.sightings == 0 && finished.stats.requests == 0 {
+        tracing::warn!(
+            "{}: the capture held no sightings and no route requests: nothing was replayed",
+            args.log.display()
+        );
+        return Ok(ExitCode::FAILURE);
+    }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The beacons heard, one line each, for a person at a terminal.
+fn heard_table(heard: &[HeardBeacon]) -> String {
+    use std::fmt::Write;
+    let unknown = heard.iter().filter(|b| !b.known).count();
+    let mut out = format!(
+        "heard {} beacons, {unknown} of them not in the site\n{:<36} {:>5} {:>5} {:>7} {:>6} {:>4}  {:<7}  observers\n",
+        heard.len(),
+        "uuid",
+        "major",
+        "minor",
+        "count",
+        "median",
+        "max",
+        "site"
+    );
+    for b in heard {
+        let more = if b.more_observers { ", …" } else { "" };
+        let _ = writeln!(
+            out,
+            "{:<36} {:>5} {:>5} {:>7} {:>6} {:>4}  {:<7}  {}{more}",
+            b.uuid.to_string(),
+            b.major,
+            b.minor,
+            b.count,
+            b.rssi_median,
+            b.rssi_max,
+            if b.known { "known" } else { "unknown" },
+            b.observers.join(", ")
+        );
+    }
+    out
 }

@@ -23,8 +23,8 @@ use crate::topics::Topics;
 
 #[derive(clap::Args)]
 pub(super) struct Args {
-    #[arg(long, default_value_os_t = super::default_config())]
-    config: PathBuf,
+    #[command(flatten)]
+    config: super::ConfigFile,
     /// Use this broker (mqtt://host:port or mqtts://host:port), overriding
     /// [mqtt] url. Without either, an embedded broker starts on 127.0.0.1.
     #[arg(long)]
@@ -54,7 +54,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
 }
 
 async fn serve(args: Args) -> anyhow::Result<()> {
-    let serving = state::load_at_start(&args.config)?;
+    let serving = state::load_at_start(&args.config.path)?;
     let config = &serving.config;
     let site = serving.site.clone();
     let url = mqtt::broker_url(&config.mqtt, args.mqtt_url)?;
@@ -133,7 +133,7 @@ async fn serve(args: Args) -> anyhow::Result<()> {
         config.gateway_id
     );
     let options = daemon::Options {
-        config_path: Some(args.config.clone()),
+        config_path: Some(args.config.path.clone()),
         stats: true,
         until_sources_end: false,
         share_sightings: config.shares_sightings(),

@@ -56,9 +56,12 @@ use crate::locate::recalibrate::{self, Schedule};
 use crate::locate::window::Orientation;
 use crate::pipeline;
 use crate::plan::RouteErrorCode;
-use crate::publish::stats::{BleStatus, STATS_SCHEMA, Stats};
+use crate::publish::stats::{
+    BleStatus, HEARD_PUBLISHED, HEARD_SCHEMA, HeardReport, STATS_SCHEMA, Stats,
+};
 use crate::publish::{FeedbackRefused, Output, RouteOutcome};
 use crate::sighting::Sighting;
+use crate::sighting::heard::HeardBeacon;
 use crate::sink::Sink;
 use crate::source::unix_now;
 use crate::source::{Input, Shutdown, Source, SourceContext};
@@ -117,9 +120,17 @@ pub struct Options {
     pub recalibrate: Option<mpsc::Receiver<()>>,
 }
 
+/// What a run leaves: its final counters and every beacon it heard (the
+/// most heard first), for `replay` to report.
+#[derive(Debug)]
+pub struct Finished {
+    pub stats: Stats,
+    pub heard: Vec<HeardBeacon>,
+}
+
 /// Runs the gateway until `shutdown` completes (or, with
 /// [`Options::until_sources_end`], until its sources are done); each item of
-/// `reloads` reloads the config. Returns the final counters.
+/// `reloads` reloads the config. Returns the final counters and what was heard.
 pub async fn run(
     serving: Loaded,
     options: Options,
@@ -127,7 +138,7 @@ pub async fn run(
     sinks: Vec<Box<dyn Sink>>,
     shutdown: impl Future<Output = ()>,
     mut reloads: mpsc::Receiver<()>,
-) -> anyhow::Result<Stats> {
+) -> anyhow::Result<Finished> {
     let mut options = options;
     let mut recalibrate_requests = options.recalibrate.take();
     let (events_tx, mut events) = mpsc::channel(EVENTS_QUEUE);
@@ -299,7 +310,10 @@ pub async fn run(
     }
     runtime.dispatch()?;
     runtime.flush().await?;
-    let stats = runtime.stats();
+    let finished = Finished {
+        stats: runtime.stats(),
+        heard: runtime.state.pipeline.heard(usize::MAX),
+    };
     for sink in runtime.sinks {
         let name = sink.name();
         if let Err(e) = sink.shutdown().await {
@@ -308,7 +322,7 @@ pub async fn run(
     }
     match failed {
         Some(e) => Err(e),
-        None => Ok(stats),
+        None => Ok(finished),
     }
 }
 
@@ -736,6 +750,10 @@ impl Runtime {
         for sink in &mut self.sinks {
             sink.tick(now);
         }
+        let stats = self.stats();
+        for sink in &mut self.sinks {
+            sink.counters(&stats);
+        }
     }
 
     /// Sends the own sightings gathered since the last time.
@@ -761,6 +779,7 @@ impl Runtime {
             .unwrap_or_default();
         let mut fallbacks = self.state.fallbacks.clone();
         fallbacks.extend(self.fallbacks.iter().cloned());
+        let heard = self.state.pipeline.heard_counts();
         let mut stats = Stats {
             schema: STATS_SCHEMA,
             gateway: self.state.config.gateway_id.clone(),
@@ -789,6 +808,8 @@ impl Runtime {
             windows: self.state.pipeline.windows_open() as u64,
             tracked: self.state.pipeline.tracked() as u64,
             pending_requests: self.requests.len() as u64,
+            heard: heard.heard as u64,
+            heard_unknown: heard.unknown as u64,
             scan_restarts: ble.scan_restarts,
             ble,
             site: self.state.site.name.clone(),
@@ -802,8 +823,18 @@ impl Runtime {
         stats
     }
 
+    /// Publishes the counters, and before them the beacons heard most.
     fn publish_stats(&mut self) {
         let stats = self.stats();
+        self.out.push(Output::HeardReport(Box::new(HeardReport {
+            schema: HEARD_SCHEMA,
+            gateway: stats.gateway.clone(),
+            t: stats.t,
+            heard: stats.heard,
+            heard_unknown: stats.heard_unknown,
+            forgotten: self.state.pipeline.heard_counts().forgotten,
+            beacons: self.state.pipeline.heard(HEARD_PUBLISHED),
+        })));
         self.out.push(Output::Stats(Box::new(stats)));
     }
 
@@ -896,8 +927,9 @@ impl Runtime {
             Ok(new) => match state::restart_needed(&self.state, &new) {
                 Some(why) => Some(format!("{why}; restart the gateway to apply it")),
                 None => {
-                    let old = std::mem::replace(&mut self.state, new);
+                    let mut old = std::mem::replace(&mut self.state, new);
                     self.retired += old.pipeline.stats();
+                    old.pipeline.hand_heard_to(&mut self.state.pipeline);
                     let (before, after) = (&old.config.localizer, &self.state.config.localizer);
                     if before.recalibration != after.recalibration
                         || recalibrate::applies(before) != recalibrate::applies(after)

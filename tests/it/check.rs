@@ -216,3 +216,58 @@ fn names_each_kind_of_config_problem() {
         &["pathloss localizer needs anchor positions"],
     );
 }
+
+#[test]
+fn a_learned_planner_whose_named_models_are_missing_is_a_problem() {
+    // The default planner passes over missing models and serves A*: fine
+    // when the config names none (the sample above), but a config that names
+    // a generator expects it to serve, so `check` says what would serve.
+    let config = format!(
+        "{CONFIG}[planner.models]\nconditional_generator = \"missing/conditional_generator.onnx\"\n"
+    );
+    rejects(
+        &config,
+        SITE,
+        &[
+            "[planner.models] names conditional_generator",
+            "A* would serve",
+            "mode = \"astar\"",
+        ],
+    );
+    let explicit = format!("{CONFIG}[planner]\nmode = \"astar\"\n");
+    assert!(check(&explicit, SITE).0, "A* on purpose is fine");
+}
+
+#[test]
+fn the_installed_config_is_the_default_outside_a_checkout() {
+    // Run from a directory without config/gangway.toml, `check` reads
+    // GANGWAY_CONFIG, else /etc/gangway/gangway.toml, and says which.
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "site.toml", SITE);
+    let config = write(dir.path(), "gangway.toml", CONFIG);
+    let run = |env: Option<&std::path::Path>| {
+        let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_gangway"));
+        command.arg("check").current_dir(dir.path());
+        command.env_remove("GANGWAY_CONFIG");
+        if let Some(path) = env {
+            command.env("GANGWAY_CONFIG", path);
+        }
+        command.output().unwrap()
+    };
+    let by_env = run(Some(&config));
+    assert!(
+        by_env.status.success(),
+        "{}",
+        String::from_utf8_lossy(&by_env.stderr)
+    );
+    assert!(String::from_utf8_lossy(&by_env.stdout).contains("gangway.toml"));
+    if !std::path::Path::new("/etc/gangway/gangway.toml").exists() {
+        let installed = run(None);
+        assert!(!installed.status.success());
+        assert!(
+            String::from_utf8_lossy(&installed.stderr).contains("/etc/gangway/gangway.toml"),
+            "{}",
+            String::from_utf8_lossy(&installed.stderr)
+        );
+    }
+}

@@ -293,7 +293,8 @@ async fn the_daemon_serves_survives_bad_input_reloads_and_flushes_at_shutdown() 
         .await
         .expect("the daemon stops")
         .unwrap()
-        .unwrap();
+        .unwrap()
+        .stats;
     assert_eq!((last.reloads, last.reload_failures), (1, 1));
     let seen = collected.seen.lock().unwrap();
     assert!(seen.shut_down);
@@ -337,7 +338,8 @@ async fn a_replay_ends_with_its_sources_and_closes_their_windows() {
         .await
         .expect("the replay ends")
         .unwrap()
-        .unwrap();
+        .unwrap()
+        .stats;
     assert_eq!(stats.sightings, 15);
     let seen = collected.seen.lock().unwrap();
     assert!(seen.shut_down);

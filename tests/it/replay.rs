@@ -194,3 +194,115 @@ fn a_bad_line_is_named_or_skipped() {
     );
     assert!(String::from_utf8_lossy(&out.stdout).contains("/location"));
 }
+
+#[test]
+fn heard_lists_every_beacon_known_or_not_and_the_counts_agree_with_the_log() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = std::fs::read_to_string(common::root().join(FIXTURE)).unwrap();
+    // The fixture, plus a beacon the site does not have, heard by two phones.
+    let stranger = "0f0e0d0c-0b0a-4908-8706-050403020100";
+    let mut log = good.clone();
+    for (i, (observer, rssi)) in [("walker-01", -80), ("walker-02", -70), ("walker-01", -90)]
+        .into_iter()
+        .enumerate()
+    {
+        log.push_str(&format!(
+            "{{\"type\":\"advert\",\"t\":{},\"observer\":\"{observer}\",\"uuid\":\"{stranger}\",\"major\":7,\"minor\":1,\"rssi\":{rssi}}}\n",
+            1_767_225_700 + i
+        ));
+    }
+    let path = write(dir.path(), "with-stranger.jsonl", &log);
+    let out = gangway(&["replay", path.to_str().unwrap(), "--heard", "--json"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let heard: Value = serde_json::from_str(stdout.trim()).expect("one JSON line");
+    let heard = heard["heard"].as_array().unwrap();
+
+    // Counted against the log itself.
+    let mut expected: BTreeMap<(String, u64), u64> = BTreeMap::new();
+    for e in log_events().iter().filter(|e| e["type"] == "advert") {
+        let key = (
+            e["uuid"].as_str().unwrap().to_owned(),
+            e["minor"].as_u64().unwrap(),
+        );
+        *expected.entry(key).or_default() += 1;
+    }
+    assert_eq!(heard.len(), expected.len() + 1);
+    for b in heard {
+        let key = (
+            b["uuid"].as_str().unwrap().to_owned(),
+            b["minor"].as_u64().unwrap(),
+        );
+        if key.0 == stranger {
+            assert_eq!(b["count"], 3);
+            assert_eq!(b["known"], false);
+            assert_eq!(
+                (b["rssi_median"].as_i64(), b["rssi_max"].as_i64()),
+                (Some(-80), Some(-70))
+            );
+            assert_eq!(
+                b["observers"],
+                serde_json::json!(["walker-01", "walker-02"])
+            );
+        } else {
+            assert_eq!(b["count"].as_u64(), expected.get(&key).copied(), "{b}");
+            assert_eq!(b["known"], true, "{b}");
+        }
+    }
+    let counts: Vec<u64> = heard.iter().map(|b| b["count"].as_u64().unwrap()).collect();
+    assert!(
+        counts.windows(2).all(|w| w[0] >= w[1]),
+        "most heard first: {counts:?}"
+    );
+
+    // Without --heard, the replay says that some beacons are not in the site.
+    let out = gangway(&["replay", path.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("1 of the 14 beacons heard are not in the site file")
+            && stderr.contains("--heard"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn what_is_no_capture_is_refused_and_an_empty_one_fails() {
+    let dir = tempfile::tempdir().unwrap();
+    let binary = dir.path().join("random.jsonl");
+    // The start of an x86-64 executable's ELF header.
+    let mut elf = vec![
+        0x7f, b'E', b'L', b'F', 2, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2, 0, 0x3e,
+    ];
+    elf.resize(64, 0);
+    std::fs::write(&binary, elf).unwrap();
+    let out = gangway(&["replay", binary.to_str().unwrap()]);
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("random.jsonl: not a capture gangway reads: elf data"),
+        "{stderr}"
+    );
+
+    let empty = write(dir.path(), "empty.jsonl", "");
+    let out = gangway(&["replay", empty.to_str().unwrap()]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("empty (0 bytes)"));
+
+    // A capture of nothing but ground truth: read, but nothing to replay.
+    let truths = write(
+        dir.path(),
+        "truth-only.jsonl",
+        "{\"type\":\"truth\",\"t\":1.0,\"device\":\"p\",\"cell\":[1,1]}\n",
+    );
+    let out = gangway(&["replay", truths.to_str().unwrap()]);
+    assert!(!out.status.success());
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("no sightings and no route requests"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

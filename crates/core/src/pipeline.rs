@@ -23,6 +23,7 @@ use crate::plan::{self, Planner, PlannerConfig, Profile, Route, RouteErrorCode};
 use crate::publish::{
     ErrorBody, LOCATION_SCHEMA, Location, Output, PATH_SCHEMA, RouteBody, RouteOutcome, RouteReply,
 };
+use crate::sighting::heard::{HeardBeacon, HeardTable};
 use crate::sighting::valid_device_id;
 use crate::site::{Cell, Site};
 
@@ -169,6 +170,18 @@ pub struct Pipeline {
     /// Times route replies (`latency_us`); `[planner]`'s, passed in.
     clock: Clock,
     stats: Stats,
+    /// Every beacon heard, known or not, bounded by `[limits] max_devices`.
+    heard: HeardTable,
+}
+
+/// How many beacons a pipeline heard ([`Pipeline::heard_counts`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct HeardCounts {
+    pub heard: usize,
+    /// Heard, but not beacons of the site.
+    pub unknown: usize,
+    /// Pushed out of the bounded list by beacons heard more.
+    pub forgotten: u64,
 }
 
 /// Why a pipeline could not be built: its localizer or its planner.
@@ -272,6 +285,7 @@ impl Pipeline {
             site,
             clock: config.planner.clock,
             stats: Stats::default(),
+            heard: HeardTable::new(config.limits.max_devices),
         };
         Ok((pipeline, fallbacks))
     }
@@ -293,6 +307,35 @@ impl Pipeline {
         Some(session.state_bytes() + self.tracker.walking_bytes(device))
     }
 
+    /// The beacons heard most so far, at most `limit`, each marked `known`
+    /// when the site has it: what a user compares with the site file.
+    pub fn heard(&self, limit: usize) -> Vec<HeardBeacon> {
+        let known = self.known_beacons();
+        self.heard.report(limit, |id| known.contains(id))
+    }
+
+    /// How many beacons were heard (at most `[limits] max_devices`), and how
+    /// many of them the site does not have.
+    pub fn heard_counts(&self) -> HeardCounts {
+        let known = self.known_beacons();
+        HeardCounts {
+            heard: self.heard.count(),
+            unknown: self.heard.count_where(|id| !known.contains(id)),
+            forgotten: self.heard.replaced(),
+        }
+    }
+
+    fn known_beacons(&self) -> foldhash::HashSet<crate::sighting::BeaconId> {
+        self.site.beacons.iter().map(|b| b.beacon).collect()
+    }
+
+    /// Hands what this pipeline heard on to the one replacing it (a reload),
+    /// so that the list does not start afresh with the tracks.
+    pub fn hand_heard_to(&mut self, next: &mut Pipeline) {
+        let heard = std::mem::replace(&mut self.heard, HeardTable::new(1));
+        next.heard.absorb(heard);
+    }
+
     /// Number of entities with a track.
     pub fn tracked(&self) -> usize {
         self.tracker.len()
@@ -308,6 +351,7 @@ impl Pipeline {
         match event {
             Event::Advert(sighting) => {
                 self.stats.sightings += 1;
+                self.heard.add(sighting);
                 match self.windows.push(sighting) {
                     Some(fp) => self.fix(&fp, sighting.t, out),
                     None => self.tick(sighting, out),

@@ -6,6 +6,8 @@
 //! localizes tags, the advertiser is the entity and the gateways are the anchors.
 //! The fingerprint windows (`locate::window`) pick the orientation, not the sources.
 
+pub mod heard;
+
 use std::fmt;
 use std::sync::Arc;
 

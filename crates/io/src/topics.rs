@@ -141,6 +141,11 @@ impl Topics {
         format!("{}/stats", self.prefix)
     }
 
+    /// The beacons the gateway heard (retained, beside the stats).
+    pub(crate) fn heard(&self) -> String {
+        format!("{}/heard", self.prefix)
+    }
+
     /// Guidance for a device walking a route.
     pub(crate) fn guidance(&self, device: &str) -> String {
         format!("{}/devices/{device}/guidance", self.prefix)
@@ -189,6 +194,7 @@ impl Topics {
                 Message::json(format!("{}/error", self.feedback(&f.device)), f, false)
             }
             Output::Stats(s) => Message::json(self.stats(), &**s, true),
+            Output::HeardReport(h) => Message::json(self.heard(), &**h, true),
             Output::Truth(_)
             | Output::Forgotten(_)
             | Output::Adherence(_)

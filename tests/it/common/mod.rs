@@ -31,28 +31,39 @@ pub(crate) fn gangway_ok(args: &[&str]) -> String {
     String::from_utf8(out.stdout).expect("UTF-8 output")
 }
 
-/// The real survey beside the checkout (`../shared/data/uci-ble-rssi`). In CI
-/// (`CI` set) it must be there; elsewhere a test that needs it is skipped with
-/// a note.
+/// The real survey beside the checkout (`../shared/data/uci-ble-rssi`);
+/// without it the test cannot run ([`cannot_run`]).
 pub(crate) fn uci_survey() -> Option<PathBuf> {
     shared_data("uci-ble-rssi/iBeacon_RSSI_Labeled.csv")
 }
 
 /// A file or directory under `../shared/data`, the real data beside the
-/// checkout: in CI (`CI` set) it must be there; elsewhere a test that needs
-/// it is skipped with a note.
+/// checkout; without it the test cannot run ([`cannot_run`]).
 pub(crate) fn shared_data(relative: &str) -> Option<PathBuf> {
     let p = root().join("../shared/data").join(relative);
     if p.exists() {
         return Some(p);
     }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "CI must have {}",
+    cannot_run(&format!(
+        "no {} (the real data beside the checkout)",
         p.display()
-    );
-    eprintln!("skipped: no {}", p.display());
+    ));
     None
+}
+
+/// A test that cannot run here because what it needs is missing (`needs`
+/// says what, and how to get it). That fails the test, so the summary says
+/// so and a green run means every test ran; on a machine that lacks it on
+/// purpose, `GANGWAY_ALLOW_SKIP=1` skips such tests with a note instead,
+/// except under CI (`CI` set), which must have everything.
+pub(crate) fn cannot_run(needs: &str) {
+    let skip = std::env::var_os("CI").is_none() && std::env::var_os("GANGWAY_ALLOW_SKIP").is_some();
+    assert!(
+        skip,
+        "cannot run: {needs}; .ci/run installs what the tests need (outside CI, \
+         GANGWAY_ALLOW_SKIP=1 skips such tests instead)"
+    );
+    eprintln!("skipped: {needs}");
 }
 
 /// Writes `text` to `name` inside `dir` and returns the path.

@@ -516,6 +516,7 @@ pub(crate) fn schema_of(topic: &str) -> Option<&'static str> {
         "path" => "path",
         "guidance" => "guidance",
         "stats" => "stats",
+        "heard" => "heard",
         "occupancy" => "occupancy",
         "error" if topic.ends_with("/feedback/error") => "feedback-error",
         _ if topic.contains("/sightings/") => "sightings",

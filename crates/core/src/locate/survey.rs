@@ -27,9 +27,9 @@
 //! it carries ground truth, so each caller checks [`SurveyRows::has_position`]
 //! and [`SurveyRows::has_clock`] for what it needs.
 
-use std::fs::File;
 use std::path::{Path, PathBuf};
 
+use crate::csv_line::LineCounter;
 use crate::site::{Cell, Site};
 
 /// A gap longer than this (seconds) between survey rows starts a new walking
@@ -129,8 +129,9 @@ pub struct Row {
 /// A survey-layout CSV file opened for reading row by row, its columns matched
 /// to a list of anchors.
 pub struct SurveyRows<'a> {
-    reader: csv::Reader<File>,
+    reader: csv::Reader<std::io::Cursor<Vec<u8>>>,
     record: csv::StringRecord,
+    lines: LineCounter,
     path: PathBuf,
     site: &'a Site,
     headers: csv::StringRecord,
@@ -152,16 +153,18 @@ impl<'a> SurveyRows<'a> {
         anchors: &[String],
         not_heard: i16,
     ) -> Result<SurveyRows<'a>, SurveyError> {
+        // Read whole, so that a row's line is counted from its byte offset
+        // (`csv_line`); surveys are small beside the memory of a gateway.
+        let text = std::fs::read(path).map_err(|e| SurveyError::Read {
+            path: path.to_owned(),
+            reason: e.to_string(),
+        })?;
         let mut reader = csv::ReaderBuilder::new()
             .trim(csv::Trim::All)
             // Short rows are reported per missing column, with the column's name,
             // rather than as the csv crate's bare field-count mismatch.
             .flexible(true)
-            .from_path(path)
-            .map_err(|e| SurveyError::Read {
-                path: path.to_owned(),
-                reason: e.to_string(),
-            })?;
+            .from_reader(std::io::Cursor::new(text));
         let header_error = |reason: String| SurveyError::Header {
             path: path.to_owned(),
             reason,
@@ -220,6 +223,7 @@ impl<'a> SurveyRows<'a> {
         Ok(SurveyRows {
             reader,
             record: csv::StringRecord::new(),
+            lines: LineCounter::default(),
             path: path.to_owned(),
             site,
             headers,
@@ -276,10 +280,13 @@ impl<'a> SurveyRows<'a> {
         })
     }
 
-    /// Parses the row in `self.record`.
-    fn parse(&self) -> Result<Row, SurveyError> {
-        let record = &self.record;
-        let line = record.position().map_or(0, |p| p.line());
+    /// The line `position` is on in the file.
+    fn line(&mut self, position: Option<&csv::Position>) -> u64 {
+        position.map_or(0, |p| self.lines.line(self.reader.get_ref().get_ref(), p))
+    }
+
+    /// Parses the row in `self.record`, which starts on `line`.
+    fn parse(&self, line: u64) -> Result<Row, SurveyError> {
         let field = |column: usize, reason: String| self.field_error(line, column, reason);
         let get = |i: usize| self.get(line, i);
         let cell = match self.position {
@@ -414,10 +421,14 @@ impl Iterator for SurveyRows<'_> {
     fn next(&mut self) -> Option<Self::Item> {
         match self.reader.read_record(&mut self.record) {
             Ok(false) => None,
-            Ok(true) => Some(self.parse()),
+            Ok(true) => {
+                let position = self.record.position().cloned();
+                let line = self.line(position.as_ref());
+                Some(self.parse(line))
+            }
             Err(e) => Some(Err(SurveyError::Row {
                 path: self.path.clone(),
-                line: e.position().map_or(0, |p| p.line()),
+                line: self.line(e.position()),
                 reason: format!("not a CSV row: {e}"),
             })),
         }
@@ -541,6 +552,18 @@ minor = 2
         assert_eq!(s.samples[0].rssi, vec![Some(-70), None]);
         assert_eq!(s.samples[1].t, Some(1_476_789_300.0));
         assert_eq!(s.ignored_columns(), ["b9"]);
+    }
+
+    #[test]
+    fn errors_name_the_line_of_the_bad_value_whatever_the_line_endings() {
+        for csv in [
+            "x,y,t,b2\n2,0,1.5,-60\n2,0,2.5,loud\n",
+            "x,y,t,b2\r\n2,0,1.5,-60\r\n2,0,2.5,loud\r\n",
+            "x,y,t,b2\n\n2,0,2.5,loud\n",
+        ] {
+            let err = load(csv).unwrap_err().to_string();
+            assert!(err.contains(":3: column `b2`"), "{csv:?}: {err}");
+        }
     }
 
     #[test]

@@ -131,6 +131,10 @@ pub struct Metadata {
 /// Why a model file was refused.
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
+    /// The file is not there: a model not trained yet, which the learned
+    /// planner passes over without alarm.
+    #[error("{path}: no model there yet (`gangway train` writes one)")]
+    Missing { path: String },
     #[error("{path}: cannot read the model: {reason}")]
     Read { path: String, reason: String },
     #[error("{path}: not a valid ONNX model ({reason}); is the file truncated or not ONNX?")]

@@ -78,9 +78,12 @@ impl Model {
     /// `kinds`.
     pub fn load(path: &Path, site: &Site, kinds: &[Kind], rows: Rows) -> Result<Model, ModelError> {
         let name = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|e| ModelError::Read {
-            path: name.clone(),
-            reason: e.to_string(),
+        let bytes = std::fs::read(path).map_err(|e| match e.kind() {
+            std::io::ErrorKind::NotFound => ModelError::Missing { path: name.clone() },
+            _ => ModelError::Read {
+                path: name.clone(),
+                reason: e.to_string(),
+            },
         })?;
         let proto = <pb::ModelProto as prost::Message>::decode(bytes.as_slice()).map_err(|e| {
             ModelError::Corrupt {

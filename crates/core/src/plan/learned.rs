@@ -137,9 +137,10 @@ fn described(checks: &[Check]) -> String {
 
 /// Why desire lines at `path` cannot serve: `error`, or, when the file is
 /// missing and training put a failed one in `failed/` beside it, what that
-/// one failed.
+/// one failed. A file simply not there yet is said plainly: it is the
+/// normal state of a site nobody has trained on, not a fault.
 fn missing_desire(path: &Path, site: &Site, error: ModelError) -> String {
-    if let ModelError::Read { .. } = error
+    if let ModelError::Missing { .. } = error
         && let Some(dir) = path.parent()
         && let Some(name) = path.file_name()
     {
@@ -152,5 +153,11 @@ fn missing_desire(path: &Path, site: &Site, error: ModelError) -> String {
             );
         }
     }
-    format!("no desire lines ({error})")
+    match error {
+        ModelError::Missing { .. } => format!(
+            "no desire lines trained for the site yet ({} would hold them)",
+            path.display()
+        ),
+        error => format!("no desire lines ({error})"),
+    }
 }

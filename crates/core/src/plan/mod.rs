@@ -194,6 +194,10 @@ pub struct ModelPaths {
     pub generator: PathBuf,
     pub path_classifier: PathBuf,
     pub conditional_generator: PathBuf,
+    /// Unset in a config file: beside the conditional generator, where
+    /// `gangway train --out DIR` writes both, so lines trained into the
+    /// directory a config already serves are found without an edit.
+    #[serde(default)]
     pub desire_lines: PathBuf,
 }
 
@@ -216,10 +220,14 @@ impl PlannerConfig {
             &mut m.generator,
             &mut m.path_classifier,
             &mut m.conditional_generator,
-            &mut m.desire_lines,
         ] {
             *p = base.join(&*p);
         }
+        m.desire_lines = if m.desire_lines.as_os_str().is_empty() {
+            m.conditional_generator.with_file_name("desire_lines.onnx")
+        } else {
+            base.join(&m.desire_lines)
+        };
     }
 }
 

@@ -56,6 +56,8 @@ pub enum Output {
     Sightings(Vec<crate::sighting::Sighting>),
     /// The gateway's counters.
     Stats(Box<stats::Stats>),
+    /// The beacons the gateway heard, known or not.
+    HeardReport(Box<stats::HeardReport>),
     /// What a device heard in one fingerprint window, for recalibrating the
     /// radio model (`[localizer.recalibration]`; the learning store keeps it).
     Heard(crate::locate::recalibrate::Heard),

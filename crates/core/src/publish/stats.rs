@@ -1,14 +1,20 @@
 //! The retained `<prefix>/stats` payload: the gateway's counters, published
-//! every `[mqtt] stats_interval_s` and whenever the BLE state changes. Schema:
-//! docs/schemas/stats.schema.json.
+//! every `[mqtt] stats_interval_s` and whenever the BLE state changes; and
+//! beside it the retained `<prefix>/heard` payload, the beacons heard most.
+//! Schemas: docs/schemas/stats.schema.json, docs/schemas/heard.schema.json.
 
 use serde::Serialize;
 
 pub const STATS_SCHEMA: &str = "gangway.stats/1";
+pub const HEARD_SCHEMA: &str = "gangway.heard/1";
+
+/// Beacons listed on the `heard` topic, the most heard first: enough for a
+/// building's beacons, small enough for any broker's payload limit.
+pub const HEARD_PUBLISHED: usize = 100;
 
 /// The counters in [`Stats`] that only grow, with a human name each (Home
 /// Assistant discovery makes one sensor per entry).
-pub const COUNTERS: [(&str, &str); 28] = [
+pub const COUNTERS: [(&str, &str); 29] = [
     ("sightings", "Sightings"),
     ("sightings_ignored", "Sightings ignored"),
     ("fixes", "Fixes"),
@@ -34,18 +40,22 @@ pub const COUNTERS: [(&str, &str); 28] = [
     ("rate_limited", "Messages refused: rate limit"),
     ("feedback_refused", "Feedback refused"),
     ("evicted_devices", "Devices forgotten"),
+    ("evicted_windows", "Fingerprint windows forgotten"),
     ("disconnects", "Broker connections lost"),
     ("unpublishable", "Unpublishable messages"),
     ("scan_restarts", "Silent scan restarts"),
 ];
 
 /// Gauges (current values), with a human name each.
-pub const GAUGES: [(&str, &str); 5] = [
+pub const GAUGES: [(&str, &str); 8] = [
     ("queue_depth", "Offline queue depth"),
+    ("queue_bytes", "Offline queue bytes"),
     ("tracked", "Tracked devices"),
     ("windows", "Open fingerprint windows"),
     ("announced", "Announced device trackers"),
     ("pending_requests", "Route requests waiting"),
+    ("heard", "Beacons heard"),
+    ("heard_unknown", "Beacons heard the site lacks"),
 ];
 
 /// One stats message.
@@ -111,6 +121,10 @@ pub struct Stats {
     pub announced: u64,
     /// Route requests waiting to be planned.
     pub pending_requests: u64,
+    /// Beacons heard since start (at most `[limits] max_devices`), and those
+    /// of them the site does not have: the `heard` topic lists them.
+    pub heard: u64,
+    pub heard_unknown: u64,
     /// `connected`, `disconnected`, or `flapping` (lost repeatedly within a
     /// minute: the gateway cannot stay connected).
     pub mqtt: &'static str,
@@ -138,4 +152,56 @@ pub struct BleStatus {
     /// Silent scans restarted; published as the top-level `scan_restarts`.
     #[serde(skip)]
     pub scan_restarts: u64,
+}
+
+/// One `heard` message: the beacons heard most since the gateway started,
+/// known to the site or not, so a user can see what is in the air and which
+/// beacons the site file lacks.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct HeardReport {
+    pub schema: &'static str,
+    pub gateway: String,
+    /// Seconds since the epoch.
+    pub t: f64,
+    /// Beacons heard in all; `beacons` holds the [`HEARD_PUBLISHED`] heard most.
+    pub heard: u64,
+    pub heard_unknown: u64,
+    /// Beacons forgotten to keep the list within `[limits] max_devices`
+    /// (the least heard go first): non-zero under a flood of made-up ids.
+    pub forgotten: u64,
+    pub beacons: Vec<crate::sighting::heard::HeardBeacon>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The counters are defined once, as [`Stats`]' fields, and exported to
+    /// MQTT, `/metrics` and Home Assistant from [`COUNTERS`] and [`GAUGES`]:
+    /// a field missing from both lists would be published on MQTT only, and
+    /// a listed name that is no field would be silently absent everywhere.
+    #[test]
+    fn every_number_of_the_stats_is_a_listed_counter_or_gauge_and_back() {
+        let json = serde_json::to_value(Stats::default()).unwrap();
+        let numbers: Vec<&str> = json
+            .as_object()
+            .unwrap()
+            .iter()
+            .filter(|(_, v)| v.is_number())
+            .map(|(k, _)| k.as_str())
+            .collect();
+        let listed: Vec<&str> = COUNTERS.iter().chain(&GAUGES).map(|(k, _)| *k).collect();
+        for key in &listed {
+            assert!(
+                numbers.contains(key),
+                "`{key}` is listed but not a number of the stats"
+            );
+        }
+        // Time and uptime are not counters: `/metrics` writes uptime itself.
+        let unlisted: Vec<&&str> = numbers
+            .iter()
+            .filter(|k| !listed.contains(k) && !["t", "uptime_s"].contains(k))
+            .collect();
+        assert!(unlisted.is_empty(), "numbers no list exports: {unlisted:?}");
+    }
 }

@@ -56,6 +56,11 @@ pub trait Sink: Send {
     /// Adds this sink's counters to the gateway's stats.
     fn report(&self, _stats: &mut Stats) {}
 
+    /// The gateway's counters as they are now, once a second: for a sink
+    /// that serves them when asked (`/metrics`) rather than publishing them,
+    /// so an answer is never a whole stats interval old.
+    fn counters(&mut self, _stats: &Stats) {}
+
     /// Whether the sink can take the replies to more requests now; the
     /// runtime takes no message from others while one cannot, so that the
     /// replies do not push older messages out of a full queue.

@@ -7,12 +7,18 @@
 //! captures ([`super::btsnoop`]) and pcap/pcapng captures ([`super::pcap`],
 //! read only: `record` writes btsnoop for Wireshark).
 //!
-//! Without an explicit format, a file to read that starts with the btsnoop magic
-//! is btsnoop whatever its name (Android calls its capture `btsnoop_hci.log`),
-//! one that starts with a pcap or pcapng magic number is pcap, a `.pcap` or
-//! `.pcapng` file is pcap too (so a damaged one is reported as such), a `.csv`
-//! file is a scan log, and anything else is JSON Lines. A file to write is
-//! btsnoop when named `*.btsnoop`, `*.snoop` or `*.cfa`, JSON Lines otherwise.
+//! Without an explicit format, a file to read is known by its content, then
+//! its name: one that starts with the btsnoop magic is btsnoop whatever its
+//! name (Android calls its capture `btsnoop_hci.log`), one that starts with
+//! a pcap or pcapng magic number is pcap; a file named `.pcap`, `.pcapng`,
+//! `.btsnoop`, `.snoop` or `.cfa` is that format anyway (so a damaged one is
+//! reported as such); text whose first line is a JSON object is JSON Lines,
+//! text whose first line has commas (a header) is a CSV scan log. Anything
+//! else (another binary format, other text) is refused with what it looks
+//! like, instead of being read line by line as JSON; an empty file holds no
+//! events (`replay` refuses it, `run --replay /dev/null` runs without radio). A file to
+//! write is btsnoop when named `*.btsnoop`, `*.snoop` or `*.cfa`, JSON Lines
+//! otherwise.
 
 use std::fs::File;
 use std::io::{self, BufReader, BufWriter, Read};
@@ -43,31 +49,62 @@ pub enum Format {
 }
 
 impl Format {
-    /// The format of a file to read, from its first bytes and its name.
-    pub(crate) fn detect(path: &Path) -> io::Result<Format> {
-        let mut magic = [0u8; MAGIC.len()];
-        let mut file = File::open(path)?;
-        let mut got = 0;
-        while got < magic.len() {
-            match file.read(&mut magic[got..])? {
-                0 => break,
-                n => got += n,
-            }
+    /// The format of a file to read, from its first bytes, then its name;
+    /// the error says what the file looks like instead.
+    pub(crate) fn detect(path: &Path) -> Result<Format, String> {
+        let mut head = Vec::with_capacity(SNIFF_BYTES);
+        File::open(path)
+            .and_then(|file| file.take(SNIFF_BYTES as u64).read_to_end(&mut head))
+            .map_err(|e| format!("cannot open the capture: {e}"))?;
+        // Nothing to read is no format's fault (`run --replay /dev/null`
+        // runs the daemon without a radio); `replay` refuses it itself.
+        if head.is_empty() {
+            return Ok(Format::Jsonl);
         }
-        if got == magic.len() && magic == MAGIC {
+        if head.starts_with(&MAGIC) {
             return Ok(Format::Btsnoop);
         }
-        if let Some(&first) = magic.first_chunk::<4>()
-            && got >= first.len()
+        if let Some(&first) = head.first_chunk::<4>()
             && pcap::is_magic(first)
         {
             return Ok(Format::Pcap);
         }
-        Ok(match extension(path).as_deref() {
-            Some("csv") => Format::Csv,
-            Some("pcap" | "pcapng") => Format::Pcap,
-            _ => Format::Jsonl,
-        })
+        match extension(path).as_deref() {
+            Some("pcap" | "pcapng") => return Ok(Format::Pcap),
+            Some("btsnoop" | "snoop" | "cfa") => return Ok(Format::Btsnoop),
+            _ => {}
+        }
+        let text = match std::str::from_utf8(&head) {
+            Ok(text) => text,
+            // Cut in the middle of a character by the sniff's length.
+            Err(e) if e.error_len().is_none() => {
+                std::str::from_utf8(&head[..e.valid_up_to()]).expect("valid up to here")
+            }
+            Err(_) => return Err(binary(&head)),
+        };
+        if text.contains('\0') {
+            return Err(binary(&head));
+        }
+        let first = text
+            .trim_start_matches('\u{feff}')
+            .lines()
+            .map(str::trim)
+            .find(|line| !line.is_empty())
+            .unwrap_or("");
+        if first.starts_with('{') {
+            Ok(Format::Jsonl)
+        } else if first.contains(',') || extension(path).as_deref() == Some("csv") {
+            Ok(Format::Csv)
+        } else if first.is_empty() {
+            Err("the capture holds only blank lines: nothing to replay".into())
+        } else {
+            Err(format!(
+                "text that is neither JSON Lines (each line one JSON object, `{{…}}`) nor a CSV \
+                 scan log (a header row of comma-separated column names); its first line is \
+                 {:?}",
+                first.chars().take(80).collect::<String>()
+            ))
+        }
     }
 
     /// The format of a file to write, from its name.
@@ -79,6 +116,30 @@ impl Format {
             _ => Format::Jsonl,
         }
     }
+}
+
+/// How much of a file detection reads: enough for a first line of text.
+const SNIFF_BYTES: usize = 4096;
+
+/// Why a binary file that is no capture was refused, naming what it looks
+/// like where its magic number says (the `infer` crate knows ~200 formats).
+fn binary(head: &[u8]) -> String {
+    let looks_like = match infer::get(head) {
+        Some(kind) if kind.matcher_type() == infer::MatcherType::Archive => format!(
+            "{} data ({}), an archive or compressed file: unpack the capture from it first",
+            kind.extension(),
+            kind.mime_type()
+        ),
+        Some(kind) => format!("{} data ({})", kind.extension(), kind.mime_type()),
+        None => {
+            let bytes: Vec<String> = head.iter().take(8).map(|b| format!("{b:02x}")).collect();
+            format!("binary data starting {}", bytes.join(" "))
+        }
+    };
+    format!(
+        "not a capture gangway reads: {looks_like}; it reads JSON Lines advert logs, CSV scan \
+         logs, btsnoop (btmon -w, Android's btsnoop_hci.log), pcap and pcapng"
+    )
 }
 
 fn extension(path: &Path) -> Option<String> {
@@ -137,9 +198,9 @@ impl CaptureReader {
     ) -> Result<CaptureReader, CaptureError> {
         let format = match options.format {
             Some(format) => format,
-            None => Format::detect(path).map_err(|e| CaptureError::Other {
+            None => Format::detect(path).map_err(|reason| CaptureError::Other {
                 path: path.to_owned(),
-                reason: format!("cannot open the capture: {e}"),
+                reason,
             })?,
         };
         let device =
@@ -321,8 +382,15 @@ mod tests {
         std::fs::write(&csv, "t,b1\n").unwrap();
         assert_eq!(Format::detect(&csv).unwrap(), Format::Csv);
         let jsonl = dir.path().join("walk.log");
-        std::fs::write(&jsonl, "").unwrap();
+        std::fs::write(&jsonl, "\n{\"t\": 1}\n").unwrap();
         assert_eq!(Format::detect(&jsonl).unwrap(), Format::Jsonl);
+        let named_csv_but_jsonl = dir.path().join("walk.csv");
+        std::fs::write(&named_csv_but_jsonl, "{\"t\": 1}\n").unwrap();
+        assert_eq!(
+            Format::detect(&named_csv_but_jsonl).unwrap(),
+            Format::Jsonl,
+            "content wins"
+        );
         assert!(Format::detect(&dir.path().join("absent")).is_err());
         // pcap and pcapng by their magic numbers whatever the name, and by name.
         for magic in [
@@ -343,6 +411,35 @@ mod tests {
         assert_eq!(Format::detect(&damaged).unwrap(), Format::Pcap);
 
         assert_eq!(Format::for_output(Path::new("a.btsnoop")), Format::Btsnoop);
+    }
+
+    #[test]
+    fn what_is_no_capture_is_refused_saying_what_it_looks_like() {
+        let dir = tempfile::tempdir().unwrap();
+        let refused = |name: &str, bytes: &[u8]| {
+            let path = dir.path().join(name);
+            std::fs::write(&path, bytes).unwrap();
+            Format::detect(&path).unwrap_err()
+        };
+        assert!(refused("walk.jsonl", b"\n  \n").contains("only blank lines"));
+        let gzip = refused("walk.jsonl", &[0x1f, 0x8b, 0x08, 0, 0, 0, 0, 0, 0, 3]);
+        assert!(
+            gzip.contains("gz data (application/gzip)") && gzip.contains("unpack"),
+            "{gzip}"
+        );
+        let png = refused("plan.log", b"\x89PNG\r\n\x1a\n\0\0\0\rIHDR");
+        assert!(png.contains("png data (image/png)"), "{png}");
+        let random = refused(
+            "random.bin",
+            &[0x00, 0xff, 0x13, 0x37, 0xfe, 0x00, 0x01, 0x02, 0x03],
+        );
+        assert!(
+            random.contains("binary data starting 00 ff 13 37"),
+            "{random}"
+        );
+        assert!(random.contains("JSON Lines advert logs"), "{random}");
+        let prose = refused("notes.txt", b"These are my notes\nabout beacons\n");
+        assert!(prose.contains("\"These are my notes\""), "{prose}");
         assert_eq!(Format::for_output(Path::new("a.jsonl")), Format::Jsonl);
         assert_eq!(Format::for_output(Path::new("a")), Format::Jsonl);
         assert_eq!(Format::for_output(Path::new("a.pcapng")), Format::Pcap);

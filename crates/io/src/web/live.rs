@@ -35,6 +35,7 @@ use super::metrics::Metrics;
 use super::security::error;
 use crate::plan::Destination;
 use crate::publish::Output;
+use crate::publish::stats::Stats;
 use crate::sink::Sink;
 use crate::site::{Cell, Site};
 use crate::source::{Source, SourceContext};
@@ -77,6 +78,8 @@ struct Tables {
     routes: HashMap<Arc<str>, serde_json::Value>,
     guidance: HashMap<Arc<str>, serde_json::Value>,
     stats: Option<serde_json::Value>,
+    /// The last list of beacons heard, for the site editor to offer.
+    heard: Option<serde_json::Value>,
     /// Fixes not yet sent, and devices forgotten since the last batch.
     pending: Vec<FixView>,
     forgotten: Vec<Arc<str>>,
@@ -215,6 +218,9 @@ impl Live {
                     self.broadcast("status", json.to_string());
                     t.stats = Some(json);
                 }
+                Output::HeardReport(heard) => {
+                    t.heard = Some(serde_json::to_value(heard).expect("plain data serializes"));
+                }
                 _ => {}
             }
         }
@@ -321,6 +327,10 @@ impl Sink for WebSink {
         self.live.send_batch();
     }
 
+    fn counters(&mut self, stats: &Stats) {
+        self.live.metrics.set_stats(stats);
+    }
+
     fn reload(&mut self, site: &Site) {
         *self.live.site.write().unwrap_or_else(|e| e.into_inner()) = Arc::new(site.clone());
         self.live.broadcast("site", String::from("{}"));
@@ -367,6 +377,16 @@ impl Source for WebSource {
                 }
             }
         })
+    }
+}
+
+/// `GET /api/heard`: the beacons the gateway heard most (the retained
+/// `heard` payload), so the site editor can offer the unknown ones to place;
+/// 204 before the first list.
+pub(super) async fn heard(State(live): State<Arc<Live>>) -> Response {
+    match live.lock().heard.clone() {
+        Some(heard) => Json(heard).into_response(),
+        None => StatusCode::NO_CONTENT.into_response(),
     }
 }
 

@@ -246,6 +246,7 @@ fn router(app: App) -> Router {
         routes = routes.merge(
             Router::new()
                 .route("/api/live", get(live::stream))
+                .route("/api/heard", get(live::heard))
                 .route("/api/route", axum::routing::post(live::route))
                 .route("/metrics", get(metrics))
                 .with_state(live.clone()),

@@ -22,6 +22,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use crate::csv_line::LineCounter;
 use crate::plan::anyangle::{extend_walk, traverse, without_loops};
 use crate::site::{Cell, Site};
 use crate::train::trajectory::Trajectory;
@@ -167,6 +168,10 @@ fn csv_rows(path: &Path, text: &str) -> Result<Vec<Row>, WalkError> {
         })?
         .clone();
     let mut rows = Vec::new();
+    let mut lines = LineCounter::default();
+    let mut line_of = |position: Option<&csv::Position>| {
+        position.map_or(0, |p| lines.line(text.as_bytes(), p) as usize)
+    };
     for record in reader.records() {
         let error = |line: usize, e: csv::Error| WalkError::Line {
             path: path.to_owned(),
@@ -174,10 +179,10 @@ fn csv_rows(path: &Path, text: &str) -> Result<Vec<Row>, WalkError> {
             reason: format!("{e}; {what}"),
         };
         let record = record.map_err(|e| {
-            let line = e.position().map_or(0, |p| p.line() as usize);
+            let line = line_of(e.position());
             error(line, e)
         })?;
-        let line = record.position().map_or(0, |p| p.line() as usize);
+        let line = line_of(record.position());
         let record: CsvRow = record
             .deserialize(Some(&headers))
             .map_err(|e| error(line, e))?;

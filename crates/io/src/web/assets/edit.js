@@ -26,6 +26,8 @@ let checkTimer = 0;
 let checkSeq = 0;
 let painting = null;
 let dragging = null;
+let heard = []; // beacons the gateway heard (GET /api/heard), when it serves this page
+let placing = null; // a heard beacon's { uuid, major, minor } the next Beacon click places
 
 const svg = $("plan");
 const view = new PlanView(svg, {
@@ -489,15 +491,65 @@ function addBeacon(pos) {
   const minors = beacons.map((b) => b.minor);
   let n = beacons.length + 1;
   while (beacons.some((b) => b.id === "b" + n)) n++;
-  beacons.push({
-    id: "b" + n,
+  // A heard beacon picked from the list keeps its own identity; otherwise
+  // the next minor of the last beacon's UUID and major.
+  const id = placing || {
     uuid: last ? last.uuid : randomUuid(),
     major: last ? last.major : 1,
     minor: minors.length ? Math.min(65535, Math.max(...minors) + 1) : 1,
-    pos,
-  });
+  };
+  placing = null;
+  beacons.push({ id: "b" + n, uuid: id.uuid, major: id.major, minor: id.minor, pos });
   select("beacon", "b" + n);
   changed();
+}
+
+/** The heard beacons the document does not have yet (matched by UUID, major and minor). */
+function unplacedHeard() {
+  const has = new Set((doc.beacon || []).map((b) => `${String(b.uuid).toLowerCase()}/${b.major}/${b.minor}`));
+  return heard.filter((b) => !has.has(`${b.uuid.toLowerCase()}/${b.major}/${b.minor}`));
+}
+
+function renderHeard() {
+  const unplaced = doc ? unplacedHeard() : [];
+  $("heard-box").hidden = heard.length === 0;
+  fill($("heard-count"), String(unplaced.length));
+  fill(
+    $("heard"),
+    unplaced.map((b) => {
+      const picked = placing && placing.uuid === b.uuid && placing.major === b.major && placing.minor === b.minor;
+      return h(
+        "li",
+        { class: picked ? "selected" : "" },
+        h(
+          "button",
+          {
+            type: "button",
+            class: "link",
+            title: `heard by ${b.observers.join(", ")}${b.more_observers ? " and more" : ""}`,
+            onclick: () => {
+              placing = { uuid: b.uuid, major: b.major, minor: b.minor };
+              document.querySelector("input[name=tool][value=beacon]").checked = true;
+              showToolOptions();
+              renderHeard();
+            },
+          },
+          `${b.uuid.slice(0, 8)}… ${b.major}/${b.minor} · ${b.count}× · ${b.rssi_median} dBm`,
+        ),
+      );
+    }),
+  );
+}
+
+/** What the gateway hears, when it serves this page (`gangway site edit` alone has no radio). */
+async function loadHeard() {
+  try {
+    const report = await api("/api/heard");
+    heard = report && Array.isArray(report.beacons) ? report.beacons : [];
+  } catch {
+    heard = [];
+  }
+  renderHeard();
 }
 
 function randomUuid() {
@@ -738,6 +790,7 @@ function renderLists() {
   const beacons = doc.beacon || [];
   fill($("beacons"), beacons.map((b) => item("beacon", b.id, `${b.id}  ${b.pos ? b.pos.join(", ") + " m" : b.cell ? "cell " + b.cell.join(", ") : "no position"}`)));
   fill($("beacon-count"), String(beacons.length));
+  renderHeard();
   const places = Object.entries(doc.places || {});
   fill($("places"), places.map(([name, cell]) => item("place", name, `${name}  [${cell.join(", ")}]`)));
   fill($("place-count"), String(places.length));
@@ -812,5 +865,13 @@ $("save").addEventListener("click", async () => {
   }
 });
 
+/** How often the list of heard beacons is refreshed (the gateway renews it every stats tick). */
+const HEARD_REFRESH_MS = 30_000;
+
 showToolOptions();
-load().catch((e) => showProblems([e.message]));
+load()
+  .then(() => {
+    loadHeard();
+    setInterval(loadHeard, HEARD_REFRESH_MS);
+  })
+  .catch((e) => showProblems([e.message]));

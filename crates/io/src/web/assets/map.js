@@ -645,6 +645,11 @@ function percentile(values, p) {
   return sorted[Math.min(sorted.length - 1, Math.floor(p * sorted.length))];
 }
 
+/** A figure for the panel, or a dash while nothing was measured (after a replay ends, say). */
+function ms(value, digits) {
+  return Number.isFinite(value) ? value.toFixed(digits) : "–";
+}
+
 /** This page's own figures: fixes a second, fix-to-screen latency, frame time. */
 function pageStats() {
   const now = performance.now();
@@ -664,9 +669,9 @@ function pageStats() {
     h("dt", {}, "devices drawn"), h("dd", {}, String(stats.devices)),
     h("dt", {}, "fixes a second"), h("dd", {}, stats.fixes_per_s.toFixed(0)),
     h("dt", {}, "dots moved a second"), h("dd", {}, stats.moved_per_s.toFixed(0)),
-    h("dt", {}, "fix → screen p50 / p99"), h("dd", {}, `${stats.latency_p50_ms.toFixed(0)} / ${stats.latency_p99_ms.toFixed(0)} ms`),
-    h("dt", {}, "frame work p50 / p99"), h("dd", {}, `${stats.frame_p50_ms.toFixed(1)} / ${stats.frame_p99_ms.toFixed(1)} ms`),
-    h("dt", {}, "frame interval p50"), h("dd", {}, `${stats.interval_p50_ms.toFixed(1)} ms`),
+    h("dt", {}, "fix → screen p50 / p99"), h("dd", {}, `${ms(stats.latency_p50_ms, 0)} / ${ms(stats.latency_p99_ms, 0)} ms`),
+    h("dt", {}, "frame work p50 / p99"), h("dd", {}, `${ms(stats.frame_p50_ms, 1)} / ${ms(stats.frame_p99_ms, 1)} ms`),
+    h("dt", {}, "frame interval p50"), h("dd", {}, `${ms(stats.interval_p50_ms, 1)} ms`),
   );
   $("page-stats").dataset.latencyP99 = stats.latency_p99_ms;
   $("page-stats").dataset.latencyP50 = stats.latency_p50_ms;
