@@ -35,6 +35,7 @@ mod onnx_reference;
 mod pedestrians;
 mod planning;
 mod planning_eval;
+mod receivers;
 mod record;
 mod replay;
 mod waldo_site;

@@ -193,6 +193,16 @@ impl Config {
         self.guidance.validate()?;
         self.ble.validate()?;
         self.mqtt.validate().map_err(|e| e.to_string())?;
+        if (self.mqtt.espresense.is_some() || self.mqtt.theengs.is_some())
+            && self.window.orientation != Orientation::Advertiser
+        {
+            return Err(
+                "[mqtt.espresense] and [mqtt.theengs] read fixed receivers that hear tags: \
+                 set [window] orientation = \"advertiser\" (and place each receiver as a \
+                 [[gateway]] of the site)"
+                    .into(),
+            );
+        }
         self.store.validate()?;
         self.limits.validate()?;
         Ok(())

@@ -65,6 +65,11 @@ pub struct MqttConfig {
     pub discovery_prefix: String,
     /// Seconds a graceful shutdown waits for queued and in-flight messages.
     pub shutdown_grace_s: f64,
+    /// `[mqtt.espresense]`: ESPresense room nodes on this broker
+    /// (`mqtt::receivers`); absent, they are not read.
+    pub espresense: Option<super::receivers::EspresenseConfig>,
+    /// `[mqtt.theengs]`: Theengs Gateway or OpenMQTTGateway on this broker.
+    pub theengs: Option<super::receivers::TheengsConfig>,
 }
 
 impl Default for MqttConfig {
@@ -91,6 +96,8 @@ impl Default for MqttConfig {
             ha_discovery: true,
             discovery_prefix: "homeassistant".into(),
             shutdown_grace_s: 5.0,
+            espresense: None,
+            theengs: None,
         }
     }
 }
@@ -156,6 +163,14 @@ impl MqttConfig {
             ("prefix", self.prefix.as_deref()),
             ("site_prefix", self.site_prefix.as_deref()),
             ("discovery_prefix", Some(self.discovery_prefix.as_str())),
+            (
+                "espresense.topic",
+                self.espresense.as_ref().map(|e| e.topic.as_str()),
+            ),
+            (
+                "theengs.topic",
+                self.theengs.as_ref().map(|t| t.topic.as_str()),
+            ),
         ] {
             if let Some(p) = prefix
                 && !valid_prefix(p)

@@ -9,13 +9,17 @@
 //! - `<prefix>/devices/<device>/feedback`: `{"request_id": "...", "score": 1..5}`;
 //! - `<prefix>/scans/<device>`: `[{"uuid", "major", "minor", "rssi", "tx_power"?}]`,
 //!   a phone's own scan, localized with the phone as observer;
-//! - `<site prefix>/sightings/<gateway>`: another gateway's sightings.
+//! - `<site prefix>/sightings/<gateway>`: another gateway's sightings;
+//! - ESPresense nodes and Theengs Gateway / OpenMQTTGateway, when
+//!   configured ([`super::receivers`]): their iBeacon messages, as sightings
+//!   by the receiver.
 
 use std::sync::Arc;
 
 use serde::Deserialize;
 use uuid::Uuid;
 
+use super::receivers::{self, EspresenseConfig, TheengsConfig};
 use super::sightings;
 use crate::event::{Feedback, Inbound, RouteRequest};
 use crate::plan::{Destination, RouteErrorCode};
@@ -45,6 +49,10 @@ pub enum Rejected {
     /// This gateway's own shared sightings, echoed by the broker.
     #[error("{topic}: own sightings")]
     Own { topic: String },
+    /// A receiver's message about a device that is no iBeacon (ESPresense
+    /// and Theengs report every BLE device they hear): nothing to do.
+    #[error("{topic}: not an iBeacon")]
+    NotAnIbeacon { topic: String },
 }
 
 impl Rejected {
@@ -61,6 +69,8 @@ pub struct Inbox {
     max_payload: usize,
     /// Whether shared sightings are exchanged (advertiser orientation).
     share: bool,
+    espresense: Option<EspresenseConfig>,
+    theengs: Option<TheengsConfig>,
 }
 
 #[derive(Deserialize)]
@@ -105,7 +115,21 @@ impl Inbox {
             gateway_id,
             max_payload,
             share,
+            espresense: None,
+            theengs: None,
         }
+    }
+
+    /// Also reads the receivers `[mqtt.espresense]` and `[mqtt.theengs]`
+    /// configure.
+    pub fn with_receivers(
+        mut self,
+        espresense: Option<EspresenseConfig>,
+        theengs: Option<TheengsConfig>,
+    ) -> Self {
+        self.espresense = espresense;
+        self.theengs = theengs;
+        self
     }
 
     /// The topic filters to subscribe to.
@@ -119,6 +143,10 @@ impl Inbox {
         if self.share {
             filters.push(sightings::topic(&self.site_prefix, "+"));
         }
+        filters.extend(receivers::subscriptions(
+            self.espresense.as_ref(),
+            self.theengs.as_ref(),
+        ));
         filters
     }
 
@@ -211,6 +239,10 @@ impl Inbox {
             Kind::Sightings => sightings::decode(id, payload)
                 .map(Inbound::Shared)
                 .map_err(bad),
+            Kind::Espresense { device } => {
+                receiver(receivers::espresense(id, device, payload, now), topic)
+            }
+            Kind::Theengs => receiver(receivers::theengs(id, payload, now), topic),
         }
     }
 
@@ -271,7 +303,22 @@ impl Inbox {
         }
     }
 
-    fn classify<'t>(&self, topic: &'t str) -> Option<(Kind, &'t str)> {
+    /// What a topic is, and the id of whom it is about (the device, or the
+    /// gateway or receiver that heard).
+    fn classify<'t>(&self, topic: &'t str) -> Option<(Kind<'t>, &'t str)> {
+        if let Some(base) = self.espresense.as_ref().map(|e| e.topic.as_str())
+            && let Some(rest) = strip(topic, base).and_then(|r| r.strip_prefix("devices/"))
+        {
+            let (device, room) = rest.split_once('/')?;
+            return Some((Kind::Espresense { device }, room));
+        }
+        if let Some(base) = self.theengs.as_ref().map(|t| t.topic.as_str())
+            && let Some(rest) = strip(topic, base)
+            && let Some((gateway, mac)) = rest.split_once("/BTtoMQTT/")
+            && !mac.contains('/')
+        {
+            return Some((Kind::Theengs, gateway));
+        }
         if let Some(rest) = strip(topic, self.topics.prefix()) {
             if let Some(device) = rest.strip_prefix("scans/") {
                 return Some((Kind::Scan, device));
@@ -303,12 +350,33 @@ fn valid_request_id(id: &str) -> bool {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Kind {
+enum Kind<'t> {
     RouteSet,
     RouteCancel,
     Feedback,
     Scan,
     Sightings,
+    /// An ESPresense node's message about `device` (the id names its room).
+    Espresense {
+        device: &'t str,
+    },
+    /// A Theengs Gateway or OpenMQTTGateway message (the id names the gateway).
+    Theengs,
+}
+
+/// A receiver's message as what the runtime takes: its sighting, or nothing
+/// to do for a device that is not an iBeacon.
+fn receiver(read: receivers::Read, topic: &str) -> Result<Inbound, Rejected> {
+    match read {
+        Ok(Some(sighting)) => Ok(Inbound::Shared(vec![sighting])),
+        Ok(None) => Err(Rejected::NotAnIbeacon {
+            topic: topic.to_owned(),
+        }),
+        Err(reason) => Err(Rejected::BadPayload {
+            topic: topic.to_owned(),
+            reason,
+        }),
+    }
 }
 
 /// `topic` without `prefix/`.

@@ -23,6 +23,7 @@ pub mod inbound;
 pub(crate) mod link;
 pub(crate) mod occupancy;
 pub(crate) mod queue;
+pub mod receivers;
 pub mod sightings;
 pub mod sink;
 pub(crate) mod source;

@@ -95,7 +95,8 @@ pub fn gateway(
         identity.gateway_id.clone(),
         config.max_payload_bytes,
         identity.shares_sightings,
-    );
+    )
+    .with_receivers(config.espresense.clone(), config.theengs.clone());
     let settings = super::link_settings(
         config,
         url,

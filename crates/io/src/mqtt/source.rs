@@ -53,7 +53,7 @@ impl Source for MqttSource {
                     inbox.read_sized(&message.topic, &message.payload, message.size, unix_now());
                 let read = match read {
                     Ok(read) => read,
-                    Err(Rejected::Own { .. }) => continue,
+                    Err(Rejected::Own { .. } | Rejected::NotAnIbeacon { .. }) => continue,
                     Err(e) => {
                         if let Some(more) = refused.ready() {
                             tracing::warn!(not_logged = more, "ignored message: {e}");
