@@ -33,3 +33,4 @@ pub use gangway_offline::{eval, picture, simulate, train, walks};
 
 pub mod cli;
 pub mod daemon;
+pub mod logging;

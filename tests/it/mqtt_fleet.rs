@@ -87,3 +87,70 @@ async fn two_gateways_share_sightings_and_both_localize_a_tag() {
     drop(running);
     drop(configs);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_forged_batch_from_the_future_does_not_silence_a_tag() {
+    // The attack of issue #29: one batch on another gateway's sightings
+    // topic, dated 1e300, used to move the tag's window into the future
+    // and silence it for the rest of the run.
+    let broker = Broker::start();
+    let dir = tempfile::tempdir().unwrap();
+    let site = dir.path().join("site.toml");
+    let waldo = std::fs::read_to_string(repo().join("config/sites/waldo.toml")).unwrap();
+    let (body, places) = waldo.split_once("[places]").unwrap();
+    std::fs::write(
+        &site,
+        format!(
+            "{body}[[gateway]]\nid = \"gw-a\"\ncell = [9, 9]\n\n[[gateway]]\nid = \"gw-b\"\ncell = [13, 14]\n\n[places]{places}"
+        ),
+    )
+    .unwrap();
+    let mut client = Client::connect(&broker, "test-forger", &["gangway/#"]).await;
+    let log = dir.path().join("gw-a.jsonl");
+    std::fs::write(&log, log_of("gw-a", -62)).unwrap();
+    let config = gateway_config(
+        "gw-a",
+        &site,
+        &broker,
+        "[window]\norientation = \"advertiser\"\n",
+    );
+    // Real time: the log's 60 s play over 60 s, so the attack lands mid-run.
+    let _gateway = Gateway::start(
+        &config.path,
+        &["--replay", log.to_str().unwrap(), "--speed", "1"],
+    );
+    let topic = format!("gangway/gw-a/devices/{TAG_UUID}-7-1/location");
+    client
+        .wait_for("the tag located before the attack", |m| m.topic == topic)
+        .await;
+    client
+        .publish(
+            "gangway/sites/waldo-library/sightings/gw-b",
+            format!(
+                r#"{{"schema":"gangway.sightings/1","gateway":"gw-b","sightings":[{{"t":1e300,"uuid":"{TAG_UUID}","major":7,"minor":1,"rssi":-40}}]}}"#
+            ),
+        )
+        .await;
+    let attacked = client.seen.len();
+    let stats = client
+        .wait_for("the forged batch refused and counted", |m| {
+            m.topic == "gangway/gw-a/stats" && m.json()["rejected_messages"].as_u64() >= Some(1)
+        })
+        .await
+        .json();
+    assert_eq!(stats["shared_in"], 0, "{stats}");
+    // The tag goes on being located: three more fixes within 20 s.
+    let mut fixes_after = 0;
+    for _ in 0..20 {
+        tokio::time::sleep(std::time::Duration::from_secs(1)).await;
+        client.drain();
+        fixes_after = client.seen[attacked..]
+            .iter()
+            .filter(|m| m.topic == topic)
+            .count();
+        if fixes_after >= 3 {
+            break;
+        }
+    }
+    assert!(fixes_after >= 3, "{fixes_after} fixes after the attack");
+}

@@ -522,3 +522,44 @@ async fn a_gateway_that_cannot_stay_connected_says_so() {
         "{log}"
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_payload_cannot_forge_a_log_line() {
+    // Issue #29: an unknown key holding a newline, a fake ERROR line and
+    // escape sequences used to reach the log raw through serde's error text.
+    let broker = Broker::start();
+    let config = gateway_config("gw-test", &waldo(), &broker, "");
+    let mut client = client(&broker, "test-forge-log", &replies_and_stats()).await;
+    let log = config.dir.path().join("gateway.log");
+    let _gateway = Gateway::start_logged(&config.path, &[], "info", &log);
+    stats_where(&mut client, "the first stats", |s| s["mqtt"] == "connected").await;
+    let forged = "x\n2026-12-04T00:00:00.000000Z ERROR gangway: the gateway was compromised\r\u{1b}[2J\u{1b}]0;pwned\u{7}";
+    let payload = serde_json::json!({ "request_id": "r", "score": 3, forged: 1 }).to_string();
+    client
+        .publish("gangway/gw-test/devices/phone-1/feedback", payload)
+        .await;
+    stats_where(&mut client, "the forged feedback refused", |s| {
+        s["rejected_messages"].as_u64() >= Some(1)
+    })
+    .await;
+    let log = std::fs::read_to_string(&log).unwrap();
+    let refused = log
+        .lines()
+        .find(|l| l.contains("ignored message"))
+        .unwrap_or_else(|| panic!("no line about the message:\n{log}"));
+    assert!(
+        refused.contains("\\n2026-12-04T00:00:00.000000Z ERROR"),
+        "{refused}"
+    );
+    assert!(
+        !log.lines()
+            .any(|l| l.contains("ERROR gangway: the gateway was compromised")
+                && !l.contains("ignored message")),
+        "a forged line:\n{log}"
+    );
+    assert!(
+        !log.chars()
+            .any(|c| c.is_control() && c != '\n' && c != '\t'),
+        "a raw control character in the log:\n{log:?}"
+    );
+}

@@ -65,6 +65,9 @@ pub struct MqttConfig {
     pub discovery_prefix: String,
     /// Seconds a graceful shutdown waits for queued and in-flight messages.
     pub shutdown_grace_s: f64,
+    /// Other gateways' sightings further ahead of this gateway's clock are
+    /// refused and counted (a future time would silence a tag until then).
+    pub max_clock_skew_s: f64,
     /// `[mqtt.espresense]`: ESPresense room nodes on this broker
     /// (`mqtt::receivers`); absent, they are not read.
     pub espresense: Option<super::receivers::EspresenseConfig>,
@@ -96,6 +99,7 @@ impl Default for MqttConfig {
             ha_discovery: true,
             discovery_prefix: "homeassistant".into(),
             shutdown_grace_s: 5.0,
+            max_clock_skew_s: super::inbound::DEFAULT_MAX_CLOCK_SKEW_S,
             espresense: None,
             theengs: None,
         }
@@ -152,6 +156,9 @@ impl MqttConfig {
         }
         if !(self.shutdown_grace_s >= 0.0 && self.shutdown_grace_s.is_finite()) {
             return bad("`shutdown_grace_s` must be a non-negative number of seconds");
+        }
+        if !(self.max_clock_skew_s >= 0.0 && self.max_clock_skew_s.is_finite()) {
+            return bad("`max_clock_skew_s` must be a non-negative number of seconds");
         }
         if self.queue_max_messages == 0 || self.queue_max_bytes == 0 {
             return bad("`queue_max_messages` and `queue_max_bytes` must be positive");

@@ -172,12 +172,12 @@ impl Discovery {
     /// The config topic of `device`'s tracker: an empty retained message there
     /// removes the tracker from Home Assistant and the broker.
     pub(crate) fn tracker_config_topic(&self, device: &str) -> String {
-        self.config_topic("device_tracker", &object_id(device))
+        self.config_topic("device_tracker", &device_object_id(device))
     }
 
     /// A tracker for one device, sent once per device the gateway locates.
     pub(crate) fn device_tracker(&self, device: &str) -> Message {
-        let object = object_id(device);
+        let object = device_object_id(device);
         self.config(
             "device_tracker",
             &object,
@@ -227,6 +227,25 @@ fn object_id(id: &str) -> String {
         .collect()
 }
 
+/// A device's object id, one-to-one: letters, digits and `-` stay, every
+/// other byte (`_` included) becomes `_` and two hex digits, so `alice.phone`,
+/// `alice:phone` and `alice_phone` are three trackers, never one. Device ids
+/// come from the air and the broker, so two of them must never share a
+/// tracker (gateway and place ids come from the config and keep
+/// [`object_id`]).
+fn device_object_id(id: &str) -> String {
+    use std::fmt::Write;
+    let mut out = String::with_capacity(id.len());
+    for byte in id.bytes() {
+        if byte.is_ascii_alphanumeric() || byte == b'-' {
+            out.push(char::from(byte));
+        } else {
+            let _ = write!(out, "_{byte:02x}");
+        }
+    }
+    out
+}
+
 /// `occupancy_<place>`, made unique among `all` places: names that map to the
 /// same object id (`a b`, `a_b`) each get a short hash of their own name.
 fn occupancy_object_id(place: &str, all: &[&str]) -> String {
@@ -260,7 +279,10 @@ mod tests {
     fn a_tracker_reads_its_state_from_presence_and_attributes_from_the_location_topic() {
         let d = discovery();
         let m = d.device_tracker("phone 7");
-        assert_eq!(m.topic, "homeassistant/device_tracker/gw_1/phone_7/config");
+        assert_eq!(
+            m.topic,
+            "homeassistant/device_tracker/gw_1/phone_207/config"
+        );
         assert_eq!(m.topic, d.tracker_config_topic("phone 7"));
         assert!(m.retain);
         assert_eq!(
@@ -321,6 +343,31 @@ mod tests {
             "{{ value_json.places[\"help desk\"] | default(0) }}"
         );
         assert_eq!(d.occupancy_config_topic("moon"), None);
+    }
+
+    #[test]
+    fn devices_whose_ids_differ_get_distinct_trackers() {
+        let d = discovery();
+        let ids = [
+            "alice.phone",
+            "alice:phone",
+            "alice_phone",
+            "alice_2ephone",
+            "alice phone",
+        ];
+        let topics: std::collections::BTreeSet<String> =
+            ids.iter().map(|id| d.tracker_config_topic(id)).collect();
+        assert_eq!(topics.len(), ids.len(), "{topics:?}");
+        let unique_ids: std::collections::BTreeSet<String> = ids
+            .iter()
+            .map(|id| d.device_tracker(id).value()["unique_id"].to_string())
+            .collect();
+        assert_eq!(unique_ids.len(), ids.len(), "{unique_ids:?}");
+        // Ids made of letters, digits and dashes (tags, walkers) keep theirs.
+        assert!(
+            d.tracker_config_topic("0f0e0d0c-0b0a-4908-8706-050403020100-7-1")
+                .contains("/0f0e0d0c-0b0a-4908-8706-050403020100-7-1/")
+        );
     }
 
     #[test]

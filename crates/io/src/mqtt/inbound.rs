@@ -71,6 +71,10 @@ pub struct Inbox {
     share: bool,
     espresense: Option<EspresenseConfig>,
     theengs: Option<TheengsConfig>,
+    /// How far ahead of this gateway's clock another gateway's sighting may
+    /// be: one from further ahead would move its tag's window into the
+    /// future and silence the tag until then.
+    max_clock_skew_s: f64,
 }
 
 #[derive(Deserialize)]
@@ -117,7 +121,15 @@ impl Inbox {
             share,
             espresense: None,
             theengs: None,
+            max_clock_skew_s: DEFAULT_MAX_CLOCK_SKEW_S,
         }
+    }
+
+    /// Refuses other gateways' sightings more than `seconds` ahead of this
+    /// gateway's clock (`[mqtt] max_clock_skew_s`).
+    pub fn with_max_clock_skew(mut self, seconds: f64) -> Self {
+        self.max_clock_skew_s = seconds;
+        self
     }
 
     /// Also reads the receivers `[mqtt.espresense]` and `[mqtt.theengs]`
@@ -236,9 +248,20 @@ impl Inbox {
             Kind::Sightings if id == self.gateway_id => Err(Rejected::Own {
                 topic: topic.to_owned(),
             }),
-            Kind::Sightings => sightings::decode(id, payload)
-                .map(Inbound::Shared)
-                .map_err(bad),
+            Kind::Sightings => {
+                let shared = sightings::decode(id, payload).map_err(bad)?;
+                if let Some(ahead) = shared.iter().map(|s| s.t - now).reduce(f64::max)
+                    && ahead > self.max_clock_skew_s
+                {
+                    return Err(bad(format!(
+                        "a sighting is {ahead:.3e} s ahead of this gateway's clock, more than \
+                         [mqtt] max_clock_skew_s = {}; the batch is refused (is the sender's \
+                         clock set, NTP?)",
+                        self.max_clock_skew_s
+                    )));
+                }
+                Ok(Inbound::Shared(shared))
+            }
             Kind::Espresense { device } => {
                 receiver(receivers::espresense(id, device, payload, now), topic)
             }
@@ -339,6 +362,10 @@ impl Inbox {
         self.share.then_some((Kind::Sightings, gateway))
     }
 }
+
+/// `[mqtt] max_clock_skew_s` unless set: clocks kept by NTP agree within
+/// milliseconds, and a batch waits at most a share interval to be sent.
+pub const DEFAULT_MAX_CLOCK_SKEW_S: f64 = 5.0;
 
 /// Longest request id, in bytes: ids are echoed in replies and kept in the
 /// learning store, so a client cannot make them large.
@@ -514,5 +541,33 @@ mod tests {
             i.read("gangway/gw/other", b"{}", 0.0),
             Err(Rejected::UnknownTopic { .. })
         ));
+    }
+
+    #[test]
+    fn sightings_from_a_clock_far_ahead_are_refused() {
+        let i = inbox().with_max_clock_skew(5.0);
+        let batch = |t: f64| {
+            format!(
+                r#"{{"schema":"gangway.sightings/1","gateway":"gw-b","sightings":[{{"t":{t},"uuid":"0f0e0d0c-0b0a-4908-8706-050403020100","major":7,"minor":1,"rssi":-40}}]}}"#
+            )
+        };
+        let topic = "gangway/sites/s/sightings/gw-b";
+        let now = 1_767_225_600.0;
+        // The attack: one sighting dated 1e300 would silence the tag for good.
+        let err = i.read(topic, batch(1e300).as_bytes(), now).unwrap_err();
+        assert!(
+            err.to_string().contains("ahead of this gateway's clock"),
+            "{err}"
+        );
+        assert!(i.read(topic, batch(now + 60.0).as_bytes(), now).is_err());
+        for t in [now + 4.0, now, now - 30.0] {
+            assert!(
+                matches!(
+                    i.read(topic, batch(t).as_bytes(), now),
+                    Ok(Inbound::Shared(_))
+                ),
+                "{t}"
+            );
+        }
     }
 }

@@ -96,7 +96,8 @@ pub fn gateway(
         config.max_payload_bytes,
         identity.shares_sightings,
     )
-    .with_receivers(config.espresense.clone(), config.theengs.clone());
+    .with_receivers(config.espresense.clone(), config.theengs.clone())
+    .with_max_clock_skew(config.max_clock_skew_s);
     let settings = super::link_settings(
         config,
         url,
