@@ -39,4 +39,5 @@ mod receivers;
 mod record;
 mod replay;
 mod waldo_site;
+mod walkthrough;
 mod web;
