@@ -54,6 +54,11 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
 }
 
 async fn serve(args: Args) -> anyhow::Result<()> {
+    // First, before loading anything: a SIGHUP (a reload asked early, say
+    // by the editor's unit or a config-management run) or a SIGTERM that
+    // arrives while models load is then a request, not the end of the
+    // process by the signal's default action.
+    let (shutdown, reload, reloads, recalibrate) = signals()?;
     let serving = state::load_at_start(&args.config.path)?;
     let config = &serving.config;
     let site = serving.site.clone();
@@ -105,7 +110,6 @@ async fn serve(args: Args) -> anyhow::Result<()> {
             }
         }
     }
-    let (shutdown, reload, reloads, recalibrate) = signals()?;
     // The editor applies a saved site through the same reloads as SIGHUP.
     let web = crate::web::start(
         &config.web,

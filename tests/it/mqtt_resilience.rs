@@ -299,3 +299,29 @@ async fn shutdown_without_a_broker_ends_after_the_grace_period() {
     // without the grace period it would wait for the broker forever.
     assert!(gateway.terminate().success());
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_sighup_while_the_gateway_starts_is_a_reload_not_its_end() {
+    // Issue #29: a SIGHUP 10 to 50 ms after start used to kill the process
+    // (the handler came after the models had loaded).
+    let broker = Broker::start();
+    let mut client = Client::connect(&broker, "test-early-hup", &["gangway/#"]).await;
+    for delay_ms in [0, 10, 30, 50] {
+        let id = format!("gw-hup-{delay_ms}");
+        let config = gateway_config(&id, &repo().join("config/sites/waldo.toml"), &broker, "");
+        let mut gateway = Gateway::start(&config.path, &["--replay", "/dev/null"]);
+        tokio::time::sleep(Duration::from_millis(delay_ms)).await;
+        signal(&gateway.child, "HUP");
+        let stats = format!("gangway/{id}/stats");
+        client
+            .wait_for(&format!("{id} serving after an early SIGHUP"), |m| {
+                m.topic == stats && m.json()["mqtt"] == "connected"
+            })
+            .await;
+        assert!(
+            gateway.child.try_wait().unwrap().is_none(),
+            "{id} ended after SIGHUP at {delay_ms} ms"
+        );
+        assert!(gateway.terminate().success(), "{id}");
+    }
+}
