@@ -563,3 +563,78 @@ async fn a_payload_cannot_forge_a_log_line() {
         "a raw control character in the log:\n{log:?}"
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_gateway_puts_back_its_own_retained_topics_when_overwritten() {
+    // Issue #29: a forged retained `offline` on the status topic left every
+    // Home Assistant entity of the gateway unavailable, and an empty retained
+    // config deleted a tracker for good.
+    let broker = Broker::start();
+    let config = gateway_config("gw-test", &waldo(), &broker, "");
+    let trackers = "homeassistant/device_tracker/gw-test/#";
+    let status = format!("{PREFIX}/status");
+    let mut filters = replies_and_stats();
+    filters.push(trackers.to_owned());
+    filters.push(status.clone());
+    let mut client = client(&broker, "test-overwrite", &filters).await;
+    let _gateway = Gateway::start(&config.path, &[]);
+    stats_where(&mut client, "the first stats", |_| true).await;
+    // A phone located: its tracker announced.
+    let uuid = "5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84";
+    let scan = json!([{"uuid": uuid, "major": 1, "minor": 3008, "rssi": -55}]).to_string();
+    for _ in 0..3 {
+        client
+            .publish(&format!("{PREFIX}/scans/phone-1"), scan.clone())
+            .await;
+        tokio::time::sleep(Duration::from_millis(300)).await;
+    }
+    let tracker = "homeassistant/device_tracker/gw-test/phone-1/config";
+    client
+        .wait_for("phone-1's tracker", |m| {
+            m.topic == tracker && !m.payload.is_empty()
+        })
+        .await;
+
+    for (topic, forged) in [(status.as_str(), "offline"), (tracker, "")] {
+        let overwritten = client.seen.len();
+        client
+            .client
+            .publish(topic, rumqttc::QoS::AtLeastOnce, true, forged)
+            .await
+            .unwrap();
+        // Put back within 5 s: the forged message, then the gateway's.
+        let started = std::time::Instant::now();
+        let restored = loop {
+            client.drain();
+            let after = &client.seen[overwritten..];
+            let forged_at = after
+                .iter()
+                .position(|m| m.topic == topic && m.payload == forged.as_bytes());
+            if let Some(i) = forged_at
+                && let Some(m) = after[i..]
+                    .iter()
+                    .find(|m| m.topic == topic && m.payload != forged.as_bytes())
+            {
+                break m.clone();
+            }
+            assert!(
+                started.elapsed() < Duration::from_secs(5),
+                "{topic} not put back: {:?}",
+                after
+                    .iter()
+                    .map(|m| (&m.topic, m.text()))
+                    .collect::<Vec<_>>()
+            );
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        };
+        // A new subscriber (Home Assistant after a restart) gets the
+        // gateway's message, not the forged one.
+        let mut late = client_with(&broker, &format!("test-late-{}", forged.len()), topic).await;
+        let retained = late
+            .wait_for(&format!("{topic} as retained"), |m| {
+                m.topic == topic && m.retain
+            })
+            .await;
+        assert_eq!(retained.payload, restored.payload, "{topic}");
+    }
+}

@@ -13,6 +13,14 @@
 //! (retained `online`, discovery configs) before the queue; the last will makes
 //! the broker publish the retained `offline` if the process dies.
 //!
+//! The birth topics are the gateway's own, and anyone who may publish can
+//! overwrite a retained message: a forged `offline` would show every Home
+//! Assistant entity of the gateway unavailable, an empty config delete a
+//! tracker. So the link subscribes to its birth topics too, and when one
+//! carries something other than its own message (its own echo is equal) it
+//! publishes its own again, at most once per [`REASSERT_EVERY`] a topic, so
+//! two writers cannot make it flood the broker.
+//!
 //! Incoming messages are hostile. The client accepts any packet the protocol
 //! allows, so no message can make it drop the connection (a broker redelivers
 //! a QoS 1 message on every reconnect, so one that broke the connection would
@@ -58,6 +66,10 @@ pub(crate) const MAX_OUTGOING_PACKET: usize = 1 << 20;
 /// is full, at most; past it QoS 0 messages are dropped and counted (QoS 1 and
 /// 2 are bounded by the broker's inflight window and stay held).
 const HELD_MAX: usize = 4096;
+
+/// How often one birth topic is re-asserted at most, against someone who
+/// keeps overwriting it.
+const REASSERT_EVERY: Duration = Duration::from_secs(2);
 
 /// A window over which lost connections are counted: losing the broker this
 /// many times within it is logged as an error (the gateway cannot stay
@@ -305,6 +317,10 @@ struct Controller {
     queue: OfflineQueue,
     /// Sent after every connect, by topic.
     birth: BTreeMap<String, Outgoing>,
+    /// When each birth topic was last re-asserted (see the module doc).
+    reasserted: HashMap<String, Instant>,
+    /// Warnings about overwritten birth topics, at most one per ten seconds.
+    overwritten: crate::throttle::Throttle,
     /// When connections were lost recently (within [`FLAP_WINDOW`]).
     losses: VecDeque<Instant>,
     /// Acknowledgements the session's channel had no room for yet (payloads
@@ -340,6 +356,8 @@ impl Controller {
             inbound,
             held: VecDeque::new(),
             birth: BTreeMap::new(),
+            reasserted: HashMap::default(),
+            overwritten: crate::throttle::Throttle::new(Duration::from_secs(10)),
             losses: VecDeque::new(),
             acks: VecDeque::new(),
             handed: VecDeque::new(),
@@ -392,12 +410,20 @@ impl Controller {
                             if send_now && connected {
                                 self.queue.push(m.clone());
                             }
+                            if !self.birth.contains_key(&m.topic) {
+                                self.watch(&m.topic);
+                            }
                             self.birth.insert(m.topic.clone(), m);
                         }
                         self.flush();
                     }
                     Some(Command::ClearRetained(topic)) => {
-                        self.birth.remove(&topic);
+                        if self.birth.remove(&topic).is_some() {
+                            self.reasserted.remove(&topic);
+                            if let Conn::Session { client, .. } = &self.conn {
+                                let _ = client.try_unsubscribe(&topic);
+                            }
+                        }
                         self.queue.push(Outgoing {
                             topic,
                             payload: Vec::new(),
@@ -557,9 +583,89 @@ impl Controller {
         false
     }
 
+    /// Subscribes to one of the gateway's own birth topics, if connected
+    /// (on connect, all of them are).
+    fn watch(&self, topic: &str) {
+        if let Conn::Session {
+            client,
+            connected: true,
+            ..
+        } = &self.conn
+            && let Err(e) = client.try_subscribe(topic, self.settings.qos)
+        {
+            tracing::error!(%topic, "cannot watch the gateway's own topic: {e}");
+        }
+    }
+
+    /// The gateway's own message on `topic`, if it has one there now.
+    fn own(&self, topic: &str) -> Option<Outgoing> {
+        if let Some((status, online, _)) = &self.settings.status
+            && status == topic
+        {
+            // While shutting down, `offline` is the gateway's own word.
+            return self.shutdown.is_none().then(|| Outgoing {
+                topic: status.clone(),
+                payload: online.clone().into_bytes(),
+                qos: self.settings.qos,
+                retain: true,
+            });
+        }
+        self.birth.get(topic).cloned()
+    }
+
+    /// Whether `publish` is on one of the gateway's own birth topics: then it
+    /// is not the daemon's, and if it is not the gateway's own message it is
+    /// put back (rate-limited).
+    fn defend(&mut self, publish: &Publish) -> bool {
+        let topic = publish.topic.as_str();
+        let is_status = self
+            .settings
+            .status
+            .as_ref()
+            .is_some_and(|(status, ..)| status == topic);
+        if !is_status && !self.birth.contains_key(topic) {
+            return false;
+        }
+        // What the broker kept from before, sent on subscribing (retain
+        // flag set): the birth messages of this connect overwrite it anyway.
+        if publish.retain {
+            return true;
+        }
+        let Some(own) = self.own(topic) else {
+            return true;
+        };
+        if *publish.payload == own.payload[..] {
+            return true;
+        }
+        let now = Instant::now();
+        if self
+            .reasserted
+            .get(topic)
+            .is_some_and(|last| now.duration_since(*last) < REASSERT_EVERY)
+        {
+            return true;
+        }
+        self.reasserted.insert(topic.to_owned(), now);
+        if let Some(more) = self.overwritten.ready() {
+            tracing::warn!(
+                %topic,
+                not_logged = more,
+                "someone else published on the gateway's own retained topic; publishing the \
+                 gateway's message there again (restrict who may write it: docs/mqtt.md)"
+            );
+        }
+        self.queue.push(own);
+        self.flush();
+        true
+    }
+
     /// Hands a received message to the daemon, cut off if over the limit;
     /// acknowledges it once handed over.
     fn deliver(&mut self, publish: Publish) {
+        if self.defend(&publish) {
+            self.ack(&publish);
+            return;
+        }
         let size = publish.payload.len();
         // The daemon counts and answers it from its size.
         let payload = if size > self.settings.max_inbound_payload {
@@ -640,7 +746,13 @@ impl Controller {
             return;
         };
         *connected = true;
-        for topic in &self.settings.subscriptions {
+        let own = self
+            .settings
+            .status
+            .iter()
+            .map(|(status, ..)| status)
+            .chain(self.birth.keys());
+        for topic in self.settings.subscriptions.iter().chain(own) {
             if let Err(e) = client.try_subscribe(topic, self.settings.qos) {
                 tracing::error!(%topic, "cannot subscribe: {e}");
             }
