@@ -44,6 +44,7 @@ pub(super) struct Args {
 }
 
 pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
+    ignore_reloads_until_served();
     keep_freed_memory_returnable();
     anyhow::ensure!(
         args.speed >= 0.0 && args.speed.is_finite(),
@@ -185,6 +186,18 @@ fn requests(mut signal: tokio::signal::unix::Signal) -> (mpsc::Sender<()>, mpsc:
         }
     });
     (more, requests)
+}
+
+/// A SIGHUP's default action ends the process. Until the runtime's handler
+/// takes over (first thing in `serve`), one is ignored instead: nothing has
+/// been read yet, so the config about to be loaded is the one a reload would
+/// load.
+fn ignore_reloads_until_served() {
+    // SAFETY: installs the kernel's own "ignore" disposition for SIGHUP, no
+    // handler of ours; called before any other thread exists.
+    unsafe {
+        libc::signal(libc::SIGHUP, libc::SIG_IGN);
+    }
 }
 
 /// glibc raises its mmap threshold each time a large block is freed; after

@@ -21,13 +21,10 @@ fn log_of(gateway: &str, rssi: i16) -> String {
     log
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn two_gateways_share_sightings_and_both_localize_a_tag() {
-    let broker = Broker::start();
-    let dir = tempfile::tempdir().unwrap();
-    // The sample site plus two fixed gateways: the help desk (J10) and the
-    // printers (N15).
-    let site = dir.path().join("site.toml");
+/// The sample site plus two fixed gateways: the help desk (J10) and the
+/// printers (N15).
+fn two_gateway_site(dir: &std::path::Path) -> std::path::PathBuf {
+    let site = dir.join("site.toml");
     let waldo = std::fs::read_to_string(repo().join("config/sites/waldo.toml")).unwrap();
     let (body, places) = waldo.split_once("[places]").unwrap();
     std::fs::write(
@@ -37,6 +34,14 @@ async fn two_gateways_share_sightings_and_both_localize_a_tag() {
         ),
     )
     .unwrap();
+    site
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_gateways_share_sightings_and_both_localize_a_tag() {
+    let broker = Broker::start();
+    let dir = tempfile::tempdir().unwrap();
+    let site = two_gateway_site(dir.path());
     let advertiser = "[window]\norientation = \"advertiser\"\n";
     let mut client = Client::connect(&broker, "test-fleet", &["gangway/#"]).await;
     let mut running = Vec::new();
@@ -95,16 +100,7 @@ async fn a_forged_batch_from_the_future_does_not_silence_a_tag() {
     // and silence it for the rest of the run.
     let broker = Broker::start();
     let dir = tempfile::tempdir().unwrap();
-    let site = dir.path().join("site.toml");
-    let waldo = std::fs::read_to_string(repo().join("config/sites/waldo.toml")).unwrap();
-    let (body, places) = waldo.split_once("[places]").unwrap();
-    std::fs::write(
-        &site,
-        format!(
-            "{body}[[gateway]]\nid = \"gw-a\"\ncell = [9, 9]\n\n[[gateway]]\nid = \"gw-b\"\ncell = [13, 14]\n\n[places]{places}"
-        ),
-    )
-    .unwrap();
+    let site = two_gateway_site(dir.path());
     let mut client = Client::connect(&broker, "test-forger", &["gangway/#"]).await;
     let log = dir.path().join("gw-a.jsonl");
     std::fs::write(&log, log_of("gw-a", -62)).unwrap();

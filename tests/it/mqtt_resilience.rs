@@ -306,7 +306,7 @@ async fn a_sighup_while_the_gateway_starts_is_a_reload_not_its_end() {
     // (the handler came after the models had loaded).
     let broker = Broker::start();
     let mut client = Client::connect(&broker, "test-early-hup", &["gangway/#"]).await;
-    for delay_ms in [0, 10, 30, 50] {
+    for delay_ms in [10, 30, 50] {
         let id = format!("gw-hup-{delay_ms}");
         let config = gateway_config(&id, &repo().join("config/sites/waldo.toml"), &broker, "");
         let mut gateway = Gateway::start(&config.path, &["--replay", "/dev/null"]);
