@@ -108,8 +108,11 @@ fn message(s: &Sighting) -> (String, String) {
             (
                 format!("home/{}/BTtoMQTT/{}", s.observer, mac.replace(':', "")),
                 format!(
-                    r#"{{"id":"{mac}","mfid":"4c00","rssi":{},"brand":"GENERIC","model":"iBeacon","model_id":"IBEACON","uuid":"{}","major":{},"minor":{},"txpower":-59}}"#,
-                    s.rssi, b.uuid, b.major, b.minor
+                    r#"{{"id":"{mac}","mac_type":1,"rssi":{},"brand":"GENERIC","model":"iBeacon","model_id":"IBEACON","mfid":"4c00","uuid":"{}","major":{},"minor":{},"txpower":-59}}"#,
+                    s.rssi,
+                    b.uuid.simple(),
+                    b.major,
+                    b.minor
                 ),
             )
         }

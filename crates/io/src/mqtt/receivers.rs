@@ -8,8 +8,8 @@
 //! name in its topic. Mixed deployments (gangway boxes beside ESP32 nodes)
 //! are one site whose gateways are all of them.
 //!
-//! Payloads, as the projects publish them (see `docs/receivers.md` for the
-//! sources):
+//! Payloads, as the projects publish them (`docs/receivers.md` cites where
+//! each shape comes from):
 //! - ESPresense: `<topic>/devices/<device id>/<room>`, `{"id", "rssi",
 //!   "rssi@1m", "distance", …}`; an iBeacon's id is
 //!   `iBeacon:<uuid>-<major>-<minor>`. Other devices (phones by IRK, Apple,
@@ -115,14 +115,14 @@ fn espresense_ibeacon(device: &str) -> Option<Option<BeaconId>> {
         .get(..8)
         .filter(|p| p.eq_ignore_ascii_case("ibeacon:"))
         .map(|_| &device[8..])?;
+    // `<uuid>-<major>-<minor>`, the UUID with or without its own dashes
+    // (firmware versions differ), so major and minor are read from the right.
     let parsed = || {
-        let uuid = Uuid::parse_str(rest.get(..36)?).ok()?;
-        let (major, minor) = rest.get(36..)?.strip_prefix('-')?.split_once('-')?;
-        Some(BeaconId {
-            uuid,
-            major: major.parse().ok()?,
-            minor: minor.parse().ok()?,
-        })
+        let mut parts = rest.rsplitn(3, '-');
+        let minor = parts.next()?.parse().ok()?;
+        let major = parts.next()?.parse().ok()?;
+        let uuid = Uuid::parse_str(parts.next()?).ok()?;
+        Some(BeaconId { uuid, major, minor })
     };
     Some(parsed())
 }
@@ -161,13 +161,9 @@ pub(crate) fn theengs(gateway: &str, payload: &[u8], now: f64) -> Read {
         minor: id_part("minor")?,
     };
     let rssi = number("rssi").ok_or("an IBEACON message needs `rssi`")?;
-    Ok(Some(sighting(
-        gateway,
-        beacon,
-        rssi,
-        number("txpower"),
-        now,
-    )?))
+    // `txpower`; decoders before it named the same byte `power`.
+    let at_1m = number("txpower").or_else(|| number("power"));
+    Ok(Some(sighting(gateway, beacon, rssi, at_1m, now)?))
 }
 
 /// The sighting of `beacon` by `observer`; the reading must be one a radio
@@ -211,6 +207,12 @@ mod tests {
         assert_eq!(s.advertiser.uuid, Uuid::parse_str(UUID).unwrap());
         assert_eq!((s.advertiser.major, s.advertiser.minor), (100, 2));
         assert_eq!((s.rssi, s.tx_power, s.t), (-71, Some(-59), 5.0));
+        // The UUID without its dashes, as some firmware versions write it.
+        let undashed = format!("iBeacon:{}-100-2", UUID.replace('-', ""));
+        let t = espresense("kitchen", &undashed, payload, 5.0)
+            .unwrap()
+            .unwrap();
+        assert_eq!(t.advertiser, s.advertiser);
     }
 
     #[test]
@@ -232,15 +234,17 @@ mod tests {
 
     #[test]
     fn a_theengs_ibeacon_message_is_a_sighting_by_its_gateway() {
-        let payload = br#"{"id":"C4:7C:8D:6A:3E:11","mfid":"4c00","rssi":-68,"brand":"GENERIC","model":"iBeacon","model_id":"IBEACON","uuid":"e2c56db5-dffb-48d2-b060-d0f5a71096e0","major":100,"minor":3,"txpower":-59}"#;
+        // OpenMQTTGateway's documented iBeacon message: the UUID as 32 hex
+        // digits, no dashes.
+        let payload = br#"{"id":"60:87:57:4C:9B:C2","mac_type":1,"rssi":-68,"distance":7.85288,"brand":"GENERIC","model":"iBeacon","model_id":"IBEACON","mfid":"4c00","uuid":"e2c56db5dffb48d2b060d0f5a71096e0","major":100,"minor":3,"txpower":-59}"#;
         let s = theengs("TheengsGateway", payload, 7.0).unwrap().unwrap();
         assert_eq!(&*s.observer, "TheengsGateway");
         assert_eq!((s.advertiser.major, s.advertiser.minor), (100, 3));
         assert_eq!((s.rssi, s.tx_power), (-68, Some(-59)));
         // Major and minor as strings, as some decoders write them.
-        let strings = br#"{"rssi":-70,"model_id":"IBEACON","uuid":"e2c56db5-dffb-48d2-b060-d0f5a71096e0","major":"100","minor":"4"}"#;
+        let strings = br#"{"rssi":-70,"model_id":"IBEACON","uuid":"e2c56db5-dffb-48d2-b060-d0f5a71096e0","major":"100","minor":"4","power":-61}"#;
         let s = theengs("omg", strings, 7.0).unwrap().unwrap();
-        assert_eq!((s.advertiser.minor, s.tx_power), (4, None));
+        assert_eq!((s.advertiser.minor, s.tx_power), (4, Some(-61)));
     }
 
     #[test]
