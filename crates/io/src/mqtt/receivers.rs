@@ -183,8 +183,10 @@ fn sighting(
         t: now,
         observer: Arc::from(observer),
         advertiser: beacon,
+        // A measured power is negative; some tags report a positive byte
+        // there (ESPresense issue #1286), which means nothing usable.
         tx_power: at_1m
-            .filter(|v| RSSI_DBM.contains(v))
+            .filter(|v| (-127.0..0.0).contains(v))
             .map(|v| v.round() as i8),
         rssi: rssi.round() as i16,
     })
@@ -213,6 +215,12 @@ mod tests {
             .unwrap()
             .unwrap();
         assert_eq!(t.advertiser, s.advertiser);
+        // A positive "rssi@1m" is no measured power: the site's applies.
+        let positive = br#"{"rssi@1m":12,"rssi":-70}"#;
+        let p = espresense("kitchen", &device, positive, 5.0)
+            .unwrap()
+            .unwrap();
+        assert_eq!((p.rssi, p.tx_power), (-70, None));
     }
 
     #[test]
