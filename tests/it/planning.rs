@@ -8,7 +8,6 @@ use std::sync::Arc;
 
 use gangway::model::runtime::PathClassifier;
 use gangway::plan::frame::route_from_frame;
-use gangway::plan::instructions::instructions;
 use gangway::plan::{
     Connectivity, ModelPaths, Origin, Planner, PlannerConfig, PlannerMode, Profile, astar::AStar,
     deviation_score,
@@ -122,11 +121,11 @@ fn instructions_name_the_destination() {
         // The place names are the site's; skip if they change.
         return;
     };
-    let route = AStar::new(site.clone(), Connectivity::Eight)
-        .plan(from, to, Profile::Default)
-        .unwrap()
-        .route;
-    let steps = instructions(&site, &route, Profile::Default);
+    let planner = AStar::new(site.clone(), Connectivity::Eight);
+    let planned = planner.plan(from, to, Profile::Default).unwrap();
+    let reply =
+        gangway::publish::RouteBody::new(&site, &planner, Profile::Default, from, to, &planned, 0);
+    let steps = reply.instructions;
     let last = steps.last().unwrap();
     assert_eq!(last.at, to);
     assert!(
@@ -134,8 +133,10 @@ fn instructions_name_the_destination() {
         "{}",
         last.text
     );
+    // The steps add up to the line served, which for A* is its cells'.
     let total: f64 = steps.iter().map(|s| s.distance_m).sum();
-    assert!((total - route.length_m(&site)).abs() < 1e-9);
+    assert!((total - reply.length_m).abs() < 1e-9);
+    assert!((reply.length_m - planned.route.length_m(&site)).abs() < 1e-9);
 }
 
 #[test]

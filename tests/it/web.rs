@@ -198,6 +198,24 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
     );
     let route = browser.text("route").await;
     assert!(route.contains(" m by astar"), "{route}");
+    // The line drawn is the reply's line, from the walker's cell's centre
+    // to the help desk's.
+    let drawn = browser
+        .js("return document.querySelector('.layer-route polyline').getAttribute('points')")
+        .await;
+    let vertices: Vec<Vec<f64>> = drawn
+        .as_str()
+        .unwrap()
+        .split(' ')
+        .map(|p| p.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    let desk = gangway::site::Site::load(&site_path).unwrap().places()["help desk"];
+    let last = vertices.last().unwrap();
+    assert!(
+        (last[0] - f64::from(desk.x) - 0.5).abs() < 1e-6
+            && (last[1] - f64::from(desk.y) - 0.5).abs() < 1e-6,
+        "{drawn}"
+    );
     browser
         .until(
             "the page's own figures",

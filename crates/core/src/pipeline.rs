@@ -122,6 +122,9 @@ pub struct Stats {
     pub requests: u64,
     pub routes: u64,
     pub request_errors: u64,
+    /// Routes served on their cells' line because the planner's own line
+    /// failed its check (`plan::LineSource::Fallback`).
+    pub route_line_fallbacks: u64,
     /// Entities whose id cannot be a topic level; their fixes are not published.
     pub bad_device_ids: u64,
     /// Tracks and fingerprint windows forgotten by `[limits]` (idle, or least
@@ -139,6 +142,7 @@ impl std::ops::AddAssign for Stats {
             requests,
             routes,
             request_errors,
+            route_line_fallbacks,
             bad_device_ids,
             evicted_devices,
             evicted_windows,
@@ -149,6 +153,7 @@ impl std::ops::AddAssign for Stats {
         self.requests += requests;
         self.routes += routes;
         self.request_errors += request_errors;
+        self.route_line_fallbacks += route_line_fallbacks;
         self.bad_device_ids += bad_device_ids;
         self.evicted_devices += evicted_devices;
         self.evicted_windows += evicted_windows;
@@ -498,12 +503,14 @@ impl Pipeline {
             cells: body.waypoints.iter().map(|w| w.cell).collect(),
         };
         let profile = Profile::parse(body.profile).unwrap_or_default();
+        let line = body.line_in_cells(&self.site);
         self.guide.start(
             &self.site,
             &reply.device,
             reply.request_id.clone(),
             profile,
             &route,
+            &line,
             reply.t,
             rerouted,
         )
@@ -541,6 +548,7 @@ impl Pipeline {
             started.elapsed_us(),
         );
         body.reason = Some("off_route");
+        self.count_line(&body);
         let reply = RouteReply {
             schema: PATH_SCHEMA,
             device: device.to_owned(),
@@ -558,7 +566,10 @@ impl Pipeline {
         self.stats.requests += 1;
         let outcome = self.plan_request(request, started);
         match &outcome {
-            RouteOutcome::Route(_) => self.stats.routes += 1,
+            RouteOutcome::Route(body) => {
+                self.stats.routes += 1;
+                self.count_line(body);
+            }
             RouteOutcome::Error { .. } => self.stats.request_errors += 1,
         }
         RouteReply {
@@ -567,6 +578,12 @@ impl Pipeline {
             request_id: request.request_id.clone(),
             t: request.t,
             outcome,
+        }
+    }
+
+    fn count_line(&mut self, body: &RouteBody) {
+        if body.line_from == plan::LineSource::Fallback {
+            self.stats.route_line_fallbacks += 1;
         }
     }
 

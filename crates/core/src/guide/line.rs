@@ -1,14 +1,19 @@
-//! A route as a polyline of cell centres in metres, and the projection of a
-//! point onto it: how far along the route a fix stands, how far from it,
+//! A route as the line its walker was given (the reply's `line`,
+//! [`crate::plan::ServedLine`]) and its cells, and the projection of a point
+//! onto the line: how far along the route a fix stands, how far from it,
 //! and which way the route goes there.
 //!
-//! The route is held as a chain code: its first cell, then each step to a
+//! The cells are held as a chain code: the first cell, then each step to a
 //! neighbouring cell as one of eight directions in half a byte. Every
 //! guided session holds its route for as long as it lasts, so the route
 //! costs half a byte a cell instead of four (a served route only steps to
-//! neighbours: [`crate::plan::Route::validate_for`]).
+//! neighbours: [`crate::plan::Route::validate_for`]). A line through the
+//! cells' centres (A*, the GAN modes) is read off the chain code; only a
+//! line the planner drew is held, as its turning points.
 
-use crate::plan::Route;
+use crate::plan::anyangle::GridPoint;
+use crate::plan::instructions::{Maneuver, maneuvers_along};
+use crate::plan::{Profile, Route, ServedLine};
 use crate::site::{Cell, Site};
 
 /// The eight steps to a neighbouring cell, by their code.
@@ -30,23 +35,37 @@ pub struct RouteLine {
     /// The steps from `start`, two to a byte (the low half first).
     steps: Vec<u8>,
     step_count: u32,
-    /// Metres from the start to the end (f32: millimetres on any
-    /// building's routes). Distances to each cell are summed as the route
-    /// is walked through rather than kept: a session's state stays small.
+    /// The turning points of a line the planner drew, cell units (f32: a
+    /// millimetre on any building's grid); `None` for the cells' centres,
+    /// which the steps hold already (a long staircase of cells turns at
+    /// nearly every cell: its corners would cost 8 bytes a cell).
+    drawn: Option<Box<[[f32; 2]]>>,
+    /// Metres from the start to the end along the line. Distances to each
+    /// vertex are summed as the line is walked through rather than kept: a
+    /// session's state stays small.
     length_m: f32,
 }
 
 impl RouteLine {
-    /// The line of `route`. A step between cells that are not neighbours
-    /// (never in a served route) is held as neighbour steps towards the
-    /// next cell: the diagonal first, then straight.
+    /// `route` walked along its cells' centres.
     pub fn new(site: &Site, route: &Route) -> RouteLine {
+        RouteLine::along(site, route, &ServedLine::of_cells(route).points)
+    }
+
+    /// `route` walked along `line` (cell units, through its cells). A step
+    /// between cells that are not neighbours (never in a served route) is
+    /// held as neighbour steps towards the next cell: the diagonal first,
+    /// then straight.
+    pub fn along(site: &Site, route: &Route, line: &[GridPoint]) -> RouteLine {
         let start = *route.cells.first().expect("a route has cells");
+        let drawn = (line != ServedLine::of_cells(route).points)
+            .then(|| line.iter().map(|p| [p[0] as f32, p[1] as f32]).collect());
         let mut line = RouteLine {
             start,
             end: start,
             steps: Vec::new(),
             step_count: 0,
+            drawn,
             length_m: 0.0,
         };
         for &next in &route.cells[1..] {
@@ -72,9 +91,7 @@ impl RouteLine {
 
     /// The route's cells, from the start.
     pub(crate) fn cells(&self) -> impl Iterator<Item = Cell> + '_ {
-        let codes =
-            (0..self.step_count as usize).map(|i| (self.steps[i / 2] >> (4 * (i % 2))) & 0xF);
-        std::iter::once(self.start).chain(codes.scan(self.start, |at, code| {
+        std::iter::once(self.start).chain(self.codes().scan(self.start, |at, code| {
             *at = step(*at, code);
             Some(*at)
         }))
@@ -126,6 +143,35 @@ impl RouteLine {
     /// Bytes held on the heap.
     pub(crate) fn heap_bytes(&self) -> usize {
         self.steps.capacity()
+            + self
+                .drawn
+                .as_ref()
+                .map_or(0, |d| std::mem::size_of_val(&**d))
+    }
+
+    /// The route's maneuvers for a walker with `profile` following the
+    /// line.
+    pub(crate) fn maneuvers(&self, site: &Site, profile: Profile) -> Vec<Maneuver> {
+        let route = Route {
+            cells: self.cells().collect(),
+        };
+        maneuvers_along(site, &route, &self.points(), profile)
+    }
+
+    /// The line's turning points, cell units.
+    pub(crate) fn points(&self) -> Vec<GridPoint> {
+        match &self.drawn {
+            Some(drawn) => drawn
+                .iter()
+                .map(|p| [f64::from(p[0]), f64::from(p[1])])
+                .collect(),
+            None => {
+                ServedLine::of_cells(&Route {
+                    cells: self.cells().collect(),
+                })
+                .points
+            }
+        }
     }
 
     /// The steps' codes, from the start.
@@ -133,25 +179,42 @@ impl RouteLine {
         (0..self.step_count as usize).map(|i| (self.steps[i / 2] >> (4 * (i % 2))) & 0xF)
     }
 
-    /// Each straight run of the route (the steps between two turns, as one
-    /// segment: projecting on it is projecting on its steps, for a fraction
-    /// of the work): its ends in metres and metres from the start to them.
+    /// Each segment of the line: its ends in metres and metres from the
+    /// start to them. A line through the cells' centres is read off the
+    /// steps, a straight run of them as one segment (projecting on it is
+    /// projecting on its steps, for a fraction of the work).
     fn segments<'a>(
         &'a self,
         site: &'a Site,
     ) -> impl Iterator<Item = ((f64, f64), (f64, f64), f64, f64)> + 'a {
+        let metres = |p: [f32; 2]| {
+            let [x, y] =
+                crate::plan::anyangle::world_of_point(site, [f64::from(p[0]), f64::from(p[1])]);
+            (x, y)
+        };
+        let drawn = self.drawn.as_deref();
         let mut codes = self.codes().peekable();
-        let (mut from, mut along) = (self.start, 0.0);
+        let (mut from, mut vertex, mut along) = (self.start, 0, 0.0);
         std::iter::from_fn(move || {
-            let code = codes.next()?;
-            let mut to = step(from, code);
-            while let Some(c) = codes.next_if_eq(&code) {
-                to = step(to, c);
-            }
+            let (a, b) = match drawn {
+                Some(points) => {
+                    let ends = points.get(vertex..vertex + 2)?;
+                    vertex += 1;
+                    (metres(ends[0]), metres(ends[1]))
+                }
+                None => {
+                    let code = codes.next()?;
+                    let mut to = step(from, code);
+                    while let Some(c) = codes.next_if_eq(&code) {
+                        to = step(to, c);
+                    }
+                    let a = std::mem::replace(&mut from, to);
+                    (site.metres(a), site.metres(to))
+                }
+            };
             let start = along;
-            along += from.distance(to) * site.cell_m;
-            let a = std::mem::replace(&mut from, to);
-            Some((site.metres(a), site.metres(to), start, along))
+            along += (b.0 - a.0).hypot(b.1 - a.1);
+            Some((a, b, start, along))
         })
     }
 
@@ -243,6 +306,30 @@ mod tests {
         // the site's y axis runs).
         assert!(corner.0.abs() < 1e-9 && (corner.1.abs() - 1.0).abs() < 1e-9);
         assert_eq!(line.direction(&site, 99.0), corner);
+    }
+
+    #[test]
+    fn a_drawn_line_is_what_points_are_projected_on() {
+        let text = "name = \"t\"\ncell_m = 1.0\nmap = '''\n####\n####\n####\n####\n'''\n";
+        let site = Site::parse(text, Path::new("t.toml")).unwrap();
+        let route = Route {
+            cells: [(0, 0), (1, 1), (2, 2), (3, 3)]
+                .map(|(x, y)| Cell::new(x, y))
+                .to_vec(),
+        };
+        let drawn = [[0.5, 0.5], [1.5, 2.5], [3.5, 3.5]];
+        let line = RouteLine::along(&site, &route, &drawn);
+        let expected = 5f64.sqrt() * 2.0;
+        assert!((line.length_m() - expected).abs() < 1e-5);
+        assert_eq!(line.points(), drawn.to_vec());
+        assert_eq!(line.heap_bytes(), 2 + 3 * 8);
+        // The drawn line's bend, not the diagonal of cells, is on the line.
+        let bend = site.metres(Cell::new(1, 2));
+        let (off, along) = line.project(&site, bend, 0.0, 3.0);
+        assert!(off < 1e-6 && (along - 5f64.sqrt()).abs() < 1e-5);
+        // The cells' own line is not held twice.
+        let cells = RouteLine::along(&site, &route, &[[0.5, 0.5], [3.5, 3.5]]);
+        assert_eq!(cells.heap_bytes(), 2);
     }
 
     #[test]

@@ -35,6 +35,7 @@ pub(crate) use progress::Progress;
 pub(crate) use session::Session;
 
 use crate::locate::tracker::ExpectedWalk;
+use crate::plan::anyangle::GridPoint;
 use crate::plan::{Profile, Route};
 use crate::site::{Cell, Site};
 
@@ -380,8 +381,9 @@ impl Guide {
         self.sessions.get(device)
     }
 
-    /// Starts guiding `device` along `route` (replacing any session it had),
-    /// and returns the first message. `rerouted` marks a route re-planned
+    /// Starts guiding `device` along `route`, walked along `line` (cell
+    /// units, the reply's line: [`crate::plan::ServedLine`]), replacing any
+    /// session it had, and returns the first message. `rerouted` marks a route re-planned
     /// after the walker left the previous one. Sessions idle past
     /// `expire_after_s` are dropped, and when the table is full the least
     /// recently updated session makes room.
@@ -393,6 +395,7 @@ impl Guide {
         request_id: Option<String>,
         profile: Profile,
         route: &Route,
+        line: &[GridPoint],
         t: f64,
         rerouted: bool,
     ) -> Guidance {
@@ -427,7 +430,7 @@ impl Guide {
             &self.config,
             request_id,
             profile,
-            route,
+            RouteLine::along(site, route, line),
             t,
             rerouted_from,
         );
@@ -536,9 +539,14 @@ mod tests {
             Some("r1".into()),
             Profile::Default,
             &route(),
+            &cells_line(&route()),
             t,
             false,
         )
+    }
+
+    fn cells_line(route: &Route) -> Vec<GridPoint> {
+        crate::plan::ServedLine::of_cells(route).points
     }
 
     /// Where a walker at the profile's pace (1.2 m/s) truly is along
@@ -670,7 +678,16 @@ mod tests {
         let detour = Route {
             cells: (8..=15).map(|y| Cell::new(5, y)).collect(),
         };
-        let first = guide.start(&site, "p", None, Profile::Default, &detour, 7.0, true);
+        let first = guide.start(
+            &site,
+            "p",
+            None,
+            Profile::Default,
+            &detour,
+            &cells_line(&detour),
+            7.0,
+            true,
+        );
         assert_eq!(
             (first.state, first.event, first.reroutes),
             (SessionState::Rerouted, Some(GuidanceEvent::Rerouted), 1)
@@ -754,7 +771,16 @@ mod tests {
         let detour = Route {
             cells: (0..=10).map(|y| Cell::new(3, 10 - y)).collect(),
         };
-        guide.start(&site, "q", None, Profile::Default, &detour, 107.0, true);
+        guide.start(
+            &site,
+            "q",
+            None,
+            Profile::Default,
+            &detour,
+            &cells_line(&detour),
+            107.0,
+            true,
+        );
         assert!(guide.take_finished().is_empty(), "a re-route goes on");
         guide.cancel("q", 110.0);
         let a = &guide.take_finished()[0];
@@ -805,7 +831,16 @@ mod tests {
         let all = crate::plan::instructions::maneuvers(&site, &route, Profile::Default);
         assert!(all.len() > 4 * session::WINDOW_MANEUVERS, "{}", all.len());
         let mut guide = Guide::new(GuidanceConfig::default(), 0.0);
-        guide.start(&site, "p", None, Profile::Default, &route, 0.0, false);
+        guide.start(
+            &site,
+            "p",
+            None,
+            Profile::Default,
+            &route,
+            &cells_line(&route),
+            0.0,
+            false,
+        );
         // Walked cell by cell with exact fixes: every maneuver is next in
         // turn, in the route's order, and the session stays small.
         let mut told = vec![all[1].at];

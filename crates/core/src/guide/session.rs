@@ -31,8 +31,8 @@ use super::{
     Adherence, Ending, GuidanceConfig, GuidanceEvent, Located, Progress, RouteLine, SessionState,
 };
 use super::{GUIDANCE_SCHEMA, Guidance, NextManeuver};
-use crate::plan::instructions::{Maneuver, first_sentence, maneuvers};
-use crate::plan::{Profile, Route};
+use crate::plan::Profile;
+use crate::plan::instructions::{Maneuver, first_sentence};
 use crate::site::{Cell, Site};
 
 /// Least angle between the way a fix moved and the way the route goes
@@ -130,12 +130,11 @@ impl Session {
         config: &GuidanceConfig,
         request_id: Option<String>,
         profile: Profile,
-        route: &Route,
+        line: RouteLine,
         t: f64,
         rerouted_from: Option<Walked>,
     ) -> Session {
-        let line = RouteLine::new(site, route);
-        let all = maneuvers(site, route, profile);
+        let all = line.maneuvers(site, profile);
         let destination_place = all.last().and_then(|m| m.place.clone());
         let maneuver_count = u16::try_from(all.len()).unwrap_or(u16::MAX);
         let walked = match rerouted_from {
@@ -214,10 +213,7 @@ impl Session {
         if loaded_to >= count || self.next + MANEUVERS_AHEAD <= loaded_to {
             return;
         }
-        let route = Route {
-            cells: self.line.cells().collect(),
-        };
-        let all = maneuvers(site, &route, self.profile);
+        let all = self.line.maneuvers(site, self.profile);
         self.load_window(all, self.next);
     }
 

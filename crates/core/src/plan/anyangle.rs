@@ -440,7 +440,11 @@ impl Planner for AnyAngle {
     }
 
     fn plan(&self, from: Cell, to: Cell, profile: Profile) -> Result<Planned, PlanError> {
-        Ok(Planned::searched(self.route(from, to, profile)?.route))
+        let found = self.route(from, to, profile)?;
+        Ok(Planned {
+            line: Some(found.vertices.iter().map(|&c| centre(c)).collect()),
+            ..Planned::searched(found.route)
+        })
     }
 }
 

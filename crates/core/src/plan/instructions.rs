@@ -4,12 +4,15 @@
 //! language, and plain English sentences a screen reader can speak built from
 //! them: "Walk 12 m, then turn left at help desk."
 //!
-//! An 8-connected grid route zig-zags (east, south-east, east, ...) where a
-//! person simply walks on, so the route is first simplified to its corners
+//! The maneuvers follow the line the walker is given ([`ServedLine`]), and
+//! their distances are metres along it. That line may still zig-zag (a grid
+//! route's cells' centres go east, south-east, east, ... where a person
+//! simply walks on), so it is first simplified to its corners
 //! (Douglas–Peucker, tolerance [`CORNER_TOLERANCE_CELLS`]); each corner whose
 //! bend is at least 30° becomes a turn: under 60° "slight", under 135° a plain
 //! turn, under 175° "sharp", beyond that a U-turn. A maneuver within
-//! [`PLACE_RADIUS_CELLS`] of a named place is named after it. Guidance
+//! [`PLACE_RADIUS_CELLS`] of a named place is named after it; places,
+//! junctions and features are looked up on the route's cells. Guidance
 //! (`crate::guide`) announces these same maneuvers while the route is walked.
 //!
 //! The English follows Wayfindr's guidance (ITU-T F.921) for people using a
@@ -24,7 +27,9 @@
 
 use serde::Serialize;
 
-use super::{Profile, Route};
+use super::anyangle::{GridPoint, centre};
+use super::route::kept_vertices;
+use super::{Profile, Route, ServedLine};
 use crate::site::{Cell, Site, Tile};
 
 /// How near (in cells) a named place must be to name a turn after it.
@@ -222,19 +227,50 @@ pub(crate) const CORNER_TOLERANCE_CELLS: f64 = 1.0;
 /// junction three or more.
 pub(crate) const JUNCTION_RADIUS_M: f64 = 3.0;
 
-/// The maneuvers of `route` on `site` for a walker with `profile`: depart,
-/// a turn per corner, a continue per junction passed straight on, arrive;
-/// empty for a route of one cell.
+/// The maneuvers of `route` on `site` for a walker with `profile`, along
+/// its cells' centres: [`maneuvers_along`] for a route served without a
+/// line of its own.
 pub(crate) fn maneuvers(site: &Site, route: &Route, profile: Profile) -> Vec<Maneuver> {
+    maneuvers_along(site, route, &ServedLine::of_cells(route).points, profile)
+}
+
+/// The maneuvers of `route` on `site` for a walker with `profile` who
+/// follows `line` (cell units, through the route's cells): depart, a turn
+/// per corner of the line, a continue per junction passed straight on,
+/// arrive; empty for a route of one cell.
+pub(crate) fn maneuvers_along(
+    site: &Site,
+    route: &Route,
+    line: &[GridPoint],
+    profile: Profile,
+) -> Vec<Maneuver> {
     let cells = &route.cells;
-    if cells.len() < 2 {
+    if cells.len() < 2 || line.len() < 2 {
         return Vec::new();
     }
-    let mut keep = vec![false; cells.len()];
-    keep[0] = true;
-    keep[cells.len() - 1] = true;
-    simplify(cells, 0, cells.len() - 1, &mut keep);
-    let corners: Vec<usize> = (0..cells.len()).filter(|&i| keep[i]).collect();
+    let arc = arc_lengths(line);
+    let cell_arc = cells_along(line, &arc, cells);
+    // Each corner: where it is on the line (cells along it) and the route's
+    // cell nearest to it, the cells walked in order.
+    let mut after = 0;
+    let corners: Vec<(GridPoint, f64, usize)> = kept_vertices(line, CORNER_TOLERANCE_CELLS)
+        .into_iter()
+        .map(|v| {
+            let at = if v + 1 == line.len() {
+                cells.len() - 1
+            } else {
+                (after..cells.len())
+                    .min_by(|&i, &j| {
+                        (cell_arc[i] - arc[v])
+                            .abs()
+                            .total_cmp(&(cell_arc[j] - arc[v]).abs())
+                    })
+                    .expect("cells after the last corner")
+            };
+            after = at;
+            (line[v], arc[v], at)
+        })
+        .collect();
     let low_vision = profile == Profile::LowVision;
     let place = |c: Cell| {
         site.nearest_place(c, PLACE_RADIUS_CELLS)
@@ -243,32 +279,31 @@ pub(crate) fn maneuvers(site: &Site, route: &Route, profile: Profile) -> Vec<Man
     };
     // A bend under this is walked on rather than announced.
     let least_turn_deg = if low_vision { 60.0 } else { 30.0 };
-    // The decision points, by index in `cells`: the corners that turn
-    // enough, and the destination…
-    let mut points: Vec<(usize, ManeuverType, Option<Modifier>)> = Vec::new();
+    // The decision points: cell index, cells along the line, what: the
+    // corners that turn enough, and the destination…
+    let mut points: Vec<(usize, f64, ManeuverType, Option<Modifier>)> = Vec::new();
     for k in 1..corners.len() {
-        let (a, b) = (corners[k - 1], corners[k]);
+        let ((a, _, _), (b, b_arc, b_at)) = (corners[k - 1], corners[k]);
         match corners.get(k + 1) {
-            None => points.push((b, ManeuverType::Arrive, None)),
-            Some(&c) => {
-                let bend = turn(
-                    bearing(cells[a], cells[b]),
-                    bearing(cells[b], cells[c]),
-                    least_turn_deg,
-                );
-                if let Some(m) = bend {
-                    points.push((b, ManeuverType::Turn, Some(m)));
+            None => points.push((b_at, b_arc, ManeuverType::Arrive, None)),
+            Some(&(c, _, _)) => {
+                if let Some(m) = turn(bearing(a, b), bearing(b, c), least_turn_deg) {
+                    points.push((b_at, b_arc, ManeuverType::Turn, Some(m)));
                 }
             }
         }
     }
     // …and the junctions walked straight through, away from those.
-    points.extend(
-        junctions(site, cells, &points)
-            .into_iter()
-            .map(|i| (i, ManeuverType::Continue, Some(Modifier::Straight))),
-    );
-    points.sort_by_key(|p| p.0);
+    let decisions: Vec<usize> = points.iter().map(|p| p.0).collect();
+    points.extend(junctions(site, cells, &decisions).into_iter().map(|i| {
+        (
+            i,
+            cell_arc[i],
+            ManeuverType::Continue,
+            Some(Modifier::Straight),
+        )
+    }));
+    points.sort_by(|p, q| p.1.total_cmp(&q.1));
     let mut out = vec![Maneuver {
         kind: ManeuverType::Depart,
         modifier: None,
@@ -278,31 +313,80 @@ pub(crate) fn maneuvers(site: &Site, route: &Route, profile: Profile) -> Vec<Man
         place: place(cells[0]),
         on_the_way: None,
     }];
-    // Metres from the start to each cell, and the first feature since the
-    // last maneuver.
-    let (mut walked, mut along) = (0.0, 0.0);
+    // The first feature since the last maneuver, with metres to it.
     let mut on_the_way = None;
-    let mut from = 0;
-    for (b, kind, modifier) in points {
+    let (mut from, mut from_arc) = (0, 0.0);
+    for (b, b_arc, kind, modifier) in points {
         for i in from + 1..=b {
-            let step = cells[i - 1].distance(cells[i]) * site.cell_m;
-            walked += step;
-            along += step;
             if on_the_way.is_none() {
-                on_the_way = Feature::of(site.tile(cells[i])).map(|f| (f, along as f32));
+                on_the_way = Feature::of(site.tile(cells[i]))
+                    .map(|f| (f, (cell_arc[i] * site.cell_m) as f32));
             }
         }
-        from = b;
+        from = from.max(b);
         out.push(Maneuver {
             kind,
             modifier,
-            distance_m: walked,
-            along_m: along,
+            distance_m: (b_arc - from_arc) * site.cell_m,
+            along_m: b_arc * site.cell_m,
             at: cells[b],
             place: place(cells[b]),
             on_the_way: on_the_way.take(),
         });
-        walked = 0.0;
+        from_arc = b_arc;
+    }
+    out
+}
+
+/// Cells along `line` from its start to each of its vertices.
+fn arc_lengths(line: &[GridPoint]) -> Vec<f64> {
+    let mut along = 0.0;
+    let mut last = line[0];
+    line.iter()
+        .map(|&p| {
+            along += (p[0] - last[0]).hypot(p[1] - last[1]);
+            last = p;
+            along
+        })
+        .collect()
+}
+
+/// How far along `line` (cells; `arc` from [`arc_lengths`]) each of
+/// `cells` lies: its centre projected on the line, searched forward from
+/// the previous cell's place and no further than a step beyond it, so a
+/// line passing near itself does not pull a cell to its other pass.
+fn cells_along(line: &[GridPoint], arc: &[f64], cells: &[Cell]) -> Vec<f64> {
+    let mut out = Vec::with_capacity(cells.len());
+    let (mut segment, mut last) = (0, 0.0_f64);
+    for (i, &cell) in cells.iter().enumerate() {
+        let step = if i == 0 {
+            0.0
+        } else {
+            cells[i - 1].distance(cell)
+        };
+        let reach = last + step + 1.0;
+        let [x, y] = centre(cell);
+        let mut best = (f64::INFINITY, last, segment);
+        for s in segment..line.len() - 1 {
+            if arc[s] > reach {
+                break;
+            }
+            let ([ax, ay], [bx, by]) = (line[s], line[s + 1]);
+            let (dx, dy) = (bx - ax, by - ay);
+            let len2 = dx * dx + dy * dy;
+            let f = if len2 > 0.0 {
+                (((x - ax) * dx + (y - ay) * dy) / len2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            let d = (ax + f * dx - x).hypot(ay + f * dy - y);
+            if d < best.0 {
+                best = (d, arc[s] + f * (arc[s + 1] - arc[s]), s);
+            }
+        }
+        last = best.1.max(last);
+        segment = best.2;
+        out.push(last);
     }
     out
 }
@@ -310,17 +394,14 @@ pub(crate) fn maneuvers(site: &Site, route: &Route, profile: Profile) -> Vec<Man
 /// Indices in `cells` of the junctions the route passes straight through:
 /// cells with three ways out or more ([`ways_out`]) at least
 /// [`JUNCTION_RADIUS_M`] along the route from its ends and from every
-/// decision point in `points`, one (the middle) per run of such cells.
-fn junctions(
-    site: &Site,
-    cells: &[Cell],
-    points: &[(usize, ManeuverType, Option<Modifier>)],
-) -> Vec<usize> {
+/// decision point (by index in `cells`), one (the middle) per run of such
+/// cells.
+fn junctions(site: &Site, cells: &[Cell], decisions: &[usize]) -> Vec<usize> {
     let radius = (JUNCTION_RADIUS_M / site.cell_m).round().max(2.0) as usize;
     let clear = |i: usize| {
         i >= radius
             && i + radius < cells.len()
-            && points.iter().all(|&(j, _, _)| i.abs_diff(j) >= radius)
+            && decisions.iter().all(|&j| i.abs_diff(j) >= radius)
     };
     let mut found = Vec::new();
     let mut run: Option<(usize, usize)> = None;
@@ -438,7 +519,10 @@ fn setting_off(site: &Site, cells: &[Cell]) -> Option<String> {
         .map(|(n, c, _)| (n, c))?;
     // The first few cells give the direction of walking off.
     let ahead = cells[cells.len().min(4) - 1];
-    let side = (bearing(start, place) - bearing(start, ahead) + 540.0).rem_euclid(360.0) - 180.0;
+    let side = (bearing(centre(start), centre(place)) - bearing(centre(start), centre(ahead))
+        + 540.0)
+        .rem_euclid(360.0)
+        - 180.0;
     Some(match side.abs() {
         x if x >= 120.0 => format!("With {name} behind you"),
         x if x <= 45.0 => format!("Facing {name}"),
@@ -447,18 +531,17 @@ fn setting_off(site: &Site, cells: &[Cell]) -> Option<String> {
     })
 }
 
-/// The instructions for `route` on `site` for a walker with `profile`: a
-/// sentence per turn (the first saying how to set off) and one for
-/// arriving; empty for a route of one cell.
-pub fn instructions(site: &Site, route: &Route, profile: Profile) -> Vec<Instruction> {
-    let maneuvers = maneuvers(site, route, profile);
+/// The instructions for `route` on `site` from its `maneuvers`: a sentence
+/// per turn (the first saying how to set off) and one for arriving; empty
+/// for a route of one cell.
+pub fn instructions(site: &Site, route: &Route, maneuvers: &[Maneuver]) -> Vec<Instruction> {
     maneuvers
         .iter()
         .enumerate()
         .filter(|(_, m)| m.is_decision())
         .map(|(i, m)| Instruction {
             text: if i == 1 {
-                first_sentence(site, &route.cells, &maneuvers).expect("a first decision")
+                first_sentence(site, &route.cells, maneuvers).expect("a first decision")
             } else {
                 m.sentence(m.distance_m)
             },
@@ -468,35 +551,10 @@ pub fn instructions(site: &Site, route: &Route, profile: Profile) -> Vec<Instruc
         .collect()
 }
 
-/// Douglas–Peucker: marks in `keep` the cells between `a` and `b` that stray
-/// more than [`CORNER_TOLERANCE_CELLS`] from the line `a`–`b`.
-fn simplify(cells: &[Cell], a: usize, b: usize, keep: &mut [bool]) {
-    if b <= a + 1 {
-        return;
-    }
-    let (ax, ay) = (f64::from(cells[a].x), f64::from(cells[a].y));
-    let (bx, by) = (f64::from(cells[b].x), f64::from(cells[b].y));
-    let len = (bx - ax).hypot(by - ay).max(f64::EPSILON);
-    let (far, dist) = (a + 1..b)
-        .map(|i| {
-            let (x, y) = (f64::from(cells[i].x), f64::from(cells[i].y));
-            (i, ((bx - ax) * (ay - y) - (ax - x) * (by - ay)).abs() / len)
-        })
-        .max_by(|p, q| p.1.total_cmp(&q.1))
-        .expect("b > a + 1");
-    if dist > CORNER_TOLERANCE_CELLS {
-        keep[far] = true;
-        simplify(cells, a, far, keep);
-        simplify(cells, far, b, keep);
-    }
-}
-
 /// Direction from `a` to `b` in degrees, clockwise on the map from east
 /// (rows grow downwards).
-fn bearing(a: Cell, b: Cell) -> f64 {
-    let dx = f64::from(b.x) - f64::from(a.x);
-    let dy = f64::from(b.y) - f64::from(a.y);
-    dy.atan2(dx).to_degrees()
+fn bearing(a: GridPoint, b: GridPoint) -> f64 {
+    (b[1] - a[1]).atan2(b[0] - a[0]).to_degrees()
 }
 
 /// The turn from bearing `a` to `b`, or `None` when about straight on (a
@@ -541,7 +599,7 @@ mod tests {
                 .map(|(x, y)| Cell::new(x, y))
                 .to_vec(),
         };
-        let steps = instructions(&site, &route, Profile::Default);
+        let steps = instructions(&site, &route, &maneuvers(&site, &route, Profile::Default));
         let texts: Vec<&str> = steps.iter().map(|s| s.text.as_str()).collect();
         assert_eq!(
             texts,
@@ -667,9 +725,32 @@ mod tests {
                 .map(|(x, y)| Cell::new(x, y))
                 .to_vec(),
         };
-        let steps = instructions(&site, &route, Profile::Default);
+        let steps = instructions(&site, &route, &maneuvers(&site, &route, Profile::Default));
         assert_eq!(steps.len(), 1, "{steps:?}");
         assert_eq!(steps[0].text, "Walk 6 metres; you have arrived.");
+    }
+
+    #[test]
+    fn distances_are_along_the_line_served() {
+        let text = "name = \"t\"\ncell_m = 1.0\nmap = '''\n#######\n#######\n#######\n'''\n";
+        let site = Site::parse(text, Path::new("t.toml")).unwrap();
+        // Cells east then up a diagonal, drawn as one slanted line from
+        // (0, 0) to (6, 2) through them: 6.32 m, not the cells' 6.83 m.
+        let route = Route {
+            cells: [(0, 0), (1, 0), (2, 1), (3, 1), (4, 1), (5, 2), (6, 2)]
+                .map(|(x, y)| Cell::new(x, y))
+                .to_vec(),
+        };
+        let line = [[0.5, 0.5], [6.5, 2.5]];
+        let along = maneuvers_along(&site, &route, &line, Profile::Default);
+        assert_eq!(along.len(), 2, "{along:?}");
+        assert!(
+            (along[1].distance_m - 40f64.sqrt()).abs() < 1e-9,
+            "{along:?}"
+        );
+        assert_eq!(along[1].at, Cell::new(6, 2));
+        let by_cells = maneuvers(&site, &route, Profile::Default);
+        assert!(by_cells.last().unwrap().along_m > along[1].along_m + 0.4);
     }
 
     /// Words a screen-reader instruction must not use: sight, and compass
@@ -684,7 +765,7 @@ mod tests {
     }
 
     fn texts(site: &Site, route: &Route, profile: Profile) -> Vec<String> {
-        instructions(site, route, profile)
+        instructions(site, route, &maneuvers(site, route, profile))
             .into_iter()
             .map(|s| s.text)
             .collect()

@@ -38,7 +38,7 @@ use serde::{Deserialize, Serialize};
 
 pub use error_code::RouteErrorCode;
 pub use profile::{Profile, unknown_profile_message};
-pub use route::{Route, Waypoint};
+pub use route::{LinePoint, LineSource, Route, ServedLine, Waypoint};
 
 use crate::clock::Clock;
 use crate::model::ModelError;
@@ -320,7 +320,8 @@ pub struct Planned {
     /// The frame the route came from (GAN modes).
     pub frame: Option<Vec<f32>>,
     /// The line the route follows (cell units, source centre to destination
-    /// centre) when the planner drew one (`desire`); the route is its cells.
+    /// centre) when the planner drew one (`desire`, `anyangle`); the route
+    /// is its cells. Served, once checked, as [`ServedLine`].
     pub line: Option<Vec<anyangle::GridPoint>>,
     pub timings: Timings,
 }

@@ -119,7 +119,15 @@ pub struct RouteBody {
     /// How the route came about (see `plan::Origin`).
     pub origin: crate::plan::Origin,
     pub profile: &'static str,
+    /// The route's cells, each with its centre in metres.
     pub waypoints: Vec<crate::plan::Waypoint>,
+    /// The line to walk, vertices in metres from the source's centre to the
+    /// destination's, through the waypoints' cells (`plan::ServedLine`).
+    pub line: Vec<crate::plan::LinePoint>,
+    /// Where `line` comes from: `planner`, `cells`, or `fallback` when the
+    /// planner's own line failed its check.
+    pub line_from: crate::plan::LineSource,
+    /// Metres along `line`.
     pub length_m: f64,
     /// Turn-by-turn, for people and screen readers.
     pub instructions: Vec<crate::plan::instructions::Instruction>,
@@ -145,6 +153,9 @@ impl RouteBody {
         planned: &crate::plan::Planned,
         latency_us: u64,
     ) -> RouteBody {
+        let line = crate::plan::ServedLine::of(site, planned, profile);
+        let maneuvers =
+            crate::plan::instructions::maneuvers_along(site, &planned.route, &line.points, profile);
         RouteBody {
             from,
             to,
@@ -153,12 +164,24 @@ impl RouteBody {
             origin: planned.origin,
             profile: profile.name(),
             waypoints: planned.route.waypoints(site),
-            length_m: planned.route.length_m(site),
-            instructions: crate::plan::instructions::instructions(site, &planned.route, profile),
-            maneuvers: crate::plan::instructions::maneuvers(site, &planned.route, profile),
+            line: line.metres(site),
+            line_from: line.source,
+            length_m: line.length_m(site),
+            instructions: crate::plan::instructions::instructions(site, &planned.route, &maneuvers),
+            maneuvers,
             reason: None,
             latency_us,
         }
+    }
+}
+
+impl RouteBody {
+    /// The line to walk in cell units, as guidance follows it.
+    pub fn line_in_cells(&self, site: &crate::site::Site) -> Vec<crate::plan::anyangle::GridPoint> {
+        self.line
+            .iter()
+            .map(|p| crate::plan::anyangle::point_of_world(site, [p.x_m, p.y_m]))
+            .collect()
     }
 }
 

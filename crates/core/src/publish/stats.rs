@@ -14,13 +14,14 @@ pub const HEARD_PUBLISHED: usize = 100;
 
 /// The counters in [`Stats`] that only grow, with a human name each (Home
 /// Assistant discovery makes one sensor per entry).
-pub const COUNTERS: [(&str, &str); 29] = [
+pub const COUNTERS: [(&str, &str); 30] = [
     ("sightings", "Sightings"),
     ("sightings_ignored", "Sightings ignored"),
     ("fixes", "Fixes"),
     ("requests", "Route requests"),
     ("routes", "Routes"),
     ("request_errors", "Route errors"),
+    ("route_line_fallbacks", "Routes served on their cells' line"),
     ("feedback", "Feedback"),
     ("scans", "Phone scans"),
     ("shared_in", "Shared sightings received"),
@@ -73,6 +74,9 @@ pub struct Stats {
     pub requests: u64,
     pub routes: u64,
     pub request_errors: u64,
+    /// Routes whose planner's line failed its check and were served on
+    /// their cells' centres instead.
+    pub route_line_fallbacks: u64,
     pub feedback: u64,
     pub scans: u64,
     pub shared_in: u64,

@@ -140,11 +140,12 @@ impl Served {
             .map(|m| (m.at, m.along_m))
             .collect();
         Some(Served {
-            line: RouteLine::new(
+            line: RouteLine::along(
                 site,
                 &Route {
                     cells: cells.clone(),
                 },
+                &body.line_in_cells(site),
             ),
             cells,
             passed: vec![false; decisions.len()],

@@ -28,14 +28,24 @@
 //!
 //! Fair judges on the held-out walks (`baselines`, and `heldout` in each
 //! mode): beside A*, the any-angle route ([`plan::anyangle`], Theta*) and the
-//! straight line where the profile may walk it. Every judge's route and each
-//! walk (its recorded positions when it has them, else its cells' centres)
-//! are compared in metres ([`shape`]: DTW and discrete Fréchet on both
-//! resampled every half cell), by cell IoU and by length ratio (route over
-//! walk). `closer_than` gives, per baseline, how often the mode's route is
-//! closer to the walk by DTW than the baseline's (wins, losses, ties: within
-//! a micrometre), the share of wins among the walks both answered, and the
-//! two-sided sign-test p-value of wins against losses.
+//! straight line where the profile may walk it. Every planner is judged by
+//! what its route reply holds: the reply is built as a gateway builds it
+//! ([`RouteBody::new`]) and its `line`, the metric polyline a user is given,
+//! is what is measured (the straight line, which no planner serves, by its
+//! segment). Each walk is its recorded positions in metres when it has
+//! them, else its cells' centres. Compared in metres ([`shape`]: DTW and
+//! discrete Fréchet on both resampled every half cell), by cell IoU and by
+//! length ratio (route over walk). `closer_than` gives, per baseline, how
+//! often the mode's route is closer to the walk by DTW than the baseline's
+//! (wins, losses, ties: within a micrometre), the share of wins among the
+//! walks both answered, and the two-sided sign-test p-value of wins against
+//! losses.
+//!
+//! Side by side, under `cells` in each summary and each `closer_than`, the
+//! same figures for the reply's cells' centres (its `waypoints`): what was
+//! measured before replies carried a line. A staircase of cells is judged
+//! close to a walk's own staircase of cells for being made of cells, so
+//! those figures flatter any route of cells; they are kept to show how far.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -47,6 +57,7 @@ use serde_json::{Value, json};
 use super::similarity::{CellBits, Polyline, TrainingFrames, cell_iou, shape, sign_test};
 use crate::model::runtime::PathClassifier;
 use crate::plan::{self, Origin, PlannerConfig, PlannerMode, Profile};
+use crate::publish::RouteBody;
 use crate::site::{Cell, Site};
 use crate::train::trajectory::Trajectory;
 
@@ -202,8 +213,12 @@ pub fn evaluate(
 /// How one judge's route compares with one held-out walk.
 #[derive(Clone, Copy, Debug)]
 struct Score {
+    /// Of the served line.
     dtw_m: f64,
     frechet_m: f64,
+    /// Of the route's cells' centres.
+    cells_dtw_m: f64,
+    cells_frechet_m: f64,
     iou: f64,
     length_ratio: f64,
     /// The learned frame or line behind the route needed repair.
@@ -211,6 +226,9 @@ struct Score {
     /// The planner served its fallback instead of what it learned
     /// (`few_walks`, `profile_costs`).
     fallback: bool,
+    /// The planner's line failed its check and the reply's line is its
+    /// cells' centres (`line_from: fallback`).
+    line_fallback: bool,
 }
 
 /// Scores of the baselines on every held-out walk (`None`: no route, e.g.
@@ -237,11 +255,15 @@ fn score(site: &Site, walk: &Trajectory, cells: &[Cell], line: &Polyline) -> Opt
         Some(points) => Polyline(points.clone()),
         None => Polyline::of_cells(site, &walk.cells),
     };
-    let s = shape(line, &walked, site.cell_m / 2.0)?;
+    let step_m = site.cell_m / 2.0;
+    let s = shape(line, &walked, step_m)?;
+    let by_cells = shape(&Polyline::of_cells(site, cells), &walked, step_m)?;
     let walk_m = walked.length_m();
     Some(Score {
         dtw_m: s.dtw_m,
         frechet_m: s.frechet_m,
+        cells_dtw_m: by_cells.dtw_m,
+        cells_frechet_m: by_cells.frechet_m,
         iou: cell_iou(site, cells, &walk.cells),
         length_ratio: if walk_m > 0.0 {
             line.length_m() / walk_m
@@ -250,6 +272,7 @@ fn score(site: &Site, walk: &Trajectory, cells: &[Cell], line: &Polyline) -> Opt
         },
         repaired: false,
         fallback: false,
+        line_fallback: false,
     })
 }
 
@@ -262,26 +285,19 @@ fn judge_planner(
     walks
         .iter()
         .map(|w| {
-            let planned = planner
-                .plan(w.source(), w.destination(), walk_profile(w))
-                .ok()?;
-            let cells = &planned.route.cells;
-            // A planner that drew a line is judged by it, as any-angle is
-            // by its vertices; else by its cells' centres.
-            let line = match &planned.line {
-                Some(points) => Polyline(
-                    points
-                        .iter()
-                        .map(|&p| plan::anyangle::world_of_point(site, p))
-                        .collect(),
-                ),
-                None => Polyline::of_cells(site, cells),
-            };
+            let (from, to, profile) = (w.source(), w.destination(), walk_profile(w));
+            let planned = planner.plan(from, to, profile).ok()?;
+            // What the gateway would publish for this request.
+            let reply = RouteBody::new(site, planner, profile, from, to, &planned, 0);
+            let cells: Vec<Cell> = reply.waypoints.iter().map(|p| p.cell).collect();
+            let line = Polyline(reply.line.iter().map(|p| [p.x_m, p.y_m]).collect());
             let repaired = planned.origin == Origin::Repaired;
             let fallback = planned.origin.is_fallback();
-            score(site, w, cells, &line).map(|s| Score {
+            let line_fallback = reply.line_from == plan::LineSource::Fallback;
+            score(site, w, &cells, &line).map(|s| Score {
                 repaired,
                 fallback,
+                line_fallback,
                 ..s
             })
         })
@@ -292,23 +308,19 @@ impl Judged {
     fn new(site: &Arc<Site>, connectivity: plan::Connectivity, walks: &[Trajectory]) -> Judged {
         let shortest = plan::astar::AStar::new(site.clone(), connectivity);
         let any = plan::anyangle::AnyAngle::new(site.clone());
-        let polyline = |r: &plan::anyangle::AnyAngleRoute| Polyline::of_cells(site, &r.vertices);
         Judged {
             astar: judge_planner(site, &shortest, walks),
-            anyangle: walks
-                .iter()
-                .map(|w| {
-                    let r = any
-                        .route(w.source(), w.destination(), walk_profile(w))
-                        .ok()?;
-                    score(site, w, &r.route.cells, &polyline(&r))
-                })
-                .collect(),
+            anyangle: judge_planner(site, &any, walks),
             straight: walks
                 .iter()
                 .map(|w| {
                     let r = any.straight(w.source(), w.destination(), walk_profile(w))?;
-                    score(site, w, &r.route.cells, &polyline(&r))
+                    score(
+                        site,
+                        w,
+                        &r.route.cells,
+                        &Polyline::of_cells(site, &r.vertices),
+                    )
                 })
                 .collect(),
         }
@@ -354,12 +366,17 @@ fn summary(scores: &[Option<Score>]) -> Value {
         "walks": answered.len(),
         "answered_share": answered.len() as f64 / scores.len().max(1) as f64,
         "dtw_m_median": percentile(&mut column(|s| s.dtw_m), 0.5),
+        "cells": {
+            "dtw_m_median": percentile(&mut column(|s| s.cells_dtw_m), 0.5),
+            "frechet_m_median": percentile(&mut column(|s| s.cells_frechet_m), 0.5),
+        },
         "dtw_m_mean": mean(&column(|s| s.dtw_m)),
         "frechet_m_median": percentile(&mut column(|s| s.frechet_m), 0.5),
         "iou_mean": mean(&column(|s| s.iou)),
         "length_ratio_mean": mean(&column(|s| s.length_ratio)),
         "repaired_share": mean(&column(|s| f64::from(u8::from(s.repaired)))),
         "fallback_share": mean(&column(|s| f64::from(u8::from(s.fallback)))),
+        "line_fallback_share": mean(&column(|s| f64::from(u8::from(s.line_fallback)))),
         "repaired_share_learned": repaired_among_learned(&answered),
     })
 }
@@ -375,16 +392,23 @@ fn repaired_among_learned(scores: &[Score]) -> Option<f64> {
     mean(&learned)
 }
 
-/// Wins, losses and ties by DTW of `mode` against `baseline` over the walks
-/// both answered, with the share of wins and the sign test's p-value.
+/// Wins, losses and ties by DTW of `mode`'s lines against `baseline`'s over
+/// the walks both answered, with the share of wins and the sign test's
+/// p-value; under `cells` the same by the routes' cells.
 fn closer_than(mode: &[Option<Score>], baseline: &[Option<Score>]) -> Value {
+    let mut report = wins_by(mode, baseline, |s| s.dtw_m);
+    report["cells"] = wins_by(mode, baseline, |s| s.cells_dtw_m);
+    report
+}
+
+fn wins_by(mode: &[Option<Score>], baseline: &[Option<Score>], dtw: fn(&Score) -> f64) -> Value {
     const TIE_M: f64 = 1e-6;
     let (mut wins, mut losses, mut ties) = (0usize, 0usize, 0usize);
     for (m, b) in mode.iter().zip(baseline) {
         let (Some(m), Some(b)) = (m, b) else { continue };
-        if m.dtw_m < b.dtw_m - TIE_M {
+        if dtw(m) < dtw(b) - TIE_M {
             wins += 1;
-        } else if m.dtw_m > b.dtw_m + TIE_M {
+        } else if dtw(m) > dtw(b) + TIE_M {
             losses += 1;
         } else {
             ties += 1;

@@ -480,7 +480,9 @@ function showRoute() {
     fill(box, h("p", { class: "bad" }, `${path.error.code}: ${path.error.message}`));
     return;
   }
-  const points = path.waypoints.map((w) => `${w.cell[0] + 0.5},${w.cell[1] + 0.5}`).join(" ");
+  // The line the walker was given (metres), in grid units.
+  const frame = new Frame(site.cell_m, site.origin_m, site.y_axis);
+  const points = path.line.map((p) => frame.grid([p.x_m, p.y_m]).join(",")).join(" ");
   const end = path.waypoints[path.waypoints.length - 1].cell;
   fill(
     view.layers.route,
