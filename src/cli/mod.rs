@@ -149,8 +149,9 @@ struct PlannerSource {
     models: Option<PathBuf>,
     /// The planner mode instead of the config's `[planner] mode`: learned
     /// (the default: desire lines when they passed their training check,
-    /// else the conditional generator, else astar), astar, rejection,
-    /// conditional or desire.
+    /// else the conditional generator, else rejection when its generator
+    /// passed its checks, else astar), astar, rejection, conditional or
+    /// desire.
     #[arg(long, value_parser = parse_mode)]
     mode: Option<crate::plan::PlannerMode>,
 }

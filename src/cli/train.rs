@@ -1,5 +1,7 @@
 //! `gangway train`: path models from walks, and the localization cell
-//! classifier from a survey, written as ONNX to a directory.
+//! classifier from a survey, written as ONNX to a directory, with a summary
+//! of what passed its checks and which planner the default mode serves.
+//! The exit code says whether what was asked for is servable ([`Verdict`]).
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -11,6 +13,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::locate::survey::Survey;
 use crate::model::Kind;
+use crate::model::checks::held_to_checks;
 use crate::plan::learned::Choice;
 use crate::plan::{self, PlannerConfig, PlannerMode};
 use crate::site::Site;
@@ -41,7 +44,8 @@ pub(super) struct Args {
     batch: usize,
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Also train a generator conditioned on source and destination cells.
+    /// Also train a generator conditioned on source and destination cells;
+    /// the run then exits 0 only if it passes its checks.
     #[arg(long)]
     conditional: bool,
     /// Weight of the conditional generator's access penalty: a hinge that
@@ -79,7 +83,8 @@ pub(super) struct Args {
     no_desire: bool,
     /// Train only the desire lines from the walks (and the cell classifier
     /// with --survey), not the GAN models: large sites, or walks whose
-    /// endpoints are all distinct pairs.
+    /// endpoints are all distinct pairs. The run exits 0 only if they pass
+    /// their check.
     #[arg(long)]
     desire_only: bool,
     /// Print the summary as JSON instead of text.
@@ -209,34 +214,10 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         None => None,
     };
     let wall = started.elapsed().as_secs_f64();
+    let verdict = Verdict::of(&args, &written, default_planner);
     let card = args.out.join("MODEL_CARD.md");
-    let text = model_card(
-        &site,
-        &args,
-        walks,
-        &written,
-        &notes,
-        default_planner.as_ref(),
-        wall,
-    );
+    let text = model_card(&site, &args, walks, &written, &notes, &verdict, wall);
     std::fs::write(&card, text).with_context(|| format!("cannot write {}", card.display()))?;
-    // A failed generator was asked for and is not servable; failed desire
-    // lines only matter when the default planner is left with nothing
-    // learned (it passes them over for the conditional generator).
-    let nothing_learned = default_planner
-        .as_ref()
-        .is_some_and(|c| c.serves == PlannerMode::Astar);
-    let failed: Vec<&Trained> = written
-        .iter()
-        .filter(|t| {
-            !t.passed()
-                && match t.kind {
-                    Kind::Generator | Kind::ConditionalGenerator => true,
-                    Kind::DesireLines => nothing_learned,
-                    _ => false,
-                }
-        })
-        .collect();
     if args.json {
         let models: Vec<_> = written
             .iter()
@@ -270,10 +251,12 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
             "access_weight": if args.conditional { args.access_weight } else { 0.0 },
             "models": models,
             "notes": notes,
-            "default_planner": default_planner.as_ref().map(|c| serde_json::json!({
+            "default_planner": verdict.default_planner.as_ref().map(|c| serde_json::json!({
                 "serves": c.serves.name(),
                 "because": c.because,
             })),
+            "servable": verdict.unmet.is_empty(),
+            "unmet": verdict.unmet,
         });
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {
@@ -281,24 +264,12 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
             println!("{n} walks, {classes} source/destination classes");
         }
         for t in &written {
-            let metrics: Vec<String> = t
-                .metrics
-                .iter()
-                .map(|(k, v)| format!("{k} {}", short(*v)))
-                .collect();
-            println!(
-                "{:<28} {:>9} params {:>8.1} KiB {:>7.1} s  {}",
-                t.file.display(),
-                t.parameters,
-                t.bytes as f64 / 1024.0,
-                t.seconds,
-                metrics.join(", ")
-            );
+            print_model(t, args.accept_failed);
         }
         for note in &notes {
             println!("note: {note}");
         }
-        if let Some(c) = &default_planner {
+        if let Some(c) = &verdict.default_planner {
             println!(
                 "the default planner (mode `learned`) serves {}: {}",
                 c.serves.name(),
@@ -307,36 +278,195 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         }
         println!("wall time {wall:.1} s");
     }
-    if failed.is_empty() {
-        return Ok(ExitCode::SUCCESS);
-    }
-    for t in &failed {
+    // Loud on standard error whatever the output format: a failed model
+    // is an error when it leaves what was asked for unservable, else a
+    // warning (the default planner serves something else).
+    for t in written
+        .iter()
+        .filter(|t| held_to_checks(t.kind) && !t.passed())
+    {
         let what: Vec<String> = t
             .checks
             .iter()
             .filter(|c| !c.passed())
             .map(|c| c.describe())
             .collect();
-        eprintln!("{} failed its checks: {}", t.kind.name(), what.join(", "));
+        let at = if args.accept_failed {
+            format!("written to {} anyway (--accept-failed)", t.file.display())
+        } else {
+            format!(
+                "written to {}, where planners do not load it",
+                t.file.display()
+            )
+        };
+        let said = format!(
+            "{} failed its checks: {}; {at}",
+            t.kind.name(),
+            what.join(", ")
+        );
+        if verdict.blames(t.kind) {
+            tracing::error!("{said}");
+        } else {
+            tracing::warn!("{said}");
+        }
     }
-    if args.accept_failed {
-        eprintln!("written where planners load them anyway (--accept-failed)");
+    if verdict.unmet.is_empty() || args.accept_failed {
         return Ok(ExitCode::SUCCESS);
     }
-    let hint = if failed.iter().all(|t| t.kind == Kind::DesireLines) {
-        "Desire lines that do not beat the any-angle route on the training walks' later \
-         folds need more walks (recorded walks of real people, --from-store); or train the \
-         conditional generator too (--conditional); the default planner serves A* meanwhile"
-    } else {
-        "Try more --iterations, more walks per source/destination pair (or coarser cells: \
-         --cell-m), fewer rare pairs (--min-class-walks), or serve the astar mode meanwhile"
-    };
-    eprintln!(
-        "not servable: written to {} instead, see {}. {hint}",
+    tracing::error!(
+        "not servable: {}. {} (models that failed are in {}; see {})",
+        verdict.unmet.join("; "),
+        verdict.hint(),
         args.out.join("failed").display(),
         card.display()
     );
     Ok(ExitCode::FAILURE)
+}
+
+/// What the run was asked for, what the default planner serves, and what
+/// of the request is not servable: the models named by a flag
+/// (`--desire-only`, `--conditional`) must pass their checks, and path
+/// models trained from walks must leave the default planner something
+/// learned to serve. A model trained only by default that fails is passed
+/// over by the default planner, so it is a warning, not a failed run.
+struct Verdict {
+    /// What the default planner serves from the output directory (when
+    /// path models were trained).
+    default_planner: Option<Choice>,
+    /// The kinds asked for by a flag.
+    asked: Vec<Kind>,
+    /// Why what was asked for is not servable (empty: it is).
+    unmet: Vec<String>,
+    /// Failed models behind `unmet`, for [`Verdict::hint`].
+    failed: Vec<Kind>,
+}
+
+impl Verdict {
+    fn of(args: &Args, written: &[Trained], default_planner: Option<Choice>) -> Verdict {
+        let mut asked = Vec::new();
+        if args.desire_only {
+            asked.push(Kind::DesireLines);
+        }
+        if args.conditional {
+            asked.push(Kind::ConditionalGenerator);
+        }
+        let mut unmet = Vec::new();
+        let mut failed = Vec::new();
+        for t in written
+            .iter()
+            .filter(|t| asked.contains(&t.kind) && !t.passed())
+        {
+            unmet.push(format!(
+                "{} was asked for ({}) and failed its checks",
+                t.kind.name(),
+                if t.kind == Kind::DesireLines {
+                    "--desire-only"
+                } else {
+                    "--conditional"
+                }
+            ));
+            failed.push(t.kind);
+        }
+        if let Some(choice) = &default_planner
+            && choice.serves == PlannerMode::Astar
+        {
+            unmet.push("nothing learned is servable: the default planner would serve A*".into());
+            failed.extend(
+                written
+                    .iter()
+                    .filter(|t| held_to_checks(t.kind) && !t.passed())
+                    .map(|t| t.kind),
+            );
+        }
+        Verdict {
+            default_planner,
+            asked,
+            unmet,
+            failed,
+        }
+    }
+
+    /// Whether a failed model of `kind` is why the run is not servable.
+    fn blames(&self, kind: Kind) -> bool {
+        self.failed.contains(&kind)
+    }
+
+    /// What to try for the failed models behind `unmet`.
+    fn hint(&self) -> String {
+        let mut tries = Vec::new();
+        if self.blames(Kind::DesireLines) {
+            // Their check is against later walkers: more of the same
+            // simulated walks do not help, walks of real people do.
+            tries.push(
+                "give the desire lines more walks (recorded walks of real people: --from-store)",
+            );
+        }
+        if self.blames(Kind::Generator) || self.blames(Kind::ConditionalGenerator) {
+            tries.push(
+                "train the generators longer or on more walks (more --iterations, more walks \
+                 per source/destination pair, coarser cells, fewer rare pairs: --min-class-walks)",
+            );
+        }
+        if self.asked.contains(&Kind::DesireLines) {
+            tries.push("train the GAN models too (without --desire-only)");
+        } else if !self.asked.contains(&Kind::ConditionalGenerator) {
+            tries.push("train the conditional generator too (--conditional)");
+        }
+        format!(
+            "Try to {}; meanwhile, serve the astar mode",
+            tries.join("; or ")
+        )
+    }
+}
+
+/// One model's lines of the text summary: its kind, whether it passed its
+/// checks and where it was written (not servable in `failed/`), the checks
+/// with their figures and bounds, then its size, time and metrics.
+fn print_model(t: &Trained, accept_failed: bool) {
+    let verdict = if t.checks.is_empty() {
+        "no checks"
+    } else if t.passed() {
+        "passed"
+    } else {
+        "FAILED"
+    };
+    let served = match (t.checks.is_empty() || t.passed(), accept_failed) {
+        (true, _) => "",
+        (false, true) => " (written where planners load it: --accept-failed)",
+        (false, false) => " (not served)",
+    };
+    println!(
+        "{:<26} {verdict:<9} {}{served}",
+        t.kind.name(),
+        t.file.display()
+    );
+    // A discriminator carries its generator's checks, printed above.
+    if held_to_checks(t.kind) {
+        let checks: Vec<String> = t
+            .checks
+            .iter()
+            .map(|c| {
+                format!(
+                    "{} {}",
+                    c.describe(),
+                    if c.passed() { "pass" } else { "FAIL" }
+                )
+            })
+            .collect();
+        println!("    checks: {}", checks.join(", "));
+    }
+    let metrics: Vec<String> = t
+        .metrics
+        .iter()
+        .map(|(k, v)| format!("{k} {}", short(*v)))
+        .collect();
+    println!(
+        "    {} params, {:.1} KiB, {:.1} s: {}",
+        t.parameters,
+        t.bytes as f64 / 1024.0,
+        t.seconds,
+        metrics.join(", ")
+    );
 }
 
 /// Which planner the default mode serves from the models in `dir`, built
@@ -348,14 +478,15 @@ fn default_planner(site: &Site, dir: &Path) -> anyhow::Result<Choice> {
 }
 
 /// `MODEL_CARD.md`: what was trained, from what, what it measured, whether
-/// it passed its checks, and which planner the default mode serves.
+/// it passed its checks, which planner the default mode serves, and
+/// whether what the run was asked for is servable.
 fn model_card(
     site: &Site,
     args: &Args,
     walks: Option<(usize, usize)>,
     written: &[Trained],
     notes: &[String],
-    default_planner: Option<&Choice>,
+    verdict: &Verdict,
     wall: f64,
 ) -> String {
     use std::fmt::Write as _;
@@ -416,7 +547,7 @@ fn model_card(
             crate::train::desire::FOLDS
         );
     }
-    if let Some(c) = default_planner {
+    if let Some(c) = &verdict.default_planner {
         let _ = writeln!(
             card,
             "- default planner (`[planner] mode` unset or `learned`): serves **{}**: {}",
@@ -426,6 +557,20 @@ fn model_card(
     }
     for note in notes {
         let _ = writeln!(card, "- {note}");
+    }
+    if verdict.unmet.is_empty() {
+        let _ = writeln!(card, "- servable: what this run was asked for passed");
+    } else {
+        let _ = writeln!(
+            card,
+            "- **not servable**: {}{}",
+            verdict.unmet.join("; "),
+            if args.accept_failed {
+                " (written where planners load them anyway: --accept-failed)"
+            } else {
+                ""
+            }
+        );
     }
     let _ = writeln!(card);
     let _ = writeln!(card, "| file | kind | servable | metrics | checks |");

@@ -75,13 +75,7 @@ const DESIRE_CHECKS: [(&str, f64, bool); 2] = [
 /// The checks of a model of `kind` on its measured `metrics` (none for the
 /// classifiers and discriminators); a metric that is missing fails.
 pub fn checks(kind: Kind, metrics: &BTreeMap<String, f64>) -> Vec<Check> {
-    let table: &[(&str, f64, bool)] = match kind {
-        Kind::ConditionalGenerator => &CONDITIONAL_CHECKS,
-        Kind::Generator => &GENERATOR_CHECKS,
-        Kind::DesireLines => &DESIRE_CHECKS,
-        _ => &[],
-    };
-    table
+    table(kind)
         .iter()
         .map(|&(metric, bound, at_most)| Check {
             metric,
@@ -90,4 +84,20 @@ pub fn checks(kind: Kind, metrics: &BTreeMap<String, f64>) -> Vec<Check> {
             at_most,
         })
         .collect()
+}
+
+/// Whether a model of `kind` is held to checks of its own: the generators
+/// and the desire lines (a discriminator is written with its generator's
+/// figures, but is not what serves).
+pub fn held_to_checks(kind: Kind) -> bool {
+    !table(kind).is_empty()
+}
+
+fn table(kind: Kind) -> &'static [(&'static str, f64, bool)] {
+    match kind {
+        Kind::ConditionalGenerator => &CONDITIONAL_CHECKS,
+        Kind::Generator => &GENERATOR_CHECKS,
+        Kind::DesireLines => &DESIRE_CHECKS,
+        _ => &[],
+    }
 }

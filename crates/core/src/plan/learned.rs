@@ -12,27 +12,41 @@
 //! 2. the conditional generator ([`super::conditional`]), when it loads:
 //!    walks the lines did not learn from (simulated walks that come pair by
 //!    pair, where whole pairs are held out) are still the GAN's to learn;
-//! 3. A*, with a warning: nothing learned is servable for the site.
+//! 3. the paper's GAN and path classifier (Algorithm 1, [`super::rejection`]),
+//!    when both load and the generator's metadata says it passed its
+//!    training checks (walkable frames, not collapsed, frames the classifier
+//!    recognises: what Algorithm 1 needs to accept them). It comes after the
+//!    conditional generator because it answers only the pairs it was trained
+//!    on (others get the plain search, as in the `rejection` mode), but for
+//!    those it serves what the walks taught rather than the shortest route.
+//!    `gangway train` trains it by default, so its defaults leave a learned
+//!    planner even on walks the desire lines cannot learn from;
+//! 4. A*, with a warning: nothing learned is servable for the site.
 //!
 //! Which one answers, and why, is logged at start-up, written on the model
 //! card by `gangway train`, reported by `gangway eval planning` (`serves`,
 //! `serves_because`) and sent with every route (its `planner`). The explicit
 //! modes (`desire`, `conditional`, `rejection`: the paper's Algorithm 1,
-//! `astar`) are unaffected: they serve their model or fail naming its file.
+//! `astar`) are unaffected: they serve their model or fail naming its file,
+//! whatever its checks said.
 
 use std::path::Path;
 use std::sync::Arc;
 
-use super::{BuildError, Planner, PlannerConfig, PlannerMode, build_mode, desire};
+use super::{
+    BuildError, Planner, PlannerConfig, PlannerMode, build_mode, desire, rejection_generator,
+    rejection_with,
+};
 use crate::model::checks::{Check, checks};
-use crate::model::runtime::DesireModel;
-use crate::model::{Kind, ModelError};
+use crate::model::runtime::{DesireModel, PathGenerator, Rows};
+use crate::model::{Kind, Metadata, ModelError};
 use crate::site::Site;
 
 /// Which planner the default serves, and why.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Choice {
-    /// The mode that answers requests: desire, conditional or astar.
+    /// The mode that answers requests: desire, conditional, rejection or
+    /// astar.
     pub serves: PlannerMode,
     /// One sentence: what passed, or what was missing or failed.
     pub because: String,
@@ -94,33 +108,66 @@ pub fn build(
                 described(&failed)
             )
         }
-        Err(e) => missing_desire(desire_lines, &site, e),
+        Err(e) => missing("desire lines", desire_lines, e, |path| {
+            DesireModel::load(path, &site).map(|m| m.model().metadata().clone())
+        }),
     };
-    let (planner, serves, because) =
-        match build_mode(config, PlannerMode::Conditional, site.clone()) {
-            Ok(planner) => (
-                planner,
-                PlannerMode::Conditional,
+    let conditional_said = match build_mode(config, PlannerMode::Conditional, site.clone()) {
+        Ok(planner) => {
+            let because = format!(
+                "{desire_said}; the conditional generator ({}) serves",
+                config.models.conditional_generator.display()
+            );
+            let serves = PlannerMode::Conditional;
+            return Ok((planner, Choice { serves, because }));
+        }
+        Err(e) => format!("no conditional generator ({})", e.cause()),
+    };
+    let generator = &config.models.generator;
+    let rejection_said = match rejection_generator(config, &site) {
+        Ok(loaded) => {
+            let meta = loaded.model().metadata();
+            let failed = failed_checks(meta);
+            if failed.is_empty() {
+                let passed = described(&checks(Kind::Generator, &meta.metrics));
+                match rejection_with(config, site.clone(), loaded, PlannerMode::Learned) {
+                    Ok(planner) => {
+                        let because = format!(
+                            "{desire_said}; {conditional_said}; the unconditional generator ({}) \
+                             passed its training checks ({passed}): the paper's Algorithm 1 with \
+                             the path classifier ({}) serves the pairs it was trained on, the \
+                             plain search the others",
+                            generator.display(),
+                            config.models.path_classifier.display()
+                        );
+                        let serves = PlannerMode::Rejection;
+                        return Ok((planner, Choice { serves, because }));
+                    }
+                    Err(e) => format!("the paper's Algorithm 1 cannot serve ({})", e.cause()),
+                }
+            } else {
                 format!(
-                    "{desire_said}; the conditional generator ({}) serves",
-                    config.models.conditional_generator.display()
-                ),
-            ),
-            Err(e) => (
-                build_mode(config, PlannerMode::Astar, site)?,
-                PlannerMode::Astar,
-                format!(
-                    "{desire_said}; and no conditional generator ({}): nothing learned is \
-                     servable, A* serves (train the site's models with `gangway train`)",
-                    e.cause()
-                ),
-            ),
-        };
+                    "the unconditional generator ({}) failed its training checks: {}",
+                    generator.display(),
+                    described(&failed)
+                )
+            }
+        }
+        Err(e) => missing("unconditional generator", generator, e, |path| {
+            PathGenerator::load(path, &site, Rows::Batches).map(|g| g.model().metadata().clone())
+        }),
+    };
+    let because = format!(
+        "{desire_said}; {conditional_said}; {rejection_said}: nothing learned is servable, \
+         A* serves (train the site's models with `gangway train`)"
+    );
+    let planner = build_mode(config, PlannerMode::Astar, site)?;
+    let serves = PlannerMode::Astar;
     Ok((planner, Choice { serves, because }))
 }
 
 /// The checks a model's metadata says it failed.
-fn failed_checks(meta: &crate::model::Metadata) -> Vec<Check> {
+fn failed_checks(meta: &Metadata) -> Vec<Check> {
     checks(meta.kind, &meta.metrics)
         .into_iter()
         .filter(|c| !c.passed())
@@ -135,29 +182,35 @@ fn described(checks: &[Check]) -> String {
         .join(", ")
 }
 
-/// Why desire lines at `path` cannot serve: `error`, or, when the file is
+/// Why the `what` at `path` cannot serve: `error`, or, when the file is
 /// missing and training put a failed one in `failed/` beside it, what that
-/// one failed. A file simply not there yet is said plainly: it is the
-/// normal state of a site nobody has trained on, not a fault.
-fn missing_desire(path: &Path, site: &Site, error: ModelError) -> String {
+/// one failed (its metadata read by `load`). A file simply not there yet is
+/// said plainly: it is the normal state of a site nobody has trained on, not
+/// a fault.
+fn missing(
+    what: &str,
+    path: &Path,
+    error: ModelError,
+    load: impl Fn(&Path) -> Result<Metadata, ModelError>,
+) -> String {
     if let ModelError::Missing { .. } = error
         && let Some(dir) = path.parent()
         && let Some(name) = path.file_name()
     {
         let failed = dir.join("failed").join(name);
-        if let Ok(model) = DesireModel::load(&failed, site) {
+        if let Ok(meta) = load(&failed) {
             return format!(
-                "the desire lines failed their training check ({}: {})",
+                "the {what} did not pass the training checks ({}: {})",
                 failed.display(),
-                described(&failed_checks(model.model().metadata()))
+                described(&failed_checks(&meta))
             );
         }
     }
     match error {
         ModelError::Missing { .. } => format!(
-            "no desire lines trained for the site yet ({} would hold them)",
+            "no {what} trained for the site yet ({} would hold it)",
             path.display()
         ),
-        error => format!("no desire lines ({error})"),
+        error => format!("no {what} ({error})"),
     }
 }

@@ -8,7 +8,8 @@
 //!
 //! Modes (`[planner] mode`): `learned`, the default (the desire lines when
 //! they passed their training check on the site's walks, else the
-//! conditional GAN, else A*: [`learned`]), `astar` (shortest walk, no models), `desire`
+//! conditional GAN, else the paper's GAN and classifier when the GAN passed
+//! its checks, else A*: [`learned`]), `astar` (shortest walk, no models), `desire`
 //! (the line people walk between the two cells, learned from their walks:
 //! [`desire`]), `rejection` (the paper's Algorithm 1, bounded: [`rejection`])
 //! and `conditional` (the conditional GAN: [`conditional`]). The GAN modes
@@ -42,6 +43,7 @@ pub use route::{LinePoint, LineSource, Route, ServedLine, Waypoint};
 
 use crate::clock::Clock;
 use crate::model::ModelError;
+use crate::model::runtime::{DesireModel, PathClassifier, PathGenerator, Rows};
 use crate::site::{Cell, Site};
 
 /// Where a request wants to go: a named place or a cell.
@@ -389,7 +391,6 @@ pub fn build_mode(
     mode: PlannerMode,
     site: Arc<Site>,
 ) -> Result<Box<dyn Planner>, BuildError> {
-    use crate::model::runtime::{DesireModel, PathClassifier, PathGenerator, Rows};
     let context = |what: &'static str| {
         move |error| BuildError::Model {
             mode: mode.name(),
@@ -405,23 +406,9 @@ pub fn build_mode(
         }
         PlannerMode::Astar => Box::new(astar::AStar::new(site, config.connectivity)),
         PlannerMode::Rejection => {
-            let rows = Rows::for_batch(config.rejection.batch);
-            let generator = PathGenerator::load(&config.models.generator, &site, rows)
+            let generator = rejection_generator(config, &site)
                 .map_err(context("generator ([planner.models] generator)"))?;
-            let classifier = PathClassifier::load(&config.models.path_classifier, &site).map_err(
-                context("path classifier ([planner.models] path_classifier)"),
-            )?;
-            Box::new(
-                rejection::Rejection::new(
-                    site,
-                    config.connectivity,
-                    generator,
-                    classifier,
-                    config.rejection.clone(),
-                    config.clock,
-                )
-                .map_err(BuildError::Settings)?,
-            )
+            rejection_with(config, site, generator, mode)?
         }
         PlannerMode::Conditional => {
             let rows = Rows::for_batch(config.conditional.samples);
@@ -451,6 +438,47 @@ pub fn build_mode(
             ))
         }
     })
+}
+
+/// The configured unconditional generator, planned for the rejection
+/// mode's batch: loaded apart from [`rejection_with`] so that the learned
+/// planner can read its training checks before serving it.
+fn rejection_generator(config: &PlannerConfig, site: &Site) -> Result<PathGenerator, ModelError> {
+    PathGenerator::load(
+        &config.models.generator,
+        site,
+        Rows::for_batch(config.rejection.batch),
+    )
+}
+
+/// The paper's Algorithm 1 over `generator` and the configured path
+/// classifier, built for `mode` (named in its errors: `rejection`, or
+/// `learned` serving it).
+fn rejection_with(
+    config: &PlannerConfig,
+    site: Arc<Site>,
+    generator: PathGenerator,
+    mode: PlannerMode,
+) -> Result<Box<dyn Planner>, BuildError> {
+    let classifier =
+        PathClassifier::load(&config.models.path_classifier, &site).map_err(|error| {
+            BuildError::Model {
+                mode: mode.name(),
+                what: "path classifier ([planner.models] path_classifier)",
+                error,
+            }
+        })?;
+    Ok(Box::new(
+        rejection::Rejection::new(
+            site,
+            config.connectivity,
+            generator,
+            classifier,
+            config.rejection.clone(),
+            config.clock,
+        )
+        .map_err(BuildError::Settings)?,
+    ))
 }
 
 /// The paper's deviation score of a frame: (|G| − |G ∩ B|) / |B| for the
