@@ -442,31 +442,35 @@ fn print_model(t: &Trained, accept_failed: bool) {
     );
     // A discriminator carries its generator's checks, printed above.
     if held_to_checks(t.kind) {
-        let checks: Vec<String> = t
-            .checks
-            .iter()
-            .map(|c| {
-                format!(
-                    "{} {}",
-                    c.describe(),
-                    if c.passed() { "pass" } else { "FAIL" }
-                )
-            })
-            .collect();
-        println!("    checks: {}", checks.join(", "));
+        println!("    checks: {}", check_words(t).join(", "));
     }
-    let metrics: Vec<String> = t
-        .metrics
-        .iter()
-        .map(|(k, v)| format!("{k} {}", short(*v)))
-        .collect();
     println!(
         "    {} params, {:.1} KiB, {:.1} s: {}",
         t.parameters,
         t.bytes as f64 / 1024.0,
         t.seconds,
-        metrics.join(", ")
+        metric_words(t).join(", ")
     );
+}
+
+/// Each check of a written model, its figure against its bound and the
+/// verdict: "walkable_share 0.995 ≥ 0.9 pass".
+fn check_words(t: &Trained) -> Vec<String> {
+    t.checks
+        .iter()
+        .map(|c| {
+            let verdict = if c.passed() { "pass" } else { "FAIL" };
+            format!("{} {verdict}", c.describe())
+        })
+        .collect()
+}
+
+/// Each metric of a written model, shortened: "seconds 37.2".
+fn metric_words(t: &Trained) -> Vec<String> {
+    t.metrics
+        .iter()
+        .map(|(k, v)| format!("{k} {}", short(*v)))
+        .collect()
 }
 
 /// Which planner the default mode serves from the models in `dir`, built
@@ -576,22 +580,7 @@ fn model_card(
     let _ = writeln!(card, "| file | kind | servable | metrics | checks |");
     let _ = writeln!(card, "|---|---|---|---|---|");
     for t in written {
-        let metrics: Vec<String> = t
-            .metrics
-            .iter()
-            .map(|(k, v)| format!("{k} {}", short(*v)))
-            .collect();
-        let checks: Vec<String> = t
-            .checks
-            .iter()
-            .map(|c| {
-                format!(
-                    "{} {}",
-                    if c.passed() { "pass" } else { "FAIL" },
-                    c.describe()
-                )
-            })
-            .collect();
+        let (metrics, checks) = (metric_words(t), check_words(t));
         let _ = writeln!(
             card,
             "| `{}` | {} | {} | {} | {} |",

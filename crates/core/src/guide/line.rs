@@ -13,6 +13,7 @@
 
 use crate::plan::anyangle::GridPoint;
 use crate::plan::instructions::{Maneuver, maneuvers_along};
+use crate::plan::lines::nearest_on_segment;
 use crate::plan::{Profile, Route, ServedLine};
 use crate::site::{Cell, Site};
 
@@ -236,14 +237,7 @@ impl RouteLine {
         let mut nearest = f64::INFINITY;
         let mut progress = (f64::INFINITY, progress_m);
         for ((ax, ay), (bx, by), a0, a1) in self.segments(site) {
-            let (dx, dy) = (bx - ax, by - ay);
-            let len2 = dx * dx + dy * dy;
-            let f = if len2 > 0.0 {
-                (((x - ax) * dx + (y - ay) * dy) / len2).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let d = (ax + f * dx - x).hypot(ay + f * dy - y);
+            let (d, f) = nearest_on_segment([x, y], [ax, ay], [bx, by]);
             nearest = nearest.min(d);
             if a1 >= progress_m - back_m && d < progress.0 {
                 progress = (d, a0 + f * (a1 - a0));

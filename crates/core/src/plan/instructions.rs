@@ -28,6 +28,7 @@
 use serde::Serialize;
 
 use super::anyangle::{GridPoint, centre};
+use super::lines::nearest_on_segment;
 use super::route::kept_vertices;
 use super::{Profile, Route, ServedLine};
 use crate::site::{Cell, Site, Tile};
@@ -365,21 +366,12 @@ fn cells_along(line: &[GridPoint], arc: &[f64], cells: &[Cell]) -> Vec<f64> {
             cells[i - 1].distance(cell)
         };
         let reach = last + step + 1.0;
-        let [x, y] = centre(cell);
         let mut best = (f64::INFINITY, last, segment);
         for s in segment..line.len() - 1 {
             if arc[s] > reach {
                 break;
             }
-            let ([ax, ay], [bx, by]) = (line[s], line[s + 1]);
-            let (dx, dy) = (bx - ax, by - ay);
-            let len2 = dx * dx + dy * dy;
-            let f = if len2 > 0.0 {
-                (((x - ax) * dx + (y - ay) * dy) / len2).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let d = (ax + f * dx - x).hypot(ay + f * dy - y);
+            let (d, f) = nearest_on_segment(centre(cell), line[s], line[s + 1]);
             if d < best.0 {
                 best = (d, arc[s] + f * (arc[s + 1] - arc[s]), s);
             }

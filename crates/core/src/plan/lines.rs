@@ -60,6 +60,21 @@ impl Polyline {
     }
 }
 
+/// The point of the segment `a`–`b` nearest to `p`: its distance from `p`
+/// and how far along the segment it is (0 at `a`, 1 at `b`). Guidance
+/// projects fixes on a route's line with it, and instructions the route's
+/// cells.
+pub(crate) fn nearest_on_segment(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> (f64, f64) {
+    let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+    let len2 = dx * dx + dy * dy;
+    let f = if len2 > 0.0 {
+        (((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    ((a[0] + f * dx - p[0]).hypot(a[1] + f * dy - p[1]), f)
+}
+
 fn dist(a: [f64; 2], b: [f64; 2]) -> f64 {
     (a[0] - b[0]).hypot(a[1] - b[1])
 }
