@@ -21,6 +21,7 @@ mod guidance;
 mod hass;
 mod hass_discovery;
 mod localization;
+mod mqtt_acl;
 mod mqtt_embedded;
 mod mqtt_fleet;
 mod mqtt_guidance;

@@ -232,6 +232,13 @@ async fn fake_devices_are_bounded_and_their_trackers_withdrawn() {
         &broker,
         &format!("[ble]\nadapter = \"hci-gangway-test-none\"\n[limits]\nmax_devices = {MAX}\n"),
     );
+    // Every fake gets a tracker at its first fix here: what is bounded is
+    // the table, and each forgotten tracker is withdrawn (the gate that
+    // keeps fakes out of Home Assistant is the next test's).
+    append_mqtt(
+        &config.path,
+        "ha_min_fixes = 1\nha_new_trackers_per_minute = 1000\n",
+    );
     let trackers = "homeassistant/device_tracker/gw-test/#".to_owned();
     let mut filters = replies_and_stats();
     filters.push(trackers.clone());
@@ -294,6 +301,83 @@ async fn fake_devices_are_bounded_and_their_trackers_withdrawn() {
 
 async fn client_with(broker: &Broker, id: &str, filter: &str) -> Client {
     Client::connect(broker, id, &[filter]).await
+}
+
+/// Appends `lines` to the config's `[mqtt]` table (the last one).
+fn append_mqtt(config: &std::path::Path, lines: &str) {
+    let mut text = std::fs::read_to_string(config).unwrap();
+    text.push_str(lines);
+    std::fs::write(config, text).unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn made_up_ids_get_no_home_assistant_tracker_and_new_ones_come_at_the_capped_pace() {
+    const CAP: usize = 10;
+    let broker = Broker::start();
+    let config = gateway_config(
+        "gw-test",
+        &waldo(),
+        &broker,
+        "[ble]\nadapter = \"hci-gangway-test-none\"\n",
+    );
+    append_mqtt(
+        &config.path,
+        &format!("ha_new_trackers_per_minute = {CAP}\n"),
+    );
+    let trackers = "homeassistant/device_tracker/gw-test/#".to_owned();
+    let mut filters = replies_and_stats();
+    filters.push(trackers.clone());
+    let mut client = client(&broker, "test-flood", &filters).await;
+    let _gateway = Gateway::start(&config.path, &[]);
+    stats_where(&mut client, "the first stats", |_| true).await;
+    let uuid = "5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84";
+    let scan = json!([
+        {"uuid": uuid, "major": 1, "minor": 3008, "rssi": -55},
+        {"uuid": uuid, "major": 1, "minor": 3005, "rssi": -72},
+    ])
+    .to_string();
+    let send = async |client: &Client, device: &str, scans: usize| {
+        for _ in 0..scans {
+            client
+                .publish(&format!("{PREFIX}/scans/{device}"), scan.clone())
+                .await;
+            tokio::time::sleep(Duration::from_millis(2)).await;
+        }
+    };
+    // 500 made-up ids, two scans each (one fix): located, never announced.
+    for d in 0..500 {
+        send(&client, &format!("fake-{d}"), 2).await;
+    }
+    stats_where(&mut client, "stats with the fakes located", |s| {
+        s["fixes"].as_u64() >= Some(500)
+    })
+    .await;
+    // 3 × CAP ids that keep scanning for 10 s (a fix per window, every
+    // 2 s): CAP of them announced this minute.
+    for _ in 0..10 {
+        for d in 0..3 * CAP {
+            send(&client, &format!("patient-{d}"), 1).await;
+        }
+        tokio::time::sleep(Duration::from_secs(1)).await;
+    }
+    let stats = stats_where(&mut client, "stats with the patient ones refused", |s| {
+        s["trackers_refused"].as_u64() >= Some(2 * CAP as u64)
+    })
+    .await;
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    client.drain();
+    let announced: Vec<&str> = client
+        .seen
+        .iter()
+        .filter(|m| m.topic.starts_with("homeassistant/device_tracker/") && !m.payload.is_empty())
+        .map(|m| m.topic.as_str())
+        .collect();
+    assert_eq!(announced.len(), CAP, "{announced:?}; {stats}");
+    assert!(
+        announced.iter().all(|t| t.contains("/patient-")),
+        "{announced:?}"
+    );
+    assert_eq!(stats["announced"], CAP as u64, "{stats}");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -582,11 +666,13 @@ async fn the_gateway_puts_back_its_own_retained_topics_when_overwritten() {
     // A phone located: its tracker announced.
     let uuid = "5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84";
     let scan = json!([{"uuid": uuid, "major": 1, "minor": 3008, "rssi": -55}]).to_string();
-    for _ in 0..3 {
+    // Its third fix (`ha_min_fixes`; a fix per window of scans, every 2 s):
+    // its tracker announced.
+    for _ in 0..10 {
         client
             .publish(&format!("{PREFIX}/scans/phone-1"), scan.clone())
             .await;
-        tokio::time::sleep(Duration::from_millis(300)).await;
+        tokio::time::sleep(Duration::from_millis(1000)).await;
     }
     let tracker = "homeassistant/device_tracker/gw-test/phone-1/config";
     client

@@ -14,7 +14,7 @@ pub const HEARD_PUBLISHED: usize = 100;
 
 /// The counters in [`Stats`] that only grow, with a human name each (Home
 /// Assistant discovery makes one sensor per entry).
-pub const COUNTERS: [(&str, &str); 30] = [
+pub const COUNTERS: [(&str, &str); 31] = [
     ("sightings", "Sightings"),
     ("sightings_ignored", "Sightings ignored"),
     ("fixes", "Fixes"),
@@ -45,6 +45,7 @@ pub const COUNTERS: [(&str, &str); 30] = [
     ("disconnects", "Broker connections lost"),
     ("unpublishable", "Unpublishable messages"),
     ("scan_restarts", "Silent scan restarts"),
+    ("trackers_refused", "Home Assistant trackers refused"),
 ];
 
 /// Gauges (current values), with a human name each.
@@ -123,6 +124,9 @@ pub struct Stats {
     pub windows: u64,
     /// Devices with a Home Assistant tracker config on the broker.
     pub announced: u64,
+    /// Home Assistant trackers not announced: devices not in `[mqtt]
+    /// ha_devices`, and new trackers over `ha_new_trackers_per_minute`.
+    pub trackers_refused: u64,
     /// Route requests waiting to be planned.
     pub pending_requests: u64,
     /// Beacons heard since start (at most `[limits] max_devices`), and those

@@ -63,6 +63,13 @@ pub struct MqttConfig {
     /// Home Assistant MQTT discovery.
     pub ha_discovery: bool,
     pub discovery_prefix: String,
+    /// Which devices get a Home Assistant tracker (`mqtt::tracker_gate`):
+    /// device ids, or prefixes ending in `*`; empty, every device.
+    pub ha_devices: Vec<String>,
+    /// Located fixes a device needs before it gets a tracker.
+    pub ha_min_fixes: u32,
+    /// New trackers announced per minute at most.
+    pub ha_new_trackers_per_minute: u32,
     /// Seconds a graceful shutdown waits for queued and in-flight messages.
     pub shutdown_grace_s: f64,
     /// Other gateways' sightings further ahead of this gateway's clock are
@@ -98,6 +105,9 @@ impl Default for MqttConfig {
             stats_interval_s: 30.0,
             ha_discovery: true,
             discovery_prefix: "homeassistant".into(),
+            ha_devices: Vec::new(),
+            ha_min_fixes: 3,
+            ha_new_trackers_per_minute: 30,
             shutdown_grace_s: 5.0,
             max_clock_skew_s: super::inbound::DEFAULT_MAX_CLOCK_SKEW_S,
             espresense: None,
@@ -159,6 +169,14 @@ impl MqttConfig {
         }
         if !(self.max_clock_skew_s >= 0.0 && self.max_clock_skew_s.is_finite()) {
             return bad("`max_clock_skew_s` must be a non-negative number of seconds");
+        }
+        if self.ha_min_fixes == 0 || self.ha_new_trackers_per_minute == 0 {
+            return bad("`ha_min_fixes` and `ha_new_trackers_per_minute` must be at least 1");
+        }
+        if self.ha_devices.iter().any(|d| d.is_empty() || d == "*") {
+            return bad(
+                "`ha_devices` lists device ids or prefixes ending in `*`; leave it empty for every device",
+            );
         }
         if self.queue_max_messages == 0 || self.queue_max_bytes == 0 {
             return bad("`queue_max_messages` and `queue_max_bytes` must be positive");

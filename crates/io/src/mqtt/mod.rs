@@ -13,7 +13,8 @@
 //!   shared sightings) read into what the runtime consumes;
 //! - [`sightings`]: the shared-sightings payload between gateways of a site;
 //! - [`occupancy`]: the retained devices-per-place payload;
-//! - [`discovery`]: Home Assistant MQTT discovery;
+//! - [`discovery`]: Home Assistant MQTT discovery, and [`tracker_gate`]:
+//!   which devices get a tracker there;
 //! - [`broker`]: the embedded broker used when no url is configured.
 
 pub mod broker;
@@ -27,6 +28,7 @@ pub mod receivers;
 pub mod sightings;
 pub mod sink;
 pub(crate) mod source;
+pub(crate) mod tracker_gate;
 
 use std::time::Duration;
 

@@ -22,6 +22,7 @@ use super::discovery::Discovery;
 use super::inbound::Inbox;
 use super::occupancy::Occupancy;
 use super::source::MqttSource;
+use super::tracker_gate::{GateConfig, TrackerGate};
 use super::{Link, LinkStats, MqttError, sightings};
 use crate::locate::bounds::Bounds;
 use crate::publish::Output;
@@ -45,6 +46,8 @@ pub struct MqttSink {
     /// latest location.
     announced: HashMap<Arc<str>, f64>,
     announced_bounds: Bounds,
+    /// Which of the others get a tracker, and when.
+    gate: TrackerGate,
     /// Devices per named place (the gateway's sink only).
     occupancy: Option<Occupancy>,
     /// Wait for room rather than let the offline queue drop (a replay).
@@ -155,6 +158,15 @@ impl MqttSink {
             discovery_prefix: config.discovery_prefix.clone(),
             announced: HashMap::default(),
             announced_bounds: Bounds::new(identity.max_devices, identity.device_idle_s),
+            gate: TrackerGate::new(
+                GateConfig {
+                    listed: config.ha_devices.clone(),
+                    min_fixes: config.ha_min_fixes,
+                    per_minute: config.ha_new_trackers_per_minute,
+                },
+                identity.max_devices,
+                identity.device_idle_s,
+            ),
             occupancy: None,
             lossless,
             pending: Vec::new(),
@@ -177,14 +189,18 @@ impl MqttSink {
         self.link.publish_batch(std::mem::take(&mut self.pending));
     }
 
-    /// Notes a location of `device` at `t`; the first one announces it.
-    fn announce(&mut self, device: &str, t: f64) {
+    /// Notes a location of `device` at `t`, announcing the device when the
+    /// gate lets it through; whether it has a tracker.
+    fn announce(&mut self, device: &str, t: f64) -> bool {
         if self.discovery.is_none() {
-            return;
+            return false;
         }
         if let Some(seen) = self.announced.get_mut(device) {
             *seen = seen.max(t);
-            return;
+            return true;
+        }
+        if !self.gate.admit(device, t) {
+            return false;
         }
         self.hand_over();
         let discovery = self.discovery.as_ref().expect("checked above");
@@ -206,6 +222,7 @@ impl MqttSink {
         // lost it); the link keeps births by topic, so this costs one config.
         self.link
             .set_birth(&[discovery.device_tracker(device)], true);
+        true
     }
 
     /// Removes a forgotten device from the occupancy counts, and its tracker
@@ -215,6 +232,7 @@ impl MqttSink {
         if let Some(occupancy) = &mut self.occupancy {
             occupancy.forget(device);
         }
+        self.gate.forget(device);
         if self.discovery.is_some() && self.announced.remove(device).is_some() {
             self.hand_over();
             let discovery = self.discovery.as_ref().expect("checked above");
@@ -249,8 +267,9 @@ impl Sink for MqttSink {
         for output in outputs {
             match output {
                 Output::Location(location) => {
-                    if self.discovery.is_some() {
-                        self.announce(&location.device, location.t);
+                    // A tracker's state goes before the location that
+                    // carries its attributes; a device without one has none.
+                    if self.announce(&location.device, location.t) {
                         let (topic, state) = self
                             .discovery
                             .as_ref()
@@ -337,6 +356,7 @@ impl Sink for MqttSink {
         stats.reconnects = count(&link.reconnects);
         stats.mqtt = state(link);
         stats.announced = self.announced.len() as u64;
+        stats.trackers_refused = self.gate.refused();
     }
 
     fn has_room(&self) -> bool {
