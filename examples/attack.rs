@@ -364,6 +364,7 @@ async fn fakes(count: usize) {
         "health_max_ms": latencies.last(), "target_p99_ms": 200,
         "tracked": stats["tracked"], "windows": stats["windows"], "announced": stats["announced"],
         "evicted_devices": stats["evicted_devices"], "retained_tracker_configs": retained,
+        "trackers_refused": stats["trackers_refused"],
         "rate_limited": stats["rate_limited"], "inbound_dropped": stats["inbound_dropped"], "queue_dropped": stats["queue_dropped"],
         "max_devices": 10_000,
     }));

@@ -11,8 +11,11 @@
 //! log in real time
 //! (`gangway run --replay … --speed 1`), and publishes `--rate` route requests a
 //! second to random devices for `--seconds`, to the site's named places in
-//! turn (site, planner and topics come from `--config`). It prints one JSON object:
-//! requests sent and answered, request → reply latency p50/p99/max in ms (the
+//! turn (site, planner and topics come from `--config`). With
+//! `--reload-every-s S` it also sends the gateway SIGHUP (a reload of the
+//! same config) every S seconds of the measured span. It prints one JSON object:
+//! requests sent and answered (and answered with a route, not an error),
+//! request → reply latency p50/p99/max in ms (the
 //! client's clock: broker in, gateway, broker out), the gateway's CPU seconds
 //! and share of one core, and its RSS at the end and at its peak. Everything
 //! it starts, it stops.
@@ -45,6 +48,9 @@ struct Args {
     /// The gateway config (site, planner, topic prefix), relative to the repository.
     #[arg(long, default_value = "config/gangway.toml")]
     config: PathBuf,
+    /// Seconds between reloads (SIGHUP) during the measured span; 0: none.
+    #[arg(long, default_value_t = 0.0)]
+    reload_every_s: f64,
 }
 
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
@@ -107,7 +113,8 @@ async fn main() {
         .subscribe(topics.path("+"), QoS::AtLeastOnce)
         .await
         .unwrap();
-    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<(String, Instant)>();
+    // (request id, when the reply came, whether it is a route).
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<(String, Instant, bool)>();
     tokio::spawn(async move {
         loop {
             match eventloop.poll().await {
@@ -115,7 +122,8 @@ async fn main() {
                     let v: serde_json::Value =
                         serde_json::from_slice(&p.payload).unwrap_or_default();
                     if let Some(id) = v["request_id"].as_str() {
-                        let _ = tx.send((id.to_owned(), Instant::now()));
+                        let routed = v["waypoints"].is_array();
+                        let _ = tx.send((id.to_owned(), Instant::now(), routed));
                     }
                 }
                 Ok(_) => {}
@@ -130,10 +138,21 @@ async fn main() {
     let started = Instant::now();
     let mut sent: HashMap<String, Instant> = HashMap::new();
     let mut latencies = Vec::new();
+    let mut routed = 0usize;
     let interval = Duration::from_secs_f64(1.0 / args.rate as f64);
     let mut next = Instant::now();
     let mut n = 0u64;
+    let (mut reloads, mut next_reload) = (0u64, args.reload_every_s);
     while started.elapsed() < Duration::from_secs(args.seconds) {
+        if args.reload_every_s > 0.0 && started.elapsed().as_secs_f64() >= next_reload {
+            let status = Command::new("kill")
+                .args(["-HUP", &pid.to_string()])
+                .status()
+                .unwrap();
+            assert!(status.success(), "kill -HUP {pid}");
+            reloads += 1;
+            next_reload += args.reload_every_s;
+        }
         if Instant::now() >= next {
             let device = format!("walker-{:02}", (n * 7919) as usize % args.devices + 1);
             let id = format!("load-{n}");
@@ -150,9 +169,10 @@ async fn main() {
             n += 1;
             next += interval;
         }
-        while let Ok((id, at)) = rx.try_recv() {
+        while let Ok((id, at, route)) = rx.try_recv() {
             if let Some(t0) = sent.get(&id) {
                 latencies.push(at.duration_since(*t0).as_secs_f64() * 1e3);
+                routed += usize::from(route);
             }
         }
         tokio::time::sleep(Duration::from_millis(1)).await;
@@ -162,11 +182,12 @@ async fn main() {
     // Stragglers.
     let deadline = Instant::now() + Duration::from_secs(5);
     while latencies.len() < sent.len() && Instant::now() < deadline {
-        if let Ok(Some((id, at))) =
+        if let Ok(Some((id, at, route))) =
             tokio::time::timeout(Duration::from_millis(100), rx.recv()).await
             && let Some(t0) = sent.get(&id)
         {
             latencies.push(at.duration_since(*t0).as_secs_f64() * 1e3);
+            routed += usize::from(route);
         }
     }
     drop(gateway);
@@ -179,6 +200,9 @@ async fn main() {
         "seconds": measured,
         "requests_sent": sent.len(),
         "requests_answered": latencies.len(),
+        "requests_routed": routed,
+        "routed_share": routed as f64 / sent.len().max(1) as f64,
+        "reloads_sent": reloads,
         "latency_ms_p50": percentile(&latencies, 0.50),
         "latency_ms_p99": percentile(&latencies, 0.99),
         "latency_ms_max": latencies.last().copied().unwrap_or(f64::NAN),

@@ -930,7 +930,7 @@ impl Runtime {
                 None => {
                     let mut old = std::mem::replace(&mut self.state, new);
                     self.retired += old.pipeline.stats();
-                    old.pipeline.hand_heard_to(&mut self.state.pipeline);
+                    let kept = old.pipeline.hand_over_to(&mut self.state.pipeline);
                     let (before, after) = (&old.config.localizer, &self.state.config.localizer);
                     if before.recalibration != after.recalibration
                         || recalibrate::applies(before) != recalibrate::applies(after)
@@ -940,7 +940,8 @@ impl Runtime {
                     tracing::info!(
                         site = self.state.site.name,
                         site_hash = self.state.site.map_hash(),
-                        "reloaded config and site; tracks start afresh"
+                        tracks_kept = kept,
+                        "reloaded config and site"
                     );
                     self.counters.reloads += 1;
                     for sink in &mut self.sinks {

@@ -269,7 +269,15 @@ async fn the_daemon_serves_survives_bad_input_reloads_and_flushes_at_shutdown() 
     collected
         .stats("a refused reload", |s| s.reload_failures == 1)
         .await;
-    // Tracks start afresh after a reload: p1 is heard again, then served.
+    // Tracks carry over a reload: p1 is served where it was, unheard since.
+    feed.send(route("p1", "help desk", "r3b")).await.unwrap();
+    assert!(
+        collected
+            .wait_for("the reply to r3b", reply("r3b"))
+            .await
+            .is_ok(),
+        "p1 lost its track in the reload"
+    );
     feed.send(Input::Events(scans("p1", 200.0, 12)))
         .await
         .unwrap();

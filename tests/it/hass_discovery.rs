@@ -163,5 +163,16 @@ async fn occupancy_follows_the_locations_and_a_reload_replaces_the_place_sensors
             .all(|n| n == 0)
     );
     assert!(client.seen.len() > seen_before);
+    // Only what changed went out again: the new sensor, the removed one,
+    // nothing the broker already held (the status, the counters, the other
+    // places' sensors).
+    tokio::time::sleep(std::time::Duration::from_millis(500)).await;
+    client.drain();
+    let resent: Vec<&str> = client.seen[seen_before..]
+        .iter()
+        .filter(|m| m.topic.starts_with("homeassistant/") && m.topic.ends_with("/config"))
+        .map(|m| m.topic.as_str())
+        .collect();
+    assert_eq!(resent.len(), 2, "{resent:?}");
     assert_all_valid(&client.seen);
 }

@@ -235,22 +235,13 @@ async fn fake_devices_are_bounded_and_their_trackers_withdrawn() {
     // Every fake gets a tracker at its first fix here: what is bounded is
     // the table, and each forgotten tracker is withdrawn (the gate that
     // keeps fakes out of Home Assistant is the next test's).
-    append_mqtt(
+    let (trackers, mut client, _gateway, scan) = tracker_rig(
+        &broker,
         &config.path,
+        "test-fakes",
         "ha_min_fixes = 1\nha_new_trackers_per_minute = 1000\n",
-    );
-    let trackers = "homeassistant/device_tracker/gw-test/#".to_owned();
-    let mut filters = replies_and_stats();
-    filters.push(trackers.clone());
-    let mut client = client(&broker, "test-fakes", &filters).await;
-    let _gateway = Gateway::start(&config.path, &[]);
-    stats_where(&mut client, "the first stats", |_| true).await;
-    let uuid = "5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84";
-    let scan = json!([
-        {"uuid": uuid, "major": 1, "minor": 3008, "rssi": -55},
-        {"uuid": uuid, "major": 1, "minor": 3005, "rssi": -72},
-    ])
-    .to_string();
+    )
+    .await;
     for d in 0..FAKES {
         // Two scans: the second closes the first's window, a fix.
         for _ in 0..2 {
@@ -303,6 +294,32 @@ async fn client_with(broker: &Broker, id: &str, filter: &str) -> Client {
     Client::connect(broker, id, &[filter]).await
 }
 
+/// The gateway of `config` started with `mqtt_lines` added to its `[mqtt]`,
+/// and a client watching its replies, stats and Home Assistant trackers
+/// (once the first stats came); with the trackers' filter and a phone scan
+/// that hears two of the site's beacons.
+async fn tracker_rig(
+    broker: &Broker,
+    config: &std::path::Path,
+    client_id: &str,
+    mqtt_lines: &str,
+) -> (String, Client, Gateway, String) {
+    append_mqtt(config, mqtt_lines);
+    let trackers = "homeassistant/device_tracker/gw-test/#".to_owned();
+    let mut filters = replies_and_stats();
+    filters.push(trackers.clone());
+    let mut client = client(broker, client_id, &filters).await;
+    let gateway = Gateway::start(config, &[]);
+    stats_where(&mut client, "the first stats", |_| true).await;
+    let uuid = "5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84";
+    let scan = json!([
+        {"uuid": uuid, "major": 1, "minor": 3008, "rssi": -55},
+        {"uuid": uuid, "major": 1, "minor": 3005, "rssi": -72},
+    ])
+    .to_string();
+    (trackers, client, gateway, scan)
+}
+
 /// Appends `lines` to the config's `[mqtt]` table (the last one).
 fn append_mqtt(config: &std::path::Path, lines: &str) {
     let mut text = std::fs::read_to_string(config).unwrap();
@@ -320,22 +337,13 @@ async fn made_up_ids_get_no_home_assistant_tracker_and_new_ones_come_at_the_capp
         &broker,
         "[ble]\nadapter = \"hci-gangway-test-none\"\n",
     );
-    append_mqtt(
+    let (_, mut client, _gateway, scan) = tracker_rig(
+        &broker,
         &config.path,
+        "test-flood",
         &format!("ha_new_trackers_per_minute = {CAP}\n"),
-    );
-    let trackers = "homeassistant/device_tracker/gw-test/#".to_owned();
-    let mut filters = replies_and_stats();
-    filters.push(trackers.clone());
-    let mut client = client(&broker, "test-flood", &filters).await;
-    let _gateway = Gateway::start(&config.path, &[]);
-    stats_where(&mut client, "the first stats", |_| true).await;
-    let uuid = "5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84";
-    let scan = json!([
-        {"uuid": uuid, "major": 1, "minor": 3008, "rssi": -55},
-        {"uuid": uuid, "major": 1, "minor": 3005, "rssi": -72},
-    ])
-    .to_string();
+    )
+    .await;
     let send = async |client: &Client, device: &str, scans: usize| {
         for _ in 0..scans {
             client

@@ -374,7 +374,11 @@ fn bad_walk_files_failed_training_and_missing_models_say_so() {
     assert!(!models.join("conditional_generator.onnx").exists());
     assert!(models.join("failed/conditional_generator.onnx").is_file());
     let card = std::fs::read_to_string(models.join("MODEL_CARD.md")).unwrap();
-    assert!(card.contains("FAIL endpoint_hit_share"), "{card}");
+    assert!(
+        card.split(['|', ';'])
+            .any(|check| check.contains("endpoint_hit_share") && check.trim_end().ends_with("FAIL")),
+        "{card}"
+    );
     // Without models A* serves from the site alone.
     let route = gangway_ok(&[
         "plan",

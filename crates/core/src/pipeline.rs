@@ -334,11 +334,21 @@ impl Pipeline {
         self.site.beacons.iter().map(|b| b.beacon).collect()
     }
 
-    /// Hands what this pipeline heard on to the one replacing it (a reload),
-    /// so that the list does not start afresh with the tracks.
-    pub fn hand_heard_to(&mut self, next: &mut Pipeline) {
+    /// Hands what this pipeline keeps per device on to the one replacing
+    /// it (a reload), so that nothing starts afresh that the new site can
+    /// still use: what was heard; the tracks (moved where the grid is the
+    /// same, else restarted from their last place in metres:
+    /// `Tracker::take_over`), so devices keep their location and their
+    /// route requests their `from`; and, on the same grid, the guided
+    /// sessions. Fingerprint windows start afresh (they last one window).
+    /// Returns how many tracks were kept.
+    pub fn hand_over_to(&mut self, next: &mut Pipeline) -> usize {
         let heard = std::mem::replace(&mut self.heard, HeardTable::new(1));
         next.heard.absorb(heard);
+        if next.site.same_grid(&self.site) {
+            next.guide.take_over(&mut self.guide);
+        }
+        next.tracker.take_over(&mut self.tracker)
     }
 
     /// Number of entities with a track.

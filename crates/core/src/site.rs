@@ -915,6 +915,13 @@ impl Site {
         &self.map_hash
     }
 
+    /// Whether `other` has the same grid: the same tiles in the same place
+    /// in the world, so a cell (and an index into the open cells) means the
+    /// same on both.
+    pub fn same_grid(&self, other: &Site) -> bool {
+        self.map_hash == other.map_hash && self.frame == other.frame
+    }
+
     /// The map as text, one row per line, as in the site file.
     pub fn map_text(&self) -> String {
         let mut out = String::with_capacity(self.tiles.len() + usize::from(self.height));

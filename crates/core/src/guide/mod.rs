@@ -377,6 +377,22 @@ impl Guide {
         self.sessions.is_empty()
     }
 
+    /// After a reload onto the same grid: takes over the sessions of `old`,
+    /// the guide being replaced (at most this guide's `max_sessions`, the
+    /// most recently updated first), and the adherence of those finished.
+    /// On another grid the routes' cells may no longer be walkable, so the
+    /// sessions end with the old guide: their devices ask again.
+    pub(crate) fn take_over(&mut self, old: &mut Guide) {
+        let mut sessions: Vec<(String, Session)> = old.sessions.drain().collect();
+        sessions.sort_by(|a, b| b.1.last_t().total_cmp(&a.1.last_t()));
+        sessions.truncate(self.config.max_sessions);
+        self.sessions.extend(sessions);
+        self.finished.extend(old.finished.drain(..));
+        while self.finished.len() > self.config.max_sessions {
+            self.finished.pop_front();
+        }
+    }
+
     pub(crate) fn session(&self, device: &str) -> Option<&Session> {
         self.sessions.get(device)
     }

@@ -200,6 +200,46 @@ impl Tracker {
         self.tracks.len()
     }
 
+    /// After a reload: takes over the tracks of `old`, the tracker being
+    /// replaced, so devices keep their place (and a route request its
+    /// `from`) instead of starting afresh. On the same grid the tracks move
+    /// as they are. On another, each restarts from its last fix's place in
+    /// metres: all its belief on the new site's open cell there, its time
+    /// and confidence kept; a track whose place the new site does not have
+    /// (off its grid, or not walkable) is forgotten. Returns how many were
+    /// kept.
+    pub(crate) fn take_over(&mut self, old: &mut Tracker) -> usize {
+        let tracks = std::mem::take(&mut old.tracks);
+        if self.site.same_grid(&old.site) {
+            self.tracks = tracks;
+            return self.tracks.len();
+        }
+        for (id, track) in tracks {
+            let place = old.site.world_of_cell(track.fix.cell);
+            let Some(cell) = self.site.cell_of_world(place) else {
+                continue;
+            };
+            let Some(index) = self.site.open_index(cell) else {
+                continue;
+            };
+            let mut belief = vec![0.0; self.neighbours.len()];
+            belief[index] = 1.0;
+            let fix = Fix {
+                cell,
+                confidence: track.fix.confidence,
+                mean: [f32::from(cell.x) + 0.5, f32::from(cell.y) + 0.5],
+            };
+            let moved = Track {
+                t: track.t,
+                belief,
+                walking: Sparse::default(),
+                fix,
+            };
+            self.tracks.insert(id, moved);
+        }
+        self.tracks.len()
+    }
+
     /// Heap bytes of an entity's belief given its expected walk (none
     /// while it has none).
     pub(crate) fn walking_bytes(&self, entity: &str) -> usize {
@@ -830,6 +870,34 @@ mod tests {
         let next = tracker.update(&me, 1.0, &peak_at(&site, Cell::new(4, 0), 2.0));
         assert_ne!(next.cell, Cell::new(4, 0));
         assert!(next.cell.x <= 2, "stays in the first room: {:?}", next.cell);
+    }
+
+    #[test]
+    fn a_reload_keeps_the_tracks_the_new_site_can_place() {
+        let old_site = site();
+        let mut old = Tracker::new(TrackerConfig::default(), old_site.clone());
+        let (a, b): (Arc<str>, Arc<str>) = ("a".into(), "b".into());
+        let fix_a = old.update(&a, 0.0, &peak_at(&old_site, Cell::new(1, 0), 10.0));
+        old.update(&b, 0.0, &peak_at(&old_site, Cell::new(6, 0), 10.0));
+        // The same grid: the tracks move as they are.
+        let mut same = Tracker::new(TrackerConfig::default(), site());
+        assert_eq!(same.take_over(&mut old), 2);
+        assert_eq!(same.last_fix("a"), Some(fix_a));
+        // A grid one column narrower, the second room walled off: a keeps
+        // its place, b's is gone.
+        let text = "name = \"t\"\ncell_m = 1.0\nmap = '''\n###.#.\n###.#.\n######\n'''\n";
+        let narrower = Arc::new(Site::parse(text, Path::new("t.toml")).unwrap());
+        let mut moved = Tracker::new(TrackerConfig::default(), narrower.clone());
+        assert_eq!(moved.take_over(&mut same), 1);
+        let fix = moved.last_fix("a").unwrap();
+        assert_eq!(
+            (fix.cell, fix.confidence),
+            (Cell::new(1, 0), fix_a.confidence)
+        );
+        assert!(moved.last_fix("b").is_none());
+        // And it tracks on from there.
+        let next = moved.update(&a, 1.0, &peak_at(&narrower, Cell::new(1, 0), 10.0));
+        assert_eq!(next.cell, Cell::new(1, 0));
     }
 
     #[test]

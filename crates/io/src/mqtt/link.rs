@@ -262,8 +262,10 @@ impl Link {
     }
 
     /// Adds (or replaces, by topic) messages sent (before the queue) after
-    /// every connect; with `send_now` they are also sent on the current
-    /// connection. Costs the messages given, not the birth already kept.
+    /// every connect; with `send_now` those that are new or changed are also
+    /// sent on the current connection (a reload re-states every discovery
+    /// config; only what changed goes out). Costs the messages given, not
+    /// the birth already kept.
     pub(crate) fn set_birth(&self, messages: &[crate::topics::Message], send_now: bool) {
         let birth = messages
             .iter()
@@ -407,7 +409,13 @@ impl Controller {
                     Some(Command::Birth(birth, send_now)) => {
                         let connected = self.is_connected();
                         for m in birth {
-                            if send_now && connected {
+                            // The broker holds the same retained message
+                            // already (a reload re-states every discovery
+                            // config): sent only when new or changed.
+                            let changed = self.birth.get(&m.topic).is_none_or(|old| {
+                                old.payload != m.payload || old.retain != m.retain
+                            });
+                            if send_now && connected && changed {
                                 self.queue.push(m.clone());
                             }
                             if !self.birth.contains_key(&m.topic) {
