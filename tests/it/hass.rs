@@ -434,7 +434,8 @@ async fn home_assistant_tracks_counts_and_routes_what_the_gateway_publishes() {
     }
 
     // State and attributes of each location of a device with a tracker
-    // (from its third location on: `[mqtt] ha_min_fixes`, default 3): the
+    // (from its third location with a cell on: `[mqtt] ha_min_fixes`,
+    // default 3): the
     // first change that carries its attributes (its presence came just
     // before, so the state is set).
     let mut located: BTreeMap<&str, usize> = BTreeMap::new();
@@ -442,7 +443,7 @@ async fn home_assistant_tracks_counts_and_routes_what_the_gateway_publishes() {
         .iter()
         .filter(|l| {
             let count = located.entry(l["device"].as_str().unwrap()).or_default();
-            *count += 1;
+            *count += usize::from(!l["cell"].is_null());
             *count >= 3
         })
         .collect();

@@ -135,7 +135,11 @@ async fn the_brokers_acl_ties_every_topic_to_its_account() {
         .topic;
 
     // A phone asks for its own route: answered.
-    let walker_01 = Client::connect_with(login(&broker, "walker-01"), &[]).await;
+    let mut walker_01 = Client::connect_with(
+        login(&broker, "walker-01"),
+        &[&format!("{PREFIX}/devices/walker-01/#")],
+    )
+    .await;
     let request = |id: &str| serde_json::json!({"to": "help desk", "request_id": id}).to_string();
     walker_01
         .publish(
@@ -147,7 +151,12 @@ async fn the_brokers_acl_ties_every_topic_to_its_account() {
     assert!(reply["waypoints"].is_array(), "{reply}");
 
     // Another phone (a visitor) forges all it can; its own request comes last.
-    let visitor = Client::connect_with(login(&broker, "visitor"), &[]).await;
+    // It may read what the gateway says about walker-01 no more than write.
+    let mut visitor = Client::connect_with(
+        login(&broker, "visitor"),
+        &[&format!("{PREFIX}/devices/walker-01/#"), "gangway/#"],
+    )
+    .await;
     let forged: Vec<(String, Vec<u8>, bool)> = vec![
         (
             format!("{PREFIX}/devices/walker-01/route/set"),
@@ -219,6 +228,16 @@ async fn the_brokers_acl_ties_every_topic_to_its_account() {
         .await;
     let reply = operator.reply(PREFIX, "walker-01", "own-3").await;
     assert!(reply["waypoints"].is_array(), "{reply}");
+    // walker-01 reads its own replies; the visitor only its own.
+    walker_01.reply(PREFIX, "walker-01", "own-3").await;
+    visitor.drain();
+    let read: Vec<&str> = visitor.seen.iter().map(|m| m.topic.as_str()).collect();
+    assert!(
+        read.iter()
+            .all(|t| t.starts_with(&format!("{PREFIX}/devices/visitor/"))),
+        "the visitor read {read:?}"
+    );
+    assert!(!read.is_empty(), "the visitor got not even its own reply");
     operator.drain();
     for (topic, payload, _) in &forged {
         let leaked = operator

@@ -19,7 +19,7 @@ use crate::guide::{GuidanceConfig, GuidanceEvent, Guide, Located};
 use crate::locate::tracker::{Tracker, TrackerConfig};
 use crate::locate::window::{Fingerprint, Orientation, WindowConfig, Windows};
 use crate::locate::{self, Localizer};
-use crate::plan::{self, Planner, PlannerConfig, Profile, Route, RouteErrorCode};
+use crate::plan::{self, Planner, PlannerConfig, Profile, RouteErrorCode};
 use crate::publish::{
     ErrorBody, LOCATION_SCHEMA, Location, Output, PATH_SCHEMA, RouteBody, RouteOutcome, RouteReply,
 };
@@ -340,14 +340,15 @@ impl Pipeline {
     /// same, else restarted from their last place in metres:
     /// `Tracker::take_over`), so devices keep their location and their
     /// route requests their `from`; and, on the same grid, the guided
-    /// sessions. Fingerprint windows start afresh (they last one window).
+    /// sessions (on another they end, `Guide::take_over`). Tracks and
+    /// sessions that end are reported with the next outputs (forgotten,
+    /// adherence). Fingerprint windows start afresh (they last one window).
     /// Returns how many tracks were kept.
     pub fn hand_over_to(&mut self, next: &mut Pipeline) -> usize {
         let heard = std::mem::replace(&mut self.heard, HeardTable::new(1));
         next.heard.absorb(heard);
-        if next.site.same_grid(&self.site) {
-            next.guide.take_over(&mut self.guide);
-        }
+        next.guide
+            .take_over(&mut self.guide, next.site.same_grid(&self.site));
         next.tracker.take_over(&mut self.tracker)
     }
 
@@ -509,11 +510,8 @@ impl Pipeline {
         body: &RouteBody,
         rerouted: bool,
     ) -> crate::guide::Guidance {
-        let route = Route {
-            cells: body.waypoints.iter().map(|w| w.cell).collect(),
-        };
+        let (route, line) = body.route_and_line(&self.site);
         let profile = Profile::parse(body.profile).unwrap_or_default();
-        let line = body.line_in_cells(&self.site);
         self.guide.start(
             &self.site,
             &reply.device,

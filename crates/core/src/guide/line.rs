@@ -49,7 +49,8 @@ pub struct RouteLine {
 
 impl RouteLine {
     /// `route` walked along its cells' centres.
-    pub fn new(site: &Site, route: &Route) -> RouteLine {
+    #[cfg(test)]
+    pub(crate) fn new(site: &Site, route: &Route) -> RouteLine {
         RouteLine::along(site, route, &ServedLine::of_cells(route).points)
     }
 

@@ -183,7 +183,8 @@ pub enum Ending {
     Cancelled,
     Expired,
     /// A new request of the device replaced it (or, the table being full,
-    /// another device's session needed its room).
+    /// another device's session needed its room, or a reload onto another
+    /// grid ended it).
     Replaced,
 }
 
@@ -377,15 +378,24 @@ impl Guide {
         self.sessions.is_empty()
     }
 
-    /// After a reload onto the same grid: takes over the sessions of `old`,
-    /// the guide being replaced (at most this guide's `max_sessions`, the
-    /// most recently updated first), and the adherence of those finished.
-    /// On another grid the routes' cells may no longer be walkable, so the
-    /// sessions end with the old guide: their devices ask again.
-    pub(crate) fn take_over(&mut self, old: &mut Guide) {
+    /// After a reload: takes over the sessions of `old`, the guide being
+    /// replaced, when the new site has the same grid (at most this guide's
+    /// `max_sessions`, the most recently updated first), and the adherence
+    /// of those finished. On another grid the routes' cells may no longer
+    /// be walkable: the sessions end `replaced`, their adherence kept, and
+    /// their devices ask again.
+    pub(crate) fn take_over(&mut self, old: &mut Guide, same_grid: bool) {
         let mut sessions: Vec<(String, Session)> = old.sessions.drain().collect();
         sessions.sort_by(|a, b| b.1.last_t().total_cmp(&a.1.last_t()));
-        sessions.truncate(self.config.max_sessions);
+        let keep = if same_grid {
+            self.config.max_sessions.min(sessions.len())
+        } else {
+            0
+        };
+        for (device, session) in &sessions[keep..] {
+            old.finish(device, session, session.last_t(), Ending::Replaced);
+        }
+        sessions.truncate(keep);
         self.sessions.extend(sessions);
         self.finished.extend(old.finished.drain(..));
         while self.finished.len() > self.config.max_sessions {

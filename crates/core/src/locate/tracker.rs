@@ -206,20 +206,27 @@ impl Tracker {
     /// as they are. On another, each restarts from its last fix's place in
     /// metres: all its belief on the new site's open cell there, its time
     /// and confidence kept; a track whose place the new site does not have
-    /// (off its grid, or not walkable) is forgotten. Returns how many were
-    /// kept.
+    /// (off its grid, or not walkable) is forgotten, and reported so with
+    /// those `old` forgot and nobody took yet ([`Tracker::take_evicted`]).
+    /// Returns how many were kept.
     pub(crate) fn take_over(&mut self, old: &mut Tracker) -> usize {
         let tracks = std::mem::take(&mut old.tracks);
+        self.evicted.extend(old.evicted.drain(..));
         if self.site.same_grid(&old.site) {
             self.tracks = tracks;
             return self.tracks.len();
         }
         for (id, track) in tracks {
             let place = old.site.world_of_cell(track.fix.cell);
-            let Some(cell) = self.site.cell_of_world(place) else {
-                continue;
-            };
-            let Some(index) = self.site.open_index(cell) else {
+            let index = self
+                .site
+                .cell_of_world(place)
+                .and_then(|cell| Some((cell, self.site.open_index(cell)?)));
+            let Some((cell, index)) = index else {
+                if self.evicted.len() >= MAX_EVICTED_KEPT {
+                    self.evicted.pop_front();
+                }
+                self.evicted.push_back(id);
                 continue;
             };
             let mut belief = vec![0.0; self.neighbours.len()];
@@ -895,6 +902,7 @@ mod tests {
             (Cell::new(1, 0), fix_a.confidence)
         );
         assert!(moved.last_fix("b").is_none());
+        assert_eq!(moved.take_evicted(), vec![b.clone()]);
         // And it tracks on from there.
         let next = moved.update(&a, 1.0, &peak_at(&narrower, Cell::new(1, 0), 10.0));
         assert_eq!(next.cell, Cell::new(1, 0));

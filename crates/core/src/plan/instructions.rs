@@ -260,13 +260,18 @@ pub(crate) fn maneuvers_along(
             let at = if v + 1 == line.len() {
                 cells.len() - 1
             } else {
-                (after..cells.len())
-                    .min_by(|&i, &j| {
-                        (cell_arc[i] - arc[v])
-                            .abs()
-                            .total_cmp(&(cell_arc[j] - arc[v]).abs())
-                    })
-                    .expect("cells after the last corner")
+                // The cells' places along the line only grow: the nearest
+                // is at most one past the corner's place.
+                let mut nearest = after;
+                for i in after..cells.len() {
+                    if (cell_arc[i] - arc[v]).abs() < (cell_arc[nearest] - arc[v]).abs() {
+                        nearest = i;
+                    }
+                    if cell_arc[i] > arc[v] {
+                        break;
+                    }
+                }
+                nearest
             };
             after = at;
             (line[v], arc[v], at)

@@ -82,8 +82,9 @@ impl ServedLine {
         // Dropping a vertex moves the line by a hundredth of a cell, which
         // can still touch a corner the drawn line kept clear of: the drawn
         // line is served then.
-        [simple, drawn.to_vec()]
-            .into_iter()
+        let fallback = (simple.len() < drawn.len()).then(|| drawn.to_vec());
+        std::iter::once(simple)
+            .chain(fallback)
             .find(|line| walkable_line(site, profile, line, &planned.route.cells))
             .map_or_else(
                 || cells_line(LineSource::Fallback),
@@ -129,8 +130,19 @@ impl ServedLine {
 /// centre of its last through only cells on the grid that are walkable and
 /// that `profile` may use, the two cells beside every corner it crosses
 /// exactly included (a line through a corner between two walls goes
-/// through the wall).
+/// through the wall), and never further than a step from the route's
+/// `cells` (the waypoints are the cells it crosses, and maneuvers, places
+/// and junctions are looked up on them).
 fn walkable_line(site: &Site, profile: Profile, line: &[GridPoint], cells: &[Cell]) -> bool {
+    let route: std::collections::HashSet<Cell> = cells.iter().copied().collect();
+    let near_route = |cell: Cell| {
+        (-1i32..=1).any(|dy| {
+            (-1i32..=1).any(|dx| {
+                let (x, y) = (i32::from(cell.x) + dx, i32::from(cell.y) + dy);
+                matches!((u16::try_from(x), u16::try_from(y)), (Ok(x), Ok(y)) if route.contains(&Cell::new(x, y)))
+            })
+        })
+    };
     let at = |p: Option<&GridPoint>, c: Option<&Cell>| match (p, c) {
         (Some(p), Some(&c)) => {
             let want = centre(c);
@@ -143,7 +155,10 @@ fn walkable_line(site: &Site, profile: Profile, line: &[GridPoint], cells: &[Cel
             return false;
         };
         let cell = Cell::new(x, y);
-        site.contains(cell) && site.walkable(cell) && profile.passable(site, cell)
+        site.contains(cell)
+            && site.walkable(cell)
+            && profile.passable(site, cell)
+            && near_route(cell)
     };
     at(line.first(), cells.first())
         && at(line.last(), cells.last())
@@ -346,6 +361,17 @@ mod tests {
         // A line that stops short of the destination's centre.
         let short = vec![[0.5, 0.5], [1.5, 1.5], [2.4, 0.6]];
         let served = ServedLine::of(&site, &planned(&around, Some(short)), Profile::Default);
+        assert_eq!(served.source, LineSource::Fallback);
+        // A line the route's cells do not follow (the route goes round by
+        // the bottom row, the line straight along the top).
+        let site = Site::of_map("######\n######\n######\n######\n######\n");
+        let round: Vec<(u16, u16)> = [(0, 0), (0, 1), (0, 2), (0, 3)]
+            .into_iter()
+            .chain((1..5).map(|x| (x, 4)))
+            .chain([(5, 3), (5, 2), (5, 1), (5, 0)])
+            .collect();
+        let straight = vec![[0.5, 0.5], [5.5, 0.5]];
+        let served = ServedLine::of(&site, &planned(&round, Some(straight)), Profile::Default);
         assert_eq!(served.source, LineSource::Fallback);
     }
 }

@@ -176,12 +176,26 @@ impl RouteBody {
 }
 
 impl RouteBody {
-    /// The line to walk in cell units, as guidance follows it.
-    pub fn line_in_cells(&self, site: &crate::site::Site) -> Vec<crate::plan::anyangle::GridPoint> {
-        self.line
-            .iter()
-            .map(|p| crate::plan::anyangle::point_of_world(site, [p.x_m, p.y_m]))
-            .collect()
+    /// The route's cells and the line to walk in cell units, as guidance
+    /// follows them: a line the planner drew read back from metres, else
+    /// the cells' own line exactly (read back from metres it would differ
+    /// from it in the last bits, and guidance would hold it as a drawn line).
+    pub fn route_and_line(
+        &self,
+        site: &crate::site::Site,
+    ) -> (crate::plan::Route, Vec<crate::plan::anyangle::GridPoint>) {
+        let route = crate::plan::Route {
+            cells: self.waypoints.iter().map(|w| w.cell).collect(),
+        };
+        let line = match self.line_from {
+            crate::plan::LineSource::Planner => self
+                .line
+                .iter()
+                .map(|p| crate::plan::anyangle::point_of_world(site, [p.x_m, p.y_m]))
+                .collect(),
+            _ => crate::plan::ServedLine::of_cells(&route).points,
+        };
+        (route, line)
     }
 }
 

@@ -45,7 +45,7 @@ pub const COUNTERS: [(&str, &str); 31] = [
     ("disconnects", "Broker connections lost"),
     ("unpublishable", "Unpublishable messages"),
     ("scan_restarts", "Silent scan restarts"),
-    ("trackers_refused", "Home Assistant trackers refused"),
+    ("trackers_refused", "Fixes refused a Home Assistant tracker"),
 ];
 
 /// Gauges (current values), with a human name each.
@@ -124,8 +124,8 @@ pub struct Stats {
     pub windows: u64,
     /// Devices with a Home Assistant tracker config on the broker.
     pub announced: u64,
-    /// Home Assistant trackers not announced: devices not in `[mqtt]
-    /// ha_devices`, and new trackers over `ha_new_trackers_per_minute`.
+    /// Located fixes that did not make a Home Assistant tracker: of devices
+    /// not in `[mqtt] ha_devices`, and over `ha_new_trackers_per_minute`.
     pub trackers_refused: u64,
     /// Route requests waiting to be planned.
     pub pending_requests: u64,

@@ -189,9 +189,10 @@ impl MqttSink {
         self.link.publish_batch(std::mem::take(&mut self.pending));
     }
 
-    /// Notes a location of `device` at `t`, announcing the device when the
-    /// gate lets it through; whether it has a tracker.
-    fn announce(&mut self, device: &str, t: f64) -> bool {
+    /// Notes a location of `device` at `t` (`located`: with a cell, not
+    /// unknown), announcing the device when the gate lets a located one
+    /// through; whether it has a tracker.
+    fn announce(&mut self, device: &str, t: f64, located: bool) -> bool {
         if self.discovery.is_none() {
             return false;
         }
@@ -199,7 +200,7 @@ impl MqttSink {
             *seen = seen.max(t);
             return true;
         }
-        if !self.gate.admit(device, t) {
+        if !(located && self.gate.admit(device, t)) {
             return false;
         }
         self.hand_over();
@@ -269,7 +270,7 @@ impl Sink for MqttSink {
                 Output::Location(location) => {
                     // A tracker's state goes before the location that
                     // carries its attributes; a device without one has none.
-                    if self.announce(&location.device, location.t) {
+                    if self.announce(&location.device, location.t, location.cell.is_some()) {
                         let (topic, state) = self
                             .discovery
                             .as_ref()

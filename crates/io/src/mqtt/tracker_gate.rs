@@ -48,8 +48,8 @@ impl TrackerGate {
         }
     }
 
-    /// A located fix at `t` of a device that has no tracker yet: whether
-    /// to announce it now.
+    /// A located fix (not an unknown one) at `t` of a device that has no
+    /// tracker yet: whether to announce it now.
     pub(crate) fn admit(&mut self, device: &str, t: f64) -> bool {
         if !self.listed(device) {
             self.refused += 1;
@@ -88,8 +88,8 @@ impl TrackerGate {
         self.waiting.remove(device);
     }
 
-    /// Announcements refused so far: unlisted devices, and fixes over the
-    /// per-minute cap.
+    /// Located fixes refused so far: of unlisted devices, and over the
+    /// per-minute cap (a device refused at each of its fixes counts each).
     pub(crate) fn refused(&self) -> u64 {
         self.refused
     }

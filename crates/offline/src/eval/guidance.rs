@@ -132,7 +132,8 @@ impl Served {
         let RouteOutcome::Route(body) = &reply.outcome else {
             return None;
         };
-        let cells: Vec<Cell> = body.waypoints.iter().map(|w| w.cell).collect();
+        let (route, line) = body.route_and_line(site);
+        let cells = route.cells.clone();
         let decisions: Vec<(Cell, f64)> = body
             .maneuvers
             .iter()
@@ -140,13 +141,7 @@ impl Served {
             .map(|m| (m.at, m.along_m))
             .collect();
         Some(Served {
-            line: RouteLine::along(
-                site,
-                &Route {
-                    cells: cells.clone(),
-                },
-                &body.line_in_cells(site),
-            ),
+            line: RouteLine::along(site, &route, &line),
             cells,
             passed: vec![false; decisions.len()],
             announced: vec![None; decisions.len()],
