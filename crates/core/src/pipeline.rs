@@ -340,13 +340,15 @@ impl Pipeline {
     /// same, else restarted from their last place in metres:
     /// `Tracker::take_over`), so devices keep their location and their
     /// route requests their `from`; and, on the same grid, the guided
-    /// sessions (on another they end, `Guide::take_over`). Tracks and
-    /// sessions that end are reported with the next outputs (forgotten,
-    /// adherence). Fingerprint windows start afresh (they last one window).
-    /// Returns how many tracks were kept.
+    /// sessions (on another they end, `Guide::take_over`); the open
+    /// fingerprint windows where the anchors are the same
+    /// (`Windows::take_over`). Tracks and sessions that end are reported
+    /// with the next outputs (forgotten, adherence). Returns how many tracks
+    /// were kept.
     pub fn hand_over_to(&mut self, next: &mut Pipeline) -> usize {
         let heard = std::mem::replace(&mut self.heard, HeardTable::new(1));
         next.heard.absorb(heard);
+        next.windows.take_over(&mut self.windows);
         next.guide
             .take_over(&mut self.guide, next.site.same_grid(&self.site));
         next.tracker.take_over(&mut self.tracker)
@@ -785,5 +787,39 @@ mod tests {
             text.contains("missing-cells.onnx") && text.contains("cannot stand in"),
             "{text}"
         );
+    }
+
+    #[test]
+    fn a_reload_hands_tracks_windows_and_sessions_to_the_new_pipeline() {
+        let (_, config, site) = shipped();
+        let mut old = Pipeline::new(&config, site.clone()).unwrap();
+        let mut out = Vec::new();
+        // A phone hearing the site's beacons at 1 Hz for 9 s.
+        for k in 0..10 {
+            for b in &site.beacons {
+                let sighting = crate::sighting::Sighting {
+                    t: f64::from(k),
+                    observer: "phone".into(),
+                    advertiser: b.beacon,
+                    tx_power: None,
+                    rssi: -70,
+                };
+                old.handle(&Event::Advert(sighting), &mut out);
+            }
+        }
+        assert!(old.tracked() == 1 && old.windows_open() == 1);
+        let mut new = Pipeline::new(&config, site.clone()).unwrap();
+        assert_eq!(old.hand_over_to(&mut new), 1);
+        assert_eq!((new.tracked(), new.windows_open()), (1, 1));
+        assert_eq!((old.tracked(), old.windows_open()), (0, 0));
+        // The phone is served where it was, unheard since.
+        let reply = new.route(&RouteRequest {
+            device: "phone".into(),
+            request_id: Some("r".into()),
+            to: plan::Destination::Place("help desk".into()),
+            profile: None,
+            t: 10.0,
+        });
+        assert!(matches!(reply.outcome, RouteOutcome::Route(_)), "{reply:?}");
     }
 }

@@ -29,7 +29,7 @@ use crate::sighting::{BeaconId, Sighting};
 use crate::site::Site;
 
 /// `[window]` in the gateway config.
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct WindowConfig {
     /// Seconds of sightings in one fingerprint.
@@ -195,6 +195,19 @@ impl Windows {
     /// Number of entities with an open window.
     pub(crate) fn entity_count(&self) -> usize {
         self.entities.len()
+    }
+
+    /// After a reload: takes over the open windows of `old` when they mean
+    /// the same here (the same `[window]` settings and the same anchors in
+    /// the same order), so a device's next fingerprint is not a window
+    /// late. Otherwise they start afresh.
+    pub(crate) fn take_over(&mut self, old: &mut Windows) {
+        if self.config == old.config
+            && self.beacon_anchors == old.beacon_anchors
+            && self.gateway_anchors == old.gateway_anchors
+        {
+            self.entities = std::mem::take(&mut old.entities);
+        }
     }
 
     /// Adds a sighting; returns the window it closed, if any.
