@@ -141,12 +141,12 @@ async fn the_brokers_acl_ties_every_topic_to_its_account() {
     )
     .await;
     let request = |id: &str| serde_json::json!({"to": "help desk", "request_id": id}).to_string();
-    walker_01
-        .publish(
-            &format!("{PREFIX}/devices/walker-01/route/set"),
-            request("own-1"),
-        )
-        .await;
+    // `client` asks for `device`'s route to the help desk.
+    let ask = async |client: &Client, device: &str, id: &str| {
+        let topic = format!("{PREFIX}/devices/{device}/route/set");
+        client.publish(&topic, request(id)).await;
+    };
+    ask(&walker_01, "walker-01", "own-1").await;
     let reply = operator.reply(PREFIX, "walker-01", "own-1").await;
     assert!(reply["waypoints"].is_array(), "{reply}");
 
@@ -193,12 +193,7 @@ async fn the_brokers_acl_ties_every_topic_to_its_account() {
             .await
             .unwrap();
     }
-    visitor
-        .publish(
-            &format!("{PREFIX}/devices/visitor/route/set"),
-            request("own-2"),
-        )
-        .await;
+    ask(&visitor, "visitor", "own-2").await;
     // The visitor was never heard: its own request is answered, with an error.
     let reply = operator.reply(PREFIX, "visitor", "own-2").await;
     assert_eq!(reply["error"]["code"], "unknown_device", "{reply}");
@@ -220,12 +215,7 @@ async fn the_brokers_acl_ties_every_topic_to_its_account() {
         .await;
 
     // The gateway still serves walker-01, and nothing forged reached anyone.
-    walker_01
-        .publish(
-            &format!("{PREFIX}/devices/walker-01/route/set"),
-            request("own-3"),
-        )
-        .await;
+    ask(&walker_01, "walker-01", "own-3").await;
     let reply = operator.reply(PREFIX, "walker-01", "own-3").await;
     assert!(reply["waypoints"].is_array(), "{reply}");
     // walker-01 reads its own replies; the visitor only its own.
