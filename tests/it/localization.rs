@@ -81,6 +81,37 @@ fn the_real_survey_stays_at_or_above_the_reached_targets() {
     assert!(figure(&auto, "exact") >= 0.42, "auto: {auto}");
 }
 
+/// Published confidence stays as honest as it has become on the real floor
+/// (`confidence_gap_max`, target 0.05): surveyed methods map it through
+/// held-out sessions, survey-free ones through rehearsal
+/// (`locate::rehearsal`). Before either: auto 0.228, knn 0.26, pathloss
+/// 0.79, calibrated 0.48, strongest 0.52.
+#[test]
+fn published_confidence_stays_as_honest_as_reached() {
+    let Some(survey) = common::uci_survey() else {
+        return;
+    };
+    let unlabelled = survey.with_file_name("iBeacon_RSSI_Unlabeled.csv");
+    let (survey, unlabelled) = (survey.to_str().unwrap(), unlabelled.to_str().unwrap());
+    let site = "config/sites/waldo.toml";
+    // (method flags, the largest gap allowed), measured gap beside each.
+    let cases: [(&[&str], f64); 6] = [
+        (&["--method", "auto"], 0.16),     // 0.138 measured
+        (&["--method", "radiomap"], 0.10), // 0.069
+        (&["--method", "knn"], 0.26),      // 0.242
+        (&["--method", "pathloss"], 0.33), // 0.307
+        (&["--method", "pathloss", "--calibrate", unlabelled], 0.15), // 0.131
+        (&["--method", "strongest"], 0.25), // 0.224
+    ];
+    for (flags, allowed) in cases {
+        let m = eval(&[&["--site", site, "--survey", survey][..], flags].concat());
+        assert!(
+            figure(&m, "confidence_gap_max") <= allowed,
+            "{flags:?}: {m}"
+        );
+    }
+}
+
 /// The survey-free model calibrated on the crowd-sourced file alone (no
 /// position known) and the cross-validated radio map hold what they reached
 /// on the real floor; the radio map's published confidence stays honest.
@@ -123,10 +154,6 @@ fn calibration_and_the_radio_map_hold_their_figures() {
     );
     let map = eval(&["--site", site, "--survey", survey, "--method", "radiomap"]);
     assert!(figure(&map, "mean_error_cells") <= 1.40, "radiomap: {map}");
-    assert!(
-        figure(&map, "confidence_gap_max") <= 0.10,
-        "radiomap: {map}"
-    );
 
     // The calibration file round-trips into a config the gateway accepts.
     let dir = tempfile::tempdir().unwrap();

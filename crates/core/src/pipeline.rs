@@ -449,7 +449,7 @@ impl Pipeline {
             self.tracker
                 .update_walking(&fp.entity, fp.t, &self.log_likelihood, walk.as_ref());
         self.stats.fixes += 1;
-        let confidence = self.localizer.confidence(fix.confidence);
+        let confidence = self.localizer.confidence(fix.confidence, fp.heard_count());
         let known = confidence >= self.min_confidence;
         let cell = known.then_some(fix.cell);
         let world = cell.map(|c| self.site.world_of_cell(c));

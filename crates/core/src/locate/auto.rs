@@ -22,11 +22,11 @@ use std::sync::Arc;
 use super::crossval::{Folds, choose};
 use super::knn::Knn;
 use super::radiomap::RadioMap;
-use super::reliability::ConfidenceMap;
+use super::reliability::Mapped;
 use super::survey::{Sample, Survey};
 use super::tracker::TrackerConfig;
 use super::window::{self, WindowConfig};
-use super::{Localizer, LocalizerConfig, LocalizerError, pathloss};
+use super::{Localizer, LocalizerConfig, LocalizerError, rehearsal};
 use crate::site::Site;
 
 /// Builds the best available localizer for the config.
@@ -47,11 +47,7 @@ pub(super) fn build(
         (Some(path), _) => (path, config.radiomap.not_heard),
         (None, Some(path)) => (path, config.knn.not_heard),
         (None, None) => {
-            return Ok(Box::new(pathloss::PathLoss::new(
-                &config.pathloss,
-                site,
-                windows.orientation,
-            )?));
+            return rehearsal::path_loss(&config.pathloss, None, site, windows, tracker);
         }
     };
     let survey = Survey::load(survey, site, &ids, not_heard)?;
@@ -88,10 +84,17 @@ pub fn surveyed(
         samples,
         windows.missing_dbm,
         |(), rows| -> Result<Gated, LocalizerError> {
-            Ok(Gated::new(
-                Knn::new(&config.knn, site, rows, windows.missing_dbm)?,
-                RadioMap::with_settings(site, ids, windows.orientation, tracker, rows, settings)?,
-            ))
+            Ok(Gated {
+                knn: Knn::new(&config.knn, site, rows, windows.missing_dbm)?,
+                map: RadioMap::with_settings(
+                    site,
+                    ids,
+                    windows.orientation,
+                    tracker,
+                    rows,
+                    settings,
+                )?,
+            })
         },
     )?;
     tracing::info!(
@@ -99,12 +102,11 @@ pub fn surveyed(
         "surveyed localizer: k-NN vote for familiar fingerprints, radio map for the others"
     );
     // `map` is already the map of every row with those settings.
-    let mut gated = Gated::new(
-        Knn::new(&config.knn, site, samples, windows.missing_dbm)?,
+    let gated = Gated {
+        knn: Knn::new(&config.knn, site, samples, windows.missing_dbm)?,
         map,
-    );
-    gated.confidence = held_out.confidence;
-    Ok(Box::new(gated))
+    };
+    Ok(Box::new(Mapped::new(gated, held_out.confidence)))
 }
 
 /// The k-NN vote or the radio map, chosen per window by how familiar the
@@ -112,17 +114,6 @@ pub fn surveyed(
 struct Gated {
     knn: Knn,
     map: RadioMap,
-    confidence: ConfidenceMap,
-}
-
-impl Gated {
-    fn new(knn: Knn, map: RadioMap) -> Gated {
-        Gated {
-            knn,
-            map,
-            confidence: ConfidenceMap::default(),
-        }
-    }
 }
 
 impl Localizer for Gated {
@@ -135,9 +126,5 @@ impl Localizer for Gated {
         if !self.knn.familiar() {
             self.map.log_likelihood(rssi, heard, out);
         }
-    }
-
-    fn confidence(&self, raw: f32) -> f32 {
-        self.confidence.apply(raw)
     }
 }

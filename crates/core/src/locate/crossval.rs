@@ -10,7 +10,7 @@
 
 use std::sync::Arc;
 
-use super::reliability::ConfidenceMap;
+use super::reliability::{ConfidenceMap, KnownFix};
 use super::survey::{SESSION_GAP_S, Sample, sessions};
 use super::tracker::{Tracker, TrackerConfig};
 use super::{Localizer, LocalizerError};
@@ -54,7 +54,7 @@ pub(crate) fn choose<C: Clone, L: Localizer>(
     build: impl Fn(&C, &[&Sample]) -> Result<L, LocalizerError>,
 ) -> Result<Chosen<C>, LocalizerError> {
     let (folds, n_folds) = folds(samples, how);
-    let mut best: Option<(Chosen<C>, Vec<HeldOutFix>)> = None;
+    let mut best: Option<(Chosen<C>, Vec<KnownFix>)> = None;
     for candidate in candidates {
         let fixes = held_out_fixes(
             site,
@@ -64,7 +64,7 @@ pub(crate) fn choose<C: Clone, L: Localizer>(
             missing_dbm,
             |rows| build(candidate, rows),
         )?;
-        let error = fixes.iter().map(|f| f.1).sum::<f64>() / fixes.len().max(1) as f64;
+        let error = fixes.iter().map(|f| f.error_cells).sum::<f64>() / fixes.len().max(1) as f64;
         if best.as_ref().is_none_or(|b| error < b.0.error_cells) {
             best = Some((
                 Chosen {
@@ -102,11 +102,8 @@ fn folds(samples: &[&Sample], how: Folds) -> (Vec<usize>, usize) {
     (session.into_iter().map(|s| s % n).collect(), n)
 }
 
-/// (raw confidence, error in cells) of one held-out row.
-type HeldOutFix = (f32, f64);
-
 /// Every row localized by a model of the other folds, in time order through
-/// the tracker: (raw confidence, error in cells) per row heard at all.
+/// the tracker: one known fix per row heard at all.
 fn held_out_fixes<L: Localizer>(
     site: &Arc<Site>,
     tracker: &TrackerConfig,
@@ -114,7 +111,7 @@ fn held_out_fixes<L: Localizer>(
     (folds, n_folds): (&[usize], usize),
     missing_dbm: f32,
     build: impl Fn(&[&Sample]) -> Result<L, LocalizerError>,
-) -> Result<Vec<HeldOutFix>, LocalizerError> {
+) -> Result<Vec<KnownFix>, LocalizerError> {
     let n_anchors = samples.first().map_or(0, |s| s.rssi.len());
     let mut fixes = Vec::new();
     let mut rssi = vec![0.0f32; n_anchors];
@@ -147,7 +144,12 @@ fn held_out_fixes<L: Localizer>(
             }
             localizer.log_likelihood(&rssi, &heard, &mut ll);
             let fix = tracker.update(&entity, s.t.unwrap_or(0.0), &ll);
-            fixes.push((fix.confidence, fix.cell.distance(s.cell)));
+            fixes.push(KnownFix {
+                raw: fix.confidence,
+                error_cells: fix.cell.distance(s.cell),
+                heard: heard.iter().filter(|&&h| h).count(),
+                group: fold,
+            });
         }
     }
     Ok(fixes)

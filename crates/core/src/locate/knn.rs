@@ -34,7 +34,10 @@ use std::sync::Arc;
 
 use serde::Deserialize;
 
+use super::crossval::{self, Folds};
+use super::reliability::Mapped;
 use super::survey::{Sample, Survey};
+use super::tracker::TrackerConfig;
 use super::{Localizer, LocalizerError};
 use crate::site::Site;
 
@@ -199,13 +202,38 @@ impl Knn {
         config: &KnnConfig,
         site: &Arc<Site>,
         anchors: &[String],
+        tracker: &TrackerConfig,
         missing_dbm: f32,
-    ) -> Result<Self, LocalizerError> {
+    ) -> Result<Box<dyn Localizer>, LocalizerError> {
         let path = config.survey.as_ref().ok_or(LocalizerError::NoSurvey)?;
         let survey = Survey::load(path, site, anchors, config.not_heard)?;
         let samples: Vec<_> = survey.samples.iter().collect();
-        Knn::new(config, site, &samples, missing_dbm)
+        surveyed(config, site, tracker, &samples, missing_dbm)
     }
+}
+
+/// The vote over `samples`, its published confidence fitted on their
+/// walking sessions held out in turn ([`crossval`]).
+pub fn surveyed(
+    config: &KnnConfig,
+    site: &Arc<Site>,
+    tracker: &TrackerConfig,
+    samples: &[&Sample],
+    missing_dbm: f32,
+) -> Result<Box<dyn Localizer>, LocalizerError> {
+    let held_out = crossval::choose(
+        &[()],
+        Folds::EachSession,
+        site,
+        tracker,
+        samples,
+        missing_dbm,
+        |(), rows| Knn::new(config, site, rows, missing_dbm),
+    )?;
+    Ok(Box::new(Mapped::new(
+        Knn::new(config, site, samples, missing_dbm)?,
+        held_out.confidence,
+    )))
 }
 
 impl Knn {

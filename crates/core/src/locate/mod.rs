@@ -16,6 +16,7 @@ pub mod onnx;
 pub mod pathloss;
 pub mod radiomap;
 pub mod recalibrate;
+pub mod rehearsal;
 pub(crate) mod reliability;
 pub mod strongest;
 pub mod survey;
@@ -40,10 +41,12 @@ pub trait Localizer: Send + Sync {
     fn log_likelihood(&mut self, rssi: &[f32], heard: &[bool], out: &mut [f32]);
 
     /// The published confidence of a fix whose raw confidence (the tracker's
-    /// belief within one cell) is `raw`: localizers that have held-out truth
-    /// to learn from map it so that it means what it says
+    /// belief within one cell) is `raw`, its window having heard `heard`
+    /// anchors: localizers that have held-out truth to learn from, or that
+    /// rehearsed ([`rehearsal`]), map it so that it means what it says
     /// ([`reliability::ConfidenceMap`]).
-    fn confidence(&self, raw: f32) -> f32 {
+    fn confidence(&self, raw: f32, heard: usize) -> f32 {
+        let _ = heard;
         raw
     }
 }
@@ -224,17 +227,14 @@ pub fn build(
 ) -> Result<Box<dyn Localizer>, LocalizerError> {
     Ok(match config.method {
         Method::Auto => auto::build(config, site, windows, tracker)?,
-        Method::Pathloss => Box::new(pathloss::PathLoss::new(
-            &config.pathloss,
-            site,
-            windows.orientation,
-        )?),
-        Method::Knn => Box::new(knn::Knn::load(
+        Method::Pathloss => rehearsal::path_loss(&config.pathloss, None, site, windows, tracker)?,
+        Method::Knn => knn::Knn::load(
             &config.knn,
             site,
             &window::anchor_ids(site, windows.orientation),
+            tracker,
             windows.missing_dbm,
-        )?),
+        )?,
         Method::Radiomap => Box::new(radiomap::RadioMap::load(
             &config.radiomap,
             site,
@@ -243,10 +243,6 @@ pub fn build(
             tracker,
         )?),
         Method::Onnx => Box::new(onnx::Onnx::load(&config.onnx.model, site)?),
-        Method::Strongest => Box::new(strongest::Strongest::new(
-            &config.pathloss,
-            site,
-            windows.orientation,
-        )?),
+        Method::Strongest => rehearsal::strongest(&config.pathloss, site, windows, tracker)?,
     })
 }

@@ -67,6 +67,17 @@ impl Default for PathLossConfig {
 }
 
 impl PathLossConfig {
+    /// The calibration file's contents, when the config names one.
+    pub(crate) fn load_calibration(
+        &self,
+        site: &Site,
+    ) -> Result<Option<super::calibration::Calibration>, LocalizerError> {
+        Ok(match &self.calibration {
+            Some(path) => Some(super::calibration::Calibration::load(path, site)?),
+            None => None,
+        })
+    }
+
     /// The radio model of an anchor with measured power `tx_dbm`.
     pub(crate) fn radio(&self, tx_dbm: f64) -> Radio {
         Radio {
@@ -189,6 +200,7 @@ pub fn anchors(
 }
 
 /// Localizes from the anchors' radio models.
+#[derive(Clone)]
 pub struct PathLoss {
     n_cells: usize,
     n_anchors: usize,
@@ -212,11 +224,12 @@ impl PathLoss {
         site: &Arc<Site>,
         orientation: Orientation,
     ) -> Result<Self, LocalizerError> {
-        let calibration = match &config.calibration {
-            Some(path) => Some(super::calibration::Calibration::load(path, site)?),
-            None => None,
-        };
-        Self::calibrated(site, orientation, config, calibration.as_ref())
+        Self::calibrated(
+            site,
+            orientation,
+            config,
+            config.load_calibration(site)?.as_ref(),
+        )
     }
 
     /// The model of the config's anchors with a calibration applied: its

@@ -197,8 +197,8 @@ impl Localizer for RadioMap {
         self.tables.log_likelihood(rssi, heard, out);
     }
 
-    fn confidence(&self, raw: f32) -> f32 {
-        self.confidence.apply(raw)
+    fn confidence(&self, raw: f32, heard: usize) -> f32 {
+        self.confidence.apply(raw, heard)
     }
 }
 

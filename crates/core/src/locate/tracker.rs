@@ -140,27 +140,7 @@ pub struct Tracker {
 
 impl Tracker {
     pub fn new(config: TrackerConfig, site: Arc<Site>) -> Self {
-        let neighbours = site
-            .open_cells()
-            .iter()
-            .map(|&c| {
-                let mut n = vec![site.open_index(c).expect("open") as u32];
-                for dy in -1i16..=1 {
-                    for dx in -1i16..=1 {
-                        let (Some(x), Some(y)) =
-                            (c.x.checked_add_signed(dx), c.y.checked_add_signed(dy))
-                        else {
-                            continue;
-                        };
-                        let next = Cell::new(x, y);
-                        if Connectivity::Eight.step_ok(&site, c, next) {
-                            n.push(site.open_index(next).expect("walkable") as u32);
-                        }
-                    }
-                }
-                n
-            })
-            .collect();
+        let neighbours = open_neighbours(&site);
         Tracker {
             config,
             site,
@@ -552,6 +532,31 @@ impl MotionModel<'_> {
             *m = ((1.0 - recovery) * *m + recovery * mean) / peak;
         }
     }
+}
+
+/// For each open cell (by open index): itself first, then the open cells
+/// one allowed step away.
+pub(crate) fn open_neighbours(site: &Site) -> Vec<Vec<u32>> {
+    site.open_cells()
+        .iter()
+        .map(|&c| {
+            let mut n = vec![site.open_index(c).expect("open") as u32];
+            for dy in -1i16..=1 {
+                for dx in -1i16..=1 {
+                    let (Some(x), Some(y)) =
+                        (c.x.checked_add_signed(dx), c.y.checked_add_signed(dy))
+                    else {
+                        continue;
+                    };
+                    let next = Cell::new(x, y);
+                    if Connectivity::Eight.step_ok(site, c, next) {
+                        n.push(site.open_index(next).expect("walkable") as u32);
+                    }
+                }
+            }
+            n
+        })
+        .collect()
 }
 
 /// The reported fix of a belief over the site's open cells.

@@ -21,12 +21,11 @@ use serde::Serialize;
 
 use crate::locate::calibrate::{DEFAULT_CELL_PRIOR_READINGS, FitOptions, Window, fit};
 use crate::locate::calibration::Calibration;
-use crate::locate::knn::Knn;
+use crate::locate::knn;
 use crate::locate::onnx::Onnx;
-use crate::locate::pathloss::PathLoss;
 use crate::locate::pathloss::anchors;
 use crate::locate::radiomap::RadioMap;
-use crate::locate::strongest::Strongest;
+use crate::locate::rehearsal;
 use crate::locate::survey::{Sample, Survey, sessions};
 use crate::locate::tracker::TrackerConfig;
 use crate::locate::tracker::{Tracker, TrackerKind};
@@ -261,12 +260,13 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
             });
         }
         let mut localizer: Box<dyn Localizer> = match setup.method {
-            Method::Knn => Box::new(Knn::new(
+            Method::Knn => knn::surveyed(
                 &setup.localizer.knn,
                 site,
+                &setup.tracker,
                 &train,
                 setup.window.missing_dbm,
-            )?),
+            )?,
             Method::Radiomap => Box::new(RadioMap::new(
                 &setup.localizer.radiomap,
                 site,
@@ -288,24 +288,19 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
                 &setup.tracker,
                 &train,
             )?,
-            Method::Strongest => Box::new(Strongest::new(
+            Method::Strongest => rehearsal::strongest(
                 &setup.localizer.pathloss,
                 site,
-                setup.window.orientation,
-            )?),
-            Method::Pathloss => match &calibrated {
-                Some(calibration) => Box::new(PathLoss::calibrated(
-                    site,
-                    setup.window.orientation,
-                    &setup.localizer.pathloss,
-                    Some(calibration),
-                )?),
-                None => Box::new(PathLoss::new(
-                    &setup.localizer.pathloss,
-                    site,
-                    setup.window.orientation,
-                )?),
-            },
+                &setup.window,
+                &setup.tracker,
+            )?,
+            Method::Pathloss => rehearsal::path_loss(
+                &setup.localizer.pathloss,
+                calibrated.as_ref(),
+                site,
+                &setup.window,
+                &setup.tracker,
+            )?,
         };
         let mut tracker = Tracker::new(setup.tracker.clone(), site.clone());
         let entities: Vec<Arc<str>> = (0..sessions)
@@ -342,7 +337,8 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
             for (fix, &row) in fixes.iter().zip(rows) {
                 let truth = survey.samples[row].cell;
                 let error = fix.cell.distance(truth);
-                let confidence = localizer.confidence(fix.confidence);
+                let heard_count = survey.samples[row].rssi.iter().flatten().count();
+                let confidence = localizer.confidence(fix.confidence, heard_count);
                 seed_errors.push(error);
                 confidences.push((confidence, error));
                 row_fixes.push(RowFix {

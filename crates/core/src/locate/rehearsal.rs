@@ -1,0 +1,394 @@
+//! Published confidence where no position is known: the survey-free model
+//! rehearses.
+//!
+//! A surveyed localizer learns what its confidence is worth from held-out
+//! sessions of its survey ([`super::crossval`]). The survey-free model has no
+//! truth to learn from, and its raw belief trusts its own radio model
+//! completely: one beacon heard once puts nearly all the mass next to that
+//! beacon, so the raw "within one cell" is 0.99 while the fix is right one
+//! time in seven on the paper's floor. What the model does know is how
+//! little it knows: tx power, path-loss exponent and range were defaults or
+//! fitted from unlabelled scans, and walls, shelves and bodies are not in it.
+//!
+//! So before it serves, it rehearses: simulated walkers cross the site's
+//! walkable cells at walking pace, each in a world drawn around the model's
+//! own radio by that doubt (an offset per anchor, a fixed shadow per cell
+//! and anchor, a detection range off by a factor), hear what that world
+//! makes them hear, and are localized by the model through the same tracker
+//! the gateway runs. Their (raw confidence, error) pairs fit the
+//! [`ConfidenceMap`] the published confidence goes through, exactly as
+//! held-out survey rows do for a surveyed localizer. Confidence then means
+//! "within one cell this often, were the world as far from the model as the
+//! model admits": a class of fixes (one beacon heard once, say) is published
+//! at the rate that class earned in rehearsal.
+//!
+//! The doubt itself is not fitted to any site: it is the spread of what
+//! these parameters are in real installations (iBeacon measured power is
+//! set per product, −50 to −80 dBm; indoor shadowing of 4–8 dB), narrower
+//! for an anchor whose radio a calibration fitted from what the gateway
+//! heard.
+
+use std::sync::Arc;
+
+use rand::rngs::Xoshiro256PlusPlus;
+use rand::{RngExt, SeedableRng};
+use rand_distr::{Distribution, Normal, StandardNormal};
+
+use super::calibration::Calibration;
+use super::pathloss::{DETECTION_BOUNDS, PathLoss, PathLossConfig};
+use super::reliability::{ConfidenceMap, KnownFix, Mapped};
+use super::strongest::Strongest;
+use super::tracker::{Tracker, TrackerConfig, open_neighbours};
+use super::window::{Orientation, WindowConfig, anchor_ids};
+use super::{Localizer, LocalizerError};
+use crate::site::Site;
+
+/// How far the world may be from the model.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct Doubt {
+    /// Spread of the receiver's gain, dB, common to every anchor it hears:
+    /// phones and dongles differ by several dB, and nothing in a survey-free
+    /// model knows which one is listening until a calibration has heard it.
+    pub receiver_db: f64,
+    /// Per anchor, in the orientation's anchor order.
+    pub anchors: Vec<AnchorDoubt>,
+}
+
+/// How far one anchor's radio may be from the model's.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct AnchorDoubt {
+    /// Spread of the anchor's real power at 1 m around the model's, dB.
+    pub tx_db: f64,
+    /// Spread of a fixed shadow per cell (walls and shelves), dB.
+    pub shadow_db: f64,
+    /// Spread of the log of the factor the real detection odds are off by.
+    pub detection_log_odds: f64,
+    /// Spread of where the anchor really hangs around where the site file
+    /// puts it, metres per axis (read off a plan, paced out, moved since).
+    pub position_m: f64,
+}
+
+impl AnchorDoubt {
+    /// An anchor whose radio is the config's default (or the site's
+    /// `tx_power` alone): its measured power may be anything real products
+    /// ship with.
+    pub(crate) const DEFAULT_RADIO: AnchorDoubt = AnchorDoubt {
+        tx_db: 6.0,
+        shadow_db: 4.0,
+        detection_log_odds: 1.0,
+        position_m: 1.0,
+    };
+    /// An anchor whose radio a calibration fitted from what was heard.
+    pub(crate) const FITTED_RADIO: AnchorDoubt = AnchorDoubt {
+        tx_db: 3.0,
+        shadow_db: 4.0,
+        detection_log_odds: 0.5,
+        position_m: 1.0,
+    };
+}
+
+/// Spread of the receiver's gain when no calibration has heard it, dB.
+const RECEIVER_DB: f64 = 6.0;
+/// The same once a calibration fitted the anchors as this gateway's
+/// receivers hear them (what is left is one phone against another).
+const CALIBRATED_RECEIVER_DB: f64 = 2.0;
+
+/// The survey-free localizer the gateway serves: the config's path-loss
+/// model with `calibration` applied (the config's file when `None` is
+/// given and it names one), its confidence rehearsed.
+pub fn path_loss(
+    config: &PathLossConfig,
+    calibration: Option<&Calibration>,
+    site: &Arc<Site>,
+    windows: &WindowConfig,
+    tracker: &TrackerConfig,
+) -> Result<Box<dyn Localizer>, LocalizerError> {
+    let loaded = match calibration {
+        Some(_) => None,
+        None => config.load_calibration(site)?,
+    };
+    let calibration = calibration.or(loaded.as_ref());
+    let model = PathLoss::calibrated(site, windows.orientation, config, calibration)?;
+    let doubt = doubts(site, windows.orientation, calibration);
+    Ok(rehearsed(
+        model.clone(),
+        &model,
+        &doubt,
+        site,
+        tracker,
+        windows.stride_s,
+    ))
+}
+
+/// The strongest-beacon baseline, its confidence rehearsed in the worlds of
+/// the config's path-loss model: a baseline's confidence is published too,
+/// and must mean the same.
+pub fn strongest(
+    config: &PathLossConfig,
+    site: &Arc<Site>,
+    windows: &WindowConfig,
+    tracker: &TrackerConfig,
+) -> Result<Box<dyn Localizer>, LocalizerError> {
+    let calibration = config.load_calibration(site)?;
+    let world = PathLoss::calibrated(site, windows.orientation, config, calibration.as_ref())?;
+    let doubt = doubts(site, windows.orientation, calibration.as_ref());
+    Ok(rehearsed(
+        Strongest::new(config, site, windows.orientation)?,
+        &world,
+        &doubt,
+        site,
+        tracker,
+        windows.stride_s,
+    ))
+}
+
+/// The model's doubt: narrower for the receiver once a calibration has
+/// heard it, and for each anchor whose radio the calibration fitted.
+fn doubts(site: &Site, orientation: Orientation, calibration: Option<&Calibration>) -> Doubt {
+    Doubt {
+        receiver_db: match calibration {
+            Some(_) => CALIBRATED_RECEIVER_DB,
+            None => RECEIVER_DB,
+        },
+        anchors: anchor_ids(site, orientation)
+            .iter()
+            .map(|id| match calibration.and_then(|c| c.radio(id)) {
+                Some(_) => AnchorDoubt::FITTED_RADIO,
+                None => AnchorDoubt::DEFAULT_RADIO,
+            })
+            .collect(),
+    }
+}
+
+/// Rehearsed fixes: enough for a map per class of window on a small site…
+const MOST_WINDOWS: usize = 4000;
+/// …and never fewer, however large the site: below this a map's bins are
+/// noise.
+const FEWEST_WINDOWS: usize = 600;
+/// Cell-anchor terms a rehearsal may evaluate before it settles for fewer
+/// windows (about a second of one core): a 200 × 200 m floor at 1 m cells
+/// with 50 beacons costs 2.4 M terms per window, so it rehearses 600
+/// windows where the paper's floor rehearses 4,000.
+const BUDGET_TERMS: usize = 400_000_000;
+
+/// Windows to rehearse on a site of `cells` open cells and `anchors` anchors:
+/// each costs a likelihood per cell and anchor and a tracker step (about
+/// nine terms per cell).
+fn windows_for(cells: usize, anchors: usize) -> usize {
+    (BUDGET_TERMS / (cells * (anchors + 9)).max(1)).clamp(FEWEST_WINDOWS, MOST_WINDOWS)
+}
+
+/// Windows per simulated walk: long enough for the tracker to settle, short
+/// enough to see many starts (a track's first fixes are its worst).
+const WALK_WINDOWS: usize = 20;
+/// Walking pace range, m/s (standing still to brisk).
+const PACE_M_S: (f64, f64) = (0.0, 1.4);
+
+/// `localizer` with its confidence fitted on fixes rehearsed in worlds
+/// drawn around `world` (its own radio model, or the one a baseline is
+/// judged against) with `doubt`, windows `stride_s` apart through `tracker`.
+fn rehearsed<L: Localizer + 'static>(
+    mut localizer: L,
+    world: &PathLoss,
+    doubt: &Doubt,
+    site: &Arc<Site>,
+    tracker: &TrackerConfig,
+    stride_s: f64,
+) -> Box<dyn Localizer> {
+    let fixes = rehearse(&mut localizer, world, doubt, site, tracker, stride_s);
+    Box::new(Mapped::new(localizer, ConfidenceMap::fit(&fixes)))
+}
+
+/// A known fix of every rehearsed window that heard anything. Seeded: the
+/// same model on the same site always publishes the same confidence.
+fn rehearse(
+    localizer: &mut impl Localizer,
+    world: &PathLoss,
+    doubt: &Doubt,
+    site: &Arc<Site>,
+    tracker: &TrackerConfig,
+    stride_s: f64,
+) -> Vec<KnownFix> {
+    let cells = site.open_cells();
+    let (expected, detection) = world.tables();
+    let anchors = &doubt.anchors;
+    let n_anchors = anchors.len();
+    if cells.is_empty() || n_anchors == 0 {
+        return Vec::new();
+    }
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(0x5eed_c0f1);
+    let mut tracker_run = Tracker::new(tracker.clone(), site.clone());
+    let noise: Vec<Normal<f64>> = world
+        .inv_sigma()
+        .iter()
+        .map(|&s| Normal::new(0.0, 1.0 / f64::from(s).max(1e-3)).expect("finite spread"))
+        .collect();
+    let neighbours = open_neighbours(site);
+    let windows = windows_for(cells.len(), n_anchors);
+    let mut fixes = Vec::with_capacity(windows);
+    let (mut rssi, mut heard) = (vec![0.0f32; n_anchors], vec![false; n_anchors]);
+    let mut ll = vec![0.0f32; cells.len()];
+    // One track: a gap longer than the tracker's reset starts each walk afresh.
+    let entity: Arc<str> = Arc::from("rehearsal");
+    let mut start = 0.0;
+    let mut walk = 0;
+    while fixes.len() < windows {
+        walk += 1;
+        // A new world per walk: the doubt is about the world, not the window.
+        let receiver = doubt.receiver_db * normal(&mut rng);
+        let offset: Vec<f64> = anchors
+            .iter()
+            .map(|d| receiver + d.tx_db * normal(&mut rng))
+            .collect();
+        let odds: Vec<f64> = anchors
+            .iter()
+            .map(|d| d.detection_log_odds * normal(&mut rng))
+            .collect();
+        // Reading the model at a cell displaced by (dx, dy) is hearing the
+        // anchor as if it hung (−dx, −dy) from where the site file says.
+        let moved: Vec<(i32, i32)> = anchors
+            .iter()
+            .map(|d| {
+                let cells = d.position_m / site.cell_m;
+                let mut draw = || (cells * normal(&mut rng)).round() as i32;
+                (draw(), draw())
+            })
+            .collect();
+        let world_seed: u64 = rng.random();
+        let pace = rng.random_range(PACE_M_S.0..=PACE_M_S.1);
+        let cells_per_window = pace * stride_s / site.cell_m;
+        let mut here = rng.random_range(0..cells.len());
+        let mut owed = 0.0;
+        for k in 0..WALK_WINDOWS {
+            owed += cells_per_window;
+            while owed >= 1.0 {
+                // The cell itself comes first: a step goes to one of the others.
+                let next = &neighbours[here][1..];
+                if !next.is_empty() {
+                    here = next[rng.random_range(0..next.len())] as usize;
+                }
+                owed -= 1.0;
+            }
+            for a in 0..n_anchors {
+                let i = displaced(site, cells[here], moved[a]).unwrap_or(here) * n_anchors + a;
+                let mu = expected[i];
+                if mu.is_nan() {
+                    heard[a] = false;
+                    continue;
+                }
+                let p = shifted(detection[i], odds[a]);
+                heard[a] = rng.random::<f64>() < p;
+                let shadow = anchors[a].shadow_db * shadow(world_seed, here, a);
+                rssi[a] = (mu + offset[a] + shadow + noise[a].sample(&mut rng)) as f32;
+            }
+            if !heard.contains(&true) {
+                continue;
+            }
+            localizer.log_likelihood(&rssi, &heard, &mut ll);
+            let fix = tracker_run.update(&entity, start + k as f64 * stride_s, &ll);
+            fixes.push(KnownFix {
+                raw: fix.confidence,
+                error_cells: fix.cell.distance(cells[here]),
+                heard: heard.iter().filter(|&&h| h).count(),
+                group: walk,
+            });
+        }
+        start += (WALK_WINDOWS as f64 + 1.0) * stride_s + tracker.reset_after_s;
+    }
+    fixes
+}
+
+/// The open index of `cell` moved by `by`, if that cell is open.
+fn displaced(site: &Site, cell: crate::site::Cell, by: (i32, i32)) -> Option<usize> {
+    let x = u16::try_from(i32::from(cell.x) + by.0).ok()?;
+    let y = u16::try_from(i32::from(cell.y) + by.1).ok()?;
+    site.open_index(crate::site::Cell::new(x, y))
+}
+
+/// A standard normal draw.
+fn normal(rng: &mut Xoshiro256PlusPlus) -> f64 {
+    StandardNormal.sample(rng)
+}
+
+/// `p` with its odds multiplied by `e^log_odds`, kept in the model's bounds.
+fn shifted(p: f64, log_odds: f64) -> f64 {
+    let odds = p / (1.0 - p) * log_odds.exp();
+    (odds / (1.0 + odds)).clamp(DETECTION_BOUNDS.0, DETECTION_BOUNDS.1)
+}
+
+/// One world's fixed shadow at (cell, anchor), in standard deviations: the
+/// same every time that world is asked, drawn from a hash of the three so
+/// that the field of a 40,000-cell floor is never built whole.
+fn shadow(world_seed: u64, cell: usize, anchor: usize) -> f64 {
+    let key = ((cell as u64) << 20 | anchor as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+    normal(&mut Xoshiro256PlusPlus::seed_from_u64(world_seed ^ key))
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use super::*;
+
+    /// A 12 × 8 m hall with a beacon in each corner.
+    fn hall() -> Arc<Site> {
+        let mut text = String::from("name = \"hall\"\ncell_m = 1.0\nmap = '''\n");
+        for _ in 0..8 {
+            text.push_str(&"#".repeat(12));
+            text.push('\n');
+        }
+        text.push_str("'''\n");
+        for (i, (x, y)) in [(0, 0), (11, 0), (0, 7), (11, 7)].into_iter().enumerate() {
+            text.push_str(&format!(
+                "[[beacon]]\nid = \"b{i}\"\nuuid = \"b9407f30-f5f8-466e-aff9-25556b57fe6d\"\nmajor = 1\nminor = {i}\ncell = [{x}, {y}]\n"
+            ));
+        }
+        Arc::new(Site::parse(&text, Path::new("hall.toml")).unwrap())
+    }
+
+    fn survey_free(site: &Arc<Site>) -> Box<dyn Localizer> {
+        path_loss(
+            &PathLossConfig::default(),
+            None,
+            site,
+            &WindowConfig::default(),
+            &TrackerConfig::default(),
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn one_beacon_heard_once_is_not_published_as_certain() {
+        let site = hall();
+        let mut localizer = survey_free(&site);
+        // Only the first corner's beacon, loud: the raw belief piles up next
+        // to it.
+        let (rssi, heard) = ([-60.0, -105.0, -105.0, -105.0], [true, false, false, false]);
+        let mut ll = vec![0.0; site.open_cells().len()];
+        localizer.log_likelihood(&rssi, &heard, &mut ll);
+        let mut tracker = Tracker::new(TrackerConfig::default(), site.clone());
+        let fix = tracker.update(&Arc::from("phone"), 0.0, &ll);
+        let published = localizer.confidence(fix.confidence, 1);
+        assert!(
+            fix.confidence > 0.5,
+            "raw {} published {published}",
+            fix.confidence
+        );
+        assert!(
+            published < 0.6 && published < fix.confidence - 0.3,
+            "raw {} published {published}",
+            fix.confidence
+        );
+    }
+
+    #[test]
+    fn the_same_site_and_model_always_publish_the_same_confidence() {
+        let site = hall();
+        let (a, b) = (survey_free(&site), survey_free(&site));
+        for raw in [0.05, 0.3, 0.6, 0.9, 0.99] {
+            for heard in 1..=4 {
+                assert_eq!(a.confidence(raw, heard), b.confidence(raw, heard));
+            }
+        }
+    }
+}
