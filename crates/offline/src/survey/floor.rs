@@ -149,7 +149,7 @@ impl FloorPlan {
             let name = [&props["name"], &props["id"]]
                 .into_iter()
                 .find_map(|v| v.as_str().map(str::trim).filter(|s| !s.is_empty()))
-                .map_or_else(|| format!("area {i}"), str::to_owned);
+                .map_or_else(|| format!("area {i}"), unescape);
             *names.entry(name.clone()).or_default() += 1;
             areas.push(Area { name, rings });
         }
@@ -345,6 +345,20 @@ fn rings_of(geometry: &Value) -> anyhow::Result<Vec<Ring>> {
     Ok(rings)
 }
 
+/// A name as shown: the XML entities some plans leave in names
+/// (`CHOW&amp;RAY` beside `ME&CITY`) read as their characters.
+fn unescape(name: &str) -> String {
+    [
+        ("&lt;", "<"),
+        ("&gt;", ">"),
+        ("&quot;", "\""),
+        ("&#39;", "'"),
+        ("&amp;", "&"),
+    ]
+    .iter()
+    .fold(name.to_owned(), |n, (entity, c)| n.replace(entity, c))
+}
+
 /// The bounding box of rings.
 fn bounds(rings: &[Ring]) -> ([f64; 2], [f64; 2]) {
     let mut lo = [f64::INFINITY; 2];
@@ -395,4 +409,16 @@ fn edge_distance(rings: &[Ring], p: [f64; 2]) -> f64 {
 
 fn dist(a: [f64; 2], b: [f64; 2]) -> f64 {
     (a[0] - b[0]).hypot(a[1] - b[1])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_read_as_shown() {
+        assert_eq!(unescape("CHOW&amp;RAY"), "CHOW&RAY");
+        assert_eq!(unescape("ME&CITY"), "ME&CITY");
+        assert_eq!(unescape("&amp;lt;"), "&lt;");
+    }
 }
