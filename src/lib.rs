@@ -29,7 +29,7 @@ pub use gangway_core::{
     clock, event, guide, locate, model, pipeline, plan, publish, sighting, site,
 };
 pub use gangway_io::{config, latency, mqtt, score, sink, source, store, throttle, topics, web};
-pub use gangway_offline::{eval, picture, simulate, train, walks};
+pub use gangway_offline::{eval, picture, simulate, survey, train, walks};
 
 pub mod cli;
 pub mod daemon;

@@ -76,10 +76,15 @@ pub(super) const SITE: &str = "\
 Examples:
   gangway site edit --site site.toml --image plan.png  # edit over the floor plan at http://127.0.0.1:8080";
 
+pub(super) const SURVEY: &str = "\
+Examples:
+  gangway survey import --floor-dir site1/F1 --out f1  # f1/site.toml, f1/survey.csv and the floor image
+  gangway survey import --floor-dir site1/B1 --out b1 --cell-m 0.5 --max-gap-s 20 --json  # finer cells, stricter gaps";
+
 /// Every command's examples with the command's name (`""` for `gangway`
 /// itself).
 #[cfg(test)]
-const ALL: [(&str, &str); 12] = [
+const ALL: [(&str, &str); 13] = [
     ("", GANGWAY),
     ("record", RECORD),
     ("replay", REPLAY),
@@ -92,6 +97,7 @@ const ALL: [(&str, &str); 12] = [
     ("eval", EVAL),
     ("walks", WALKS),
     ("site", SITE),
+    ("survey", SURVEY),
 ];
 
 /// The command lines of `examples`: each line's words after any `VAR=value`

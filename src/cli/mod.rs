@@ -12,6 +12,7 @@ mod replay;
 mod run;
 mod simulate;
 mod site;
+mod survey;
 mod train;
 mod walks;
 
@@ -64,6 +65,9 @@ enum Command {
     /// Site files: edit one over its floor plan in the browser.
     #[command(after_long_help = examples::SITE)]
     Site(site::Args),
+    /// Surveys from walks with timed waypoints: a floor's site, labelled survey and beacon positions.
+    #[command(after_long_help = examples::SURVEY)]
+    Survey(survey::Args),
 }
 
 /// The sample config of a checkout of the repository, relative to it.
@@ -113,6 +117,7 @@ impl Cli {
             Command::Eval(args) => eval::run(args),
             Command::Walks(args) => walks::run(args),
             Command::Site(args) => site::run(args),
+            Command::Survey(args) => survey::run(args),
         }
     }
 }

@@ -39,6 +39,7 @@ mod planning_eval;
 mod receivers;
 mod record;
 mod replay;
+mod survey;
 mod waldo_site;
 mod walkthrough;
 mod web;

@@ -39,7 +39,7 @@ use crate::sighting::BeaconId;
 mod doc;
 mod floorplan;
 
-pub use doc::{SiteDoc, write_doc};
+pub use doc::{BeaconDoc, FloorplanDoc, SiteDoc, write_doc};
 pub use floorplan::{
     Floorplan, MAX_IMAGE_BYTES, ReferencePoint, mime_of_bytes,
     mime_of_name as floorplan_mime_of_name, probe_image,
