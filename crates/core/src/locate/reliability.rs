@@ -161,9 +161,18 @@ impl Knots {
         }
         sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
         // Blocks of (sum of raw, sum of hits, count), merged while decreasing.
+        // Fixes of one raw value are one block from the start: they must get
+        // one published value, whatever order the sort left them in.
         let mut blocks: Vec<(f64, f64, f64)> = Vec::new();
+        let mut last_raw = f32::NAN;
         for (raw, hit) in sorted {
-            blocks.push((f64::from(raw), hit, 1.0));
+            if raw == last_raw {
+                let last = blocks.last_mut().expect("a block of this raw value");
+                *last = (last.0 + f64::from(raw), last.1 + hit, last.2 + 1.0);
+            } else {
+                blocks.push((f64::from(raw), hit, 1.0));
+                last_raw = raw;
+            }
             while blocks.len() > 1 {
                 let (a, b) = (blocks[blocks.len() - 2], blocks[blocks.len() - 1]);
                 if a.1 / a.2 < b.1 / b.2 {
@@ -209,8 +218,8 @@ mod tests {
         // Raw 0.9 is right 60% of the time, raw 0.5 30%.
         let mut fixes = Vec::new();
         for i in 0..100 {
-            fixes.push(known(0.9, if i < 60 { 0.0 } else { 3.0 }, 3));
-            fixes.push(known(0.5, if i < 30 { 1.0 } else { 2.5 }, 3));
+            fixes.push(known(0.9, if i < 60 { 0.0 } else { 3.0 }, 3, i));
+            fixes.push(known(0.5, if i < 30 { 1.0 } else { 2.5 }, 3, i));
         }
         let map = ConfidenceMap::fit(&fixes);
         assert!((map.apply(0.9, 3) - 0.6).abs() < 1e-6);
@@ -221,18 +230,18 @@ mod tests {
 
     #[test]
     fn too_few_fixes_keep_the_raw_confidence() {
-        let map = ConfidenceMap::fit(&[known(0.9, 5.0, 2); 10]);
+        let map = ConfidenceMap::fit(&[known(0.9, 5.0, 2, 0); 10]);
         assert_eq!(map.apply(0.42, 2), 0.42);
     }
 
     #[test]
     fn a_window_of_one_anchor_publishes_what_such_windows_earned() {
         // At the same raw 0.95, windows of one anchor are right 20% of the
-        // time and windows of four 90%.
+        // time and windows of four 90%; each walk (group) had both.
         let mut fixes = Vec::new();
         for i in 0..100 {
-            fixes.push(known(0.95, if i < 20 { 0.0 } else { 4.0 }, 1));
-            fixes.push(known(0.95, if i < 90 { 1.0 } else { 4.0 }, 4));
+            fixes.push(known(0.95, if i % 5 == 0 { 0.0 } else { 4.0 }, 1, i));
+            fixes.push(known(0.95, if i % 10 == 0 { 4.0 } else { 1.0 }, 4, i));
         }
         let map = ConfidenceMap::fit(&fixes);
         assert!((map.apply(0.95, 1) - 0.2).abs() < 1e-6);
@@ -241,15 +250,12 @@ mod tests {
         assert!((map.apply(0.95, 2) - 0.55).abs() < 1e-6);
     }
 
-    /// Each known fix its own group, as if each came from its own walk.
-    static NEXT_GROUP: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-
-    fn known(raw: f32, error_cells: f64, heard: usize) -> KnownFix {
+    fn known(raw: f32, error_cells: f64, heard: usize, group: usize) -> KnownFix {
         KnownFix {
             raw,
             error_cells,
             heard,
-            group: NEXT_GROUP.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
+            group,
         }
     }
 }
