@@ -12,15 +12,17 @@
 //!
 //! So before it serves, it rehearses: simulated walkers cross the site's
 //! walkable cells at walking pace, each in a world drawn around the model's
-//! own radio by that doubt (an offset per anchor, a fixed shadow per cell
-//! and anchor, a detection range off by a factor), hear what that world
+//! own radio by that doubt (the receiver's gain, each anchor's power, a
+//! fixed shadow per cell and anchor, detection odds off by a factor, the
+//! anchor hung a little off its place in the site file), hear what that world
 //! makes them hear, and are localized by the model through the same tracker
 //! the gateway runs. Their (raw confidence, error) pairs fit the
 //! [`ConfidenceMap`] the published confidence goes through, exactly as
 //! held-out survey rows do for a surveyed localizer. Confidence then means
 //! "within one cell this often, were the world as far from the model as the
-//! model admits": a class of fixes (one beacon heard once, say) is published
-//! at the rate that class earned in rehearsal.
+//! model admits": a fix (one beacon heard once, say) is published at the
+//! rate fixes like it earned in rehearsal, per class of window where that
+//! scores better ([`ConfidenceMap::fit`]).
 //!
 //! The doubt itself is not fitted to any site: it is the spread of what
 //! these parameters are in real installations (iBeacon measured power is
