@@ -10,7 +10,7 @@ use std::sync::Arc;
 use anyhow::Context;
 
 use crate::event::Event;
-use crate::locate::calibrate::{FitOptions, Window, fit};
+use crate::locate::calibrate::{FitOptions, Window, calibrate};
 use crate::locate::pathloss::anchors;
 use crate::locate::window::{Windows, anchor_ids};
 use crate::source::capture::{CaptureReader, Format, ReadOptions};
@@ -72,7 +72,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         cell_iterations: args.cells.unwrap_or(0),
         cell_prior_readings: args.cell_prior_readings,
     };
-    let fitted = fit(
+    let fitted = calibrate(
         &site,
         &ids,
         &start,
@@ -102,22 +102,38 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
             "iterations": args.iterations,
             "seconds": seconds,
             "log_likelihood_per_window": fitted.log_likelihood_per_window,
+            "held_out": fitted.held_out,
             "anchors": fitted.changes,
             "cells": fitted.cells,
         });
         println!("{report}");
     } else {
+        let kept = fitted.changes.iter().filter(|c| c.kept).count();
         println!(
-            "calibrated {} anchors from {windows} windows ({} trajectories) in {seconds:.1} s; wrote {}",
+            "calibrated {} anchors from {windows} windows ({} trajectories) in {seconds:.1} s; \
+             kept {kept}; wrote {}",
             fitted.changes.len(),
             trajectories.len(),
             args.out.display()
         );
-        println!("anchor    heard  tx dBm   n     σ dB  range m  slope  p_max   Δrssi dB  Δdetect");
+        if let Some(held_out) = &fitted.held_out {
+            println!(
+                "checked on {} held-out windows: what was kept makes them likelier by {:.3} nats \
+                 a window than the model you started from",
+                held_out.windows, held_out.gain_per_window
+            );
+        }
+        println!(
+            "anchor    heard  tx dBm   n     σ dB  range m  slope  p_max   Δrssi dB  Δdetect  \
+             held-out gain  verdict"
+        );
         for c in &fitted.changes {
             let r = &c.after;
+            let gain = c
+                .held_out_gain
+                .map_or_else(|| "—".to_owned(), |g| format!("{g:+.4}"));
             println!(
-                "{:<9} {:>5}  {:>6.1}  {:>4.2}  {:>5.1}  {:>7.1}  {:>5.1}  {:>5.2}  {:>+8.1}  {:>+7.3}",
+                "{:<9} {:>5}  {:>6.1}  {:>4.2}  {:>5.1}  {:>7.1}  {:>5.1}  {:>5.2}  {:>+8.1}  {:>+7.3}  {gain:>13}  {}",
                 c.id,
                 c.heard,
                 r.tx_dbm,
@@ -127,13 +143,15 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
                 r.range_slope,
                 r.max_detection,
                 c.rssi_shift_db,
-                c.detection_shift
+                c.detection_shift,
+                c.why.describe()
             );
         }
         if let Some(cells) = &fitted.cells {
             println!(
-                "refined the radio map of {} cells: detection moved {:.3} on average, mean RSSI {:.1} dB",
-                cells.cells, cells.detection_shift, cells.rssi_shift_db
+                "refined the radio map of {} cells, kept {} (the others made held-out windows less \
+                 likely, or the map as a whole gained nothing clear): detection moved {:.3} on average, mean RSSI {:.1} dB",
+                cells.refined, cells.cells, cells.detection_shift, cells.rssi_shift_db
             );
         }
     }

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use gangway_core::locate::LocalizerConfig;
-use gangway_core::locate::calibrate::{CellChange, Change};
+use gangway_core::locate::calibrate::{CellChange, Change, HeldOut};
 use gangway_core::locate::calibration::Calibration;
 use gangway_core::locate::pathloss::PathLossConfig;
 use gangway_core::locate::recalibrate::{self, FitError, RecalibrationConfig};
@@ -90,6 +90,8 @@ pub(crate) struct Recalibrated {
     pub trajectories: usize,
     pub changes: Vec<Change>,
     pub cells: Option<CellChange>,
+    /// What the changes were checked on and what they won there.
+    pub held_out: Option<HeldOut>,
     pub seconds: f64,
 }
 
@@ -141,6 +143,7 @@ pub(crate) fn run(job: &Job) -> Result<Recalibrated, RecalibrationError> {
         trajectories: done.trajectories,
         changes: done.fitted.changes,
         cells: done.fitted.cells,
+        held_out: done.fitted.held_out,
         seconds: started.elapsed().as_secs_f64(),
     })
 }
@@ -275,7 +278,20 @@ mod tests {
                 truth.tx_dbm
             );
         }
-        assert!(done.cells.as_ref().is_some_and(|c| c.cells > 0));
+        // Every anchor's change is kept: the held-out windows say so.
+        assert!(done.changes.iter().all(|c| c.kept), "{:?}", done.changes);
+        assert!(
+            done.held_out
+                .as_ref()
+                .is_some_and(|h| h.gain_per_window > 0.0)
+        );
+        // Cells are refined by default; the radio here is the same in every
+        // cell, so the held-out windows may keep few or none of them.
+        assert!(
+            done.cells
+                .as_ref()
+                .is_some_and(|c| c.refined > 0 && c.cells <= c.refined)
+        );
 
         // The file loads, and locates fresh walks (no tracker) better than
         // the defaults it started from.

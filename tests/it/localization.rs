@@ -146,10 +146,12 @@ fn calibration_and_the_radio_map_hold_their_figures() {
         "calibrated on the crowd file: {mean} / {within_2}"
     );
     // On the survey's own scans, their labels unused, with a radio map
-    // refined per cell: 1.645 / 0.635 measured.
+    // refined per cell: 1.750 / 0.612 measured. (1.645 / 0.635 before
+    // cells had to make held-out windows likelier: the scans include the
+    // rows scored, so a map that learned their noise was flattered.)
     let (mean, within_2) = calibrated(survey, &["--calibrate-cells"]);
     assert!(
-        mean <= 1.70 && within_2 >= 0.61,
+        mean <= 1.80 && within_2 >= 0.60,
         "self-calibrated with cells: {mean} / {within_2}"
     );
     let map = eval(&["--site", site, "--survey", survey, "--method", "radiomap"]);
@@ -168,8 +170,29 @@ fn calibration_and_the_radio_map_hold_their_figures() {
         "--json",
     ]);
     let report: Value = serde_json::from_str(out.trim()).expect("one JSON object");
-    assert_eq!(report["anchors"].as_array().unwrap().len(), 13, "{report}");
-    assert!(report["cells"]["cells"].as_u64().unwrap() > 50, "{report}");
+    // Every anchor's change is reported with its verdict; on the crowd file
+    // the held-out walks keep all 13 and 32 of the 99 refined cells.
+    let anchors = report["anchors"].as_array().unwrap();
+    assert_eq!(anchors.len(), 13, "{report}");
+    assert!(
+        anchors
+            .iter()
+            .all(|a| a["kept"].is_boolean() && a["why"].is_string() && a["held_out_gain"].is_f64()),
+        "{report}"
+    );
+    assert!(
+        report["held_out"]["windows"].as_u64().unwrap() > 500,
+        "{report}"
+    );
+    assert!(
+        report["held_out"]["gain_per_window"].as_f64().unwrap() > 0.0,
+        "{report}"
+    );
+    let cells = report["cells"]["cells"].as_u64().unwrap();
+    assert!(
+        cells > 20 && cells <= report["cells"]["refined"].as_u64().unwrap(),
+        "{report}"
+    );
     // The shipped config, its relative paths made absolute, with the file
     // in place of the shipped calibration (`check` refuses one that does
     // not load).
@@ -458,6 +481,28 @@ fn depot_centre(cx: i64, cy: i64) -> (f64, f64) {
     )
 }
 
+/// `METRIC_SITE`'s anchors as the radio sees them: (x, y, height above the
+/// phone), in the order of [`DEPOT_HEADER`]'s columns.
+const DEPOT_BEACONS: [(f64, f64, f64); 6] = [
+    (250.0, 120.0, 1.3),
+    (256.7, 116.4, 0.6),
+    (261.0, 118.0, 0.0),
+    (264.4, 111.0, 1.3),
+    (250.0, 113.5, 0.0),
+    (258.0, 111.0, 1.3),
+];
+const DEPOT_HEADER: &str = "t,x_m,y_m,door,shelf,partition,far-corner,west,south";
+
+/// Whether `METRIC_SITE` blocks a cell: the shelf (cell centres inside it)
+/// and the partition (the cells x = 261 m runs through, from the top down to
+/// y = 114.6 m, the edge between rows 5 and 6).
+fn depot_blocked((cx, cy): (i64, i64)) -> bool {
+    let (x, y) = depot_centre(cx, cy);
+    let shelf = (254.5..259.0).contains(&x) && (115.5..117.3).contains(&y);
+    let partition = cx == depot_cell(261.0, 120.0).0 && cy <= 5;
+    shelf || partition
+}
+
 /// Nothing tuned to the sample floor: on `METRIC_SITE`, a survey in metres
 /// (`x_m`,`y_m`, points anywhere on the walkable floor, not cell centres)
 /// simulated with drop-outs and shadowing, split by rows into fixed files,
@@ -472,26 +517,8 @@ fn the_surveyed_methods_beat_a_plain_knn_regressor_on_a_metric_site() {
     let dir = tempfile::tempdir().unwrap();
     let site_file = write(dir.path(), "depot.toml", METRIC_SITE);
     let site = site_file.to_str().unwrap();
-    // Anchors as the radio sees them: (x, y, height above the phone).
-    let beacons = [
-        (250.0, 120.0, 1.3),
-        (256.7, 116.4, 0.6),
-        (261.0, 118.0, 0.0),
-        (264.4, 111.0, 1.3),
-        (250.0, 113.5, 0.0),
-        (258.0, 111.0, 1.3),
-    ];
-    // Blocked by the shelf (cell centres inside it) and the partition (the
-    // cells x = 261 m runs through, from the top down to y = 114.6 m, the
-    // edge between rows 5 and 6).
-    let blocked = |(cx, cy): (i64, i64)| {
-        let (x, y) = depot_centre(cx, cy);
-        let shelf = (254.5..259.0).contains(&x) && (115.5..117.3).contains(&y);
-        let partition = cx == depot_cell(261.0, 120.0).0 && cy <= 5;
-        shelf || partition
-    };
     let mut rng = rand::rngs::Xoshiro256PlusPlus::seed_from_u64(11);
-    let header = "t,x_m,y_m,door,shelf,partition,far-corner,west,south";
+    let header = DEPOT_HEADER;
     // (true position, readings with -200 for "not heard").
     let mut rows: Vec<((f64, f64), Vec<i32>)> = Vec::new();
     while rows.len() < 900 {
@@ -501,10 +528,10 @@ fn the_surveyed_methods_beat_a_plain_knn_regressor_on_a_metric_site() {
             mm(rng.random_range(250.0..264.4)),
             mm(rng.random_range(111.0..120.0)),
         );
-        if blocked(depot_cell(x, y)) {
+        if depot_blocked(depot_cell(x, y)) {
             continue;
         }
-        let readings = beacons
+        let readings = DEPOT_BEACONS
             .iter()
             .map(|&(bx, by, dh)| {
                 let d: f64 = ((x - bx) * (x - bx) + (y - by) * (y - by) + dh * dh).sqrt();
@@ -572,7 +599,7 @@ fn the_surveyed_methods_beat_a_plain_knn_regressor_on_a_metric_site() {
             let (tx, ty) = test[i].0;
             let (cx, cy) = (f[x_col].parse().unwrap(), f[y_col].parse().unwrap());
             assert!(
-                !blocked((cx, cy)),
+                !depot_blocked((cx, cy)),
                 "{method}: a fix on a blocked cell: {line}"
             );
             let (x, y) = depot_centre(cx, cy);
@@ -616,6 +643,152 @@ fn the_surveyed_methods_beat_a_plain_knn_regressor_on_a_metric_site() {
             "{method} {error:.3} m against a plain kNN regressor {knn_error:.3} m"
         );
         eprintln!("{method} {error:.3} m, plain kNN regressor {knn_error:.3} m");
+    }
+}
+
+/// Calibration does no harm (#31): on `METRIC_SITE`, phones walk in two
+/// worlds, one whose beacons are as loud as the defaults say and one where
+/// they are quieter, fall off faster and reach further; the survey-free
+/// model calibrated on unlabelled walks locates other walks at least as well
+/// as the defaults do, in both.
+#[test]
+fn calibration_is_never_worse_than_none_on_a_metric_site() {
+    use rand::{RngExt, SeedableRng};
+    use rand_distr::{Distribution, Normal};
+    struct World {
+        name: &'static str,
+        tx_dbm: [f64; 6],
+        exponent: f64,
+        shadowing_db: f64,
+        range_m: f64,
+        range_slope: f64,
+        max_detection: f64,
+    }
+    // The first as `[localizer.pathloss]`'s defaults, written out here.
+    let worlds = [
+        World {
+            name: "as the defaults",
+            tx_dbm: [-59.0; 6],
+            exponent: 2.2,
+            shadowing_db: 5.0,
+            range_m: 5.0,
+            range_slope: 3.0,
+            max_detection: 0.9,
+        },
+        World {
+            name: "quieter beacons",
+            tx_dbm: [-71.0, -68.0, -74.0, -70.0, -66.0, -72.0],
+            exponent: 2.7,
+            shadowing_db: 6.0,
+            range_m: 7.0,
+            range_slope: 2.5,
+            max_detection: 0.85,
+        },
+    ];
+    let dir = tempfile::tempdir().unwrap();
+    let site_file = write(dir.path(), "depot.toml", METRIC_SITE);
+    for (w, world) in worlds.iter().enumerate() {
+        let mut rng = rand::rngs::Xoshiro256PlusPlus::seed_from_u64(31 + w as u64);
+        let shadow = Normal::new(0.0, world.shadowing_db).unwrap();
+        // `walks` walks of `seconds` windows, a minute apart, as a survey in
+        // metres: walkers turn where the floor ends or a cell is blocked.
+        let mut walks = |walks: usize, seconds: usize, first_t: usize| {
+            let mut csv = format!("{DEPOT_HEADER}\n");
+            for walk in 0..walks {
+                let (mut x, mut y): (f64, f64);
+                loop {
+                    (x, y) = (
+                        rng.random_range(250.5..264.0),
+                        rng.random_range(111.5..119.5),
+                    );
+                    if !depot_blocked(depot_cell(x, y)) {
+                        break;
+                    }
+                }
+                let mut heading: f64 = rng.random_range(0.0..std::f64::consts::TAU);
+                for s in 0..seconds {
+                    let t = first_t + walk * (seconds + 60) + s;
+                    let readings: Vec<String> = DEPOT_BEACONS
+                        .iter()
+                        .zip(world.tx_dbm)
+                        .map(|(&(bx, by, dh), tx)| {
+                            let d = ((x - bx).powi(2) + (y - by).powi(2) + dh * dh)
+                                .sqrt()
+                                .max(0.5);
+                            let p = world.max_detection
+                                / (1.0 + (d / world.range_m).powf(world.range_slope));
+                            let rssi =
+                                tx - 10.0 * world.exponent * d.log10() + shadow.sample(&mut rng);
+                            if rng.random_bool(p) && rssi >= -100.0 {
+                                format!("{}", rssi.round())
+                            } else {
+                                "-200".to_owned()
+                            }
+                        })
+                        .collect();
+                    writeln!(csv, "{t},{x:.3},{y:.3},{}", readings.join(",")).unwrap();
+                    // About a metre a second, turning a little, more at walls.
+                    heading += rng.random_range(-0.4..0.4);
+                    let speed = rng.random_range(0.6..1.3);
+                    for _ in 0..20 {
+                        let (nx, ny) = (x + speed * heading.cos(), y + speed * heading.sin());
+                        // A centimetre clear of blocked cells and the edges,
+                        // so that no rounding puts it in one.
+                        let clear = [(-0.01, -0.01), (-0.01, 0.01), (0.01, -0.01), (0.01, 0.01)]
+                            .iter()
+                            .all(|(dx, dy)| {
+                                let (cx, cy) = depot_cell(nx + dx, ny + dy);
+                                (0..16).contains(&cx)
+                                    && (0..10).contains(&cy)
+                                    && !depot_blocked((cx, cy))
+                            });
+                        if clear {
+                            (x, y) = (nx, ny);
+                            break;
+                        }
+                        heading = rng.random_range(0.0..std::f64::consts::TAU);
+                    }
+                }
+            }
+            csv
+        };
+        let heard = write(dir.path(), "heard.csv", &walks(40, 60, 0));
+        let test = write(dir.path(), "test.csv", &walks(15, 60, 100_000));
+        let error = |calibrate: bool| {
+            let mut args = vec![
+                "--site",
+                site_file.to_str().unwrap(),
+                "--train",
+                heard.to_str().unwrap(),
+                "--test",
+                test.to_str().unwrap(),
+                "--method",
+                "pathloss",
+            ];
+            if calibrate {
+                args.extend(["--calibrate", heard.to_str().unwrap()]);
+            }
+            figure(&eval(&args), "mean_error_m")
+        };
+        let (none, calibrated) = (error(false), error(true));
+        eprintln!(
+            "{}: mean error {none:.2} m with the defaults, {calibrated:.2} m calibrated",
+            world.name
+        );
+        assert!(
+            calibrated <= none,
+            "{}: calibrated {calibrated:.3} m, worse than the defaults' {none:.3} m",
+            world.name
+        );
+        // Where the defaults are wrong, calibration is what fixes them (5.20
+        // → 2.20 m measured).
+        if w == 1 {
+            assert!(
+                calibrated < 0.8 * none,
+                "{}: calibrated {calibrated:.3} m against the defaults' {none:.3} m",
+                world.name
+            );
+        }
     }
 }
 
@@ -771,7 +944,7 @@ async fn the_daemon_recalibrates_from_what_it_heard_and_serves_it() {
     for phone in ["phone-a", "phone-b"] {
         let observer: std::sync::Arc<str> = phone.into();
         let mut events = Vec::new();
-        for s in 0..400u32 {
+        for s in 0..1600u32 {
             let x = f64::from((s / 8 + u32::from(phone == "phone-b") * 3) % 8);
             let y = if (s / 64) % 2 == 0 { 0.0 } else { 4.0 };
             for (minor, (bx, by)) in (1u16..).zip(beacons) {
@@ -780,7 +953,7 @@ async fn the_daemon_recalibrates_from_what_it_heard_and_serves_it() {
                     continue;
                 }
                 events.push(Event::Advert(Sighting {
-                    t: now - 1_000.0 + f64::from(s),
+                    t: now - 2_000.0 + f64::from(s),
                     observer: observer.clone(),
                     advertiser: BeaconId {
                         uuid,
@@ -801,7 +974,9 @@ async fn the_daemon_recalibrates_from_what_it_heard_and_serves_it() {
             .and_then(|s| s.heard(10_000))
             .map_or(0, |rows| rows.len())
     };
-    eventually("heard windows in the store", || heard() >= 300).await;
+    // Enough that a quarter held out in blocks of half a minute can judge
+    // the fit (`locate::calibrate`).
+    eventually("heard windows in the store", || heard() >= 700).await;
 
     ask.send(()).await.unwrap();
     eventually("the recalibrated pipeline", || {
@@ -812,8 +987,7 @@ async fn the_daemon_recalibrates_from_what_it_heard_and_serves_it() {
     let site = gangway::site::Site::load(&dir.path().join("workshop.toml")).unwrap();
     let calibration = gangway::locate::calibration::Calibration::load(&file, &site).unwrap();
     assert_eq!(calibration.anchors.len(), 4);
-    assert!(calibration.windows >= 300, "{}", calibration.windows);
-    assert!(!calibration.cells.is_empty(), "cells refined by default");
+    assert!(calibration.windows >= 700, "{}", calibration.windows);
 
     stop.send(()).unwrap();
     let stats = daemon.await.unwrap().unwrap().stats;

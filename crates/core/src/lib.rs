@@ -39,4 +39,5 @@ pub mod pipeline;
 pub mod plan;
 pub mod publish;
 pub mod sighting;
+pub mod sign_test;
 pub mod site;

@@ -10,7 +10,7 @@
 // The core's and the I/O crate's modules under their own names, so a path
 // reads the same in every crate of the workspace (`crate::site::Site`).
 use gangway_core::{
-    csv_line, event, guide, locate, model, pipeline, plan, publish, sighting, site,
+    csv_line, event, guide, locate, model, pipeline, plan, publish, sighting, sign_test, site,
 };
 use gangway_io::{config, score, store};
 

@@ -26,6 +26,12 @@
 //! and the part of the floor that will be localized (what a gateway gathers
 //! itself); scans of other phones or of other rooms teach the map their
 //! quirks instead (measured on the UCI floor, `BENCHMARKS.md`).
+//!
+//! EM on unlabelled windows finds the radios that explain them best, which
+//! is not always better than where it started; [`calibrate`], what users
+//! and the daemon run, holds a quarter of the windows out and keeps only
+//! what they confirm. [`fit`] keeps everything: for windows of known
+//! position.
 
 use std::sync::Arc;
 
@@ -35,6 +41,7 @@ use super::calibration::{AnchorCalibration, Calibration, CellCalibration};
 use super::pathloss::{Anchor, DETECTION_BOUNDS, PathLoss, Radio};
 use super::tracker::{Tracker, TrackerConfig};
 use super::{Localizer, LocalizerError};
+use crate::sign_test::sign_test;
 use crate::site::{Cell, Site};
 
 /// One window of a trajectory: when, what was heard (one slot per anchor,
@@ -86,7 +93,7 @@ pub const DEFAULT_CELL_PRIOR_READINGS: f64 = 1.0;
 /// not written: they are the anchors' models anyway.
 const MIN_CELL_WEIGHT: f64 = 0.5;
 
-/// How far one anchor's model moved.
+/// How far one anchor's model moved, and whether the move was kept.
 #[derive(Clone, Debug, Serialize)]
 pub struct Change {
     pub id: String,
@@ -97,25 +104,79 @@ pub struct Change {
     pub rssi_shift_db: f64,
     /// Mean change of the detection probability over 1–10 m.
     pub detection_shift: f64,
+    /// Whether `after` was written to the calibration (else the anchor keeps
+    /// `before`).
+    pub kept: bool,
+    pub why: Why,
+    /// How much likelier the held-out windows are with this change than
+    /// with the anchor alone put back (all other changes made), nats per
+    /// window; `None` when nothing was held out.
+    pub held_out_gain: Option<f64>,
+}
+
+/// Why a change was kept or not.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Why {
+    /// The held-out windows are likelier with it, beside the others kept.
+    Improved,
+    /// The held-out windows are likelier with the anchor put back.
+    Worse,
+    /// What EM reached, all of it, did not explain the held-out windows
+    /// clearly better than the model it started from: nothing is kept.
+    NoClearGainTogether,
+    /// EM left it where it started.
+    Unchanged,
+    /// Fitted to windows of known position with nothing held out.
+    NotChecked,
+}
+
+impl Why {
+    /// A few words for a person reading the report.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Why::Improved => "kept: held-out windows likelier with it",
+            Why::Worse => "dropped: held-out windows likelier without it",
+            Why::NoClearGainTogether => "dropped: the whole fit gains nothing clear held out",
+            Why::Unchanged => "unchanged",
+            Why::NotChecked => "kept: not checked",
+        }
+    }
 }
 
 /// The fitted calibration and what changed.
 pub struct Fitted {
     pub calibration: Calibration,
     pub changes: Vec<Change>,
-    /// Mean log-likelihood per window under the final model.
+    /// Mean log-likelihood per window under the model EM reached, on the
+    /// windows it was fitted to.
     pub log_likelihood_per_window: f64,
     /// How far the refined cells moved from the anchors' models, when cells
     /// were refined.
     pub cells: Option<CellChange>,
+    /// What was held out to check the changes, when anything was.
+    pub held_out: Option<HeldOut>,
+}
+
+/// The windows a calibration was checked on and what it won there.
+#[derive(Clone, Debug, Serialize)]
+pub struct HeldOut {
+    pub windows: usize,
+    /// Log-likelihood of the held-out windows under what was kept, less that
+    /// under the starting model, nats per window: 0 when nothing was kept.
+    pub gain_per_window: f64,
 }
 
 /// How far the per-cell refinement moved the radio map.
 #[derive(Clone, Debug, Serialize)]
 pub struct CellChange {
-    /// Cells refined (and written).
+    /// Cells refined and written.
     pub cells: usize,
-    /// Mean |change| of the detection probability over those cells and anchors.
+    /// Cells EM refined; those not written made the held-out windows less
+    /// likely (each alone, or all together).
+    pub refined: usize,
+    /// Mean |change| of the detection probability over the written cells
+    /// and anchors.
     pub detection_shift: f64,
     /// Mean |change| of the mean RSSI where the anchor is heard, dB,
     /// weighted by how often it is heard there.
@@ -124,7 +185,9 @@ pub struct CellChange {
 
 /// Fits every positioned anchor's radio model to `trajectories` (each in time
 /// order), starting from `start` (in the orientation's anchor order, with the
-/// anchors' ids in `ids`), and then, if asked, a radio map per cell.
+/// anchors' ids in `ids`), and then, if asked, a radio map per cell; every
+/// change is kept. For windows of known position (a labelled survey), where
+/// EM cannot wander; what a gateway hears goes through [`calibrate`].
 pub fn fit(
     site: &Arc<Site>,
     ids: &[String],
@@ -133,96 +196,520 @@ pub fn fit(
     trajectories: &[Vec<Window>],
     options: &FitOptions,
 ) -> Result<Fitted, LocalizerError> {
-    let mut anchors = start.to_vec();
-    initialise(site, &mut anchors, trajectories);
-    let em = Em {
-        site,
-        tracker: Tracker::new(tracker.clone(), site.clone()),
-        trajectories,
-        // Distance from every open cell to every anchor, metres, [cell][anchor].
-        distance: site
-            .open_cells()
+    let reached = Em::new(site, start, tracker, trajectories).run(start, options)?;
+    let kept = Kept::everything(site, start, &reached);
+    Ok(written(site, ids, start, trajectories, &reached, &kept))
+}
+
+/// Calibration that does no harm: EM fits three quarters of `trajectories`
+/// (as [`fit`] does), and a change is kept only where the windows held out
+/// are likelier with it under the tracker (walls and walking speed
+/// included): the fit as a whole must win on clearly more held-out walks
+/// than chance allows, then each anchor and each refined cell that makes
+/// them less likely is put back ([`Check::keep`]). What is kept is then
+/// refitted on every window; the report says what was kept and why.
+///
+/// Windows are held out by walk when there are enough walks, else by blocks
+/// of consecutive windows. The check is what stops EM on unlabelled windows
+/// from replacing defaults that were right with a model a hair likelier
+/// that locates worse, and per-cell maps from learning the noise of a few
+/// passes (`tests/it/localization.rs`, BENCHMARKS.md).
+pub fn calibrate(
+    site: &Arc<Site>,
+    ids: &[String],
+    start: &[Anchor],
+    tracker: &TrackerConfig,
+    trajectories: &[Vec<Window>],
+    options: &FitOptions,
+) -> Result<Fitted, LocalizerError> {
+    let (fit_on, held_out) = hold_out(trajectories, site.open_cells().len());
+    if held_out.len() < MIN_HELD_OUT {
+        return Err(LocalizerError::TooFewToHoldOut {
+            windows: trajectories.iter().map(Vec::len).sum(),
+            needed: MIN_HELD_OUT * HOLD_OUT_EVERY * BLOCK_WINDOWS,
+        });
+    }
+    let reached = Em::new(site, start, tracker, &fit_on).run(start, options)?;
+    let kept = Check::new(site, tracker, &held_out).keep(start, &reached)?;
+    // What to keep is settled; what is kept is refitted on every window.
+    let reached = Em::new(site, start, tracker, trajectories).run(start, options)?;
+    Ok(written(site, ids, start, trajectories, &reached, &kept))
+}
+
+/// One in this many walks (or blocks) is held out.
+const HOLD_OUT_EVERY: usize = 4;
+/// Held-out walks (or blocks) needed at least: fewer could not pass the
+/// sign test at [`CLEAR_GAIN_P`] even if all of them gained.
+const MIN_HELD_OUT: usize = 5;
+/// Walks needed to hold out whole walks rather than blocks of windows.
+const MIN_WALKS: usize = MIN_HELD_OUT * HOLD_OUT_EVERY;
+/// Windows per block when blocks are held out: half a minute of a walk at
+/// the usual one window a second, long enough for the tracker to settle.
+const BLOCK_WINDOWS: usize = 30;
+/// Held-out windows × open cells checked at most: the check keeps one
+/// log-likelihood per held-out window and cell (4 bytes each, 64 MB).
+const HELD_OUT_TERMS: usize = 16_000_000;
+
+/// `trajectories` split into what EM fits and what it is checked on: every
+/// [`HOLD_OUT_EVERY`]th walk, or block of [`BLOCK_WINDOWS`] windows when
+/// there are fewer than [`MIN_WALKS`] walks, held out while within
+/// [`HELD_OUT_TERMS`]; the rest is fitted.
+fn hold_out(
+    trajectories: &[Vec<Window>],
+    open_cells: usize,
+) -> (Vec<Vec<Window>>, Vec<Vec<Window>>) {
+    let units: Vec<&[Window]> = if trajectories.len() >= MIN_WALKS {
+        trajectories.iter().map(Vec::as_slice).collect()
+    } else {
+        trajectories
             .iter()
-            .flat_map(|&c| {
-                let here = site.world_of_cell(c);
-                anchors
-                    .iter()
-                    .map(move |a| a.map_or(f64::NAN, |(mount, _)| mount.distance_m(here)))
-            })
-            .collect(),
-        n_anchors: anchors.len(),
+            .flat_map(|t| t.chunks(BLOCK_WINDOWS))
+            .collect()
     };
-    let n_anchors = em.n_anchors;
-    let bins = em
-        .distance
-        .iter()
-        .filter(|d| d.is_finite())
-        .fold(0.0f64, |m, &d| m.max(d))
-        .div_euclid(BIN_M) as usize
-        + 1;
-    let windows: usize = trajectories.iter().map(Vec::len).sum();
-    let mut log_likelihood_per_window = f64::NAN;
-    for _ in 0..options.iterations.max(1) {
-        let mut stats = vec![Stats::new(bins); n_anchors];
-        let mut localizer = PathLoss::with_anchors(site, &anchors)?;
-        log_likelihood_per_window = em.e_step(&mut localizer, |w, c, b| {
-            let row = &em.distance[c * n_anchors..(c + 1) * n_anchors];
-            for (a, stat) in stats.iter_mut().enumerate() {
-                if row[a].is_finite() {
-                    stat.add(row[a], w.rssi[a], b);
-                }
-            }
-        }) / windows.max(1) as f64;
-        for (anchor, stat) in anchors.iter_mut().zip(&stats) {
-            if let Some((_, radio)) = anchor
-                && stat.heard >= MIN_HEARD
-            {
-                *radio = stat.refit(radio);
-            }
+    let mut room = HELD_OUT_TERMS / open_cells.max(1);
+    let (mut fit_on, mut held_out) = (Vec::new(), Vec::new());
+    for (i, unit) in units.into_iter().enumerate() {
+        if i % HOLD_OUT_EVERY == HOLD_OUT_EVERY - 1 && unit.len() <= room {
+            room -= unit.len();
+            held_out.push(unit.to_vec());
+        } else {
+            fit_on.push(unit.to_vec());
         }
     }
-    let mut cells = Vec::new();
-    let mut cell_change = None;
-    if options.cell_iterations > 0 {
-        let (refined, change, ll) = em.refine_cells(&anchors, options)?;
-        cells = refined;
-        cell_change = Some(change);
-        log_likelihood_per_window = ll / windows.max(1) as f64;
-    }
-    let heard: Vec<usize> = (0..n_anchors)
-        .map(|a| {
-            trajectories
+    (fit_on, held_out)
+}
+
+/// What EM reached on the windows it was given.
+struct Reached {
+    anchors: Vec<Anchor>,
+    /// The radio map per cell, when refined.
+    cells: Option<CellTables>,
+    log_likelihood_per_window: f64,
+    iterations: usize,
+}
+
+/// A radio map per open cell, `[cell][anchor]`: mean RSSI where heard and
+/// detection probability; and the belief, in windows, each cell rests on.
+struct CellTables {
+    mu: Vec<f64>,
+    p: Vec<f64>,
+    weight: Vec<f64>,
+}
+
+/// What is done with one anchor's change.
+#[derive(Clone, Copy)]
+struct Verdict {
+    kept: bool,
+    why: Why,
+    /// [`Change::held_out_gain`].
+    gain: Option<f64>,
+}
+
+/// Which of what EM reached goes into the calibration file.
+struct Kept {
+    /// Per anchor, in `start`'s order.
+    anchors: Vec<Verdict>,
+    /// Per open cell: whether its refinement is written.
+    cells: Vec<bool>,
+    held_out: Option<HeldOut>,
+}
+
+impl Kept {
+    /// Every change, unchecked.
+    fn everything(site: &Site, start: &[Anchor], reached: &Reached) -> Kept {
+        Kept {
+            anchors: start
                 .iter()
-                .flatten()
-                .filter(|w| w.rssi[a].is_some())
-                .count()
-        })
-        .collect();
+                .zip(&reached.anchors)
+                .map(|(before, after)| {
+                    let why = if before == after {
+                        Why::Unchanged
+                    } else {
+                        Why::NotChecked
+                    };
+                    Verdict {
+                        kept: true,
+                        why,
+                        gain: None,
+                    }
+                })
+                .collect(),
+            cells: reached.cells.as_ref().map_or_else(Vec::new, |t| {
+                t.weight.iter().map(|&w| w >= MIN_CELL_WEIGHT).collect()
+            }),
+            held_out: None,
+        }
+        .sized(site)
+    }
+
+    /// `cells` one per open cell, even when none was refined.
+    fn sized(mut self, site: &Site) -> Kept {
+        self.cells.resize(site.open_cells().len(), false);
+        self
+    }
+
+    /// The anchors as written: what EM reached where kept, else the start.
+    fn anchors(&self, start: &[Anchor], reached: &Reached) -> Vec<Anchor> {
+        start
+            .iter()
+            .zip(&reached.anchors)
+            .zip(&self.anchors)
+            .map(|((before, after), verdict)| if verdict.kept { *after } else { *before })
+            .collect()
+    }
+}
+
+/// The calibration file's content and the report, from what EM reached and
+/// what is kept of it.
+fn written(
+    site: &Site,
+    ids: &[String],
+    start: &[Anchor],
+    fitted_on: &[Vec<Window>],
+    reached: &Reached,
+    kept: &Kept,
+) -> Fitted {
+    let heard = |a: usize| {
+        fitted_on
+            .iter()
+            .flatten()
+            .filter(|w| w.rssi[a].is_some())
+            .count()
+    };
     let mut entries = Vec::new();
     let mut changes = Vec::new();
-    for (a, (anchor, before)) in anchors.iter().zip(start).enumerate() {
-        let (Some((_, after)), Some((_, before))) = (anchor, before) else {
+    for (a, (after, before)) in reached.anchors.iter().zip(start).enumerate() {
+        let (Some((_, after)), Some((_, before))) = (after, before) else {
             continue;
         };
-        entries.push(AnchorCalibration {
-            id: ids[a].clone(),
-            heard: heard[a],
-            radio: *after,
-        });
-        changes.push(Change::between(&ids[a], heard[a], before, after));
+        let verdict = kept.anchors[a];
+        let is_kept = verdict.kept && verdict.why != Why::Unchanged;
+        if is_kept {
+            entries.push(AnchorCalibration {
+                id: ids[a].clone(),
+                heard: heard(a),
+                radio: *after,
+            });
+        }
+        changes.push(Change::between(
+            &ids[a],
+            heard(a),
+            (before, after),
+            Verdict {
+                kept: is_kept,
+                ..verdict
+            },
+        ));
     }
-    Ok(Fitted {
+    let (cells, cell_change) = match &reached.cells {
+        Some(tables) => {
+            let (cells, change) =
+                write_cells(site, &kept.anchors(start, reached), tables, &kept.cells);
+            (cells, Some(change))
+        }
+        None => (Vec::new(), None),
+    };
+    Fitted {
         calibration: Calibration {
             site: site.name.clone(),
-            windows,
-            iterations: options.iterations,
+            windows: fitted_on.iter().map(Vec::len).sum(),
+            iterations: reached.iterations,
             anchors: entries,
             cells,
         },
         changes,
-        log_likelihood_per_window,
+        log_likelihood_per_window: reached.log_likelihood_per_window,
         cells: cell_change,
-    })
+        held_out: kept.held_out.clone(),
+    }
+}
+
+/// The kept cells of a refined radio map as the calibration writes them (per
+/// positioned anchor), and how far they moved from `anchors`' models.
+fn write_cells(
+    site: &Site,
+    anchors: &[Anchor],
+    tables: &CellTables,
+    keep: &[bool],
+) -> (Vec<CellCalibration>, CellChange) {
+    let n = anchors.len();
+    let (prior_mu, prior_p) = PathLoss::with_anchors(site, anchors)
+        .expect("the anchors EM started from have positions")
+        .tables();
+    let positioned: Vec<usize> = (0..n).filter(|&a| anchors[a].is_some()).collect();
+    let mut refined = Vec::new();
+    let (mut dp, mut dmu, mut dmu_weight) = (0.0, 0.0, 0.0);
+    for (c, cell) in site.open_cells().iter().enumerate() {
+        if !keep[c] {
+            continue;
+        }
+        for &a in &positioned {
+            let i = c * n + a;
+            dp += (tables.p[i] - prior_p[i]).abs();
+            dmu += tables.p[i] * (tables.mu[i] - prior_mu[i]).abs();
+            dmu_weight += tables.p[i];
+        }
+        refined.push(CellCalibration {
+            at: [cell.x, cell.y],
+            detection: positioned
+                .iter()
+                .map(|&a| round_to(tables.p[c * n + a], 1e-4))
+                .collect(),
+            rssi_dbm: positioned
+                .iter()
+                .map(|&a| round_to(tables.mu[c * n + a], 1e-2))
+                .collect(),
+        });
+    }
+    let change = CellChange {
+        cells: refined.len(),
+        refined: tables
+            .weight
+            .iter()
+            .filter(|&&w| w >= MIN_CELL_WEIGHT)
+            .count(),
+        detection_shift: dp / (refined.len() * positioned.len()).max(1) as f64,
+        rssi_shift_db: dmu / dmu_weight.max(f64::MIN_POSITIVE),
+    };
+    (refined, change)
+}
+
+/// The held-out half of [`calibrate`]: the windows and the tracker that
+/// scores models on them.
+struct Check<'a> {
+    site: &'a Arc<Site>,
+    tracker: Tracker,
+    held_out: &'a [Vec<Window>],
+}
+
+impl<'a> Check<'a> {
+    fn new(site: &'a Arc<Site>, tracker: &TrackerConfig, held_out: &'a [Vec<Window>]) -> Self {
+        Check {
+            site,
+            tracker: Tracker::new(tracker.clone(), site.clone()),
+            held_out,
+        }
+    }
+
+    fn windows(&self) -> usize {
+        self.held_out.iter().map(Vec::len).sum()
+    }
+
+    /// Each held-out window's log-likelihood per open cell under `model`,
+    /// with its time, per trajectory.
+    fn log_likelihoods(&self, model: &mut PathLoss) -> Vec<Vec<(f64, Vec<f32>)>> {
+        let n_cells = self.site.open_cells().len();
+        self.held_out
+            .iter()
+            .map(|trajectory| {
+                trajectory
+                    .iter()
+                    .map(|w| {
+                        let (rssi, heard) = readings(&w.rssi);
+                        let mut ll = vec![0.0f32; n_cells];
+                        model.log_likelihood(&rssi, &heard, &mut ll);
+                        (w.t, ll)
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// Log-likelihood of each held-out walk (or block) given per-window,
+    /// per-cell log-likelihoods.
+    fn evidence(&self, lls: &[Vec<(f64, Vec<f32>)>]) -> Evidence {
+        Evidence(lls.iter().map(|t| self.tracker.log_evidence(t)).collect())
+    }
+
+    /// `lls` with anchor `a`'s term under `from` replaced by its term under
+    /// `to`.
+    fn swap_anchor(&self, lls: &mut [Vec<(f64, Vec<f32>)>], a: usize, from: &Anchor, to: &Anchor) {
+        let n_cells = self.site.open_cells().len();
+        let one = |anchor: &Anchor| {
+            PathLoss::with_anchors(self.site, std::slice::from_ref(anchor))
+                .expect("a positioned anchor")
+        };
+        let (mut from, mut to) = (one(from), one(to));
+        let (mut old, mut new) = (vec![0.0f32; n_cells], vec![0.0f32; n_cells]);
+        for (trajectory, windows) in self.held_out.iter().zip(lls) {
+            for (w, (_, ll)) in trajectory.iter().zip(windows) {
+                let (rssi, heard) = readings(&w.rssi[a..=a]);
+                from.log_likelihood(&rssi, &heard, &mut old);
+                to.log_likelihood(&rssi, &heard, &mut new);
+                for ((l, o), n) in ll.iter_mut().zip(&old).zip(&new) {
+                    *l += n - o;
+                }
+            }
+        }
+    }
+
+    /// What to keep of `reached`. First the whole: unless EM's model
+    /// explains the held-out walks (or blocks) clearly better than the start
+    /// ([`Evidence::clearly_better_than`]), nothing is kept. Then each anchor beside the others, since EM fits them together
+    /// (one receiver's gain moves every anchor's power alike, so putting one
+    /// anchor back where it started is the alternative, not the start): those
+    /// without which the held-out windows are likelier are put back one at a
+    /// time, the most harmful first, while that helps. Then cells, by
+    /// [`Check::keep_cells`].
+    fn keep(&self, start: &[Anchor], reached: &Reached) -> Result<Kept, LocalizerError> {
+        let windows = self.windows() as f64;
+        let start_lls = self.log_likelihoods(&mut PathLoss::with_anchors(self.site, start)?);
+        let start_evidence = self.evidence(&start_lls);
+        let mut current =
+            self.log_likelihoods(&mut PathLoss::with_anchors(self.site, &reached.anchors)?);
+        let mut evidence = self.evidence(&current);
+        let clear = evidence.clearly_better_than(&start_evidence);
+        let mut verdicts = vec![
+            Verdict {
+                kept: false,
+                why: Why::Unchanged,
+                gain: None,
+            };
+            start.len()
+        ];
+        let mut harmful = Vec::new();
+        for (a, (before, after)) in start.iter().zip(&reached.anchors).enumerate() {
+            if before == after || before.is_none() {
+                continue;
+            }
+            let mut without = current.clone();
+            self.swap_anchor(&mut without, a, after, before);
+            let gain = evidence.total_gain_over(&self.evidence(&without));
+            verdicts[a] = Verdict {
+                kept: clear,
+                why: if clear {
+                    Why::Improved
+                } else {
+                    Why::NoClearGainTogether
+                },
+                gain: Some(gain / windows),
+            };
+            if gain <= 0.0 {
+                harmful.push((a, gain));
+            }
+        }
+        if !clear {
+            (current, evidence) = (start_lls, start_evidence.clone());
+        } else {
+            harmful.sort_by(|x, y| x.1.total_cmp(&y.1));
+            for (a, _) in harmful {
+                let mut without = current.clone();
+                self.swap_anchor(&mut without, a, &reached.anchors[a], &start[a]);
+                let without_evidence = self.evidence(&without);
+                if without_evidence.total_gain_over(&evidence) > 0.0 {
+                    (current, evidence) = (without, without_evidence);
+                    verdicts[a].kept = false;
+                    verdicts[a].why = Why::Worse;
+                }
+            }
+        }
+        let mut kept = Kept {
+            anchors: verdicts,
+            cells: Vec::new(),
+            held_out: None,
+        };
+        if let Some(tables) = &reached.cells {
+            let anchors = kept.anchors(start, reached);
+            // The map, too, is kept only if clearly better as a whole.
+            let (cells, with_cells) = self.keep_cells(&anchors, tables, &current);
+            if with_cells.clearly_better_than(&evidence) {
+                kept.cells = cells;
+                evidence = with_cells;
+            }
+        }
+        kept.held_out = Some(HeldOut {
+            windows: self.windows(),
+            gain_per_window: evidence.total_gain_over(&start_evidence) / windows,
+        });
+        Ok(kept.sized(self.site))
+    }
+
+    /// Which refined cells to keep: all but those where the held-out windows
+    /// the tracker places there (under `anchors`, whose log-likelihoods are
+    /// `lls`) are less likely with the refinement than with `anchors`'
+    /// models; and the held-out evidence with the kept cells. A cell the
+    /// held-out walks never reach has nothing against it: whether the map is
+    /// kept at all is decided on the whole ([`Check::keep`]).
+    fn keep_cells(
+        &self,
+        anchors: &[Anchor],
+        tables: &CellTables,
+        lls: &[Vec<(f64, Vec<f32>)>],
+    ) -> (Vec<bool>, Evidence) {
+        let n_cells = self.site.open_cells().len();
+        let n = anchors.len();
+        let Ok(base) = PathLoss::with_anchors(self.site, anchors) else {
+            return (vec![false; n_cells], self.evidence(lls));
+        };
+        let (mut mu, mut p) = base.tables();
+        let refined = |c: usize| tables.weight[c] >= MIN_CELL_WEIGHT;
+        for c in (0..n_cells).filter(|&c| refined(c)) {
+            mu[c * n..(c + 1) * n].copy_from_slice(&tables.mu[c * n..(c + 1) * n]);
+            p[c * n..(c + 1) * n].copy_from_slice(&tables.p[c * n..(c + 1) * n]);
+        }
+        let inv_sigma = base.inv_sigma().to_vec();
+        let mut map = PathLoss::from_probabilities(n_cells, &mu, &p, inv_sigma);
+        let with_map = self.log_likelihoods(&mut map);
+        // Each cell's gain: the belief-weighted change of its log-likelihood.
+        let mut gain = vec![0.0f64; n_cells];
+        for (windows, mapped) in lls.iter().zip(&with_map) {
+            let beliefs = self.tracker.posteriors(windows);
+            for ((belief, (_, ll)), (_, ll_map)) in beliefs.iter().zip(windows).zip(mapped) {
+                for c in 0..n_cells {
+                    if belief[c] > 0.0 {
+                        gain[c] += f64::from(belief[c]) * f64::from(ll_map[c] - ll[c]);
+                    }
+                }
+            }
+        }
+        let keep: Vec<bool> = (0..n_cells).map(|c| refined(c) && gain[c] >= 0.0).collect();
+        let mut kept_lls = lls.to_vec();
+        for (windows, mapped) in kept_lls.iter_mut().zip(&with_map) {
+            for ((_, ll), (_, ll_map)) in windows.iter_mut().zip(mapped) {
+                for c in (0..n_cells).filter(|&c| keep[c]) {
+                    ll[c] = ll_map[c];
+                }
+            }
+        }
+        (keep, self.evidence(&kept_lls))
+    }
+}
+
+/// Log-likelihood of each held-out walk (or block) under one model.
+#[derive(Clone)]
+struct Evidence(Vec<f64>);
+
+/// The one-sided sign-test level below which a model explains the
+/// held-out walks (or blocks) clearly better than another.
+const CLEAR_GAIN_P: f64 = 0.05;
+
+impl Evidence {
+    /// Log-likelihood of all the held-out windows, less that under `other`.
+    fn total_gain_over(&self, other: &Evidence) -> f64 {
+        self.0.iter().sum::<f64>() - other.0.iter().sum::<f64>()
+    }
+
+    /// Whether this model explains the held-out walks (or blocks) clearly
+    /// better than `other`: likelier on more of them than chance allows
+    /// (one-sided sign test at [`CLEAR_GAIN_P`]). Counting walks rather than
+    /// summing nats keeps a few walks far off from deciding, and a gain
+    /// within the walks' noise from counting: on walks the defaults
+    /// describe exactly, EM still finds a model a hair likelier in total,
+    /// and it locates worse.
+    fn clearly_better_than(&self, other: &Evidence) -> bool {
+        let wins = self.0.iter().zip(&other.0).filter(|(a, b)| a > b).count();
+        let losses = self.0.iter().zip(&other.0).filter(|(a, b)| a < b).count();
+        wins > losses && sign_test(wins, losses) / 2.0 < CLEAR_GAIN_P
+    }
+}
+
+/// A window's readings as the localizer takes them: RSSI (0 where silent)
+/// and whether heard, per anchor.
+fn readings(rssi: &[Option<f32>]) -> (Vec<f32>, Vec<bool>) {
+    (
+        rssi.iter().map(|r| r.unwrap_or(0.0)).collect(),
+        rssi.iter().map(Option::is_some).collect(),
+    )
 }
 
 /// What every EM pass shares: the trajectories, the tracker that smooths
@@ -236,24 +723,91 @@ struct Em<'a> {
     n_anchors: usize,
 }
 
-impl Em<'_> {
+impl<'a> Em<'a> {
+    fn new(
+        site: &'a Arc<Site>,
+        start: &[Anchor],
+        tracker: &TrackerConfig,
+        trajectories: &'a [Vec<Window>],
+    ) -> Self {
+        Em {
+            site,
+            tracker: Tracker::new(tracker.clone(), site.clone()),
+            trajectories,
+            distance: site
+                .open_cells()
+                .iter()
+                .flat_map(|&c| {
+                    let here = site.world_of_cell(c);
+                    start
+                        .iter()
+                        .map(move |a| a.map_or(f64::NAN, |(mount, _)| mount.distance_m(here)))
+                })
+                .collect(),
+            n_anchors: start.len(),
+        }
+    }
+
+    /// EM from `start` (started afresh from the data, see [`initialise`]):
+    /// the anchors' models, then the cells' if asked.
+    fn run(&self, start: &[Anchor], options: &FitOptions) -> Result<Reached, LocalizerError> {
+        let mut anchors = start.to_vec();
+        initialise(self.site, &mut anchors, self.trajectories);
+        let n_anchors = self.n_anchors;
+        let bins = self
+            .distance
+            .iter()
+            .filter(|d| d.is_finite())
+            .fold(0.0f64, |m, &d| m.max(d))
+            .div_euclid(BIN_M) as usize
+            + 1;
+        let windows = self.trajectories.iter().map(Vec::len).sum::<usize>().max(1) as f64;
+        let mut log_likelihood_per_window = f64::NAN;
+        for _ in 0..options.iterations.max(1) {
+            let mut stats = vec![Stats::new(bins); n_anchors];
+            let mut localizer = PathLoss::with_anchors(self.site, &anchors)?;
+            log_likelihood_per_window = self.e_step(&mut localizer, |w, c, b| {
+                let row = &self.distance[c * n_anchors..(c + 1) * n_anchors];
+                for (a, stat) in stats.iter_mut().enumerate() {
+                    if row[a].is_finite() {
+                        stat.add(row[a], w.rssi[a], b);
+                    }
+                }
+            }) / windows;
+            for (anchor, stat) in anchors.iter_mut().zip(&stats) {
+                if let Some((_, radio)) = anchor
+                    && stat.heard >= MIN_HEARD
+                {
+                    *radio = stat.refit(radio);
+                }
+            }
+        }
+        let mut cells = None;
+        if options.cell_iterations > 0 {
+            let (tables, ll) = self.refine_cells(&anchors, options)?;
+            cells = Some(tables);
+            log_likelihood_per_window = ll / windows;
+        }
+        Ok(Reached {
+            anchors,
+            cells,
+            log_likelihood_per_window,
+            iterations: options.iterations,
+        })
+    }
+
     /// Localizes every trajectory with `localizer` through the smoother and
     /// calls `visit(window, cell, belief)` for every cell holding some of a
     /// window's belief; returns the belief-weighted log-likelihood summed
     /// over windows. Windows of known position keep all belief there.
     fn e_step(&self, localizer: &mut PathLoss, mut visit: impl FnMut(&Window, usize, f64)) -> f64 {
         let n_cells = self.site.open_cells().len();
-        let mut rssi = vec![0.0f32; self.n_anchors];
-        let mut heard = vec![false; self.n_anchors];
         let mut total_ll = 0.0;
         for trajectory in self.trajectories {
             let lls: Vec<(f64, Vec<f32>)> = trajectory
                 .iter()
                 .map(|w| {
-                    for (a, r) in w.rssi.iter().enumerate() {
-                        heard[a] = r.is_some();
-                        rssi[a] = r.unwrap_or(0.0);
-                    }
+                    let (rssi, heard) = readings(&w.rssi);
                     let mut ll = vec![0.0f32; n_cells];
                     localizer.log_likelihood(&rssi, &heard, &mut ll);
                     if let Some(i) = w.cell.and_then(|c| self.site.open_index(c)) {
@@ -284,12 +838,13 @@ impl Em<'_> {
     /// EM over a radio map per cell, from the anchors' models: each
     /// iteration localizes with the current map and re-estimates every
     /// cell's detection and mean RSSI per anchor from the belief-weighted
-    /// windows, shrunk towards the anchors' models.
+    /// windows, shrunk towards the anchors' models. Returns the map and the
+    /// log-likelihood of the windows under it.
     fn refine_cells(
         &self,
         anchors: &[Anchor],
         options: &FitOptions,
-    ) -> Result<(Vec<CellCalibration>, CellChange, f64), LocalizerError> {
+    ) -> Result<(CellTables, f64), LocalizerError> {
         let cells = self.site.open_cells();
         let n = self.n_anchors;
         let base = PathLoss::with_anchors(self.site, anchors)?;
@@ -327,38 +882,7 @@ impl Em<'_> {
                 }
             }
         }
-        // Written per positioned anchor, in the calibration's anchor order.
-        let positioned: Vec<usize> = (0..n).filter(|&a| anchors[a].is_some()).collect();
-        let mut refined = Vec::new();
-        let (mut dp, mut dmu, mut dmu_weight) = (0.0, 0.0, 0.0);
-        for (c, cell) in cells.iter().enumerate() {
-            if weight[c] < MIN_CELL_WEIGHT {
-                continue;
-            }
-            for &a in &positioned {
-                let i = c * n + a;
-                dp += (p[i] - prior_p[i]).abs();
-                dmu += p[i] * (mu[i] - prior_mu[i]).abs();
-                dmu_weight += p[i];
-            }
-            refined.push(CellCalibration {
-                at: [cell.x, cell.y],
-                detection: positioned
-                    .iter()
-                    .map(|&a| round_to(p[c * n + a], 1e-4))
-                    .collect(),
-                rssi_dbm: positioned
-                    .iter()
-                    .map(|&a| round_to(mu[c * n + a], 1e-2))
-                    .collect(),
-            });
-        }
-        let change = CellChange {
-            cells: refined.len(),
-            detection_shift: dp / (refined.len() * positioned.len()).max(1) as f64,
-            rssi_shift_db: dmu / dmu_weight.max(f64::MIN_POSITIVE),
-        };
-        Ok((refined, change, ll))
+        Ok((CellTables { mu, p, weight }, ll))
     }
 }
 
@@ -426,7 +950,13 @@ fn initialise(site: &Site, anchors: &mut [Anchor], trajectories: &[Vec<Window>])
 }
 
 impl Change {
-    fn between(id: &str, heard: usize, before: &Radio, after: &Radio) -> Change {
+    /// `before` → `after`, and the verdict on it.
+    fn between(
+        id: &str,
+        heard: usize,
+        (before, after): (&Radio, &Radio),
+        verdict: Verdict,
+    ) -> Change {
         let metres: Vec<f64> = (1..=10).map(f64::from).collect();
         let mean = |f: &dyn Fn(f64) -> f64| metres.iter().map(|&d| f(d)).sum::<f64>() / 10.0;
         Change {
@@ -436,6 +966,9 @@ impl Change {
             after: *after,
             rssi_shift_db: mean(&|d| after.expected_rssi(d) - before.expected_rssi(d)),
             detection_shift: mean(&|d| after.detection(d) - before.detection(d)),
+            kept: verdict.kept,
+            why: verdict.why,
+            held_out_gain: verdict.gain,
         }
     }
 }
@@ -554,4 +1087,54 @@ fn best(candidates: &[f64], score: impl Fn(f64) -> f64) -> f64 {
         .map(|v| (v, score(v)))
         .max_by(|a, b| a.1.total_cmp(&b.1))
         .map_or(candidates[0], |(v, _)| v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn walk(windows: usize) -> Vec<Window> {
+        (0..windows)
+            .map(|i| Window {
+                t: i as f64,
+                rssi: vec![Some(-70.0), None],
+                cell: None,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn enough_walks_are_held_out_whole_and_one_long_walk_in_blocks() {
+        let walks: Vec<Vec<Window>> = (0..40).map(|_| walk(10)).collect();
+        let (fit_on, held_out) = hold_out(&walks, 100);
+        assert_eq!((fit_on.len(), held_out.len()), (30, 10));
+        assert!(held_out.iter().all(|w| w.len() == 10));
+
+        let (fit_on, held_out) = hold_out(&[walk(600)], 100);
+        assert_eq!((fit_on.len(), held_out.len()), (15, 5));
+        assert!(held_out.iter().all(|w| w.len() == BLOCK_WINDOWS));
+        // Each block is consecutive windows.
+        assert_eq!(held_out[0][0].t, 90.0);
+
+        // A site too large for every held-out window: only what fits the
+        // budget is held out, the rest is fitted.
+        let (fit_on, held_out) = hold_out(&[walk(600)], HELD_OUT_TERMS / 60);
+        assert_eq!((fit_on.len(), held_out.len()), (18, 2));
+    }
+
+    #[test]
+    fn a_clear_gain_is_one_most_held_out_walks_agree_on() {
+        let start = Evidence(vec![0.0; 10]);
+        // Nine of ten walks likelier: one chance in a hundred by luck.
+        let mut nine = Evidence(vec![1.0; 10]);
+        nine.0[3] = -50.0;
+        assert!(nine.clearly_better_than(&start));
+        // A large total from a few walks is not clear.
+        let mut few = Evidence(vec![-0.1; 10]);
+        few.0[..3].fill(100.0);
+        assert!(few.total_gain_over(&start) > 0.0);
+        assert!(!few.clearly_better_than(&start));
+        // Too few walks can never be clear.
+        assert!(!Evidence(vec![5.0; 4]).clearly_better_than(&Evidence(vec![0.0; 4])));
+    }
 }

@@ -190,6 +190,11 @@ pub enum LocalizerError {
     #[error("the survey has no rows to learn from")]
     EmptySurvey,
     #[error(
+        "only {windows} fingerprint windows to calibrate from: a calibration is checked on \
+         windows it was not fitted to, so at least {needed} are needed; record for longer"
+    )]
+    TooFewToHoldOut { windows: usize, needed: usize },
+    #[error(
         "the survey has readings at {0}, which the site map blocks; open that cell or fix the survey"
     )]
     SurveyOnBlockedCell(crate::site::Cell),

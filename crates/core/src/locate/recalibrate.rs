@@ -10,9 +10,10 @@
 //! - [`Schedule`] says when a run is due: every `every_h` hours once
 //!   `min_windows` new windows were heard, or at once on request (the runtime
 //!   passes the time in);
-//! - [`fit_heard`] fits the radio model by EM ([`super::calibrate::fit`], per
-//!   cell too when `cells` is set, since these are the phones and the floor
-//!   the gateway localizes) to the newest windows the runtime read back.
+//! - [`fit_heard`] fits the radio model by EM to the newest windows the
+//!   runtime read back (per cell too when `cells` is set, since these are the
+//!   phones and the floor the gateway localizes) and keeps only what windows
+//!   held out from the fit confirm ([`super::calibrate::calibrate`]).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -21,7 +22,7 @@ use std::sync::Arc;
 use serde::{Deserialize, Serialize};
 
 use super::calibrate::{
-    CALIBRATION_ITERATIONS, DEFAULT_CELL_PRIOR_READINGS, FitOptions, Fitted, Window, fit,
+    CALIBRATION_ITERATIONS, DEFAULT_CELL_PRIOR_READINGS, FitOptions, Fitted, Window, calibrate,
 };
 use super::pathloss::{PathLossConfig, anchors};
 use super::tracker::TrackerConfig;
@@ -235,7 +236,7 @@ pub fn fit_heard(
         cell_iterations: if config.cells { CELL_ITERATIONS } else { 0 },
         cell_prior_readings: DEFAULT_CELL_PRIOR_READINGS,
     };
-    let fitted = fit(site, &ids, &start, tracker, &trajectories, &options)?;
+    let fitted = calibrate(site, &ids, &start, tracker, &trajectories, &options)?;
     Ok(FittedHeard {
         fitted,
         windows,

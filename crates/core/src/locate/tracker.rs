@@ -362,6 +362,38 @@ impl Tracker {
         out
     }
 
+    /// The log-likelihood of one recorded trajectory's readings under the
+    /// motion model, log p(y₁ … yₙ), up to a constant that does not depend on
+    /// the localizer: what calibration compares radio models by on windows
+    /// it held out. The evidence is weighed at full strength whatever
+    /// `likelihood_weight` says, since a tempered likelihood is not a
+    /// probability of the readings and would favour wider models.
+    pub(crate) fn log_evidence(&self, windows: &[(f64, Vec<f32>)]) -> f64 {
+        let config = TrackerConfig {
+            likelihood_weight: 1.0,
+            ..self.config.clone()
+        };
+        let model = MotionModel {
+            config: &config,
+            ..self.model()
+        };
+        let (mut belief, mut scratch) = (Vec::new(), Vec::new());
+        let mut last_t = f64::NEG_INFINITY;
+        let mut total = 0.0;
+        for (t, log_likelihood) in windows {
+            // The likelihood is relative to its peak: the peak comes back here.
+            let peak = log_likelihood
+                .iter()
+                .copied()
+                .fold(f32::NEG_INFINITY, f32::max);
+            let likelihood = model.likelihood(log_likelihood);
+            let steps = model.steps(t - last_t);
+            total += f64::from(peak) + model.filter(&mut belief, steps, &likelihood, &mut scratch);
+            last_t = *t;
+        }
+        total
+    }
+
     fn model(&self) -> MotionModel<'_> {
         MotionModel {
             config: &self.config,
@@ -406,7 +438,7 @@ impl Forward {
             .zip(backward)
             .map(|(a, b)| a * b)
             .collect();
-        if !normalize(&mut smoothed) {
+        if normalize(&mut smoothed).is_none() {
             smoothed.clone_from(&self.filtered[k]);
         }
         smoothed
@@ -469,14 +501,16 @@ impl MotionModel<'_> {
 
     /// One forward step: predict `steps` moves, then weigh by the evidence. A
     /// restart, or evidence that contradicts the prior everywhere, starts from
-    /// the evidence alone.
+    /// the evidence alone (a uniform prior). Returns the log of how well the
+    /// prior foresaw the evidence, Σ prior·likelihood, in the likelihood's
+    /// relative units: [`Tracker::log_evidence`] sums it.
     fn filter(
         &self,
         belief: &mut Vec<f32>,
         steps: Option<usize>,
         likelihood: &[f32],
         scratch: &mut Vec<f32>,
-    ) {
+    ) -> f64 {
         if let Some(steps) = steps {
             for _ in 0..steps {
                 spread(
@@ -492,13 +526,15 @@ impl MotionModel<'_> {
             for (b, l) in belief.iter_mut().zip(likelihood) {
                 *b = (*b * (1.0 - recovery) + floor) * l;
             }
-            if normalize(belief) {
-                return;
+            if let Some(foreseen) = normalize(belief) {
+                return f64::from(foreseen).ln();
             }
         }
         belief.clear();
         belief.extend_from_slice(likelihood);
-        normalize(belief);
+        normalize(belief).map_or(f64::NEG_INFINITY, |sum| {
+            (f64::from(sum) / likelihood.len() as f64).ln()
+        })
     }
 
     /// The backward step of [`MotionModel::filter`]'s prediction: for each cell,
@@ -842,13 +878,15 @@ fn spread_cell(n: &[u32], stay: f32, mass: f32, to: &mut [f32]) {
 }
 
 /// Scales to sum 1; false when the sum is zero or not finite.
-fn normalize(v: &mut [f32]) -> bool {
+/// Scales `v` to sum to 1 and returns what it summed to; `None` (and `v`
+/// untouched) when that is not a positive number.
+fn normalize(v: &mut [f32]) -> Option<f32> {
     let sum: f32 = v.iter().sum();
     if !(sum.is_finite() && sum > 0.0) {
-        return false;
+        return None;
     }
     v.iter_mut().for_each(|x| *x /= sum);
-    true
+    Some(sum)
 }
 
 #[cfg(test)]

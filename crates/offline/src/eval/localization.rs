@@ -19,7 +19,7 @@ use rand::rngs::Xoshiro256PlusPlus;
 use rand::seq::SliceRandom;
 use serde::Serialize;
 
-use crate::locate::calibrate::{DEFAULT_CELL_PRIOR_READINGS, FitOptions, Window, fit};
+use crate::locate::calibrate::{DEFAULT_CELL_PRIOR_READINGS, FitOptions, Window, calibrate};
 use crate::locate::calibration::Calibration;
 use crate::locate::knn;
 use crate::locate::onnx::Onnx;
@@ -442,7 +442,7 @@ fn calibration(
         cell_iterations: setup.calibrate_cells,
         cell_prior_readings: DEFAULT_CELL_PRIOR_READINGS,
     };
-    let fitted = fit(
+    let fitted = calibrate(
         site,
         &survey.anchors,
         &start,

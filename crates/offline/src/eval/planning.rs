@@ -54,10 +54,11 @@ use rand::rngs::Xoshiro256PlusPlus;
 use rand::{RngExt, SeedableRng};
 use serde_json::{Value, json};
 
-use super::similarity::{CellBits, Polyline, TrainingFrames, cell_iou, shape, sign_test};
+use super::similarity::{CellBits, Polyline, TrainingFrames, cell_iou, shape};
 use crate::model::runtime::PathClassifier;
 use crate::plan::{self, Origin, PlannerConfig, PlannerMode, Profile};
 use crate::publish::RouteBody;
+use crate::sign_test::sign_test;
 use crate::site::{Cell, Site};
 use crate::train::trajectory::Trajectory;
 

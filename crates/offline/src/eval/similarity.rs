@@ -5,8 +5,6 @@
 //! Fréchet distance of a route against a walk, on both resampled at the same
 //! spacing so that neither measure depends on how densely a line was drawn
 //! (a route's three vertices and a walk's sixty cells cover the same ground).
-//! And the sign test that says whether one judge beats another more often
-//! than chance ([`sign_test`]).
 //!
 //! Both work on [`CellBits`], a frame as packed `u64` words (bit `i` = grid
 //! index `i`, on the path). Hand-written rather than a bitset crate because
@@ -122,28 +120,6 @@ impl TrainingFrames {
     }
 }
 
-/// Two-sided exact sign test: the chance of a split at least as uneven as
-/// `wins` against `losses` (ties left out) if either side were equally
-/// likely to win each comparison. The binomial tail is summed here rather
-/// than taken from a statistics crate (none is a dependency): it is a few
-/// lines, in log space so that thousands of comparisons do not underflow.
-pub(crate) fn sign_test(wins: usize, losses: usize) -> f64 {
-    let n = wins + losses;
-    if n == 0 {
-        return 1.0;
-    }
-    let k = wins.min(losses);
-    // ln C(n, i) built up term by term: C(n, i+1) = C(n, i) (n − i) / (i + 1).
-    let mut ln_choose = 0.0f64;
-    let mut tail = 0.0f64;
-    let ln_half_n = n as f64 * std::f64::consts::LN_2;
-    for i in 0..=k {
-        tail += (ln_choose - ln_half_n).exp();
-        ln_choose += ((n - i) as f64).ln() - ((i + 1) as f64).ln();
-    }
-    (2.0 * tail).min(1.0)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -207,17 +183,5 @@ mod tests {
         let bits = CellBits::from_frame(&s, &frame);
         assert_eq!(training.nearest_distance(&bits), Some(2));
         assert_eq!(TrainingFrames::new(&s, &[]).nearest_distance(&bits), None);
-    }
-
-    #[test]
-    fn sign_test_matches_the_binomial_tail() {
-        // 9 wins, 1 loss: P(X ≤ 1) = 11/1024 for X ~ Bin(10, 1/2), doubled.
-        assert!((sign_test(9, 1) - 22.0 / 1024.0).abs() < 1e-12);
-        assert!((sign_test(1, 9) - 22.0 / 1024.0).abs() < 1e-12);
-        assert_eq!(sign_test(5, 5), 1.0);
-        assert_eq!(sign_test(0, 0), 1.0);
-        // Large counts do not underflow: 600 against 400 is far from chance.
-        let p = sign_test(600, 400);
-        assert!(p > 0.0 && p < 1e-9, "{p}");
     }
 }
