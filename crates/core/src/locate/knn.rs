@@ -93,15 +93,16 @@ impl KnnConfig {
 
 pub struct Knn {
     n_anchors: usize,
-    /// Floats per stored fingerprint: `n_anchors` padded to a multiple of
-    /// [`LANES`] with zeros, so the distance loop runs in SIMD lanes.
-    stride: usize,
-    /// The survey's distinct fingerprints, `[fingerprint][stride]`: real
-    /// surveys repeat them (the UCI survey's 1,420 rows hold 644), and each
-    /// is compared once.
-    fingerprints: Vec<f32>,
+    /// The survey's distinct fingerprints, anchor by anchor:
+    /// `[anchor][fingerprint]`. Real surveys repeat fingerprints (the UCI
+    /// survey's 1,420 rows hold 644), and each is compared once. Stored by
+    /// anchor so the distance loop runs over all fingerprints at once in
+    /// SIMD lanes, with no sum across lanes per fingerprint.
+    columns: Vec<f32>,
     /// Survey rows per fingerprint.
     rows_of: Vec<f32>,
+    /// Survey rows in all (the sum of `rows_of`).
+    rows: f32,
     /// Where each fingerprint's (open cell, rows there) pairs start in
     /// `members`; one more entry than fingerprints.
     member_start: Vec<u32>,
@@ -113,10 +114,14 @@ pub struct Knn {
     floor: f32,
     /// L1 distance (dB) from the last fingerprint to the nearest survey row.
     nearest_db: f32,
-    /// The query, padded like the fingerprints.
-    query: Vec<f32>,
-    /// (distance, fingerprint) of every fingerprint, reused between calls.
-    distances: Vec<(f32, u32)>,
+    /// L1 distance from the query to each fingerprint, and one lane of it
+    /// (see [`Knn::measure`]); reused between calls.
+    distance: Vec<f32>,
+    lane: Vec<f32>,
+    /// Every fingerprint as its distance's bits above its index, reused
+    /// between calls: distances are never negative, so these integers rank
+    /// as the distances do, and ranking them needs no float comparisons.
+    ranked: Vec<u64>,
     votes: Vec<f32>,
 }
 
@@ -126,7 +131,10 @@ pub struct Knn {
 /// than the least bad of strangers.
 pub(crate) const FAMILIAR_BANDWIDTHS: f32 = 2.0;
 
-/// Width of the distance loop's accumulators.
+/// Anchors `a`, `a + LANES`, `a + 2 LANES`, … are summed apart before the
+/// lanes are added in order: the order distances have always been summed in
+/// (a fingerprint-major SIMD loop of this width), kept so that which rows
+/// tie is the same as before.
 const LANES: usize = 8;
 
 impl Knn {
@@ -141,7 +149,6 @@ impl Knn {
             return Err(LocalizerError::EmptySurvey);
         }
         let n_anchors = samples[0].rssi.len();
-        let stride = n_anchors.div_ceil(LANES).max(1) * LANES;
         let n_cells = site.open_cells().len();
         let mut count = vec![0u32; n_cells];
         // Fingerprint (as exact bits) → rows per cell.
@@ -165,22 +172,26 @@ impl Knn {
                 .or_default() += 1;
             count[cell] += 1;
         }
-        let mut fingerprints = Vec::with_capacity(distinct.len() * stride);
-        let mut rows_of = Vec::with_capacity(distinct.len());
+        let n_fingerprints = distinct.len();
+        let mut columns = vec![0.0; n_anchors * n_fingerprints];
+        let mut rows_of = Vec::with_capacity(n_fingerprints);
         let mut member_start = vec![0u32];
         let mut members = Vec::new();
-        for (key, cells) in distinct {
-            fingerprints.extend(key.into_iter().map(f32::from_bits));
-            fingerprints.resize(fingerprints.len() + stride - n_anchors, 0.0);
+        for (f, (key, cells)) in distinct.into_iter().enumerate() {
+            for (a, bits) in key.into_iter().enumerate() {
+                columns[a * n_fingerprints + f] = f32::from_bits(bits);
+            }
             rows_of.push(cells.values().sum::<u32>() as f32);
             members.extend(cells.into_iter().map(|(c, n)| (c, n as f32)));
             member_start.push(members.len() as u32);
         }
         Ok(Knn {
             n_anchors,
-            stride,
-            distances: Vec::with_capacity(rows_of.len()),
-            fingerprints,
+            columns,
+            rows: rows_of.iter().sum(),
+            distance: vec![0.0; n_fingerprints],
+            lane: vec![0.0; n_fingerprints],
+            ranked: Vec::with_capacity(n_fingerprints),
             rows_of,
             member_start,
             members,
@@ -192,7 +203,6 @@ impl Knn {
             inv_bandwidth: 1.0 / config.bandwidth_db.max(1e-3),
             floor: config.floor,
             nearest_db: f32::INFINITY,
-            query: vec![0.0; stride],
             votes: vec![0.0; n_cells],
         })
     }
@@ -243,6 +253,25 @@ impl Knn {
     pub(crate) fn familiar(&self) -> bool {
         self.nearest_db * self.inv_bandwidth <= FAMILIAR_BANDWIDTHS
     }
+
+    /// The L1 distance from `rssi` to every fingerprint, into `distance`.
+    fn measure(&mut self, rssi: &[f32]) {
+        let n = self.rows_of.len();
+        self.distance.fill(0.0);
+        for first in 0..LANES.min(self.n_anchors) {
+            self.lane.fill(0.0);
+            for a in (first..self.n_anchors).step_by(LANES) {
+                let q = rssi[a];
+                let column = &self.columns[a * n..(a + 1) * n];
+                for (l, &r) in self.lane.iter_mut().zip(column) {
+                    *l += (r - q).abs();
+                }
+            }
+            for (d, l) in self.distance.iter_mut().zip(&self.lane) {
+                *d += l;
+            }
+        }
+    }
 }
 
 impl Localizer for Knn {
@@ -252,36 +281,33 @@ impl Localizer for Knn {
 
     fn log_likelihood(&mut self, rssi: &[f32], _heard: &[bool], out: &mut [f32]) {
         debug_assert_eq!(rssi.len(), self.n_anchors);
-        self.query[..self.n_anchors].copy_from_slice(rssi);
-        self.distances.clear();
-        for (i, row) in self.fingerprints.chunks_exact(self.stride).enumerate() {
-            let mut lanes = [0.0f32; LANES];
-            for (r, q) in row.chunks_exact(LANES).zip(self.query.chunks_exact(LANES)) {
-                for j in 0..LANES {
-                    lanes[j] += (r[j] - q[j]).abs();
-                }
-            }
-            self.distances.push((lanes.iter().sum(), i as u32));
-        }
+        self.measure(rssi);
         // The k nearest rows lie among the k nearest fingerprints (each
         // holds at least one row): those are ranked, the rest only checked
         // for ties with the k-th row.
-        let n = self.distances.len();
+        self.ranked.clear();
+        self.ranked.extend(
+            (0u32..)
+                .zip(&self.distance)
+                .map(|(f, d)| (u64::from(d.to_bits()) << 32) | u64::from(f)),
+        );
+        let n = self.ranked.len();
         let first = self.k.min(n);
         if first < n {
-            self.distances
-                .select_nth_unstable_by(first - 1, |a, b| a.0.total_cmp(&b.0));
+            self.ranked.select_nth_unstable(first - 1);
         }
-        self.distances[..first].sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-        let nearest = self.distances[0].0;
+        self.ranked[..first].sort_unstable();
+        let distance_of = |key: u64| f32::from_bits((key >> 32) as u32);
+        let fingerprint_of = |key: u64| key as u32 as usize;
+        let nearest = distance_of(self.ranked[0]);
         self.nearest_db = nearest;
-        let k = (self.k as f32).min(self.rows_of.iter().sum());
+        let k = (self.k as f32).min(self.rows);
         let mut taken = 0.0;
-        let mut kth = self.distances[first - 1].0;
-        for &(d, f) in &self.distances[..first] {
-            taken += self.rows_of[f as usize];
+        let mut kth = distance_of(self.ranked[first - 1]);
+        for &key in &self.ranked[..first] {
+            taken += self.rows_of[fingerprint_of(key)];
             if taken >= k {
-                kth = d;
+                kth = distance_of(key);
                 break;
             }
         }
@@ -289,23 +315,24 @@ impl Localizer for Knn {
         // vote does not depend on the order of the survey's rows (real surveys
         // repeat fingerprints: dozens of rows hear one beacon at one level).
         let (mut closer, mut tied) = (0.0, 0.0);
-        for &(d, f) in &self.distances {
+        for (&d, &rows) in self.distance.iter().zip(&self.rows_of) {
             if d < kth {
-                closer += self.rows_of[f as usize];
+                closer += rows;
             } else if d == kth {
-                tied += self.rows_of[f as usize];
+                tied += rows;
             }
         }
         let tie_share = (k - closer) / tied;
-        self.votes.iter_mut().for_each(|v| *v = 0.0);
-        for &(d, f) in &self.distances {
+        self.votes.fill(0.0);
+        // Fingerprint by fingerprint, so the sums do not depend on how the
+        // ranking above permuted them.
+        for (f, &d) in self.distance.iter().enumerate() {
             if d > kth {
                 continue;
             }
             let share = if d < kth { 1.0 } else { tie_share };
             // Relative to the nearest row, so the kernel never underflows to 0.
             let weight = share * (-(d - nearest) * self.inv_bandwidth).exp();
-            let f = f as usize;
             let cells = self.member_start[f] as usize..self.member_start[f + 1] as usize;
             for &(cell, rows) in &self.members[cells] {
                 self.votes[cell as usize] += weight * rows;

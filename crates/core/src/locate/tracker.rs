@@ -129,8 +129,10 @@ pub struct Tracker {
     site: Arc<Site>,
     /// For each open cell: itself first, then the open cells one allowed step away.
     neighbours: Vec<Vec<u32>>,
+    /// The same steps, as what flows into each cell.
+    inflows: Inflows,
     tracks: HashMap<Arc<str>, Track>,
-    scratch: Vec<f32>,
+    scratch: FilterScratch,
     /// Room for the step of a walking belief.
     walked: WalkStep,
     bounds: Bounds,
@@ -141,12 +143,14 @@ pub struct Tracker {
 impl Tracker {
     pub fn new(config: TrackerConfig, site: Arc<Site>) -> Self {
         let neighbours = open_neighbours(&site);
+        let inflows = Inflows::new(&neighbours, config.stay_probability);
         Tracker {
             config,
             site,
             neighbours,
+            inflows,
             tracks: HashMap::default(),
-            scratch: Vec::new(),
+            scratch: FilterScratch::default(),
             walked: WalkStep::default(),
             bounds: Bounds::default(),
             evicted: VecDeque::new(),
@@ -258,6 +262,7 @@ impl Tracker {
         let model = MotionModel {
             config: &self.config,
             neighbours: &self.neighbours,
+            inflows: &self.inflows,
             cell_m: self.site.cell_m,
         };
         let full = self.tracks.len() >= self.bounds.max() && !self.tracks.contains_key(entity);
@@ -284,7 +289,8 @@ impl Tracker {
                 mean: [0.5, 0.5],
             },
         });
-        let likelihood = model.likelihood(log_likelihood);
+        let mut likelihood = std::mem::take(&mut self.scratch.likelihood);
+        model.likelihood(log_likelihood, &mut likelihood);
         let steps = model.steps(t - track.t);
         let walked_mean = match (walk, steps) {
             (Some(walk), Some(steps)) => {
@@ -315,6 +321,7 @@ impl Tracker {
             }
         };
         model.filter(&mut track.belief, steps, &likelihood, &mut self.scratch);
+        self.scratch.likelihood = likelihood;
         track.t = t;
         track.fix = estimate(self.config.estimate, &self.site, &track.belief);
         (track.fix, walked_mean)
@@ -377,7 +384,8 @@ impl Tracker {
             config: &config,
             ..self.model()
         };
-        let (mut belief, mut scratch) = (Vec::new(), Vec::new());
+        let (mut belief, mut likelihood) = (Vec::new(), Vec::new());
+        let mut scratch = FilterScratch::default();
         let mut last_t = f64::NEG_INFINITY;
         let mut total = 0.0;
         for (t, log_likelihood) in windows {
@@ -386,7 +394,7 @@ impl Tracker {
                 .iter()
                 .copied()
                 .fold(f32::NEG_INFINITY, f32::max);
-            let likelihood = model.likelihood(log_likelihood);
+            model.likelihood(log_likelihood, &mut likelihood);
             let steps = model.steps(t - last_t);
             total += f64::from(peak) + model.filter(&mut belief, steps, &likelihood, &mut scratch);
             last_t = *t;
@@ -398,6 +406,7 @@ impl Tracker {
         MotionModel {
             config: &self.config,
             neighbours: &self.neighbours,
+            inflows: &self.inflows,
             cell_m: self.site.cell_m,
         }
     }
@@ -450,26 +459,41 @@ impl Forward {
 struct MotionModel<'a> {
     config: &'a TrackerConfig,
     neighbours: &'a [Vec<u32>],
+    inflows: &'a Inflows,
     cell_m: f64,
 }
 
+/// [`MotionModel::filter`]'s buffers, kept by the tracker between fixes so
+/// that a fix allocates nothing.
+#[derive(Default)]
+struct FilterScratch {
+    /// The belief one motion step on.
+    next: Vec<f32>,
+    /// What each cell passes on and keeps in a step ([`Inflows::step`]).
+    outflow: Vec<f32>,
+    /// The relative likelihood of the fix being filtered.
+    likelihood: Vec<f32>,
+}
+
 impl MotionModel<'_> {
-    /// Relative likelihood per cell (max 1), weighted.
-    fn likelihood(&self, log_likelihood: &[f32]) -> Vec<f32> {
+    /// Relative likelihood per cell (max 1), weighted, into `out`.
+    fn likelihood(&self, log_likelihood: &[f32], out: &mut Vec<f32>) {
         let max_ll = log_likelihood
             .iter()
             .copied()
             .fold(f32::NEG_INFINITY, f32::max);
         let weight = self.config.likelihood_weight;
-        log_likelihood
-            .iter()
-            .map(|&ll| ((ll - max_ll) * weight).exp())
-            .collect()
+        out.clear();
+        out.extend(
+            log_likelihood
+                .iter()
+                .map(|&ll| ((ll - max_ll) * weight).exp()),
+        );
     }
 
     /// The forward filter over a whole trajectory.
     fn forward(&self, windows: &[(f64, Vec<f32>)]) -> Forward {
-        let mut scratch = Vec::new();
+        let mut scratch = FilterScratch::default();
         let mut forward = Forward {
             filtered: Vec::with_capacity(windows.len()),
             likelihoods: Vec::with_capacity(windows.len()),
@@ -478,7 +502,8 @@ impl MotionModel<'_> {
         let mut belief = Vec::new();
         let mut last_t = f64::NEG_INFINITY;
         for (t, log_likelihood) in windows {
-            let likelihood = self.likelihood(log_likelihood);
+            let mut likelihood = Vec::new();
+            self.likelihood(log_likelihood, &mut likelihood);
             let s = self.steps(t - last_t);
             self.filter(&mut belief, s, &likelihood, &mut scratch);
             forward.filtered.push(belief.clone());
@@ -509,17 +534,15 @@ impl MotionModel<'_> {
         belief: &mut Vec<f32>,
         steps: Option<usize>,
         likelihood: &[f32],
-        scratch: &mut Vec<f32>,
+        scratch: &mut FilterScratch,
     ) -> f64 {
-        if let Some(steps) = steps {
+        if let Some(steps) = steps
+            && belief.len() == self.neighbours.len()
+        {
             for _ in 0..steps {
-                spread(
-                    self.neighbours,
-                    self.config.stay_probability,
-                    belief,
-                    scratch,
-                );
-                std::mem::swap(belief, scratch);
+                self.inflows
+                    .step(belief, &mut scratch.outflow, &mut scratch.next);
+                std::mem::swap(belief, &mut scratch.next);
             }
             let recovery = self.config.recovery;
             let floor = recovery / belief.len() as f32;
@@ -851,19 +874,95 @@ fn spatial_median(cells: &[Cell], belief: &[f32]) -> usize {
         .map_or(0, |(c, _)| c)
 }
 
-/// One step of the lazy random walk: each cell keeps `stay` of its mass and
-/// passes equal shares of the rest to each allowed neighbour.
-fn spread(neighbours: &[Vec<u32>], stay: f32, from: &[f32], to: &mut Vec<f32>) {
-    to.clear();
-    to.resize(from.len(), 0.0);
-    for (n, &mass) in neighbours.iter().zip(from) {
-        spread_cell(n, stay, mass, to);
+/// One step of the lazy random walk over every open cell, [`spread_cell`]
+/// of each, written as a gather: each cell sums what flows into it.
+///
+/// Scattering each cell's mass into its nine neighbours makes every add a
+/// read-modify-write of the target, and one cell's adds wait on the stores
+/// of the cell before; gathering from a flat list of sources after one
+/// vectorised pass that works out what each cell keeps and passes on has
+/// no such chain (about twice as fast a step on the sample site). The
+/// inflows of a cell are added in the order the scatter added them
+/// (ascending source cell), so the result is the scatter's, bit for bit.
+struct Inflows {
+    /// Where each open cell's inflows start in `sources`; one more entry
+    /// than cells.
+    start: Vec<u32>,
+    /// Per inflow, an index into a step's outflows: `j` for the share open
+    /// cell `j` passes to each of its moves, cells + `j` for what it keeps.
+    sources: Vec<u32>,
+    /// Per open cell, the share of its mass it keeps: `stay`, or all of it
+    /// when it has no allowed move.
+    keep: Vec<f32>,
+    /// Per open cell, its allowed moves (1 when none: that share has no
+    /// taker).
+    moves: Vec<f32>,
+    /// The share of a cell's mass that moves.
+    pass: f32,
+}
+
+impl Inflows {
+    fn new(neighbours: &[Vec<u32>], stay: f32) -> Self {
+        let n = neighbours.len();
+        let mut into: Vec<Vec<u32>> = vec![Vec::new(); n];
+        for (j, targets) in neighbours.iter().enumerate() {
+            into[j].push((n + j) as u32);
+            for &k in &targets[1..] {
+                into[k as usize].push(j as u32);
+            }
+        }
+        let mut start = vec![0u32];
+        let mut sources = Vec::new();
+        for mut from in into {
+            // Ascending source cell, the scatter's order (a cell's own kept
+            // mass counts as from itself).
+            from.sort_unstable_by_key(|&s| s as usize % n);
+            sources.extend(from);
+            start.push(sources.len() as u32);
+        }
+        let moves_of = |targets: &Vec<u32>| targets.len() - 1;
+        Inflows {
+            start,
+            sources,
+            keep: neighbours
+                .iter()
+                .map(|t| if moves_of(t) == 0 { 1.0 } else { stay })
+                .collect(),
+            moves: neighbours
+                .iter()
+                .map(|t| moves_of(t).max(1) as f32)
+                .collect(),
+            pass: 1.0 - stay,
+        }
+    }
+
+    /// One step from `from` into `to`, with `outflow` as room.
+    fn step(&self, from: &[f32], outflow: &mut Vec<f32>, to: &mut Vec<f32>) {
+        let n = from.len();
+        outflow.resize(2 * n, 0.0);
+        let (passed, kept) = outflow.split_at_mut(n);
+        for (((p, k), &mass), (&keep, &moves)) in passed
+            .iter_mut()
+            .zip(kept.iter_mut())
+            .zip(from)
+            .zip(self.keep.iter().zip(&self.moves))
+        {
+            // As `spread_cell` works them out, operation for operation.
+            *p = mass * self.pass / moves;
+            *k = mass * keep;
+        }
+        to.clear();
+        to.extend(self.start.windows(2).map(|w| {
+            self.sources[w[0] as usize..w[1] as usize]
+                .iter()
+                .fold(0.0f32, |sum, &s| sum + outflow[s as usize])
+        }));
     }
 }
 
-/// One cell's share of [`spread`]: of `mass` in the cell whose neighbours
-/// are `n` (the cell itself first), `stay` stays, the rest goes to the
-/// allowed moves equally.
+/// One step of the lazy random walk for one cell: of `mass` in the cell
+/// whose neighbours are `n` (the cell itself first), `stay` stays, the rest
+/// goes to the allowed moves equally.
 fn spread_cell(n: &[u32], stay: f32, mass: f32, to: &mut [f32]) {
     let moves = &n[1..];
     if moves.is_empty() {
@@ -906,6 +1005,29 @@ mod tests {
             .iter()
             .map(|&c| -sharpness * c.distance(cell) as f32)
             .collect()
+    }
+
+    #[test]
+    fn a_step_gathered_is_the_scatter_bit_for_bit() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        for site in [
+            site(),
+            Arc::new(Site::load(&root.join("config/sites/waldo.toml")).unwrap()),
+        ] {
+            let neighbours = open_neighbours(&site);
+            let stay = TrackerConfig::default().stay_probability;
+            let inflows = Inflows::new(&neighbours, stay);
+            let n = neighbours.len();
+            let belief: Vec<f32> = (0..n).map(|i| ((i * 37 % 11) as f32 + 0.1) / 7.0).collect();
+            let mut scattered = vec![0.0; n];
+            for (cell, &mass) in neighbours.iter().zip(&belief) {
+                spread_cell(cell, stay, mass, &mut scattered);
+            }
+            let (mut outflow, mut gathered) = (Vec::new(), Vec::new());
+            inflows.step(&belief, &mut outflow, &mut gathered);
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&gathered), bits(&scattered));
+        }
     }
 
     #[test]
