@@ -94,11 +94,14 @@ impl KnnConfig {
 pub struct Knn {
     n_anchors: usize,
     /// The survey's distinct fingerprints, anchor by anchor:
-    /// `[anchor][fingerprint]`. Real surveys repeat fingerprints (the UCI
+    /// `[anchor][stride]`. Real surveys repeat fingerprints (the UCI
     /// survey's 1,420 rows hold 644), and each is compared once. Stored by
-    /// anchor so the distance loop runs over all fingerprints at once in
-    /// SIMD lanes, with no sum across lanes per fingerprint.
+    /// anchor so the distance loop runs over [`BLOCK`] fingerprints at once
+    /// in SIMD lanes, with no sum across lanes per fingerprint.
     columns: Vec<f32>,
+    /// Floats per anchor in `columns`: the fingerprints padded with zeros
+    /// to whole blocks.
+    stride: usize,
     /// Survey rows per fingerprint.
     rows_of: Vec<f32>,
     /// Survey rows in all (the sum of `rows_of`).
@@ -114,15 +117,18 @@ pub struct Knn {
     floor: f32,
     /// L1 distance (dB) from the last fingerprint to the nearest survey row.
     nearest_db: f32,
-    /// L1 distance from the query to each fingerprint, and one lane of it
-    /// (see [`Knn::measure`]); reused between calls.
+    /// L1 distance from the query to each fingerprint (and the padding),
+    /// reused between calls.
     distance: Vec<f32>,
-    lane: Vec<f32>,
-    /// Every fingerprint as its distance's bits above its index, reused
-    /// between calls: distances are never negative, so these integers rank
-    /// as the distances do, and ranking them needs no float comparisons.
+    /// Every fingerprint as its distance's bits above its index, then the
+    /// `k` nearest, nearest first: distances are never negative, so these
+    /// integers rank as the distances do, with no float comparisons.
     ranked: Vec<u64>,
+    /// The fingerprints that vote, in the survey's order.
+    voters: Vec<u32>,
     votes: Vec<f32>,
+    /// `ln(floor)`: every cell with no vote gets it.
+    ln_floor: f32,
 }
 
 /// A survey row within this many kernel widths (L1, dB) of a fingerprint
@@ -136,6 +142,9 @@ pub(crate) const FAMILIAR_BANDWIDTHS: f32 = 2.0;
 /// (a fingerprint-major SIMD loop of this width), kept so that which rows
 /// tie is the same as before.
 const LANES: usize = 8;
+
+/// Fingerprints measured at once, their sums held in registers.
+const BLOCK: usize = 16;
 
 impl Knn {
     /// Builds from survey rows (any subset, e.g. a training split).
@@ -173,13 +182,14 @@ impl Knn {
             count[cell] += 1;
         }
         let n_fingerprints = distinct.len();
-        let mut columns = vec![0.0; n_anchors * n_fingerprints];
+        let stride = n_fingerprints.next_multiple_of(BLOCK);
+        let mut columns = vec![0.0; n_anchors * stride];
         let mut rows_of = Vec::with_capacity(n_fingerprints);
         let mut member_start = vec![0u32];
         let mut members = Vec::new();
         for (f, (key, cells)) in distinct.into_iter().enumerate() {
             for (a, bits) in key.into_iter().enumerate() {
-                columns[a * n_fingerprints + f] = f32::from_bits(bits);
+                columns[a * stride + f] = f32::from_bits(bits);
             }
             rows_of.push(cells.values().sum::<u32>() as f32);
             members.extend(cells.into_iter().map(|(c, n)| (c, n as f32)));
@@ -188,10 +198,11 @@ impl Knn {
         Ok(Knn {
             n_anchors,
             columns,
+            stride,
             rows: rows_of.iter().sum(),
-            distance: vec![0.0; n_fingerprints],
-            lane: vec![0.0; n_fingerprints],
+            distance: vec![0.0; stride],
             ranked: Vec::with_capacity(n_fingerprints),
+            voters: Vec::with_capacity(n_fingerprints),
             rows_of,
             member_start,
             members,
@@ -202,6 +213,7 @@ impl Knn {
             k: config.k.max(1),
             inv_bandwidth: 1.0 / config.bandwidth_db.max(1e-3),
             floor: config.floor,
+            ln_floor: config.floor.ln(),
             nearest_db: f32::INFINITY,
             votes: vec![0.0; n_cells],
         })
@@ -256,20 +268,24 @@ impl Knn {
 
     /// The L1 distance from `rssi` to every fingerprint, into `distance`.
     fn measure(&mut self, rssi: &[f32]) {
-        let n = self.rows_of.len();
-        self.distance.fill(0.0);
-        for first in 0..LANES.min(self.n_anchors) {
-            self.lane.fill(0.0);
-            for a in (first..self.n_anchors).step_by(LANES) {
-                let q = rssi[a];
-                let column = &self.columns[a * n..(a + 1) * n];
-                for (l, &r) in self.lane.iter_mut().zip(column) {
-                    *l += (r - q).abs();
+        let stride = self.stride;
+        for (b, distance) in self.distance.chunks_exact_mut(BLOCK).enumerate() {
+            let at = b * BLOCK;
+            let mut sum = [0.0f32; BLOCK];
+            for first in 0..LANES.min(self.n_anchors) {
+                let mut lane = [0.0f32; BLOCK];
+                for a in (first..self.n_anchors).step_by(LANES) {
+                    let q = rssi[a];
+                    let column = &self.columns[a * stride + at..][..BLOCK];
+                    for (l, &r) in lane.iter_mut().zip(column) {
+                        *l += (r - q).abs();
+                    }
+                }
+                for (s, l) in sum.iter_mut().zip(&lane) {
+                    *s += l;
                 }
             }
-            for (d, l) in self.distance.iter_mut().zip(&self.lane) {
-                *d += l;
-            }
+            distance.copy_from_slice(&sum);
         }
     }
 }
@@ -282,54 +298,69 @@ impl Localizer for Knn {
     fn log_likelihood(&mut self, rssi: &[f32], _heard: &[bool], out: &mut [f32]) {
         debug_assert_eq!(rssi.len(), self.n_anchors);
         self.measure(rssi);
+        let n = self.rows_of.len();
         // The k nearest rows lie among the k nearest fingerprints (each
         // holds at least one row): those are ranked, the rest only checked
         // for ties with the k-th row.
         self.ranked.clear();
         self.ranked.extend(
             (0u32..)
-                .zip(&self.distance)
+                .zip(&self.distance[..n])
                 .map(|(f, d)| (u64::from(d.to_bits()) << 32) | u64::from(f)),
         );
-        let n = self.ranked.len();
         let first = self.k.min(n);
         if first < n {
             self.ranked.select_nth_unstable(first - 1);
+            self.ranked.truncate(first);
         }
-        self.ranked[..first].sort_unstable();
+        self.ranked.sort_unstable();
         let distance_of = |key: u64| f32::from_bits((key >> 32) as u32);
-        let fingerprint_of = |key: u64| key as u32 as usize;
         let nearest = distance_of(self.ranked[0]);
         self.nearest_db = nearest;
         let k = (self.k as f32).min(self.rows);
         let mut taken = 0.0;
-        let mut kth = distance_of(self.ranked[first - 1]);
-        for &key in &self.ranked[..first] {
-            taken += self.rows_of[fingerprint_of(key)];
+        let last = distance_of(self.ranked[self.ranked.len() - 1]);
+        let mut kth = last;
+        for &key in &self.ranked {
+            taken += self.rows_of[key as u32 as usize];
             if taken >= k {
                 kth = distance_of(key);
                 break;
             }
         }
+        // Every fingerprint within the k-th row's distance votes. Those
+        // closer than the farthest ranked one are all ranked; rows tied
+        // with it may lie beyond.
+        self.voters.clear();
+        if kth < last || self.ranked.len() == n {
+            let ranked = self.ranked.iter();
+            let within = ranked.filter(|&&key| distance_of(key) <= kth);
+            self.voters.extend(within.map(|&key| key as u32));
+            self.voters.sort_unstable();
+        } else {
+            let within = (0u32..)
+                .zip(&self.distance[..n])
+                .filter(|&(_, &d)| d <= kth);
+            self.voters.extend(within.map(|(f, _)| f));
+        }
         // Rows tied with the k-th share its remaining places equally, so the
         // vote does not depend on the order of the survey's rows (real surveys
         // repeat fingerprints: dozens of rows hear one beacon at one level).
         let (mut closer, mut tied) = (0.0, 0.0);
-        for (&d, &rows) in self.distance.iter().zip(&self.rows_of) {
-            if d < kth {
+        for &f in &self.voters {
+            let rows = self.rows_of[f as usize];
+            if self.distance[f as usize] < kth {
                 closer += rows;
-            } else if d == kth {
+            } else {
                 tied += rows;
             }
         }
         let tie_share = (k - closer) / tied;
         self.votes.fill(0.0);
-        // Fingerprint by fingerprint, so the sums do not depend on how the
-        // ranking above permuted them.
-        for (f, &d) in self.distance.iter().enumerate() {
-            if d > kth {
-                continue;
-            }
+        // In the survey's order, so the sums do not depend on the ranking.
+        for &f in &self.voters {
+            let f = f as usize;
+            let d = self.distance[f];
             let share = if d < kth { 1.0 } else { tie_share };
             // Relative to the nearest row, so the kernel never underflows to 0.
             let weight = share * (-(d - nearest) * self.inv_bandwidth).exp();
@@ -343,8 +374,13 @@ impl Localizer for Knn {
             *v *= inv;
             best = best.max(*v);
         }
-        for (o, v) in out.iter_mut().zip(&self.votes) {
-            *o = (v / best).max(self.floor).ln();
+        for (o, &v) in out.iter_mut().zip(&self.votes) {
+            // Most cells have no vote: their logarithm is known.
+            *o = if v == 0.0 {
+                self.ln_floor
+            } else {
+                (v / best).max(self.floor).ln()
+            };
         }
     }
 }

@@ -323,7 +323,12 @@ impl Tracker {
         model.filter(&mut track.belief, steps, &likelihood, &mut self.scratch);
         self.scratch.likelihood = likelihood;
         track.t = t;
-        track.fix = estimate(self.config.estimate, &self.site, &track.belief);
+        track.fix = estimate(
+            self.config.estimate,
+            &self.site,
+            &track.belief,
+            &mut self.scratch.median,
+        );
         (track.fix, walked_mean)
     }
 
@@ -338,6 +343,7 @@ impl Tracker {
         let forward = model.forward(windows);
         let n = windows.len();
         let mut scratch = Vec::new();
+        let mut median = MedianScratch::default();
         (0..n)
             .map(|k| {
                 let mut backward = vec![1.0f32; forward.filtered[k].len()];
@@ -345,7 +351,7 @@ impl Tracker {
                     forward.pull_back_through(&model, j, &mut backward, &mut scratch);
                 }
                 let smoothed = forward.combine(k, &backward);
-                estimate(self.config.estimate, &self.site, &smoothed)
+                estimate(self.config.estimate, &self.site, &smoothed, &mut median)
             })
             .collect()
     }
@@ -473,6 +479,7 @@ struct FilterScratch {
     outflow: Vec<f32>,
     /// The relative likelihood of the fix being filtered.
     likelihood: Vec<f32>,
+    median: MedianScratch,
 }
 
 impl MotionModel<'_> {
@@ -484,11 +491,15 @@ impl MotionModel<'_> {
             .fold(f32::NEG_INFINITY, f32::max);
         let weight = self.config.likelihood_weight;
         out.clear();
-        out.extend(
-            log_likelihood
-                .iter()
-                .map(|&ll| ((ll - max_ll) * weight).exp()),
-        );
+        // Localizers give most cells one value (their floor), so the last
+        // exponential is kept and reused while the value repeats.
+        let mut last = (f32::NAN.to_bits(), f32::NAN);
+        out.extend(log_likelihood.iter().map(|&ll| {
+            if ll.to_bits() != last.0 {
+                last = (ll.to_bits(), ((ll - max_ll) * weight).exp());
+            }
+            last.1
+        }));
     }
 
     /// The forward filter over a whole trajectory.
@@ -619,11 +630,11 @@ pub(crate) fn open_neighbours(site: &Site) -> Vec<Vec<u32>> {
 }
 
 /// The reported fix of a belief over the site's open cells.
-fn estimate(how: Estimate, site: &Site, belief: &[f32]) -> Fix {
+fn estimate(how: Estimate, site: &Site, belief: &[f32], scratch: &mut MedianScratch) -> Fix {
     let cells = site.open_cells();
     let best = match how {
         Estimate::Mode => argmax(belief),
-        Estimate::Median => spatial_median(cells, belief),
+        Estimate::Median => spatial_median(cells, belief, scratch),
     };
     let cell = cells[best];
     Fix {
@@ -679,12 +690,9 @@ impl Sparse {
     fn pack(&mut self, belief: impl Iterator<Item = (u32, f32)> + Clone) {
         let peak = belief.clone().fold(0.0, |peak, (_, b)| b.max(peak));
         let mut least = (peak * KEPT_SHARE).max(f32::MIN_POSITIVE);
-        let mut kept: Vec<f32> = belief
-            .clone()
-            .map(|(_, b)| b)
-            .filter(|&b| b >= least)
-            .collect();
-        if kept.len() > MAX_KEPT {
+        let heavy = belief.clone().map(|(_, b)| b).filter(|&b| b >= least);
+        if heavy.clone().count() > MAX_KEPT {
+            let mut kept: Vec<f32> = heavy.collect();
             least = *kept
                 .select_nth_unstable_by(MAX_KEPT - 1, |a, b| b.total_cmp(a))
                 .1;
@@ -814,7 +822,9 @@ impl WalkStep {
             sum += *b;
         }
         let now = &self.now;
-        let belief = (0..).zip(now.iter().map(|&b| b / sum));
+        // `move`: a closure borrowing `sum` would keep it in memory, and
+        // the loop above would store and reload it at every cell.
+        let belief = (0..).zip(now.iter().map(move |&b| b / sum));
         let mean = (sum.is_finite() && sum > 0.0).then(|| {
             walking.pack(belief.clone());
             mean(site, belief)
@@ -846,33 +856,75 @@ fn argmax(v: &[f32]) -> usize {
         .map_or(0, |(i, _)| i)
 }
 
+/// [`spatial_median`]'s buffers, kept between fixes.
+#[derive(Default)]
+struct MedianScratch {
+    /// The cells summed over: (x, y) of the centre and the belief there.
+    support: Vec<[f64; 3]>,
+    support_cells: Vec<usize>,
+    candidates: Vec<usize>,
+    costs: Vec<f64>,
+}
+
+/// Candidates whose costs are summed in one pass over the support.
+const CANDIDATE_LANES: usize = 4;
+
 /// The cell with the least expected distance to where the entity is under the
 /// belief. Cells holding under 0.1% of the peak are left out of the sum, and
 /// only the most probable cells are candidates: the answer lies among them in
 /// practice, and this keeps a diffuse belief from costing O(cells²).
-fn spatial_median(cells: &[Cell], belief: &[f32]) -> usize {
+///
+/// Each candidate's cost is a sum in support order, but [`CANDIDATE_LANES`]
+/// candidates are summed side by side: one candidate's sum is a chain of
+/// dependent adds, several are independent lanes (SIMD, and no wait on the
+/// add before).
+fn spatial_median(cells: &[Cell], belief: &[f32], scratch: &mut MedianScratch) -> usize {
     const CANDIDATES: usize = 24;
     let peak = belief.iter().copied().fold(0.0, f32::max);
-    let support: Vec<usize> = (0..belief.len())
-        .filter(|&i| belief[i] >= peak * 1e-3)
-        .collect();
-    let mut candidates = support.clone();
+    let MedianScratch {
+        support,
+        support_cells,
+        candidates,
+        costs,
+    } = scratch;
+    support_cells.clear();
+    support_cells.extend((0..belief.len()).filter(|&i| belief[i] >= peak * 1e-3));
+    support.clear();
+    support.extend(support_cells.iter().map(|&j| {
+        let c = cells[j];
+        [f64::from(c.x), f64::from(c.y), f64::from(belief[j])]
+    }));
+    candidates.clone_from(support_cells);
     if candidates.len() > CANDIDATES {
         candidates.select_nth_unstable_by(CANDIDATES - 1, |&a, &b| belief[b].total_cmp(&belief[a]));
         candidates.truncate(CANDIDATES);
     }
+    costs.clear();
+    for group in candidates.chunks(CANDIDATE_LANES) {
+        let (mut x, mut y) = ([0.0f64; CANDIDATE_LANES], [0.0f64; CANDIDATE_LANES]);
+        for (k, &c) in group.iter().enumerate() {
+            x[k] = f64::from(cells[c].x);
+            y[k] = f64::from(cells[c].y);
+        }
+        let mut cost = [0.0f64; CANDIDATE_LANES];
+        for &[sx, sy, b] in support.iter() {
+            for k in 0..CANDIDATE_LANES {
+                // `b · Cell::distance`, operation for operation.
+                let (dx, dy) = (x[k] - sx, y[k] - sy);
+                cost[k] += b * (dx * dx + dy * dy).sqrt();
+            }
+        }
+        costs.extend_from_slice(&cost[..group.len()]);
+    }
     candidates
         .iter()
-        .map(|&c| {
-            let cost: f64 = support
-                .iter()
-                .map(|&j| f64::from(belief[j]) * cells[c].distance(cells[j]))
-                .sum();
-            (c, cost)
-        })
-        .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
-        .map_or(0, |(c, _)| c)
+        .zip(costs.iter())
+        .min_by(|a, b| a.1.total_cmp(b.1).then(a.0.cmp(b.0)))
+        .map_or(0, |(&c, _)| c)
 }
+
+/// Most inflows of a cell: what it keeps and what its eight neighbours pass.
+const MAX_INFLOWS: usize = 9;
 
 /// One step of the lazy random walk over every open cell, [`spread_cell`]
 /// of each, written as a gather: each cell sums what flows into it.
@@ -881,16 +933,17 @@ fn spatial_median(cells: &[Cell], belief: &[f32]) -> usize {
 /// read-modify-write of the target, and one cell's adds wait on the stores
 /// of the cell before; gathering from a flat list of sources after one
 /// vectorised pass that works out what each cell keeps and passes on has
-/// no such chain (about twice as fast a step on the sample site). The
-/// inflows of a cell are added in the order the scatter added them
-/// (ascending source cell), so the result is the scatter's, bit for bit.
+/// no such chain. Every cell sums [`MAX_INFLOWS`] inflows, the missing
+/// ones a zero: a count the compiler unrolls, where a count per cell
+/// mispredicted the end of almost every cell's loop (half the step's time
+/// on the sample site). The inflows of a cell are added in the order the
+/// scatter added them (ascending source cell) and adding zero changes no
+/// sum, so the result is the scatter's, bit for bit.
 struct Inflows {
-    /// Where each open cell's inflows start in `sources`; one more entry
-    /// than cells.
-    start: Vec<u32>,
-    /// Per inflow, an index into a step's outflows: `j` for the share open
-    /// cell `j` passes to each of its moves, cells + `j` for what it keeps.
-    sources: Vec<u32>,
+    /// Per open cell, indices into a step's outflows: `j` for the share
+    /// open cell `j` passes to each of its moves, cells + `j` for what it
+    /// keeps, 2 × cells (always zero) for none.
+    sources: Vec<[u32; MAX_INFLOWS]>,
     /// Per open cell, the share of its mass it keeps: `stay`, or all of it
     /// when it has no allowed move.
     keep: Vec<f32>,
@@ -911,18 +964,19 @@ impl Inflows {
                 into[k as usize].push(j as u32);
             }
         }
-        let mut start = vec![0u32];
-        let mut sources = Vec::new();
-        for mut from in into {
-            // Ascending source cell, the scatter's order (a cell's own kept
-            // mass counts as from itself).
-            from.sort_unstable_by_key(|&s| s as usize % n);
-            sources.extend(from);
-            start.push(sources.len() as u32);
-        }
+        let sources = into
+            .into_iter()
+            .map(|mut from| {
+                // Ascending source cell, the scatter's order (a cell's own
+                // kept mass counts as from itself).
+                from.sort_unstable_by_key(|&s| s as usize % n);
+                let mut padded = [(2 * n) as u32; MAX_INFLOWS];
+                padded[..from.len()].copy_from_slice(&from);
+                padded
+            })
+            .collect();
         let moves_of = |targets: &Vec<u32>| targets.len() - 1;
         Inflows {
-            start,
             sources,
             keep: neighbours
                 .iter()
@@ -939,8 +993,10 @@ impl Inflows {
     /// One step from `from` into `to`, with `outflow` as room.
     fn step(&self, from: &[f32], outflow: &mut Vec<f32>, to: &mut Vec<f32>) {
         let n = from.len();
-        outflow.resize(2 * n, 0.0);
+        outflow.resize(2 * n + 1, 0.0);
         let (passed, kept) = outflow.split_at_mut(n);
+        let (kept, none) = kept.split_at_mut(n);
+        none[0] = 0.0;
         for (((p, k), &mass), (&keep, &moves)) in passed
             .iter_mut()
             .zip(kept.iter_mut())
@@ -952,8 +1008,8 @@ impl Inflows {
             *k = mass * keep;
         }
         to.clear();
-        to.extend(self.start.windows(2).map(|w| {
-            self.sources[w[0] as usize..w[1] as usize]
+        to.extend(self.sources.iter().map(|sources| {
+            sources
                 .iter()
                 .fold(0.0f32, |sum, &s| sum + outflow[s as usize])
         }));
