@@ -974,7 +974,7 @@ async fn the_daemon_recalibrates_from_what_it_heard_and_serves_it() {
             .and_then(|s| s.heard(10_000))
             .map_or(0, |rows| rows.len())
     };
-    // Enough that a quarter held out in blocks of half a minute can judge
+    // Enough that a quarter held out in blocks of 30 windows can judge
     // the fit (`locate::calibrate`).
     eventually("heard windows in the store", || heard() >= 700).await;
 

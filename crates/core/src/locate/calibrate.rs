@@ -243,8 +243,8 @@ const HOLD_OUT_EVERY: usize = 4;
 const MIN_HELD_OUT: usize = 5;
 /// Walks needed to hold out whole walks rather than blocks of windows.
 const MIN_WALKS: usize = MIN_HELD_OUT * HOLD_OUT_EVERY;
-/// Windows per block when blocks are held out: half a minute of a walk at
-/// the usual one window a second, long enough for the tracker to settle.
+/// Windows per block when blocks are held out: a minute of a walk at the
+/// gateway's default stride of 2 s, long enough for the tracker to settle.
 const BLOCK_WINDOWS: usize = 30;
 /// Held-out windows × open cells checked at most: the check keeps one
 /// log-likelihood per held-out window and cell (4 bytes each, 64 MB).
