@@ -26,7 +26,7 @@
 //! typed errors where the runtime acts on the kind.
 
 pub use gangway_core::{
-    clock, event, guide, locate, model, pipeline, plan, publish, sighting, site,
+    clock, cluster, event, guide, locate, model, pipeline, plan, publish, sighting, site,
 };
 pub use gangway_io::{config, latency, mqtt, score, sink, source, store, throttle, topics, web};
 pub use gangway_offline::{eval, picture, simulate, survey, train, walks};

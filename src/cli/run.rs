@@ -12,6 +12,7 @@ use tokio::sync::{mpsc, watch};
 
 use crate::daemon::{self, state};
 use crate::mqtt;
+use crate::mqtt::cluster::Role;
 use crate::publish::stats::BleStatus;
 use crate::sink::{Sink, jsonl::JsonLines, recorder::Recorder};
 use crate::source::Source;
@@ -19,7 +20,6 @@ use crate::source::ble::BleSource;
 use crate::source::capture::{CaptureReader, ReadOptions};
 use crate::source::playback::CaptureSource;
 use crate::source::unix_now;
-use crate::topics::Topics;
 
 #[derive(clap::Args)]
 pub(super) struct Args {
@@ -89,6 +89,14 @@ async fn serve(args: Args) -> anyhow::Result<()> {
             })
             .1
         }
+        // A locator hears the air only through the edges.
+        None if config.cluster.role == Role::Locator => {
+            watch::channel(BleStatus {
+                state: "none",
+                ..BleStatus::default()
+            })
+            .1
+        }
         None => {
             let (ble, status) =
                 BleSource::new(config.ble.clone(), config.gateway_id.as_str().into());
@@ -125,7 +133,7 @@ async fn serve(args: Args) -> anyhow::Result<()> {
     let latency = web.map(|web| web.add_to(&mut sources, &mut sinks));
     if let Some(out) = &args.out {
         sinks.push(Box::new(JsonLines::create(
-            Topics::new(config.topic_prefix()),
+            config.broker_identity(&site).topics(),
             out,
         )?));
     }
@@ -134,6 +142,7 @@ async fn serve(args: Args) -> anyhow::Result<()> {
         prefix = config.topic_prefix(),
         site = site.name,
         sharing = config.shares_sightings(),
+        role = ?config.cluster.role,
         "gateway {} serving",
         config.gateway_id
     );

@@ -37,6 +37,7 @@
 //! daemon, the rest keeps serving).
 
 mod admission;
+mod cluster;
 mod recalibration;
 pub mod state;
 
@@ -54,6 +55,7 @@ use state::Loaded;
 
 use crate::locate::recalibrate::{self, Schedule};
 use crate::locate::window::Orientation;
+use crate::mqtt::cluster::Role;
 use crate::pipeline;
 use crate::plan::RouteErrorCode;
 use crate::publish::stats::{
@@ -164,6 +166,10 @@ pub async fn run(
     tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
     let mut share_tick = tokio::time::interval(SHARE_INTERVAL);
     share_tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
+    let mut beat_tick = tokio::time::interval(Duration::from_secs_f64(
+        runtime.state.config.cluster.heartbeat_s,
+    ));
+    beat_tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
     // systemd's watchdog wants a ping at least every WATCHDOG_USEC; pinging
     // from this loop means a stuck loop gets the service restarted.
     let watchdog = sd_notify::watchdog_enabled();
@@ -192,6 +198,7 @@ pub async fn run(
             // reading (and answering `overloaded`) keeps pace with the broker.
             () = std::future::ready(()), if !runtime.requests.is_empty() => Step::ServeRequest,
             _ = share_tick.tick(), if runtime.share.is_some() => Step::Share,
+            _ = beat_tick.tick(), if runtime.locator.is_some() => Step::Beat,
             _ = tick.tick() => Step::Tick,
             _ = stats_tick.tick(), if options.stats => Step::Stats,
             Ok(()) = changed(&mut radio) => Step::RadioChanged,
@@ -209,6 +216,7 @@ pub async fn run(
             Step::Idle => {}
             Step::ServeRequest => runtime.serve_next(),
             Step::Share => runtime.share_sightings(),
+            Step::Beat => runtime.beat(),
             Step::Tick => {
                 runtime.tick();
                 runtime.recalibrate_if_due(false);
@@ -305,6 +313,9 @@ pub async fn run(
         tasks.abort_all();
     }
     runtime.share_sightings();
+    if let Some(locator) = &mut runtime.locator {
+        locator.leave(unix_now(), &mut runtime.out);
+    }
     if options.stats {
         runtime.publish_stats();
     }
@@ -333,6 +344,7 @@ enum Step {
     Idle,
     ServeRequest,
     Share,
+    Beat,
     Tick,
     Stats,
     RadioChanged,
@@ -462,6 +474,11 @@ struct Runtime {
     throttles: Throttles,
     /// Own sightings waiting to be shared (advertiser orientation only).
     share: Option<Vec<Sighting>>,
+    /// An edge (`[cluster] role = "edge"`) shares what it hears and locates
+    /// nothing.
+    edge: bool,
+    /// A locator's membership (`[cluster] role = "locator"`).
+    locator: Option<cluster::Locator>,
     radio: Option<watch::Receiver<BleStatus>>,
     fallbacks: Vec<String>,
     /// The last status line given to systemd.
@@ -495,6 +512,10 @@ impl Runtime {
                 rejected: Throttle::new(WARN_EVERY),
             },
             share: options.share_sightings.then(Vec::new),
+            edge: state.config.cluster.role == Role::Edge,
+            locator: (state.config.cluster.role == Role::Locator).then(|| {
+                cluster::Locator::new(&state.config.cluster, &state.config.gateway_id, unix_now())
+            }),
             radio: options.radio.clone(),
             fallbacks: options.fallbacks.clone(),
             status: String::new(),
@@ -527,23 +548,29 @@ impl Runtime {
                 self.share_sightings();
             }
         }
-        self.state.pipeline.handle(event, &mut self.out);
+        if !self.edge {
+            self.state.pipeline.handle(event, &mut self.out);
+        }
     }
 
     fn inbound(&mut self, message: Inbound) {
         let now = unix_now();
         match message {
             Inbound::Route(request) => {
-                if !self.request_rate.allow(&request.device, now) {
-                    let why = format!(
-                        "more than {} route requests per second from this device",
-                        self.state.config.limits.requests_per_device_per_s
-                    );
-                    self.refuse_route(&request, RouteErrorCode::RateLimited, why);
-                } else if let Some((request, why)) = self.requests.push(request) {
-                    self.refuse_route(&request, RouteErrorCode::Overloaded, why);
-                }
+                let request = match &mut self.locator {
+                    Some(locator) => match locator.route(request, now) {
+                        Some(request) => request,
+                        None => return,
+                    },
+                    None => request,
+                };
+                self.admit(request, now);
             }
+            // Another locator's device: its owner answers.
+            Inbound::BadRoute { device, .. }
+            | Inbound::Cancel { device, .. }
+            | Inbound::Feedback(Feedback { device, .. })
+                if self.locator.as_ref().is_some_and(|l| !l.owns(&device)) => {}
             Inbound::BadRoute {
                 device,
                 request_id,
@@ -596,15 +623,65 @@ impl Runtime {
                     pipeline.handle(&Event::Advert(s), &mut self.out);
                 }
             }
+            // An edge passes its receivers' sightings on.
+            Inbound::Shared(shared) if self.edge => {
+                if let Some(batch) = &mut self.share {
+                    batch.extend(shared);
+                }
+            }
             Inbound::Shared(shared) => {
                 self.counters.shared_in += shared.len() as u64;
                 for s in shared {
+                    // Sightings of a shard just handed over may still come.
+                    if let Some(locator) = &self.locator
+                        && !locator.owns(&s.advertiser.device_id())
+                    {
+                        continue;
+                    }
                     self.state.pipeline.handle(&Event::Advert(s), &mut self.out);
+                }
+            }
+            Inbound::Beat(beat) => {
+                let Some(locator) = &mut self.locator else {
+                    return;
+                };
+                match locator.heard(&beat, now, &mut self.out) {
+                    Ok(requests) => {
+                        for request in requests {
+                            self.admit(request, now);
+                        }
+                    }
+                    Err(()) => self.counters.rejected += 1,
                 }
             }
             Inbound::Refused { oversized } => {
                 self.counters.rejected += 1;
                 self.counters.oversized += u64::from(oversized);
+            }
+        }
+    }
+
+    /// A route request into the queue, or refused (`rate_limited`,
+    /// `overloaded`).
+    fn admit(&mut self, request: RouteRequest, now: f64) {
+        if !self.request_rate.allow(&request.device, now) {
+            let why = format!(
+                "more than {} route requests per second from this device",
+                self.state.config.limits.requests_per_device_per_s
+            );
+            self.refuse_route(&request, RouteErrorCode::RateLimited, why);
+        } else if let Some((request, why)) = self.requests.push(request) {
+            self.refuse_route(&request, RouteErrorCode::Overloaded, why);
+        }
+    }
+
+    /// A locator's heartbeat and what follows from time passing: shards
+    /// taken over from a locator that went away bring their held requests.
+    fn beat(&mut self) {
+        let now = unix_now();
+        if let Some(locator) = &mut self.locator {
+            for request in locator.beat(now, &mut self.out) {
+                self.admit(request, now);
             }
         }
     }
@@ -702,6 +779,9 @@ impl Runtime {
     /// Hands what this turn produced to every sink, noting the routes given
     /// (feedback is taken only for those).
     fn dispatch(&mut self) -> anyhow::Result<()> {
+        if let Some(locator) = &self.locator {
+            self.out.retain(|o| locator.keeps(o));
+        }
         if self.out.is_empty() {
             return Ok(());
         }

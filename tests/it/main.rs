@@ -22,6 +22,7 @@ mod hass;
 mod hass_discovery;
 mod localization;
 mod mqtt_acl;
+mod mqtt_cluster;
 mod mqtt_embedded;
 mod mqtt_fleet;
 mod mqtt_guidance;

@@ -24,17 +24,7 @@ fn log_of(gateway: &str, rssi: i16) -> String {
 /// The sample site plus two fixed gateways: the help desk (J10) and the
 /// printers (N15).
 fn two_gateway_site(dir: &std::path::Path) -> std::path::PathBuf {
-    let site = dir.join("site.toml");
-    let waldo = std::fs::read_to_string(repo().join("config/sites/waldo.toml")).unwrap();
-    let (body, places) = waldo.split_once("[places]").unwrap();
-    std::fs::write(
-        &site,
-        format!(
-            "{body}[[gateway]]\nid = \"gw-a\"\ncell = [9, 9]\n\n[[gateway]]\nid = \"gw-b\"\ncell = [13, 14]\n\n[places]{places}"
-        ),
-    )
-    .unwrap();
-    site
+    site_with_gateways(dir, &[("gw-a", [9, 9]), ("gw-b", [13, 14])])
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -79,6 +79,8 @@ pub enum Inbound {
     Scan(Vec<Sighting>),
     /// Another gateway's sightings.
     Shared(Vec<Sighting>),
+    /// Another locator's heartbeat (`[cluster] role = "locator"`).
+    Beat(crate::cluster::Beat),
     /// A message refused before it could be read (its source logged why);
     /// counted.
     Refused {

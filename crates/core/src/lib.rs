@@ -30,6 +30,7 @@
 //! left to do. Nothing here panics on input: a panic is a bug.
 
 pub mod clock;
+pub mod cluster;
 pub mod csv_line;
 pub mod event;
 pub mod guide;

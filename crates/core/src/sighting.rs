@@ -22,6 +22,15 @@ pub struct BeaconId {
     pub minor: u16,
 }
 
+impl BeaconId {
+    /// The id a tag is located and published under when fixed receivers
+    /// hear it (`[window] orientation = "advertiser"`): `uuid-major-minor`,
+    /// a single topic level.
+    pub fn device_id(&self) -> String {
+        format!("{}-{}-{}", self.uuid, self.major, self.minor)
+    }
+}
+
 impl fmt::Display for BeaconId {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{}/{}/{}", self.uuid, self.major, self.minor)

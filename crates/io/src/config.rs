@@ -14,6 +14,7 @@ use crate::latency;
 use crate::locate::LocalizerConfig;
 use crate::locate::tracker::TrackerConfig;
 use crate::locate::window::{Orientation, WindowConfig};
+use crate::mqtt::cluster::{ClusterConfig, Role};
 use crate::mqtt::{self, MqttConfig};
 use crate::pipeline::{LimitsConfig, PipelineConfig};
 use crate::plan::PlannerConfig;
@@ -44,6 +45,9 @@ pub struct Config {
     pub guidance: GuidanceConfig,
     #[serde(default)]
     pub mqtt: MqttConfig,
+    /// `[cluster]`: this gateway's part among many on one broker.
+    #[serde(default)]
+    pub cluster: ClusterConfig,
     /// `[store]`: the crowd-sourced learning store.
     #[serde(default)]
     pub store: StoreConfig,
@@ -203,6 +207,26 @@ impl Config {
                     .into(),
             );
         }
+        self.cluster.validate()?;
+        if self.cluster.role != Role::Single {
+            if self.window.orientation != Orientation::Advertiser {
+                return Err(
+                    "[cluster] edges and locators share the work of fixed receivers hearing \
+                     tags: set [window] orientation = \"advertiser\" (phones that scan are \
+                     served by a single gateway)"
+                        .into(),
+                );
+            }
+            if self.cluster.role == Role::Locator
+                && (self.mqtt.espresense.is_some() || self.mqtt.theengs.is_some())
+            {
+                return Err(
+                    "[mqtt.espresense] and [mqtt.theengs] go on an edge, which passes their \
+                     sightings to the locators by shard; a locator reads only its shards"
+                        .into(),
+                );
+            }
+        }
         self.store.validate()?;
         self.limits.validate()?;
         Ok(())
@@ -245,10 +269,11 @@ impl Config {
             .unwrap_or_else(|| format!("gangway-{}", self.gateway_id))
     }
 
-    /// Whether the site's gateways exchange sightings: when the gateways are
-    /// the anchors (`[window] orientation = "advertiser"`).
+    /// Whether this gateway sends its sightings to the site's others: when
+    /// the gateways are the anchors (`[window] orientation = "advertiser"`),
+    /// unless it is a locator (it has no radio of its own).
     pub fn shares_sightings(&self) -> bool {
-        self.window.orientation == Orientation::Advertiser
+        self.window.orientation == Orientation::Advertiser && self.cluster.role != Role::Locator
     }
 
     /// Who this gateway is on the broker for `site`, for the MQTT sink.
@@ -259,6 +284,8 @@ impl Config {
             topic_prefix: self.topic_prefix(),
             site_prefix: self.site_prefix(&site.name),
             shares_sightings: self.shares_sightings(),
+            role: self.cluster.role,
+            shards: self.cluster.shards,
             max_devices: self.limits.max_devices,
             device_idle_s: self.limits.device_idle_s,
         }

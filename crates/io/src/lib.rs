@@ -19,7 +19,7 @@
 
 // The core's modules under their own names, so a path reads the same in
 // every crate of the workspace (`crate::site::Site`).
-use gangway_core::{clock, event, guide, locate, pipeline, plan, publish, sighting, site};
+use gangway_core::{clock, cluster, event, guide, locate, pipeline, plan, publish, sighting, site};
 
 pub mod config;
 pub mod latency;

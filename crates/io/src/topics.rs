@@ -100,26 +100,42 @@ impl LocationPayload<'_> {
 #[derive(Clone, Debug)]
 pub struct Topics {
     prefix: String,
+    /// Where the `devices/…` topics go: the prefix, except for a locator
+    /// (`[cluster] role = "locator"`), whose devices' topics are the site's,
+    /// so that a client need not know which locator holds its device.
+    devices: String,
 }
 
 impl Topics {
     pub fn new(prefix: impl Into<String>) -> Self {
+        let prefix = prefix.into();
         Topics {
-            prefix: prefix.into(),
+            devices: prefix.clone(),
+            prefix,
         }
+    }
+
+    /// These topics with the `devices/…` ones under `devices_prefix`.
+    pub fn with_devices_under(mut self, devices_prefix: impl Into<String>) -> Self {
+        self.devices = devices_prefix.into();
+        self
     }
 
     pub(crate) fn prefix(&self) -> &str {
         &self.prefix
     }
 
+    pub(crate) fn devices_prefix(&self) -> &str {
+        &self.devices
+    }
+
     pub(crate) fn location(&self, device: &str) -> String {
-        format!("{}/devices/{device}/location", self.prefix)
+        format!("{}/devices/{device}/location", self.devices)
     }
 
     /// Plain-text tracker state for Home Assistant: place, `home` or `not_home`.
     pub(crate) fn presence(&self, device: &str) -> String {
-        format!("{}/devices/{device}/presence", self.prefix)
+        format!("{}/devices/{device}/presence", self.devices)
     }
 
     /// Retained devices per named place.
@@ -128,7 +144,7 @@ impl Topics {
     }
 
     pub fn path(&self, device: &str) -> String {
-        format!("{}/devices/{device}/path", self.prefix)
+        format!("{}/devices/{device}/path", self.devices)
     }
 
     /// Retained `online` / `offline` (the last will).
@@ -148,22 +164,22 @@ impl Topics {
 
     /// Guidance for a device walking a route.
     pub(crate) fn guidance(&self, device: &str) -> String {
-        format!("{}/devices/{device}/guidance", self.prefix)
+        format!("{}/devices/{device}/guidance", self.devices)
     }
 
     /// Route requests for a device.
     pub fn route_set(&self, device: &str) -> String {
-        format!("{}/devices/{device}/route/set", self.prefix)
+        format!("{}/devices/{device}/route/set", self.devices)
     }
 
     /// A device's request to end its guidance session.
     pub(crate) fn route_cancel(&self, device: &str) -> String {
-        format!("{}/devices/{device}/route/cancel", self.prefix)
+        format!("{}/devices/{device}/route/cancel", self.devices)
     }
 
     /// Feedback on a route.
     pub(crate) fn feedback(&self, device: &str) -> String {
-        format!("{}/devices/{device}/feedback", self.prefix)
+        format!("{}/devices/{device}/feedback", self.devices)
     }
 
     /// Scans a phone publishes of the beacons it hears.
@@ -200,6 +216,7 @@ impl Topics {
             | Output::Adherence(_)
             | Output::Feedback(_)
             | Output::Sightings(_)
+            | Output::Beat(_)
             | Output::Heard(_) => return None,
         })
     }

@@ -196,6 +196,20 @@ pub(crate) fn write_config(
     .unwrap();
 }
 
+/// The sample site (`config/sites/waldo.toml`) with `gateways` as fixed
+/// receivers (`[[gateway]]`: id and cell), written into `dir`.
+pub(crate) fn site_with_gateways(dir: &Path, gateways: &[(&str, [u16; 2])]) -> PathBuf {
+    let site = dir.join("site.toml");
+    let waldo = std::fs::read_to_string(repo().join("config/sites/waldo.toml")).unwrap();
+    let (body, places) = waldo.split_once("[places]").unwrap();
+    let gateways: String = gateways
+        .iter()
+        .map(|(id, [x, y])| format!("[[gateway]]\nid = \"{id}\"\ncell = [{x}, {y}]\n\n"))
+        .collect();
+    std::fs::write(&site, format!("{body}{gateways}[places]{places}")).unwrap();
+    site
+}
+
 /// Tests run at once: a gateway's web UI must be off or on port 0, never
 /// on the default port, which two gateways would compete for (the loser
 /// would serve without its UI, listed in its fallbacks).
@@ -520,6 +534,7 @@ pub(crate) fn schema_of(topic: &str) -> Option<&'static str> {
         "occupancy" => "occupancy",
         "error" if topic.ends_with("/feedback/error") => "feedback-error",
         _ if topic.contains("/sightings/") => "sightings",
+        _ if topic.contains("/locators/") => "locator",
         _ => return None,
     })
 }

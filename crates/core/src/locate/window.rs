@@ -221,10 +221,7 @@ impl Windows {
                 let id = self
                     .advertiser_ids
                     .entry(s.advertiser)
-                    .or_insert_with(|| {
-                        let a = s.advertiser;
-                        format!("{}-{}-{}", a.uuid, a.major, a.minor).into()
-                    })
+                    .or_insert_with(|| s.advertiser.device_id().into())
                     .clone();
                 (id, self.gateway_anchors.get(&s.observer).copied())
             }

@@ -54,6 +54,9 @@ pub enum Output {
     /// This gateway's own sightings, for the other gateways of its site
     /// (advertiser orientation).
     Sightings(Vec<crate::sighting::Sighting>),
+    /// A locator's heartbeat (`[cluster] role = "locator"`), naming the
+    /// shards it owns: sinks subscribe to those.
+    Beat(crate::cluster::Beat),
     /// The gateway's counters.
     Stats(Box<stats::Stats>),
     /// The beacons the gateway heard, known or not.

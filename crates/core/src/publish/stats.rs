@@ -148,8 +148,9 @@ pub struct Stats {
 /// The radio's state, visible to operators.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct BleStatus {
-    /// `scanning`, `retrying` (adapter lost or missing), `starting`, or
-    /// `replay` when events come from a log.
+    /// `scanning`, `retrying` (adapter lost or missing), `starting`,
+    /// `replay` when events come from a log, or `none` for a locator
+    /// (`[cluster] role = "locator"`), which has no radio.
     pub state: &'static str,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,

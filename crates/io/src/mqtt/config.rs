@@ -28,6 +28,9 @@ pub struct MqttConfig {
     /// `mqtt://host[:port]` (1883) or `mqtts://host[:port]` (8883). `--mqtt-url`
     /// overrides it; with neither, an embedded broker is started on 127.0.0.1.
     pub url: Option<String>,
+    /// Other nodes of the same (clustered) broker, tried in turn after
+    /// `url` when a connection fails or is lost.
+    pub fallback_urls: Vec<String>,
     /// Defaults to `gangway-<gateway id>`.
     pub client_id: Option<String>,
     pub username: Option<String>,
@@ -86,6 +89,7 @@ impl Default for MqttConfig {
     fn default() -> Self {
         MqttConfig {
             url: None,
+            fallback_urls: Vec::new(),
             client_id: None,
             username: None,
             password_file: None,
@@ -158,6 +162,12 @@ impl MqttConfig {
         if self.password_file.is_some() && self.username.is_none() {
             return bad("`password_file` is set but `username` is not");
         }
+        if self.url.is_none() && !self.fallback_urls.is_empty() {
+            return bad("`fallback_urls` are other nodes of the broker `url` names: set `url` too");
+        }
+        for url in &self.fallback_urls {
+            broker_address(url)?;
+        }
         if !(self.reconnect_min_s > 0.0 && self.reconnect_max_s >= self.reconnect_min_s) {
             return bad("`reconnect_min_s` must be positive and at most `reconnect_max_s`");
         }
@@ -215,23 +225,7 @@ impl MqttConfig {
 
     /// Client options for `url`: address, keep-alive, credentials and TLS.
     pub fn options(&self, url: &str, client_id: &str) -> Result<MqttOptions, MqttError> {
-        let bad = |reason: &str| MqttError::BadUrl {
-            url: url.to_owned(),
-            reason: reason.to_owned(),
-        };
-        let parsed = url::Url::parse(url).map_err(|e| bad(&e.to_string()))?;
-        let tls = match parsed.scheme() {
-            "mqtt" => false,
-            "mqtts" => true,
-            _ => return Err(bad("the scheme must be mqtt:// or mqtts://")),
-        };
-        if !parsed.username().is_empty() || parsed.password().is_some() {
-            return Err(bad(
-                "credentials do not belong in the url; use [mqtt] username and password_file",
-            ));
-        }
-        let host = parsed.host_str().ok_or_else(|| bad("no host"))?;
-        let port = parsed.port().unwrap_or(if tls { 8883 } else { 1883 });
+        let (host, port, tls) = broker_address(url)?;
         let mut options = MqttOptions::new(client_id, host, port);
         options.set_keep_alive(Duration::from_secs(self.keep_alive_s.max(5)));
         // Any packet the protocol allows is taken in, so that no message can
@@ -352,6 +346,28 @@ pub(crate) fn valid_prefix(prefix: &str) -> bool {
         && !prefix
             .chars()
             .any(|c| matches!(c, '+' | '#') || c.is_control())
+}
+
+/// The host, port and whether TLS is on, of a broker url.
+fn broker_address(url: &str) -> Result<(String, u16, bool), MqttError> {
+    let bad = |reason: &str| MqttError::BadUrl {
+        url: url.to_owned(),
+        reason: reason.to_owned(),
+    };
+    let parsed = url::Url::parse(url).map_err(|e| bad(&e.to_string()))?;
+    let tls = match parsed.scheme() {
+        "mqtt" => false,
+        "mqtts" => true,
+        _ => return Err(bad("the scheme must be mqtt:// or mqtts://")),
+    };
+    if !parsed.username().is_empty() || parsed.password().is_some() {
+        return Err(bad(
+            "credentials do not belong in the url; use [mqtt] username and password_file",
+        ));
+    }
+    let host = parsed.host_str().ok_or_else(|| bad("no host"))?;
+    let port = parsed.port().unwrap_or(if tls { 8883 } else { 1883 });
+    Ok((host.to_owned(), port, tls))
 }
 
 #[cfg(test)]

@@ -10,6 +10,10 @@
 //! - `<prefix>/scans/<device>`: `[{"uuid", "major", "minor", "rssi", "tx_power"?}]`,
 //!   a phone's own scan, localized with the phone as observer;
 //! - `<site prefix>/sightings/<gateway>`: another gateway's sightings;
+//! - a locator's (`[cluster] role = "locator"`, [`super::cluster`]): the
+//!   device topics above under the site prefix, the edges' sightings of the
+//!   shards it owns (`<site prefix>/shards/<k>/sightings/<edge>`) and the
+//!   other locators' heartbeats (`<site prefix>/locators/<locator>`);
 //! - ESPresense nodes and Theengs Gateway / OpenMQTTGateway, when
 //!   configured ([`super::receivers`]): their iBeacon messages, as sightings
 //!   by the receiver.
@@ -19,6 +23,7 @@ use std::sync::Arc;
 use serde::Deserialize;
 use uuid::Uuid;
 
+use super::cluster::{self, Role};
 use super::receivers::{self, EspresenseConfig, TheengsConfig};
 use super::sightings;
 use crate::event::{Feedback, Inbound, RouteRequest};
@@ -69,6 +74,8 @@ pub struct Inbox {
     max_payload: usize,
     /// Whether shared sightings are exchanged (advertiser orientation).
     share: bool,
+    /// What this gateway does among the site's (`[cluster] role`).
+    role: Role,
     espresense: Option<EspresenseConfig>,
     theengs: Option<TheengsConfig>,
     /// How far ahead of this gateway's clock another gateway's sighting may
@@ -119,6 +126,7 @@ impl Inbox {
             gateway_id,
             max_payload,
             share,
+            role: Role::Single,
             espresense: None,
             theengs: None,
             max_clock_skew_s: DEFAULT_MAX_CLOCK_SKEW_S,
@@ -129,6 +137,13 @@ impl Inbox {
     /// gateway's clock (`[mqtt] max_clock_skew_s`).
     pub fn with_max_clock_skew(mut self, seconds: f64) -> Self {
         self.max_clock_skew_s = seconds;
+        self
+    }
+
+    /// Reads what a gateway of `role` takes: an edge nothing, a locator the
+    /// site's device topics, shards and heartbeats.
+    pub fn with_role(mut self, role: Role) -> Self {
+        self.role = role;
         self
     }
 
@@ -144,14 +159,28 @@ impl Inbox {
         self
     }
 
-    /// The topic filters to subscribe to.
+    /// The topic filters to subscribe to (a locator's shards come and go:
+    /// the sink subscribes to them as it owns them).
     pub(crate) fn subscriptions(&self) -> Vec<String> {
-        let mut filters = vec![
+        let device_topics = [
             self.topics.route_set("+"),
             self.topics.route_cancel("+"),
             self.topics.feedback("+"),
-            self.topics.scans("+"),
         ];
+        match self.role {
+            Role::Single => {}
+            // An edge passes its receivers' sightings on, by shard.
+            Role::Edge => {
+                return receivers::subscriptions(self.espresense.as_ref(), self.theengs.as_ref());
+            }
+            Role::Locator => {
+                let mut filters = device_topics.to_vec();
+                filters.push(cluster::locator_topic(&self.site_prefix, "+"));
+                return filters;
+            }
+        }
+        let mut filters = device_topics.to_vec();
+        filters.push(self.topics.scans("+"));
         if self.share {
             filters.push(sightings::topic(&self.site_prefix, "+"));
         }
@@ -262,6 +291,9 @@ impl Inbox {
                 }
                 Ok(Inbound::Shared(shared))
             }
+            Kind::Beat => Ok(Inbound::Beat(
+                cluster::decode_beat(id, payload).map_err(bad)?,
+            )),
             Kind::Espresense { device } => {
                 receiver(receivers::espresense(id, device, payload, now), topic)
             }
@@ -342,11 +374,9 @@ impl Inbox {
         {
             return Some((Kind::Theengs, gateway));
         }
-        if let Some(rest) = strip(topic, self.topics.prefix()) {
-            if let Some(device) = rest.strip_prefix("scans/") {
-                return Some((Kind::Scan, device));
-            }
-            let rest = rest.strip_prefix("devices/")?;
+        if let Some(rest) = strip(topic, self.topics.devices_prefix())
+            .and_then(|rest| rest.strip_prefix("devices/"))
+        {
             if let Some(device) = rest.strip_suffix("/route/set") {
                 return Some((Kind::RouteSet, device));
             }
@@ -358,8 +388,30 @@ impl Inbox {
             }
             return None;
         }
-        let gateway = strip(topic, &self.site_prefix)?.strip_prefix("sightings/")?;
-        self.share.then_some((Kind::Sightings, gateway))
+        if self.role == Role::Single
+            && let Some(device) =
+                strip(topic, self.topics.prefix()).and_then(|rest| rest.strip_prefix("scans/"))
+        {
+            return Some((Kind::Scan, device));
+        }
+        let rest = strip(topic, &self.site_prefix)?;
+        match self.role {
+            Role::Single => {
+                let gateway = rest.strip_prefix("sightings/")?;
+                self.share.then_some((Kind::Sightings, gateway))
+            }
+            Role::Edge => None,
+            Role::Locator => {
+                if let Some(locator) = rest.strip_prefix("locators/") {
+                    return Some((Kind::Beat, locator));
+                }
+                let (shard, edge) = rest.strip_prefix("shards/")?.split_once("/sightings/")?;
+                shard
+                    .parse::<u16>()
+                    .is_ok()
+                    .then_some((Kind::Sightings, edge))
+            }
+        }
     }
 }
 
@@ -383,6 +435,8 @@ enum Kind<'t> {
     Feedback,
     Scan,
     Sightings,
+    /// A locator's heartbeat (the id names the locator).
+    Beat,
     /// An ESPresense node's message about `device` (the id names its room).
     Espresense {
         device: &'t str,

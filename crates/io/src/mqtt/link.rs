@@ -80,7 +80,10 @@ const FLAP_COUNT: usize = 5;
 /// What a link is set up with.
 #[derive(Clone, Debug)]
 pub(crate) struct LinkSettings {
-    pub options: MqttOptions,
+    /// The broker's nodes, tried in turn: the first, and after a failure
+    /// the next (`[mqtt] fallback_urls`), so a client of a clustered
+    /// broker moves to another node when its node dies. Never empty.
+    pub brokers: Vec<MqttOptions>,
     pub qos: QoS,
     /// `(topic, online payload, offline payload)`: retained birth and last will.
     pub status: Option<(String, String, String)>,
@@ -154,6 +157,10 @@ enum Command {
     /// Drops a birth message and publishes an empty retained payload on its
     /// topic.
     ClearRetained(String),
+    /// Subscribes to these filters from now on (and on every reconnect).
+    Subscribe(Vec<String>),
+    /// Stops subscribing to these filters.
+    Unsubscribe(Vec<String>),
     Shutdown(oneshot::Sender<()>),
 }
 
@@ -285,6 +292,21 @@ impl Link {
         let _ = self.commands.send(Command::ClearRetained(topic));
     }
 
+    /// Subscribes to `filters` now and after every reconnect (a locator's
+    /// shards, as it comes to own them).
+    pub(crate) fn subscribe(&self, filters: Vec<String>) {
+        if !filters.is_empty() {
+            let _ = self.commands.send(Command::Subscribe(filters));
+        }
+    }
+
+    /// Stops subscribing to `filters`.
+    pub(crate) fn unsubscribe(&self, filters: Vec<String>) {
+        if !filters.is_empty() {
+            let _ = self.commands.send(Command::Unsubscribe(filters));
+        }
+    }
+
     /// Publishes the offline status, waits (up to the grace period) until every
     /// queued and in-flight message is acknowledged, and disconnects.
     pub(crate) async fn shutdown(self) {
@@ -338,6 +360,8 @@ struct Controller {
     awaiting_pkid: HashMap<u16, u64>,
     next_seq: u64,
     backoff: Duration,
+    /// The node of `settings.brokers` tried or used now.
+    broker: usize,
     ever_connected: bool,
     conn: Conn,
     next_session: u64,
@@ -353,6 +377,7 @@ impl Controller {
         Controller {
             queue: OfflineQueue::new(settings.queue_max_messages, settings.queue_max_bytes),
             backoff: settings.reconnect_min,
+            broker: 0,
             settings,
             stats,
             inbound,
@@ -439,6 +464,22 @@ impl Controller {
                             retain: true,
                         });
                         self.flush();
+                    }
+                    Some(Command::Subscribe(filters)) => {
+                        for filter in filters {
+                            if !self.settings.subscriptions.contains(&filter) {
+                                self.watch(&filter);
+                                self.settings.subscriptions.push(filter);
+                            }
+                        }
+                    }
+                    Some(Command::Unsubscribe(filters)) => {
+                        self.settings.subscriptions.retain(|f| !filters.contains(f));
+                        if let Conn::Session { client, connected: true, .. } = &self.conn {
+                            for filter in &filters {
+                                let _ = client.try_unsubscribe(filter);
+                            }
+                        }
                     }
                     Some(Command::Shutdown(done)) => self.begin_shutdown(done),
                     // Every handle is gone: nobody can ask for a clean
@@ -530,7 +571,7 @@ impl Controller {
     /// Starts a new session: a fresh client and event loop, polled on a task
     /// that forwards every event here and ends with the session.
     fn connect(&mut self) {
-        let mut options = self.settings.options.clone();
+        let mut options = self.settings.brokers[self.broker].clone();
         if let Some((topic, _, offline)) = &self.settings.status {
             options.set_last_will(LastWill::new(
                 topic,
@@ -591,8 +632,8 @@ impl Controller {
         false
     }
 
-    /// Subscribes to one of the gateway's own birth topics, if connected
-    /// (on connect, all of them are).
+    /// Subscribes to `topic` (one of the gateway's own birth topics, or a
+    /// filter added since), if connected (on connect, all of them are).
     fn watch(&self, topic: &str) {
         if let Conn::Session {
             client,
@@ -601,7 +642,7 @@ impl Controller {
         } = &self.conn
             && let Err(e) = client.try_subscribe(topic, self.settings.qos)
         {
-            tracing::error!(%topic, "cannot watch the gateway's own topic: {e}");
+            tracing::error!(%topic, "cannot subscribe: {e}");
         }
     }
 
@@ -765,7 +806,7 @@ impl Controller {
                 tracing::error!(%topic, "cannot subscribe: {e}");
             }
         }
-        let url = broker_address(&self.settings.options);
+        let url = broker_address(&self.settings.brokers[self.broker]);
         if self.ever_connected {
             self.stats.reconnects.fetch_add(1, Ordering::Relaxed);
             tracing::info!(broker = %url, queued = self.queue.len(), "reconnected to the MQTT broker");
@@ -806,9 +847,17 @@ impl Controller {
         self.acks.clear();
         self.stats.connected.store(false, Ordering::Relaxed);
         self.stats.connect_failures.fetch_add(1, Ordering::Relaxed);
-        let wait = self.backoff;
-        self.backoff = (self.backoff * 2).min(self.settings.reconnect_max);
-        let broker = broker_address(&self.settings.options);
+        let broker = broker_address(&self.settings.brokers[self.broker]);
+        // The next node of a clustered broker is tried at once; the backoff
+        // grows once every node was tried.
+        self.broker = (self.broker + 1) % self.settings.brokers.len();
+        let wait = if self.broker == 0 {
+            let wait = self.backoff;
+            self.backoff = (self.backoff * 2).min(self.settings.reconnect_max);
+            wait
+        } else {
+            self.settings.reconnect_min
+        };
         if was_connected {
             self.stats.disconnects.fetch_add(1, Ordering::Relaxed);
             self.losses.push_back(Instant::now());

@@ -12,12 +12,15 @@
 //! - [`inbound`]: subscribed topics (route requests, feedback, phone scans,
 //!   shared sightings) read into what the runtime consumes;
 //! - [`sightings`]: the shared-sightings payload between gateways of a site;
+//! - [`cluster`]: `[cluster]`, an edge's sightings by shard and a
+//!   locator's heartbeats (many gateways, each device located once);
 //! - [`occupancy`]: the retained devices-per-place payload;
 //! - [`discovery`]: Home Assistant MQTT discovery, and [`tracker_gate`]:
 //!   which devices get a tracker there;
 //! - [`broker`]: the embedded broker used when no url is configured.
 
 pub mod broker;
+pub mod cluster;
 pub(crate) mod config;
 pub(crate) mod discovery;
 pub mod inbound;
@@ -63,7 +66,10 @@ pub(crate) fn link_settings(
     low_latency: bool,
 ) -> Result<LinkSettings, MqttError> {
     Ok(LinkSettings {
-        options: config.options(url, client_id)?,
+        brokers: std::iter::once(url)
+            .chain(config.fallback_urls.iter().map(String::as_str))
+            .map(|url| config.options(url, client_id))
+            .collect::<Result<_, _>>()?,
         qos: config.qos(),
         status: status.map(|topic| (topic, "online".to_owned(), "offline".to_owned())),
         subscriptions,

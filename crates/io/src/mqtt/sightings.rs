@@ -41,11 +41,20 @@ pub(crate) fn topic(site_prefix: &str, gateway: &str) -> String {
 
 /// A batch of this gateway's own sightings.
 pub fn encode(site_prefix: &str, gateway: &str, sightings: &[Sighting]) -> Message {
+    encode_to(topic(site_prefix, gateway), gateway, sightings)
+}
+
+/// A batch of this gateway's own sightings, on `topic`.
+pub(crate) fn encode_to<'a>(
+    topic: String,
+    gateway: &str,
+    sightings: impl IntoIterator<Item = &'a Sighting>,
+) -> Message {
     let batch = Batch {
         schema: SIGHTINGS_SCHEMA.into(),
         gateway: gateway.into(),
         sightings: sightings
-            .iter()
+            .into_iter()
             .map(|s| SharedSighting {
                 t: s.t,
                 uuid: s.advertiser.uuid,
@@ -56,7 +65,7 @@ pub fn encode(site_prefix: &str, gateway: &str, sightings: &[Sighting]) -> Messa
             })
             .collect(),
     };
-    Message::json(topic(site_prefix, gateway), &batch, false)
+    Message::json(topic, &batch, false)
 }
 
 /// Reads another gateway's batch; `gateway` is the topic's last level and must

@@ -18,6 +18,7 @@ use foldhash::HashMap;
 use futures::future::BoxFuture;
 
 use super::MqttConfig;
+use super::cluster::{self, Role};
 use super::discovery::Discovery;
 use super::inbound::Inbox;
 use super::occupancy::Occupancy;
@@ -54,6 +55,12 @@ pub struct MqttSink {
     lossless: bool,
     /// Messages to hand to the link at the next flush, in one batch.
     pending: Vec<Message>,
+    /// What this gateway does among the site's, and into how many shards
+    /// the site's devices are cut (`[cluster]`).
+    role: Role,
+    shards: u16,
+    /// The shards whose sightings a locator subscribes to now.
+    subscribed_shards: Vec<u16>,
 }
 
 /// Who this gateway is on the broker, and what it keeps per device: what
@@ -69,10 +76,25 @@ pub struct Identity {
     pub site_prefix: String,
     /// The site's gateways exchange sightings (they are the anchors).
     pub shares_sightings: bool,
+    /// Its part among the site's gateways, and the shards of the site's
+    /// devices (`[cluster]`).
+    pub role: Role,
+    pub shards: u16,
     /// Devices announced to Home Assistant, bounded like the tracks
     /// (`[limits]`).
     pub max_devices: usize,
     pub device_idle_s: f64,
+}
+
+impl Identity {
+    /// This gateway's topics: a locator's device topics are the site's.
+    pub fn topics(&self) -> Topics {
+        let topics = Topics::new(self.topic_prefix.clone());
+        match self.role {
+            Role::Locator => topics.with_devices_under(self.site_prefix.clone()),
+            Role::Single | Role::Edge => topics,
+        }
+    }
 }
 
 /// The daemon's connection to `url`: a sink for everything it publishes
@@ -85,7 +107,7 @@ pub fn gateway(
     site: &Site,
     url: &str,
 ) -> anyhow::Result<(MqttSink, MqttSource)> {
-    let topics = Topics::new(identity.topic_prefix.clone());
+    let topics = identity.topics();
     let site_prefix = identity.site_prefix.clone();
     anyhow::ensure!(
         super::config::valid_prefix(&site_prefix),
@@ -99,6 +121,7 @@ pub fn gateway(
         config.max_payload_bytes,
         identity.shares_sightings,
     )
+    .with_role(identity.role)
     .with_receivers(config.espresense.clone(), config.theengs.clone())
     .with_max_clock_skew(config.max_clock_skew_s);
     let settings = super::link_settings(
@@ -132,8 +155,13 @@ pub fn publisher(
     // Nobody waits for a reply: let the kernel gather messages into packets.
     let settings = super::link_settings(config, url, &client_id, None, Vec::new(), false)?;
     let (link, _) = Link::start(settings);
-    let topics = Topics::new(identity.topic_prefix.clone());
-    Ok(MqttSink::new(config, identity, link, topics, true))
+    Ok(MqttSink::new(
+        config,
+        identity,
+        link,
+        identity.topics(),
+        true,
+    ))
 }
 
 /// Occupancy of the site's places, everyone away.
@@ -170,7 +198,24 @@ impl MqttSink {
             occupancy: None,
             lossless,
             pending: Vec::new(),
+            role: identity.role,
+            shards: identity.shards,
+            subscribed_shards: Vec::new(),
         }
+    }
+
+    /// Subscribes to the sightings of the shards a locator owns now, and
+    /// only those.
+    fn follow_shards(&mut self, owned: &[u16]) {
+        if owned == self.subscribed_shards.as_slice() {
+            return;
+        }
+        let filter = |&shard: &u16| cluster::shard_topic(&self.site_prefix, shard, "+");
+        let gone = self.subscribed_shards.iter().filter(|s| !owned.contains(s));
+        self.link.unsubscribe(gone.map(filter).collect());
+        let new = owned.iter().filter(|s| !self.subscribed_shards.contains(s));
+        self.link.subscribe(new.map(filter).collect());
+        self.subscribed_shards = owned.to_vec();
     }
 
     /// Home Assistant discovery for `site`'s places.
@@ -287,9 +332,23 @@ impl Sink for MqttSink {
                     }
                 }
                 Output::Forgotten(device) => self.withdraw(device),
+                Output::Sightings(batch) if self.role == Role::Edge => {
+                    let messages = cluster::encode_by_shard(
+                        &self.site_prefix,
+                        &self.gateway_id,
+                        self.shards,
+                        batch,
+                    );
+                    self.pending.extend(messages);
+                }
                 Output::Sightings(batch) => {
                     let message = sightings::encode(&self.site_prefix, &self.gateway_id, batch);
                     self.pending.push(message);
+                }
+                Output::Beat(beat) => {
+                    self.pending
+                        .push(cluster::encode_beat(&self.site_prefix, beat));
+                    self.follow_shards(&beat.owned);
                 }
                 _ => {}
             }
