@@ -624,4 +624,54 @@ mod tests {
             );
         }
     }
+
+    #[test]
+    fn a_locator_reads_the_site_s_device_topics_its_shards_and_heartbeats() {
+        let site = "gangway/sites/s";
+        let i = Inbox::new(
+            Topics::new("gangway/loc-1").with_devices_under(site),
+            site.into(),
+            "loc-1".into(),
+            1000,
+            false,
+        )
+        .with_role(Role::Locator);
+        let subscriptions = i.subscriptions();
+        assert!(subscriptions.contains(&format!("{site}/devices/+/route/set")));
+        assert!(subscriptions.contains(&format!("{site}/locators/+")));
+        assert!(!subscriptions.iter().any(|f| f.contains("sightings")));
+        let now = 1_767_225_600.0;
+        let request = i
+            .read(
+                &format!("{site}/devices/tag-1/route/set"),
+                br#"{"to":"x"}"#,
+                now,
+            )
+            .unwrap();
+        assert!(matches!(&request, Inbound::Route(r) if r.device == "tag-1"));
+        let batch = br#"{"schema":"gangway.sightings/1","gateway":"gw-b","sightings":[]}"#;
+        let shard = i.read(&format!("{site}/shards/3/sightings/gw-b"), batch, now);
+        assert!(matches!(shard, Ok(Inbound::Shared(_))), "{shard:?}");
+        let beat = br#"{"schema":"gangway.locator/1","locator":"loc-2","state":"serving","shards":8,"owned":[1],"t":1}"#;
+        let heard = i.read(&format!("{site}/locators/loc-2"), beat, now);
+        assert!(
+            matches!(&heard, Ok(Inbound::Beat(b)) if b.locator == "loc-2"),
+            "{heard:?}"
+        );
+        // What a single gateway reads is not a locator's.
+        for topic in [
+            format!("{site}/sightings/gw-b"),
+            format!("{site}/shards/x/sightings/gw-b"),
+            "gangway/loc-1/scans/phone".to_owned(),
+            "gangway/loc-1/devices/tag-1/route/set".to_owned(),
+        ] {
+            let read = i.read(&topic, batch, now);
+            assert!(
+                matches!(read, Err(Rejected::UnknownTopic { .. })),
+                "{topic}: {read:?}"
+            );
+        }
+        // An edge reads nothing but its receivers.
+        assert!(inbox().with_role(Role::Edge).subscriptions().is_empty());
+    }
 }
