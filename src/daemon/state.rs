@@ -92,6 +92,8 @@ pub(crate) fn restart_needed(old: &Loaded, new: &Loaded) -> Option<&'static str>
         Some("[store] changed")
     } else if old.config.limits != new.config.limits {
         Some("[limits] changed")
+    } else if old.config.cluster != new.config.cluster {
+        Some("[cluster] changed")
     } else if old.config.window.orientation != new.config.window.orientation {
         Some("[window] orientation changed")
     } else if old.config.site_prefix(&old.site.name) != new.config.site_prefix(&new.site.name) {

@@ -344,3 +344,47 @@ async fn two_locators_split_the_tags_and_one_takes_over_when_the_other_is_killed
     assert_all_valid(&seen.client.seen);
     drop((edges, locators, configs));
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_gateway_moves_to_the_next_broker_node_when_its_node_dies() {
+    let mut first = Broker::start();
+    let second = Broker::start();
+    let site = repo().join("config/sites/waldo.toml");
+    let config = gateway_config("gw-nodes", &site, &first, "");
+    let mut text = std::fs::read_to_string(&config.path).unwrap();
+    writeln!(text, "fallback_urls = [\"{}\"]", second.url()).unwrap();
+    std::fs::write(&config.path, text).unwrap();
+    let _gateway = Gateway::start(&config.path, &[]);
+    let status = "gangway/gw-nodes/status";
+    let mut on_first = Client::connect(&first, "watch-first", &[status]).await;
+    on_first
+        .wait_for("online on the first node", |m| m.text() == "online")
+        .await;
+    let mut on_second = Client::connect(&second, "watch-second", &["gangway/gw-nodes/#"]).await;
+
+    let died = Instant::now();
+    first.stop();
+    on_second
+        .wait_for("online on the second node", |m| {
+            m.topic == status && m.text() == "online"
+        })
+        .await;
+    let moved = died.elapsed().as_secs_f64();
+    eprintln!(
+        "broker node: the gateway was online on the next node {moved:.2} s after its node died (target ≤ 5 s)"
+    );
+    assert!(moved <= 5.0, "{moved:.2} s");
+    // And it serves there.
+    let reply = on_second
+        .route(
+            "gangway/gw-nodes",
+            "phone-1",
+            "reading room",
+            "on-the-next-node",
+        )
+        .await;
+    assert!(
+        reply["error"].is_object() || reply["line"].is_array(),
+        "{reply}"
+    );
+}
