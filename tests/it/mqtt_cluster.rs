@@ -96,21 +96,37 @@ impl Timed {
         latest
     }
 
+    /// For `for_s` seconds from now: every tag located, each fix published
+    /// once.
+    async fn every_tag_located_once(&mut self, for_s: f64) {
+        let from = Instant::now();
+        self.gather(for_s).await;
+        let fixes = self.fixes_since(from);
+        assert_eq!(duplicates(&fixes), Vec::<&(String, String)>::new());
+        let located: BTreeSet<&str> = fixes.keys().map(|(d, _)| d.as_str()).collect();
+        assert_eq!(located.len(), TAGS.len(), "{located:?}");
+    }
+
+    /// Locations received from `since` on, as (device, fix time, when
+    /// the test received it).
+    fn locations_since(&self, since: Instant) -> impl Iterator<Item = (String, String, Instant)> {
+        let prefix = format!("{SITE}/devices/");
+        self.client
+            .seen
+            .iter()
+            .zip(&self.at)
+            .filter(move |(_, at)| **at >= since)
+            .filter_map(move |(m, at)| {
+                let device = m.topic.strip_prefix(&prefix)?.strip_suffix("/location")?;
+                Some((device.to_owned(), m.json()["t"].to_string(), *at))
+            })
+    }
+
     /// Locations received from `since` on: (device, fix time) → how many.
     fn fixes_since(&self, since: Instant) -> HashMap<(String, String), usize> {
         let mut fixes = HashMap::new();
-        for (m, at) in self.client.seen.iter().zip(&self.at) {
-            if *at < since {
-                continue;
-            }
-            if let Some(device) = m
-                .topic
-                .strip_prefix(&format!("{SITE}/devices/"))
-                .and_then(|r| r.strip_suffix("/location"))
-            {
-                let t = m.json()["t"].to_string();
-                *fixes.entry((device.to_owned(), t)).or_insert(0) += 1;
-            }
+        for (device, t, _) in self.locations_since(since) {
+            *fixes.entry((device, t)).or_insert(0) += 1;
         }
         fixes
     }
@@ -118,17 +134,8 @@ impl Timed {
     /// When each device's first location arrived at or after `since`.
     fn first_fix_after(&self, since: Instant) -> HashMap<String, Instant> {
         let mut first = HashMap::new();
-        for (m, at) in self.client.seen.iter().zip(&self.at) {
-            if *at < since {
-                continue;
-            }
-            if let Some(device) = m
-                .topic
-                .strip_prefix(&format!("{SITE}/devices/"))
-                .and_then(|r| r.strip_suffix("/location"))
-            {
-                first.entry(device.to_owned()).or_insert(*at);
-            }
+        for (device, _, at) in self.locations_since(since) {
+            first.entry(device).or_insert(at);
         }
         first
     }
@@ -245,12 +252,7 @@ async fn two_locators_split_the_tags_and_one_takes_over_when_the_other_is_killed
             seen.first_fix_after(began).keys()
         );
     }
-    let steady = Instant::now();
-    seen.gather(10.0).await;
-    let fixes = seen.fixes_since(steady);
-    assert_eq!(duplicates(&fixes), Vec::<&(String, String)>::new());
-    let located: BTreeSet<&str> = fixes.keys().map(|(d, _)| d.as_str()).collect();
-    assert_eq!(located.len(), TAGS.len(), "{located:?}");
+    seen.every_tag_located_once(10.0).await;
     // The edges' sightings travel on shard topics, and nothing else does.
     assert!(
         seen.client
@@ -329,12 +331,7 @@ async fn two_locators_split_the_tags_and_one_takes_over_when_the_other_is_killed
     }
 
     // After the takeover, still each fix once, and every tag located.
-    let settled = Instant::now();
-    seen.gather(8.0).await;
-    let fixes = seen.fixes_since(settled);
-    assert_eq!(duplicates(&fixes), Vec::<&(String, String)>::new());
-    let located: BTreeSet<&str> = fixes.keys().map(|(d, _)| d.as_str()).collect();
-    assert_eq!(located.len(), TAGS.len(), "{located:?}");
+    seen.every_tag_located_once(8.0).await;
     let beats = seen.beats();
     assert_eq!(
         owned(&beats["loc-2"]).len(),
