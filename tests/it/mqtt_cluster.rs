@@ -338,6 +338,33 @@ async fn two_locators_split_the_tags_and_one_takes_over_when_the_other_is_killed
         usize::from(SHARDS),
         "{beats:?}"
     );
+
+    // The killed locator comes back: it takes its share again, and the
+    // tags are still each located once.
+    let rejoined = Instant::now();
+    locators.insert(victim, Gateway::start(&configs[0].path, &[]));
+    let deadline = Instant::now() + WAIT;
+    loop {
+        seen.gather(0.5).await;
+        let beats = seen.beats();
+        let (back, other) = (owned(&beats[victim]), owned(&beats["loc-2"]));
+        if beats[victim]["state"] == "serving"
+            && !back.is_empty()
+            && back.is_disjoint(&other)
+            && back.len() + other.len() == usize::from(SHARDS)
+        {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "no split after the rejoin: {beats:?}"
+        );
+    }
+    seen.every_tag_located_once(10.0).await;
+    eprintln!(
+        "cluster: the restarted locator took its share back {:.1} s after it started",
+        rejoined.elapsed().as_secs_f64() - 10.0
+    );
     assert_all_valid(&seen.client.seen);
     drop((edges, locators, configs));
 }

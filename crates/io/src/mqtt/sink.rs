@@ -200,7 +200,12 @@ impl MqttSink {
             pending: Vec::new(),
             role: identity.role,
             shards: identity.shards,
-            subscribed_shards: Vec::new(),
+            // A locator's persistent session may still hold the shards it
+            // had before a restart: its first heartbeat drops all but its own.
+            subscribed_shards: match identity.role {
+                Role::Locator => (0..identity.shards).collect(),
+                Role::Single | Role::Edge => Vec::new(),
+            },
         }
     }
 
