@@ -134,13 +134,17 @@ pub fn gateway(
     )?;
     let (link, inbound) = Link::start(settings);
     let mut sink = MqttSink::new(config, identity, link, topics, false);
+    // A locator knows only its own devices: a count per place, or a tracker
+    // that moves between locators, would mislead (docs/scaling.md).
+    if identity.role != Role::Locator {
+        sink.occupancy = Some(occupancy(site));
+        sink.publish_occupancy();
+    }
     if config.ha_discovery {
         let discovery = sink.discovery_for(site);
         sink.link.set_birth(&discovery.gateway(), true);
         sink.discovery = Some(discovery);
     }
-    sink.occupancy = Some(occupancy(site));
-    sink.publish_occupancy();
     Ok((sink, MqttSource::new(inbound, inbox)))
 }
 
@@ -225,11 +229,12 @@ impl MqttSink {
 
     /// Home Assistant discovery for `site`'s places.
     fn discovery_for(&self, site: &Site) -> Discovery {
+        let places = site.places().keys().map(String::as_str);
         Discovery::new(
             &self.discovery_prefix,
             &self.gateway_id,
             self.topics.clone(),
-            site.places().keys().map(String::as_str),
+            places.filter(|_| self.occupancy.is_some()),
         )
     }
 
@@ -243,7 +248,7 @@ impl MqttSink {
     /// unknown), announcing the device when the gate lets a located one
     /// through; whether it has a tracker.
     fn announce(&mut self, device: &str, t: f64, located: bool) -> bool {
-        if self.discovery.is_none() {
+        if self.discovery.is_none() || self.role == Role::Locator {
             return false;
         }
         if let Some(seen) = self.announced.get_mut(device) {
