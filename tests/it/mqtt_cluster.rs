@@ -8,6 +8,8 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::fmt::Write as _;
 use std::time::{Duration, Instant};
 
+use std::path::Path;
+
 use crate::mqtt_support::*;
 
 const TAG_UUID: &str = "0f0e0d0c-0b0a-4908-8706-050403020100";
@@ -166,207 +168,239 @@ fn duplicates(fixes: &HashMap<(String, String), usize>) -> Vec<&(String, String)
         .collect()
 }
 
+/// The gateways of one run: locators and edges, each on its broker node
+/// (with the other nodes as fallbacks), and what the test client saw.
+struct Fleet {
+    dir: tempfile::TempDir,
+    site: std::path::PathBuf,
+    seen: Timed,
+    configs: BTreeMap<String, GatewayConfig>,
+    locators: BTreeMap<String, Gateway>,
+    edges: Vec<Gateway>,
+}
+
+impl Fleet {
+    /// The test client on `watch`, no gateway yet.
+    async fn new(watch: &Broker) -> Fleet {
+        let dir = tempfile::tempdir().unwrap();
+        let site = site_with_gateways(dir.path(), &EDGES);
+        let client = Client::connect(watch, "test-cluster", &[&format!("{SITE}/#")]).await;
+        Fleet {
+            dir,
+            site,
+            seen: Timed {
+                client,
+                at: Vec::new(),
+            },
+            configs: BTreeMap::new(),
+            locators: BTreeMap::new(),
+            edges: Vec::new(),
+        }
+    }
+
+    /// The config of gateway `id` of `role` on `node`, the `others` its
+    /// fallbacks.
+    fn config(&mut self, id: &str, role: &str, node: &Broker, others: &[&Broker]) -> &Path {
+        let config = gateway_config(
+            id,
+            &self.site,
+            node,
+            &format!(
+                "[window]\norientation = \"advertiser\"\n[localizer]\nmin_confidence = 0.0\n\
+                 [cluster]\nrole = \"{role}\"\nshards = {SHARDS}\nlease_s = {LEASE_S}\nheartbeat_s = 1.0\n"
+            ),
+        );
+        let fallbacks: Vec<String> = others.iter().map(|b| format!("\"{}\"", b.url())).collect();
+        let mut text = std::fs::read_to_string(&config.path).unwrap();
+        writeln!(text, "fallback_urls = [{}]", fallbacks.join(", ")).unwrap();
+        std::fs::write(&config.path, text).unwrap();
+        self.configs.insert(id.to_owned(), config);
+        &self.configs[id].path
+    }
+
+    fn start_locator(&mut self, id: &str, node: &Broker, others: &[&Broker]) {
+        let config = self.config(id, "locator", node, others).to_owned();
+        self.locators
+            .insert(id.to_owned(), Gateway::start(&config, &[]));
+    }
+
+    /// Restarts a locator with the config it had.
+    fn restart_locator(&mut self, id: &str) {
+        let gateway = Gateway::start(&self.configs[id].path, &[]);
+        self.locators.insert(id.to_owned(), gateway);
+    }
+
+    /// The edges, each on its node: they hear every tag for `seconds`, in
+    /// real time.
+    fn start_edges(&mut self, nodes: [(&Broker, [&Broker; 2]); 3], seconds: u32) {
+        let start = unix_now() + 1.0;
+        for ((id, cell), (node, others)) in EDGES.into_iter().zip(nodes) {
+            let log = self.dir.path().join(format!("{id}.jsonl"));
+            std::fs::write(&log, log_of(id, cell, start, seconds)).unwrap();
+            let config = self.config(id, "edge", node, &others).to_owned();
+            self.edges.push(Gateway::start(
+                &config,
+                &["--replay", log.to_str().unwrap(), "--speed", "1"],
+            ));
+        }
+    }
+
+    /// Waits until the locators serving are exactly `ids` and split the
+    /// shards with neither gap nor overlap; returns each one's shards.
+    async fn split_between(&mut self, ids: &[&str]) -> BTreeMap<String, BTreeSet<u64>> {
+        let deadline = Instant::now() + WAIT;
+        loop {
+            self.seen.gather(0.5).await;
+            let beats = self.seen.beats();
+            let serving: BTreeMap<String, BTreeSet<u64>> = beats
+                .iter()
+                .filter(|(_, b)| b["state"] == "serving")
+                .map(|(id, b)| (id.clone(), owned(b)))
+                .collect();
+            let all: usize = serving.values().map(BTreeSet::len).sum();
+            let union: BTreeSet<u64> = serving.values().flatten().copied().collect();
+            if serving.keys().map(String::as_str).eq(ids.iter().copied())
+                && all == usize::from(SHARDS)
+                && union.len() == all
+                && serving.values().all(|s| !s.is_empty())
+            {
+                return serving;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "no split between {ids:?}: {beats:?}"
+            );
+        }
+    }
+
+    /// Waits until every tag was located since `since`.
+    async fn all_located_since(&mut self, since: Instant) {
+        let deadline = Instant::now() + WAIT;
+        while self.seen.first_fix_after(since).len() < TAGS.len() {
+            assert!(
+                Instant::now() < deadline,
+                "not every tag located: {:?}",
+                self.seen.first_fix_after(since).keys()
+            );
+            self.seen.gather(0.5).await;
+        }
+    }
+
+    /// kill -9 the locator `victim`, whose shards `split` gives, and sends a
+    /// route request right after for one of its tags and one of another
+    /// locator's. Returns how long until all its tags were published again,
+    /// once both requests were answered.
+    async fn kill_locator(&mut self, victim: &str, split: &BTreeMap<String, BTreeSet<u64>>) -> f64 {
+        let (victims, others): (Vec<String>, Vec<String>) = (0..TAGS.len())
+            .map(tag)
+            .partition(|t| split[victim].contains(&shard_of(t)));
+        assert!(
+            !victims.is_empty() && !others.is_empty(),
+            "the tags all fall to one locator: {split:?}"
+        );
+        let mut dead = self.locators.remove(victim).unwrap();
+        signal(&dead.child, "KILL");
+        let killed = Instant::now();
+        let _ = dead.child.wait();
+        let requests = [(&victims[0], "during-failover"), (&others[0], "unaffected")];
+        for (device, id) in requests {
+            let request = serde_json::json!({"to": "reading room", "request_id": id});
+            self.seen
+                .client
+                .publish(
+                    &format!("{SITE}/devices/{device}/route/set"),
+                    request.to_string(),
+                )
+                .await;
+        }
+        let deadline = Instant::now() + WAIT;
+        let takeover = loop {
+            self.seen.gather(0.5).await;
+            let first = self
+                .seen
+                .first_fix_after(killed + Duration::from_millis(100));
+            if victims.iter().all(|v| first.contains_key(v)) {
+                break victims
+                    .iter()
+                    .map(|v| first[v].duration_since(killed).as_secs_f64())
+                    .fold(0.0, f64::max);
+            }
+            assert!(
+                Instant::now() < deadline,
+                "the killed locator's tags were not taken over: {:?}",
+                first.keys()
+            );
+        };
+        eprintln!(
+            "cluster: {} of {} tags on the killed locator, all published again {takeover:.1} s after kill -9 (target ≤ 10 s)",
+            victims.len(),
+            TAGS.len()
+        );
+        // Both answered (a route, or an error for a tag the new owner has
+        // not located yet): twice at worst, by a takeover; never not at all.
+        for (device, id) in requests {
+            let reply = self.seen.client.reply(SITE, device, id).await;
+            assert!(
+                reply["line"].is_array() || reply["error"].is_object(),
+                "{reply}"
+            );
+        }
+        takeover
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_locators_split_the_tags_and_one_takes_over_when_the_other_is_killed() {
     let broker = Broker::start();
-    let dir = tempfile::tempdir().unwrap();
-    let site = site_with_gateways(dir.path(), &EDGES);
-    let client = Client::connect(&broker, "test-cluster", &[&format!("{SITE}/#")]).await;
-    let mut seen = Timed {
-        client,
-        at: Vec::new(),
-    };
-    let common = format!(
-        "[window]\norientation = \"advertiser\"\n[localizer]\nmin_confidence = 0.0\n\
-         [cluster]\nshards = {SHARDS}\nlease_s = {LEASE_S}\nheartbeat_s = 1.0\n"
-    );
-    let mut configs = Vec::new();
-    let mut locators = BTreeMap::new();
-    for id in ["loc-1", "loc-2"] {
-        let config = gateway_config(id, &site, &broker, &format!("{common}role = \"locator\"\n"));
-        locators.insert(id, Gateway::start(&config.path, &[]));
-        configs.push(config);
-    }
-
-    // Both serving, the shards split with neither gap nor overlap.
-    let deadline = Instant::now() + WAIT;
-    let split = loop {
-        seen.gather(0.5).await;
-        let beats = seen.beats();
-        let serving: Vec<BTreeSet<u64>> = beats
-            .values()
-            .filter(|b| b["state"] == "serving")
-            .map(owned)
-            .collect();
-        if serving.len() == 2
-            && serving[0].is_disjoint(&serving[1])
-            && serving[0].len() + serving[1].len() == usize::from(SHARDS)
-        {
-            break beats;
-        }
-        assert!(Instant::now() < deadline, "locators never split: {beats:?}");
-    };
-    let owner_of = |device: &str| {
-        let shard = shard_of(device);
-        split
-            .iter()
-            .find(|(_, b)| owned(b).contains(&shard))
-            .map(|(id, _)| id.clone())
-            .unwrap()
-    };
-    let victim = "loc-1";
-    let victims: Vec<String> = (0..TAGS.len())
-        .map(tag)
-        .filter(|t| owner_of(t) == victim)
+    let mut fleet = Fleet::new(&broker).await;
+    fleet.start_locator("loc-1", &broker, &[]);
+    fleet.start_locator("loc-2", &broker, &[]);
+    let split = fleet.split_between(&["loc-1", "loc-2"]).await;
+    fleet.start_edges([(&broker, [&broker, &broker]); 3], 120);
+    fleet.all_located_since(Instant::now()).await;
+    fleet.seen.every_tag_located_once(10.0).await;
+    // The edges' sightings travel on shard topics, and nothing else does.
+    let topics: Vec<&str> = fleet
+        .seen
+        .client
+        .seen
+        .iter()
+        .map(|m| m.topic.as_str())
         .collect();
     assert!(
-        !victims.is_empty() && victims.len() < TAGS.len(),
-        "the tags all fall to one locator: {victims:?}"
-    );
-
-    // Three edges hear every tag for two minutes, in real time.
-    let start = unix_now() + 1.0;
-    let mut edges = Vec::new();
-    for (id, cell) in EDGES {
-        let log = dir.path().join(format!("{id}.jsonl"));
-        std::fs::write(&log, log_of(id, cell, start, 120)).unwrap();
-        let config = gateway_config(id, &site, &broker, &format!("{common}role = \"edge\"\n"));
-        edges.push(Gateway::start(
-            &config.path,
-            &["--replay", log.to_str().unwrap(), "--speed", "1"],
-        ));
-        configs.push(config);
-    }
-
-    // Every tag located; for 10 s, each fix published once.
-    let began = Instant::now();
-    let deadline = Instant::now() + WAIT;
-    loop {
-        seen.gather(0.5).await;
-        if seen.first_fix_after(began).len() == TAGS.len() {
-            break;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "not every tag located: {:?}",
-            seen.first_fix_after(began).keys()
-        );
-    }
-    seen.every_tag_located_once(10.0).await;
-    // The edges' sightings travel on shard topics, and nothing else does.
-    assert!(
-        seen.client
-            .seen
+        topics
             .iter()
-            .any(|m| m.topic.starts_with(&format!("{SITE}/shards/"))),
+            .any(|t| t.starts_with(&format!("{SITE}/shards/")))
     );
     assert!(
-        !seen
-            .client
-            .seen
+        !topics
             .iter()
-            .any(|m| m.topic.starts_with(&format!("{SITE}/sightings/"))),
+            .any(|t| t.starts_with(&format!("{SITE}/sightings/"))),
         "an edge shared sightings with everyone"
     );
 
-    // kill -9 one locator, and ask for routes at once: one for a tag of
-    // each locator.
-    let mut dead = locators.remove(victim).unwrap();
-    signal(&dead.child, "KILL");
-    let killed = Instant::now();
-    let _ = dead.child.wait();
-    let survivor_tag = (0..TAGS.len())
-        .map(tag)
-        .find(|t| !victims.contains(t))
-        .unwrap();
-    for (device, id) in [
-        (&victims[0], "during-failover"),
-        (&survivor_tag, "unaffected"),
-    ] {
-        let request = serde_json::json!({"to": "reading room", "request_id": id});
-        seen.client
-            .publish(
-                &format!("{SITE}/devices/{device}/route/set"),
-                request.to_string(),
-            )
-            .await;
-    }
-
-    // Every tag of the killed locator published again by the other.
-    let deadline = Instant::now() + WAIT;
-    let takeover = loop {
-        seen.gather(0.5).await;
-        let first = seen.first_fix_after(killed + Duration::from_millis(100));
-        if victims.iter().all(|v| first.contains_key(v)) {
-            break victims
-                .iter()
-                .map(|v| first[v].duration_since(killed).as_secs_f64())
-                .fold(0.0, f64::max);
-        }
-        assert!(
-            Instant::now() < deadline,
-            "the killed locator's tags were not taken over: {:?}",
-            first.keys()
-        );
-    };
-    eprintln!(
-        "cluster: {} of {} tags on the killed locator, all published again {takeover:.1} s after kill -9 (target ≤ 10 s)",
-        victims.len(),
-        TAGS.len()
-    );
+    let takeover = fleet.kill_locator("loc-1", &split).await;
     assert!(takeover <= 10.0, "takeover took {takeover:.1} s");
-
-    // Both route requests answered (a route, or an error for a tag the
-    // new owner has not located yet), by exactly one reply each... or
-    // twice, at worst, by a takeover; never by none.
-    for (device, id) in [
-        (&victims[0], "during-failover"),
-        (&survivor_tag, "unaffected"),
-    ] {
-        let reply = seen.client.reply(SITE, device, id).await;
-        assert!(
-            reply["line"].is_array() || reply["error"].is_object(),
-            "{reply}"
-        );
-    }
-
     // After the takeover, still each fix once, and every tag located.
-    seen.every_tag_located_once(8.0).await;
-    let beats = seen.beats();
+    fleet.seen.every_tag_located_once(8.0).await;
     assert_eq!(
-        owned(&beats["loc-2"]).len(),
-        usize::from(SHARDS),
-        "{beats:?}"
+        fleet.seen.beats()["loc-2"]["owned"]
+            .as_array()
+            .map(Vec::len),
+        Some(usize::from(SHARDS))
     );
 
     // The killed locator comes back: it takes its share again, and the
     // tags are still each located once.
     let rejoined = Instant::now();
-    locators.insert(victim, Gateway::start(&configs[0].path, &[]));
-    let deadline = Instant::now() + WAIT;
-    loop {
-        seen.gather(0.5).await;
-        let beats = seen.beats();
-        let (back, other) = (owned(&beats[victim]), owned(&beats["loc-2"]));
-        if beats[victim]["state"] == "serving"
-            && !back.is_empty()
-            && back.is_disjoint(&other)
-            && back.len() + other.len() == usize::from(SHARDS)
-        {
-            break;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "no split after the rejoin: {beats:?}"
-        );
-    }
-    seen.every_tag_located_once(10.0).await;
+    fleet.restart_locator("loc-1");
+    fleet.split_between(&["loc-1", "loc-2"]).await;
+    fleet.seen.every_tag_located_once(10.0).await;
     eprintln!(
         "cluster: the restarted locator took its share back {:.1} s after it started",
         rejoined.elapsed().as_secs_f64() - 10.0
     );
-    assert_all_valid(&seen.client.seen);
-    drop((edges, locators, configs));
+    assert_all_valid(&fleet.seen.client.seen);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

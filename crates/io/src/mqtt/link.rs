@@ -87,7 +87,8 @@ pub(crate) struct LinkSettings {
     pub qos: QoS,
     /// `(topic, online payload, offline payload)`: retained birth and last will.
     pub status: Option<(String, String, String)>,
-    pub subscriptions: Vec<String>,
+    /// Topic filters, each with the QoS it is subscribed at.
+    pub subscriptions: Vec<(String, QoS)>,
     pub queue_max_messages: usize,
     pub queue_max_bytes: usize,
     pub reconnect_min: Duration,
@@ -157,8 +158,9 @@ enum Command {
     /// Drops a birth message and publishes an empty retained payload on its
     /// topic.
     ClearRetained(String),
-    /// Subscribes to these filters from now on (and on every reconnect).
-    Subscribe(Vec<String>),
+    /// Subscribes to these filters at this QoS from now on (and on every
+    /// reconnect).
+    Subscribe(Vec<String>, QoS),
     /// Stops subscribing to these filters.
     Unsubscribe(Vec<String>),
     Shutdown(oneshot::Sender<()>),
@@ -212,6 +214,11 @@ impl Link {
     /// Queues messages, in order, in one hand-over to the link task; never
     /// blocks.
     pub(crate) fn publish_batch(&self, messages: Vec<crate::topics::Message>) {
+        self.publish_batch_at(messages, self.qos);
+    }
+
+    /// [`Link::publish_batch`] at `qos` rather than `[mqtt] qos`.
+    pub(crate) fn publish_batch_at(&self, messages: Vec<crate::topics::Message>, qos: QoS) {
         if messages.is_empty() {
             return;
         }
@@ -222,7 +229,7 @@ impl Link {
             .map(|m| Outgoing {
                 topic: m.topic,
                 payload: m.payload,
-                qos: self.qos,
+                qos,
                 retain: m.retain,
             })
             .collect();
@@ -292,11 +299,11 @@ impl Link {
         let _ = self.commands.send(Command::ClearRetained(topic));
     }
 
-    /// Subscribes to `filters` now and after every reconnect (a locator's
-    /// shards, as it comes to own them).
-    pub(crate) fn subscribe(&self, filters: Vec<String>) {
+    /// Subscribes to `filters` at `qos` now and after every reconnect (a
+    /// locator's shards, as it comes to own them).
+    pub(crate) fn subscribe(&self, filters: Vec<String>, qos: QoS) {
         if !filters.is_empty() {
-            let _ = self.commands.send(Command::Subscribe(filters));
+            let _ = self.commands.send(Command::Subscribe(filters, qos));
         }
     }
 
@@ -465,16 +472,16 @@ impl Controller {
                         });
                         self.flush();
                     }
-                    Some(Command::Subscribe(filters)) => {
+                    Some(Command::Subscribe(filters, qos)) => {
                         for filter in filters {
-                            if !self.settings.subscriptions.contains(&filter) {
-                                self.watch(&filter);
-                                self.settings.subscriptions.push(filter);
+                            if !self.settings.subscriptions.iter().any(|(f, _)| *f == filter) {
+                                self.subscribe(&filter, qos);
+                                self.settings.subscriptions.push((filter, qos));
                             }
                         }
                     }
                     Some(Command::Unsubscribe(filters)) => {
-                        self.settings.subscriptions.retain(|f| !filters.contains(f));
+                        self.settings.subscriptions.retain(|(f, _)| !filters.contains(f));
                         if let Conn::Session { client, connected: true, .. } = &self.conn {
                             for filter in &filters {
                                 let _ = client.try_unsubscribe(filter);
@@ -632,15 +639,21 @@ impl Controller {
         false
     }
 
-    /// Subscribes to `topic` (one of the gateway's own birth topics, or a
-    /// filter added since), if connected (on connect, all of them are).
+    /// Subscribes to one of the gateway's own birth topics, if connected
+    /// (on connect, all of them are).
     fn watch(&self, topic: &str) {
+        self.subscribe(topic, self.settings.qos);
+    }
+
+    /// Subscribes to `topic` at `qos`, if connected (on connect, every
+    /// subscription is made again).
+    fn subscribe(&self, topic: &str, qos: QoS) {
         if let Conn::Session {
             client,
             connected: true,
             ..
         } = &self.conn
-            && let Err(e) = client.try_subscribe(topic, self.settings.qos)
+            && let Err(e) = client.try_subscribe(topic, qos)
         {
             tracing::error!(%topic, "cannot subscribe: {e}");
         }
@@ -801,8 +814,11 @@ impl Controller {
             .iter()
             .map(|(status, ..)| status)
             .chain(self.birth.keys());
-        for topic in self.settings.subscriptions.iter().chain(own) {
-            if let Err(e) = client.try_subscribe(topic, self.settings.qos) {
+        let qos = self.settings.qos;
+        let own = own.map(|topic| (topic, qos));
+        let subscriptions = self.settings.subscriptions.iter().map(|(f, q)| (f, *q));
+        for (topic, qos) in subscriptions.chain(own) {
+            if let Err(e) = client.try_subscribe(topic, qos) {
                 tracing::error!(%topic, "cannot subscribe: {e}");
             }
         }

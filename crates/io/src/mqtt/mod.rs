@@ -72,7 +72,10 @@ pub(crate) fn link_settings(
             .collect::<Result<_, _>>()?,
         qos: config.qos(),
         status: status.map(|topic| (topic, "online".to_owned(), "offline".to_owned())),
-        subscriptions,
+        subscriptions: subscriptions
+            .into_iter()
+            .map(|f| (f, config.qos()))
+            .collect(),
         queue_max_messages: config.queue_max_messages,
         queue_max_bytes: config.queue_max_bytes,
         reconnect_min: Duration::from_secs_f64(config.reconnect_min_s),

@@ -16,6 +16,7 @@ use std::sync::atomic::Ordering;
 
 use foldhash::HashMap;
 use futures::future::BoxFuture;
+use rumqttc::QoS;
 
 use super::MqttConfig;
 use super::cluster::{self, Role};
@@ -55,6 +56,10 @@ pub struct MqttSink {
     lossless: bool,
     /// Messages to hand to the link at the next flush, in one batch.
     pending: Vec<Message>,
+    /// Messages a newer one soon replaces (an edge's sightings, a locator's
+    /// heartbeat): sent at QoS 0, so that no broker stores or redelivers
+    /// them (NATS would write each QoS 1 one to its JetStream).
+    pending_ephemeral: Vec<Message>,
     /// What this gateway does among the site's, and into how many shards
     /// the site's devices are cut (`[cluster]`).
     role: Role,
@@ -202,6 +207,7 @@ impl MqttSink {
             occupancy: None,
             lossless,
             pending: Vec::new(),
+            pending_ephemeral: Vec::new(),
             role: identity.role,
             shards: identity.shards,
             // A locator's persistent session may still hold the shards it
@@ -223,7 +229,8 @@ impl MqttSink {
         let gone = self.subscribed_shards.iter().filter(|s| !owned.contains(s));
         self.link.unsubscribe(gone.map(filter).collect());
         let new = owned.iter().filter(|s| !self.subscribed_shards.contains(s));
-        self.link.subscribe(new.map(filter).collect());
+        self.link
+            .subscribe(new.map(filter).collect(), QoS::AtMostOnce);
         self.subscribed_shards = owned.to_vec();
     }
 
@@ -242,6 +249,8 @@ impl MqttSink {
     /// come after it).
     fn hand_over(&mut self) {
         self.link.publish_batch(std::mem::take(&mut self.pending));
+        self.link
+            .publish_batch_at(std::mem::take(&mut self.pending_ephemeral), QoS::AtMostOnce);
     }
 
     /// Notes a location of `device` at `t` (`located`: with a cell, not
@@ -349,14 +358,14 @@ impl Sink for MqttSink {
                         self.shards,
                         batch,
                     );
-                    self.pending.extend(messages);
+                    self.pending_ephemeral.extend(messages);
                 }
                 Output::Sightings(batch) => {
                     let message = sightings::encode(&self.site_prefix, &self.gateway_id, batch);
                     self.pending.push(message);
                 }
                 Output::Beat(beat) => {
-                    self.pending
+                    self.pending_ephemeral
                         .push(cluster::encode_beat(&self.site_prefix, beat));
                     self.follow_shards(&beat.owned);
                 }
