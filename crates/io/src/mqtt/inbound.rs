@@ -173,11 +173,7 @@ impl Inbox {
             Role::Edge => {
                 return receivers::subscriptions(self.espresense.as_ref(), self.theengs.as_ref());
             }
-            Role::Locator => {
-                let mut filters = device_topics.to_vec();
-                filters.push(cluster::locator_topic(&self.site_prefix, "+"));
-                return filters;
-            }
+            Role::Locator => return device_topics.to_vec(),
         }
         let mut filters = device_topics.to_vec();
         filters.push(self.topics.scans("+"));
@@ -189,6 +185,15 @@ impl Inbox {
             self.theengs.as_ref(),
         ));
         filters
+    }
+
+    /// The topic filters of streams a newer message soon replaces, to
+    /// subscribe to at QoS 0: the other locators' heartbeats.
+    pub(crate) fn stream_subscriptions(&self) -> Vec<String> {
+        match self.role {
+            Role::Locator => vec![cluster::locator_topic(&self.site_prefix, "+")],
+            Role::Single | Role::Edge => Vec::new(),
+        }
     }
 
     /// Reads one message received at `now` (seconds since the epoch).
@@ -638,7 +643,7 @@ mod tests {
         .with_role(Role::Locator);
         let subscriptions = i.subscriptions();
         assert!(subscriptions.contains(&format!("{site}/devices/+/route/set")));
-        assert!(subscriptions.contains(&format!("{site}/locators/+")));
+        assert_eq!(i.stream_subscriptions(), [format!("{site}/locators/+")]);
         assert!(!subscriptions.iter().any(|f| f.contains("sightings")));
         let now = 1_767_225_600.0;
         let request = i

@@ -138,6 +138,7 @@ pub fn gateway(
         true,
     )?;
     let (link, inbound) = Link::start(settings);
+    link.subscribe(inbox.stream_subscriptions(), QoS::AtMostOnce);
     let mut sink = MqttSink::new(config, identity, link, topics, false);
     // A locator knows only its own devices: a count per place, or a tracker
     // that moves between locators, would mislead (docs/scaling.md).
