@@ -1,0 +1,807 @@
+//! Cluster load run (issue #32): many simulated edges and tags through two
+//! real locators on a real mosquitto, then the same tags through today's
+//! all-to-all sharing, on loopback only, for a bounded time.
+//!
+//! ```sh
+//! cargo build --release && cargo run --release --example cluster -- --edges 50 --tags 1000 --json
+//! ```
+//!
+//! It starts mosquitto (Debian package `mosquitto`, `sys_interval 1` for its
+//! `$SYS` PUBLISH counters), writes a site (the sample site, `waldo.toml`,
+//! with a `[[gateway]]` per simulated edge on its walkable cells, several
+//! edges to a cell when there are more edges than cells) and starts two
+//! locators (`gangway run`, `[cluster] role = "locator"`). The simulated edges
+//! are not gateways: one task publishes, every 250 ms and for every edge, one
+//! batch per shard of the sightings that edge heard (each tag, at a fixed
+//! cell, advertises `--hz` times a second and is heard by its three nearest
+//! edges, RSSI by log-distance path loss) on
+//! `<site prefix>/shards/<k>/sightings/<edge>`. Route requests go to random
+//! tags at `--rate` a second. Half way through the measured span one locator
+//! is killed (SIGKILL). Then the locators are stopped and one real gateway
+//! in single mode (advertiser orientation) takes the sightings of
+//! `--all-to-all-gateways` simulated gateways on `<site prefix>/sightings/<gw>`,
+//! as each of them would in all-to-all sharing.
+//!
+//! It prints what it measured (with `--json`, one JSON line): fixes published
+//! twice, the longest gap between fixes of a tag, the failover time, route
+//! requests unanswered within 10 s, broker messages and CPU per tag located
+//! in both modes (and how each all-to-all figure was obtained). Everything it
+//! starts, it stops.
+
+mod support;
+
+use std::collections::{BTreeSet, HashMap};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::atomic::Ordering::Relaxed;
+use std::sync::atomic::{AtomicBool, AtomicU64};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use clap::Parser;
+use gangway::site::Site;
+use rumqttc::{AsyncClient, Event, EventLoop, MqttOptions, Packet, QoS};
+use serde_json::json;
+use support::{Guard, gangway, mosquitto, usage};
+
+const TAG_UUID: &str = "0f0e0d0c-0b0a-4908-8706-050403020100";
+/// The window stride of a gateway: gaps are counted in it.
+const STRIDE_S: f64 = 2.0;
+/// How long a route request may wait for its reply.
+const REPLY_WAIT_S: f64 = 10.0;
+/// Edges (or gateways) that hear each tag: its nearest.
+const HEARERS: usize = 3;
+/// Batches per second of an edge (every 250 ms).
+const TICK: Duration = Duration::from_millis(250);
+
+#[derive(Parser)]
+struct Args {
+    /// Simulated edges, each publishing its sightings by shard every 250 ms.
+    #[arg(long, default_value_t = 50)]
+    edges: usize,
+    /// Simulated tags, at fixed cells of the site.
+    #[arg(long, default_value_t = 1000)]
+    tags: usize,
+    /// Adverts per second of each tag.
+    #[arg(long, default_value_t = 1.0)]
+    hz: f64,
+    /// Measured span of the cluster run, after warm-up; one locator is killed half way.
+    #[arg(long, default_value_t = 60)]
+    seconds: u64,
+    /// Route requests per second, to random tags, during the measured span.
+    #[arg(long, default_value_t = 2.0)]
+    rate: f64,
+    /// `[cluster] shards` of the locators and the simulated edges.
+    #[arg(long, default_value_t = 64)]
+    shards: u16,
+    /// Gateways of the all-to-all comparison (the first edges of the site).
+    #[arg(long, default_value_t = 50)]
+    all_to_all_gateways: usize,
+    /// Measured span of the all-to-all comparison, after warm-up.
+    #[arg(long, default_value_t = 20)]
+    all_to_all_seconds: u64,
+    /// Print one JSON line instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+fn unix_now() -> f64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
+}
+
+/// FNV-1a 64 of the device id modulo the shards (docs/scaling.md).
+fn shard_of(device: &str, shards: u16) -> u16 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in device.bytes() {
+        h = (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+    }
+    (h % u64::from(shards)) as u16
+}
+
+/// A small deterministic generator (xorshift64*): which tags get requests.
+struct Rng(u64);
+
+impl Rng {
+    fn below(&mut self, n: usize) -> usize {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 33) as usize % n
+    }
+}
+
+/// The walkable cells of a site file's `map`.
+fn walkable(site_text: &str) -> Vec<[u16; 2]> {
+    let map = site_text
+        .split_once("map = '''")
+        .and_then(|(_, rest)| rest.split_once("'''"))
+        .map_or("", |(map, _)| map);
+    let mut cells = Vec::new();
+    for (y, line) in map.trim_start_matches('\n').lines().enumerate() {
+        for (x, c) in line.chars().enumerate() {
+            if c == '#' {
+                cells.push([x as u16, y as u16]);
+            }
+        }
+    }
+    cells
+}
+
+/// The sample site with a `[[gateway]]` per edge; returns its path and the
+/// edges' cells.
+fn write_site(dir: &Path, edges: &[String]) -> (PathBuf, Vec<[u16; 2]>) {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let waldo = std::fs::read_to_string(root.join("config/sites/waldo.toml"))
+        .unwrap_or_else(|e| panic!("config/sites/waldo.toml: {e}"));
+    let cells = walkable(&waldo);
+    assert!(
+        !cells.is_empty(),
+        "config/sites/waldo.toml: no walkable cell"
+    );
+    let (body, places) = waldo
+        .split_once("[places]")
+        .expect("config/sites/waldo.toml has [places]");
+    // Spread over the cells: edge i on every (cells / edges)-th cell.
+    let at: Vec<[u16; 2]> = (0..edges.len())
+        .map(|i| cells[(i * cells.len() / edges.len().max(1) + i / cells.len()) % cells.len()])
+        .collect();
+    let gateways: String = edges
+        .iter()
+        .zip(&at)
+        .map(|(id, [x, y])| format!("[[gateway]]\nid = \"{id}\"\ncell = [{x}, {y}]\n\n"))
+        .collect();
+    let site = dir.join("site.toml");
+    std::fs::write(&site, format!("{body}{gateways}[places]{places}")).unwrap();
+    (site, at)
+}
+
+/// One tag: its id, shard, and the receivers that hear it with their RSSI.
+struct Tag {
+    id: String,
+    minor: usize,
+    shard: u16,
+    phase: f64,
+    heard_by: Vec<(usize, i64)>,
+}
+
+/// Tags on walkable cells, each heard by its nearest `HEARERS` of `receivers`.
+fn tags(n: usize, cells: &[[u16; 2]], receivers: &[[u16; 2]], shards: u16) -> Vec<Tag> {
+    (0..n)
+        .map(|i| {
+            let at = cells[(i * 7) % cells.len()];
+            let mut near: Vec<(usize, f64)> = receivers
+                .iter()
+                .enumerate()
+                .map(|(r, c)| {
+                    let d = f64::from(c[0].abs_diff(at[0])).hypot(f64::from(c[1].abs_diff(at[1])));
+                    (r, d + r as f64 * 1e-6) // ties to the lower index
+                })
+                .collect();
+            near.sort_by(|a, b| a.1.total_cmp(&b.1));
+            near.truncate(HEARERS);
+            let id = format!("{TAG_UUID}-7-{}", i + 1);
+            Tag {
+                shard: shard_of(&id, shards),
+                id,
+                minor: i + 1,
+                phase: i as f64 / n as f64,
+                heard_by: near
+                    .into_iter()
+                    .map(|(r, d)| (r, (-59.0 - 20.0 * d.max(1.0).log10()).round() as i64))
+                    .collect(),
+            }
+        })
+        .collect()
+}
+
+fn client(id: &str, port: u16) -> (AsyncClient, EventLoop) {
+    let mut options = MqttOptions::new(id, "127.0.0.1", port);
+    options.set_keep_alive(Duration::from_secs(30));
+    options.set_max_packet_size(1 << 20, 1 << 20);
+    let (client, mut eventloop) = AsyncClient::new(options, 100_000);
+    let mut network = eventloop.network_options();
+    network.set_tcp_nodelay(true);
+    eventloop.set_network_options(network);
+    (client, eventloop)
+}
+
+/// Where the simulated receivers publish.
+#[derive(Clone, Copy)]
+enum Sharing {
+    /// `<site>/shards/<k>/sightings/<edge>`: one batch per shard.
+    Shards,
+    /// `<site>/sightings/<gateway>`: one batch.
+    AllToAll,
+}
+
+/// Stops the simulated receivers and counts what they published.
+#[derive(Default)]
+struct Switch {
+    stop: AtomicBool,
+    published: AtomicU64,
+}
+
+/// Publishes the receivers' sightings every 250 ms until `switch.stop`,
+/// counting its messages in `switch.published`.
+async fn simulate(
+    client: AsyncClient,
+    site: String,
+    receivers: Vec<String>,
+    tags: Vec<Tag>,
+    hz: f64,
+    sharing: Sharing,
+    switch: Arc<Switch>,
+) {
+    let mut tick = tokio::time::interval(TICK);
+    let mut from = unix_now();
+    while !switch.stop.load(Relaxed) {
+        tick.tick().await;
+        let to = unix_now();
+        // (receiver, shard) → sightings heard in [from, to).
+        let mut batches: HashMap<(usize, u16), Vec<serde_json::Value>> = HashMap::new();
+        for tag in &tags {
+            // Adverts at (k + phase) / hz.
+            let mut k = ((from * hz) - tag.phase).ceil();
+            while (k + tag.phase) / hz < to {
+                let t = (k + tag.phase) / hz;
+                for &(r, rssi) in &tag.heard_by {
+                    let shard = match sharing {
+                        Sharing::Shards => tag.shard,
+                        Sharing::AllToAll => 0,
+                    };
+                    batches.entry((r, shard)).or_default().push(json!({
+                        "t": t, "uuid": TAG_UUID, "major": 7, "minor": tag.minor, "rssi": rssi
+                    }));
+                }
+                k += 1.0;
+            }
+        }
+        from = to;
+        for ((r, shard), sightings) in batches {
+            let gateway = &receivers[r];
+            let topic = match sharing {
+                Sharing::Shards => format!("{site}/shards/{shard}/sightings/{gateway}"),
+                Sharing::AllToAll => format!("{site}/sightings/{gateway}"),
+            };
+            let payload = json!({
+                "schema": "gangway.sightings/1", "gateway": gateway, "sightings": sightings
+            });
+            if client
+                .publish(topic, QoS::AtMostOnce, false, payload.to_string())
+                .await
+                .is_ok()
+            {
+                switch.published.fetch_add(1, Relaxed);
+            }
+        }
+    }
+}
+
+/// What the watching client saw.
+#[derive(Default)]
+struct Seen {
+    /// (arrived, tag index, fix time, from the all-to-all gateway).
+    fixes: Vec<(Instant, usize, f64, bool)>,
+    /// Locator → (state, owned shards), the latest heartbeat.
+    beats: HashMap<String, (String, BTreeSet<u16>)>,
+    /// Request id → when its first reply came and whether it was a route.
+    replies: HashMap<String, (Instant, bool)>,
+    /// `$SYS/broker/publish/messages/received` and `…/sent`, latest:
+    /// PUBLISH packets only (`$SYS/broker/messages/…` also counts acks and pings).
+    sys: (u64, u64),
+    /// Messages this client received (the broker's `sent` counts them).
+    received: u64,
+}
+
+fn watch(
+    seen: Arc<Mutex<Seen>>,
+    mut eventloop: EventLoop,
+    site: String,
+    ids: HashMap<String, usize>,
+) {
+    tokio::spawn(async move {
+        loop {
+            match eventloop.poll().await {
+                Ok(Event::Incoming(Packet::Publish(p))) => {
+                    let now = Instant::now();
+                    let topic = p.topic.as_str();
+                    let text = String::from_utf8_lossy(&p.payload);
+                    let mut seen = seen.lock().unwrap();
+                    seen.received += 1;
+                    if let Some(n) = topic.strip_prefix("$SYS/broker/publish/messages/") {
+                        let v = text.trim().parse().unwrap_or(0);
+                        match n {
+                            "received" => seen.sys.0 = v,
+                            "sent" => seen.sys.1 = v,
+                            _ => {}
+                        }
+                        continue;
+                    }
+                    let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
+                    if let Some(locator) = topic.strip_prefix(&format!("{site}/locators/")) {
+                        let owned = v["owned"]
+                            .as_array()
+                            .map(|a| {
+                                a.iter()
+                                    .filter_map(|s| s.as_u64())
+                                    .map(|s| s as u16)
+                                    .collect()
+                            })
+                            .unwrap_or_default();
+                        let state = v["state"].as_str().unwrap_or("").to_owned();
+                        seen.beats.insert(locator.to_owned(), (state, owned));
+                    } else if let Some(device) = topic
+                        .split_once("/devices/")
+                        .and_then(|(_, r)| r.strip_suffix("/location"))
+                    {
+                        if let (Some(&tag), Some(t)) = (ids.get(device), v["t"].as_f64()) {
+                            let all_to_all = !topic.starts_with(&site);
+                            seen.fixes.push((now, tag, t, all_to_all));
+                        }
+                    } else if topic.ends_with("/path")
+                        && let Some(id) = v["request_id"].as_str()
+                    {
+                        let routed = v["waypoints"].is_array();
+                        seen.replies.entry(id.to_owned()).or_insert((now, routed));
+                    }
+                }
+                Ok(_) => {}
+                Err(_) => tokio::time::sleep(Duration::from_millis(50)).await,
+            }
+        }
+    });
+}
+
+/// Starts `gangway run` with `config`, its log in `log`.
+fn run_gateway(config: &Path, log: &Path) -> Guard {
+    let log = std::fs::File::create(log).unwrap();
+    Guard(
+        Command::new(gangway())
+            .arg("run")
+            .arg("--config")
+            .arg(config)
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .expect("gangway run"),
+    )
+}
+
+fn write_config(dir: &Path, id: &str, site: &Path, port: u16, extra: &str) -> PathBuf {
+    let path = dir.join(format!("{id}.toml"));
+    std::fs::write(
+        &path,
+        format!(
+            "gateway_id = \"{id}\"\nsite = \"{}\"\n[window]\norientation = \"advertiser\"\n\
+             [localizer]\nmin_confidence = 0.0\n{extra}\n[store]\nenabled = false\n\
+             [web]\nenabled = false\n[mqtt]\nurl = \"mqtt://127.0.0.1:{port}\"\n\
+             ha_discovery = false\nstats_interval_s = 1\nreconnect_min_s = 0.2\nreconnect_max_s = 1.0\n",
+            site.display()
+        ),
+    )
+    .unwrap();
+    path
+}
+
+/// Waits until `done` holds of what was seen, or `limit` passes; whether it held.
+async fn wait_for(seen: &Mutex<Seen>, limit: Duration, done: impl Fn(&Seen) -> bool) -> bool {
+    let until = Instant::now() + limit;
+    while Instant::now() < until {
+        if done(&seen.lock().unwrap()) {
+            return true;
+        }
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    false
+}
+
+/// Tags with a fix arriving at or after `since` (from the cluster, or from the all-to-all gateway).
+fn located_since(seen: &Seen, since: Instant, all_to_all: bool) -> usize {
+    seen.fixes
+        .iter()
+        .filter(|f| f.0 >= since && f.3 == all_to_all)
+        .map(|f| f.1)
+        .collect::<BTreeSet<_>>()
+        .len()
+}
+
+/// The broker's counters and what the watcher received, at a moment.
+struct Snapshot {
+    at: Instant,
+    sys: (u64, u64),
+    received: u64,
+}
+
+fn snapshot(seen: &Mutex<Seen>) -> Snapshot {
+    let seen = seen.lock().unwrap();
+    Snapshot {
+        at: Instant::now(),
+        sys: seen.sys,
+        received: seen.received,
+    }
+}
+
+/// Broker messages between two snapshots, not counting deliveries to the watcher.
+fn broker_messages(a: &Snapshot, b: &Snapshot) -> f64 {
+    let received = b.sys.0.saturating_sub(a.sys.0);
+    let sent = b.sys.1.saturating_sub(a.sys.1);
+    (received + sent.saturating_sub(b.received - a.received)) as f64
+}
+
+fn fixes_between(seen: &Seen, a: Instant, b: Instant, all_to_all: bool) -> usize {
+    seen.fixes
+        .iter()
+        .filter(|f| f.0 >= a && f.0 < b && f.3 == all_to_all)
+        .count()
+}
+
+fn cpu(pids: &[u32]) -> f64 {
+    pids.iter().map(|&p| usage(p).0).sum()
+}
+
+fn round(x: f64, places: i32) -> f64 {
+    let k = 10f64.powi(places);
+    (x * k).round() / k
+}
+
+#[tokio::main(flavor = "multi_thread", worker_threads = 2)]
+async fn main() {
+    let args = Args::parse();
+    assert!(
+        args.edges > 0 && (1..=65_535).contains(&args.tags) && args.hz > 0.0 && args.shards > 0,
+        "--edges, --hz and --shards must be above 0, --tags from 1 to 65535 (a tag is a minor)"
+    );
+    assert!(
+        (HEARERS..=args.edges).contains(&args.all_to_all_gateways),
+        "--all-to-all-gateways must be between {HEARERS} and --edges ({})",
+        args.edges
+    );
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let dir = tempfile::tempdir().unwrap();
+    let edges: Vec<String> = (0..args.edges).map(|i| format!("edge-{i:03}")).collect();
+    let (site, edge_cells) = write_site(dir.path(), &edges);
+    let site_name = Site::load(&site).unwrap_or_else(|e| panic!("{e}"));
+    let places: Vec<String> = site_name.places().keys().cloned().collect();
+    let prefix = "gangway/sites/waldo-library".to_owned();
+    let cells = walkable(&std::fs::read_to_string(&site).unwrap());
+
+    let (_broker, port) = mosquitto(dir.path(), "sys_interval 1\n");
+    let the_tags = tags(args.tags, &cells, &edge_cells, args.shards);
+    let ids: HashMap<String, usize> = the_tags
+        .iter()
+        .enumerate()
+        .map(|(i, t)| (t.id.clone(), i))
+        .collect();
+    let shard_of_tag: Vec<u16> = the_tags.iter().map(|t| t.shard).collect();
+
+    // The watcher.
+    let seen = Arc::new(Mutex::new(Seen::default()));
+    let (watcher, eventloop) = client("cluster-watch", port);
+    for topic in [
+        format!("{prefix}/devices/+/location"),
+        format!("{prefix}/devices/+/path"),
+        format!("{prefix}/locators/+"),
+        "gangway/a2a/devices/+/location".to_owned(),
+        "$SYS/broker/publish/messages/+".to_owned(),
+    ] {
+        watcher.subscribe(topic, QoS::AtMostOnce).await.unwrap();
+    }
+    watch(seen.clone(), eventloop, prefix.clone(), ids);
+
+    // Two locators.
+    let cluster = format!(
+        "[cluster]\nrole = \"locator\"\nshards = {}\nheartbeat_s = 1.0\nlease_s = 3.0\n",
+        args.shards
+    );
+    let mut locators: Vec<(String, Option<Guard>, u32)> = ["loc-1", "loc-2"]
+        .iter()
+        .map(|id| {
+            let config = write_config(dir.path(), id, &site, port, &cluster);
+            let g = run_gateway(&config, &dir.path().join(format!("{id}.log")));
+            let pid = g.0.id();
+            (id.to_string(), Some(g), pid)
+        })
+        .collect();
+    let split = wait_for(&seen, Duration::from_secs(30), |s| {
+        let serving: Vec<&BTreeSet<u16>> = s
+            .beats
+            .values()
+            .filter(|b| b.0 == "serving")
+            .map(|b| &b.1)
+            .collect();
+        serving.len() == 2 && serving[0].len() + serving[1].len() == usize::from(args.shards)
+    })
+    .await;
+    assert!(split, "the two locators never split the shards");
+
+    // The edges.
+    let switch = Arc::new(Switch::default());
+    let (sim_client, mut sim_loop) = client("cluster-edges", port);
+    tokio::spawn(async move { while sim_loop.poll().await.is_ok() {} });
+    let sim = tokio::spawn(simulate(
+        sim_client,
+        prefix.clone(),
+        edges.clone(),
+        the_tags,
+        args.hz,
+        Sharing::Shards,
+        switch.clone(),
+    ));
+    let warm = Instant::now();
+    let all_located = wait_for(&seen, Duration::from_secs(60), |s| {
+        located_since(s, warm, false) == args.tags
+    })
+    .await;
+    let warmup_s = warm.elapsed().as_secs_f64();
+
+    // Measured span: route requests throughout, one locator killed half way.
+    let start = snapshot(&seen);
+    let published_start = switch.published.load(Relaxed);
+    let cpu_start = cpu(&locators.iter().map(|l| l.2).collect::<Vec<_>>());
+    let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+    let mut requests: Vec<(String, Instant)> = Vec::new();
+    let half = Duration::from_secs(args.seconds / 2);
+    let mut before_kill = None;
+    let mut killed: Option<(Instant, f64, String, BTreeSet<u16>)> = None;
+    let every = Duration::from_secs_f64(1.0 / args.rate.max(0.01));
+    let mut next = Instant::now();
+    while start.at.elapsed() < Duration::from_secs(args.seconds) {
+        if killed.is_none() && start.at.elapsed() >= half {
+            before_kill = Some((
+                snapshot(&seen),
+                switch.published.load(Relaxed),
+                cpu(&locators.iter().map(|l| l.2).collect::<Vec<_>>()),
+            ));
+            let victim = &mut locators[0];
+            let owned = seen
+                .lock()
+                .unwrap()
+                .beats
+                .get(&victim.0)
+                .map(|b| b.1.clone())
+                .unwrap_or_default();
+            drop(victim.1.take()); // SIGKILL
+            killed = Some((Instant::now(), unix_now(), victim.0.clone(), owned));
+        }
+        if args.rate > 0.0 && Instant::now() >= next {
+            let tag = rng.below(args.tags);
+            let id = format!("r{}", requests.len());
+            let to = &places[requests.len() % places.len()];
+            let device = format!("{TAG_UUID}-7-{}", tag + 1);
+            watcher
+                .publish(
+                    format!("{prefix}/devices/{device}/route/set"),
+                    QoS::AtLeastOnce,
+                    false,
+                    json!({"to": to, "request_id": id}).to_string(),
+                )
+                .await
+                .unwrap();
+            requests.push((id, Instant::now()));
+            next += every;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let end = snapshot(&seen);
+    // Let the last requests be answered.
+    tokio::time::sleep(Duration::from_secs_f64(REPLY_WAIT_S)).await;
+    switch.stop.store(true, Relaxed);
+    let _ = sim.await;
+    drop(locators);
+
+    // What the cluster did.
+    let (kill_at, kill_unix, victim, victim_shards) = killed.expect("the span has a half");
+    let (pre, published_pre, cpu_pre) = before_kill.expect("killed after the first half");
+    let (
+        victim_tags,
+        locator_failover_s,
+        duplicates,
+        duplicates_in_failover,
+        max_gap_windows,
+        tags_with_gaps,
+        unanswered,
+        routed,
+        steady_s,
+        fixes_two,
+        msgs_per_tag,
+        cpu_per_tag_ms,
+        one_s,
+        fixes_one,
+    ) = {
+        let s = seen.lock().unwrap();
+        let victim_tags: BTreeSet<usize> = (0..args.tags)
+            .filter(|t| victim_shards.contains(&shard_of_tag[*t]))
+            .collect();
+        let mut back: HashMap<usize, Instant> = HashMap::new();
+        for f in s.fixes.iter().filter(|f| !f.3 && f.0 > kill_at) {
+            if victim_tags.contains(&f.1) {
+                back.entry(f.1).or_insert(f.0);
+            }
+        }
+        let locator_failover_s =
+            (back.len() == victim_tags.len() && !victim_tags.is_empty()).then(|| {
+                back.values()
+                    .map(|t| (*t - kill_at).as_secs_f64())
+                    .fold(0.0, f64::max)
+            });
+        // Failover span, in fix times: from a stride before the kill to a stride
+        // after all were back (or the end, if they never were).
+        let span = (
+            kill_unix - STRIDE_S,
+            kill_unix + locator_failover_s.unwrap_or(f64::INFINITY) + STRIDE_S,
+        );
+        let outside = |t: f64| t < span.0 || t > span.1;
+        let mut per_fix: HashMap<(usize, u64), usize> = HashMap::new();
+        let mut per_tag: Vec<Vec<f64>> = vec![Vec::new(); args.tags];
+        for f in s
+            .fixes
+            .iter()
+            .filter(|f| !f.3 && f.0 >= start.at && f.0 < end.at)
+        {
+            *per_fix.entry((f.1, f.2.to_bits())).or_insert(0) += 1;
+            per_tag[f.1].push(f.2);
+        }
+        let duplicates = per_fix
+            .iter()
+            .filter(|((_, t), n)| **n > 1 && outside(f64::from_bits(*t)))
+            .count();
+        let duplicates_in_failover = per_fix
+            .iter()
+            .filter(|((_, t), n)| **n > 1 && !outside(f64::from_bits(*t)))
+            .count();
+        let mut max_gap_windows: f64 = 0.0;
+        let mut tags_with_gaps = 0;
+        for times in &mut per_tag {
+            times.sort_by(f64::total_cmp);
+            times.dedup();
+            let mut worst: f64 = 0.0;
+            for w in times.windows(2) {
+                let overlaps = w[1] >= span.0 && w[0] <= span.1;
+                if !overlaps {
+                    worst = worst.max((w[1] - w[0]) / STRIDE_S);
+                }
+            }
+            if worst > 2.0 {
+                tags_with_gaps += 1;
+            }
+            max_gap_windows = max_gap_windows.max(worst);
+        }
+        let unanswered: Vec<&String> = requests
+            .iter()
+            .filter(|(id, sent)| {
+                s.replies
+                    .get(id)
+                    .is_none_or(|(at, _)| (*at - *sent).as_secs_f64() > REPLY_WAIT_S)
+            })
+            .map(|(id, _)| id)
+            .collect();
+        let routed = requests
+            .iter()
+            .filter(|(id, _)| s.replies.get(id).is_some_and(|r| r.1))
+            .count();
+        // Before the kill: two locators, steady.
+        let steady_s = (pre.at - start.at).as_secs_f64();
+        let fixes_two = fixes_between(&s, start.at, pre.at, false);
+        let msgs_per_tag = broker_messages(&start, &pre) / fixes_two.max(1) as f64;
+        let cpu_per_tag_ms = (cpu_pre - cpu_start) * 1e3 / fixes_two.max(1) as f64;
+        // After failover: one locator.
+        let one_from =
+            kill_at + Duration::from_secs_f64(locator_failover_s.unwrap_or(0.0) + STRIDE_S);
+        let one_s = (end.at - one_from).as_secs_f64().max(0.0);
+        let fixes_one = fixes_between(&s, one_from, end.at, false);
+        (
+            victim_tags,
+            locator_failover_s,
+            duplicates,
+            duplicates_in_failover,
+            max_gap_windows,
+            tags_with_gaps,
+            unanswered,
+            routed,
+            steady_s,
+            fixes_two,
+            msgs_per_tag,
+            cpu_per_tag_ms,
+            one_s,
+            fixes_one,
+        )
+    };
+
+    // All-to-all: one real gateway takes every simulated gateway's sightings.
+    let n = args.all_to_all_gateways;
+    let a2a_receivers: Vec<String> = edges[..n].to_vec();
+    let a2a_tags = tags(args.tags, &cells, &edge_cells[..n], args.shards);
+    let config = write_config(dir.path(), "a2a", &site, port, "");
+    let gateway = run_gateway(&config, &dir.path().join("a2a.log"));
+    let a2a_pid = gateway.0.id();
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    switch.stop.store(false, Relaxed);
+    let (sim_client, mut sim_loop) = client("cluster-a2a", port);
+    tokio::spawn(async move { while sim_loop.poll().await.is_ok() {} });
+    let sim = tokio::spawn(simulate(
+        sim_client,
+        prefix.clone(),
+        a2a_receivers,
+        a2a_tags,
+        args.hz,
+        Sharing::AllToAll,
+        switch.clone(),
+    ));
+    let warm = Instant::now();
+    let a2a_located = wait_for(&seen, Duration::from_secs(60), |s| {
+        located_since(s, warm, true) == args.tags
+    })
+    .await;
+    let a2a_start = snapshot(&seen);
+    let a2a_published_start = switch.published.load(Relaxed);
+    let a2a_cpu_start = usage(a2a_pid).0;
+    tokio::time::sleep(Duration::from_secs(args.all_to_all_seconds)).await;
+    let a2a_end = snapshot(&seen);
+    let a2a_cpu = usage(a2a_pid).0 - a2a_cpu_start;
+    let a2a_published = switch.published.load(Relaxed) - a2a_published_start;
+    switch.stop.store(true, Relaxed);
+    let _ = sim.await;
+    drop(gateway);
+    let s = seen.lock().unwrap();
+    let a2a_fixes = fixes_between(&s, a2a_start.at, a2a_end.at, true).max(1) as f64;
+    // What the one gateway took from the broker: the broker's deliveries but
+    // the watcher's.
+    let delivered = (a2a_end.sys.1 - a2a_start.sys.1)
+        .saturating_sub(a2a_end.received - a2a_start.received) as f64;
+    let nf = n as f64;
+    let a2a_msgs_per_tag = (a2a_published as f64 + nf * delivered + nf * a2a_fixes) / a2a_fixes;
+    let a2a_cpu_per_tag_ms = a2a_cpu * nf * 1e3 / a2a_fixes;
+    let a2a_span = (a2a_end.at - a2a_start.at).as_secs_f64();
+
+    let out = json!({
+        "tags": args.tags,
+        "edges": args.edges,
+        "locators": 2,
+        "cores": cores,
+        "hz": args.hz,
+        "shards": args.shards,
+        "seconds": args.seconds,
+        "warmup_s": round(warmup_s, 1),
+        "all_tags_located": all_located,
+        "duplicates": duplicates,
+        "duplicates_in_failover": duplicates_in_failover,
+        "max_gap_windows": round(max_gap_windows, 2),
+        "tags_with_gap_over_2_windows": tags_with_gaps,
+        "locator_killed": victim,
+        "locator_killed_tags": victim_tags.len(),
+        "locator_failover_s": locator_failover_s.map(|x| round(x, 2)),
+        "broker_failover_s": null,
+        "requests": requests.len(),
+        "requests_routed": routed,
+        "requests_unanswered": unanswered.len(),
+        "broker_msgs_per_tag": round(msgs_per_tag, 2),
+        "cpu_ms_per_tag": round(cpu_per_tag_ms, 3),
+        "edge_publishes_per_s": round((published_pre - published_start) as f64 / steady_s.max(1e-9), 0),
+        "located_tags_per_s_2_locators": round(fixes_two as f64 / steady_s.max(1e-9), 1),
+        "located_tags_per_s_1_locator": round(fixes_one as f64 / one_s.max(1e-9), 1),
+        "offered_tags_per_s": round(args.tags as f64 / STRIDE_S, 1),
+        "all_to_all_gateways": n,
+        "all_to_all_tags_located": a2a_located,
+        "all_to_all_span_s": round(a2a_span, 1),
+        "broker_msgs_per_tag_all_to_all": round(a2a_msgs_per_tag, 2),
+        "cpu_ms_per_tag_all_to_all": round(a2a_cpu_per_tag_ms, 3),
+        "msgs_ratio": round(a2a_msgs_per_tag / msgs_per_tag.max(1e-9), 1),
+        "cpu_ratio": round(a2a_cpu_per_tag_ms / cpu_per_tag_ms.max(1e-9), 1),
+        "notes": [
+            "cluster figures: mosquitto $SYS publish/messages received + sent (PUBLISH packets, no acks) (less what the watching client received) and both locators' CPU, over the half span before the kill, per location published",
+            format!("all-to-all broker messages: the simulated gateways' publishes ({a2a_published}) + {n} x what the broker delivered to the one real gateway ({delivered}) + {n} x its location publishes, per location published; every gateway of all-to-all takes all the others' sightings and publishes every location"),
+            format!("all-to-all CPU: the one real gateway's CPU ({}) x {n}, per location published", round(a2a_cpu, 2)),
+            "located_tags_per_s: locations published per second, offered load is tags / 2 s stride; the same as offered unless the locators fall behind: not a saturation measurement",
+            "broker_failover_s: not measured, mosquitto is one node (no --broker nats in this example)",
+        ],
+    });
+    drop(s);
+    if args.json {
+        println!("{out}");
+    } else {
+        println!("{}", serde_json::to_string_pretty(&out).unwrap());
+    }
+}
