@@ -11,8 +11,9 @@
 //! with a `[[gateway]]` per simulated edge on its walkable cells, several
 //! edges to a cell when there are more edges than cells) and starts two
 //! locators (`gangway run`, `[cluster] role = "locator"`). The simulated edges
-//! are not gateways: one task publishes, every 250 ms and for every edge, one
-//! batch per shard of the sightings that edge heard (each tag, at a fixed
+//! are not gateways: one task publishes what each edge heard as an edge
+//! would (the gateway's own encoder: every `[cluster] batch_s`, one message
+//! per shard of the sightings that edge heard (each tag, at a fixed
 //! cell, advertises `--hz` times a second and is heard by its three nearest
 //! edges, RSSI by log-distance path loss) on
 //! `<site prefix>/shards/<k>/sightings/<edge>`. Route requests go to random
@@ -39,7 +40,11 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use clap::Parser;
+use gangway::mqtt::cluster::{self, ClusterConfig};
+use gangway::mqtt::sightings;
+use gangway::sighting::{BeaconId, Sighting};
 use gangway::site::Site;
+use gangway::topics::Message;
 use rumqttc::{AsyncClient, Event, EventLoop, MqttOptions, Packet, QoS};
 use serde_json::json;
 use support::{Guard, gangway, mosquitto, usage};
@@ -51,12 +56,10 @@ const STRIDE_S: f64 = 2.0;
 const REPLY_WAIT_S: f64 = 10.0;
 /// Edges (or gateways) that hear each tag: its nearest.
 const HEARERS: usize = 3;
-/// Batches per second of an edge (every 250 ms).
-const TICK: Duration = Duration::from_millis(250);
 
 #[derive(Parser)]
 struct Args {
-    /// Simulated edges, each publishing its sightings by shard every 250 ms.
+    /// Simulated edges, each publishing its sightings by shard every `[cluster] batch_s`.
     #[arg(long, default_value_t = 50)]
     edges: usize,
     /// Simulated tags, at fixed cells of the site.
@@ -72,7 +75,7 @@ struct Args {
     #[arg(long, default_value_t = 2.0)]
     rate: f64,
     /// `[cluster] shards` of the locators and the simulated edges.
-    #[arg(long, default_value_t = 64)]
+    #[arg(long, default_value_t = ClusterConfig::default().shards)]
     shards: u16,
     /// Gateways of the all-to-all comparison (the first edges of the site).
     #[arg(long, default_value_t = 50)]
@@ -89,15 +92,6 @@ fn unix_now() -> f64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0.0, |d| d.as_secs_f64())
-}
-
-/// FNV-1a 64 of the device id modulo the shards (docs/scaling.md).
-fn shard_of(device: &str, shards: u16) -> u16 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for b in device.bytes() {
-        h = (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
-    }
-    (h % u64::from(shards)) as u16
 }
 
 /// A small deterministic generator (xorshift64*): which tags get requests.
@@ -160,10 +154,10 @@ fn write_site(dir: &Path, edges: &[String]) -> (PathBuf, Vec<[u16; 2]>) {
 /// One tag: its id, shard, and the receivers that hear it with their RSSI.
 struct Tag {
     id: String,
-    minor: usize,
+    minor: u16,
     shard: u16,
     phase: f64,
-    heard_by: Vec<(usize, i64)>,
+    heard_by: Vec<(usize, i16)>,
 }
 
 /// Tags on walkable cells, each heard by its nearest `HEARERS` of `receivers`.
@@ -183,13 +177,13 @@ fn tags(n: usize, cells: &[[u16; 2]], receivers: &[[u16; 2]], shards: u16) -> Ve
             near.truncate(HEARERS);
             let id = format!("{TAG_UUID}-7-{}", i + 1);
             Tag {
-                shard: shard_of(&id, shards),
+                shard: gangway::cluster::shard_of(&id, shards),
                 id,
-                minor: i + 1,
+                minor: u16::try_from(i + 1).expect("at most 65,535 tags"),
                 phase: i as f64 / n as f64,
                 heard_by: near
                     .into_iter()
-                    .map(|(r, d)| (r, (-59.0 - 20.0 * d.max(1.0).log10()).round() as i64))
+                    .map(|(r, d)| (r, (-59.0 - 20.0 * d.max(1.0).log10()).round() as i16))
                     .collect(),
             }
         })
@@ -207,13 +201,34 @@ fn client(id: &str, port: u16) -> (AsyncClient, EventLoop) {
     (client, eventloop)
 }
 
-/// Where the simulated receivers publish.
+/// Where the simulated receivers publish, as the gateway's own encoders
+/// write it.
 #[derive(Clone, Copy)]
 enum Sharing {
-    /// `<site>/shards/<k>/sightings/<edge>`: one batch per shard.
-    Shards,
-    /// `<site>/sightings/<gateway>`: one batch.
+    /// An edge's: every `[cluster] batch_s`, one message per shard on
+    /// `<site>/shards/<k>/sightings/<edge>`.
+    Shards(u16),
+    /// A single gateway's today: every 250 ms, on `<site>/sightings/<gateway>`.
     AllToAll,
+}
+
+impl Sharing {
+    fn every(self) -> Duration {
+        match self {
+            Sharing::Shards(_) => Duration::from_secs_f64(ClusterConfig::default().batch_s),
+            Sharing::AllToAll => Duration::from_millis(250),
+        }
+    }
+
+    fn messages(self, site: &str, gateway: &str, heard: &[Sighting]) -> Vec<Message> {
+        match self {
+            Sharing::Shards(shards) => cluster::encode_by_shard(site, gateway, shards, heard),
+            Sharing::AllToAll => heard
+                .chunks(sightings::MAX_PER_MESSAGE)
+                .map(|chunk| sightings::encode(site, gateway, chunk))
+                .collect(),
+        }
+    }
 }
 
 /// Stops the simulated receivers and counts what they published.
@@ -223,8 +238,8 @@ struct Switch {
     published: AtomicU64,
 }
 
-/// Publishes the receivers' sightings every 250 ms until `switch.stop`,
-/// counting its messages in `switch.published`.
+/// Publishes the receivers' sightings (every [`Sharing::every`]) until
+/// `switch.stop`, counting its messages in `switch.published`.
 async fn simulate(
     client: AsyncClient,
     site: String,
@@ -234,46 +249,45 @@ async fn simulate(
     sharing: Sharing,
     switch: Arc<Switch>,
 ) {
-    let mut tick = tokio::time::interval(TICK);
+    let mut tick = tokio::time::interval(sharing.every());
     let mut from = unix_now();
+    let uuid: uuid::Uuid = TAG_UUID.parse().expect("a UUID");
     while !switch.stop.load(Relaxed) {
         tick.tick().await;
         let to = unix_now();
-        // (receiver, shard) → sightings heard in [from, to).
-        let mut batches: HashMap<(usize, u16), Vec<serde_json::Value>> = HashMap::new();
+        // Receiver → sightings heard in [from, to).
+        let mut heard: HashMap<usize, Vec<Sighting>> = HashMap::new();
         for tag in &tags {
             // Adverts at (k + phase) / hz.
             let mut k = ((from * hz) - tag.phase).ceil();
             while (k + tag.phase) / hz < to {
                 let t = (k + tag.phase) / hz;
                 for &(r, rssi) in &tag.heard_by {
-                    let shard = match sharing {
-                        Sharing::Shards => tag.shard,
-                        Sharing::AllToAll => 0,
-                    };
-                    batches.entry((r, shard)).or_default().push(json!({
-                        "t": t, "uuid": TAG_UUID, "major": 7, "minor": tag.minor, "rssi": rssi
-                    }));
+                    heard.entry(r).or_default().push(Sighting {
+                        t,
+                        observer: receivers[r].as_str().into(),
+                        advertiser: BeaconId {
+                            uuid,
+                            major: 7,
+                            minor: tag.minor,
+                        },
+                        tx_power: None,
+                        rssi,
+                    });
                 }
                 k += 1.0;
             }
         }
         from = to;
-        for ((r, shard), sightings) in batches {
-            let gateway = &receivers[r];
-            let topic = match sharing {
-                Sharing::Shards => format!("{site}/shards/{shard}/sightings/{gateway}"),
-                Sharing::AllToAll => format!("{site}/sightings/{gateway}"),
-            };
-            let payload = json!({
-                "schema": "gangway.sightings/1", "gateway": gateway, "sightings": sightings
-            });
-            if client
-                .publish(topic, QoS::AtMostOnce, false, payload.to_string())
-                .await
-                .is_ok()
-            {
-                switch.published.fetch_add(1, Relaxed);
+        for (r, heard) in heard {
+            for m in sharing.messages(&site, &receivers[r], &heard) {
+                if client
+                    .publish(m.topic, QoS::AtMostOnce, false, m.payload)
+                    .await
+                    .is_ok()
+                {
+                    switch.published.fetch_add(1, Relaxed);
+                }
             }
         }
     }
@@ -527,7 +541,7 @@ async fn main() {
         edges.clone(),
         the_tags,
         args.hz,
-        Sharing::Shards,
+        Sharing::Shards(args.shards),
         switch.clone(),
     ));
     let warm = Instant::now();

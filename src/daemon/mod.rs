@@ -72,10 +72,13 @@ use recalibration::{Job, Recalibrated};
 use crate::event::{Event, Feedback, Inbound, RouteRequest};
 use crate::throttle::Throttle;
 
-/// How often this gateway's own sightings go out to the other gateways.
+/// How often a single gateway's own sightings go out to the other gateways
+/// (an edge's: `[cluster] batch_s`).
 const SHARE_INTERVAL: Duration = Duration::from_millis(250);
-/// Largest batch of shared sightings in one message.
-const SHARE_BATCH: usize = 256;
+/// Own sightings an edge gathers at most before it sends them early (an
+/// edge cuts them into messages per shard; a single gateway sends at most
+/// one message's worth at a time).
+const EDGE_PENDING_MAX: usize = 16_384;
 /// How long the sources get at shutdown to stop (a scan stops discovery).
 const SOURCE_STOP: Duration = Duration::from_secs(2);
 /// Routes remembered for feedback.
@@ -164,7 +167,11 @@ pub async fn run(
     let mut stats_tick = tokio::time::interval(stats_every);
     let mut tick = tokio::time::interval(TICK);
     tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
-    let mut share_tick = tokio::time::interval(SHARE_INTERVAL);
+    let mut share_tick = tokio::time::interval(if runtime.edge {
+        Duration::from_secs_f64(runtime.state.config.cluster.batch_s)
+    } else {
+        SHARE_INTERVAL
+    });
     share_tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
     let mut beat_tick = tokio::time::interval(Duration::from_secs_f64(
         runtime.state.config.cluster.heartbeat_s,
@@ -544,7 +551,12 @@ impl Runtime {
             && *s.observer == *self.state.config.gateway_id
         {
             batch.push(s.clone());
-            if batch.len() >= SHARE_BATCH {
+            let most = if self.edge {
+                EDGE_PENDING_MAX
+            } else {
+                crate::mqtt::sightings::MAX_PER_MESSAGE
+            };
+            if batch.len() >= most {
                 self.share_sightings();
             }
         }

@@ -13,6 +13,11 @@ use crate::topics::Message;
 
 pub(crate) const SIGHTINGS_SCHEMA: &str = "gangway.sightings/1";
 
+/// Sightings in one message at most: about 100 bytes each, so a message
+/// stays under the receiving gateways' default `[mqtt] max_payload_bytes`
+/// (16 KiB), past which they would refuse it.
+pub const MAX_PER_MESSAGE: usize = 128;
+
 /// One sighting as sent between gateways (the observer is the sending gateway).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
