@@ -294,7 +294,7 @@ async fn simulate(
 }
 
 /// What the watching client saw.
-#[derive(Default)]
+#[derive(Clone, Default)]
 struct Seen {
     /// (arrived, tag index, fix time, from the all-to-all gateway).
     fixes: Vec<(Instant, usize, f64, bool)>,
@@ -609,120 +609,87 @@ async fn main() {
     // What the cluster did.
     let (kill_at, kill_unix, victim, victim_shards) = killed.expect("the span has a half");
     let (pre, published_pre, cpu_pre) = before_kill.expect("killed after the first half");
-    let (
-        victim_tags,
-        locator_failover_s,
-        duplicates,
-        duplicates_in_failover,
-        max_gap_windows,
-        tags_with_gaps,
-        unanswered,
-        routed,
-        steady_s,
-        fixes_two,
-        msgs_per_tag,
-        cpu_per_tag_ms,
-        one_s,
-        fixes_one,
-    ) = {
-        let s = seen.lock().unwrap();
-        let victim_tags: BTreeSet<usize> = (0..args.tags)
-            .filter(|t| victim_shards.contains(&shard_of_tag[*t]))
-            .collect();
-        let mut back: HashMap<usize, Instant> = HashMap::new();
-        for f in s.fixes.iter().filter(|f| !f.3 && f.0 > kill_at) {
-            if victim_tags.contains(&f.1) {
-                back.entry(f.1).or_insert(f.0);
+    // A copy, so that no lock is held while the run goes on.
+    let s = seen.lock().unwrap().clone();
+    let victim_tags: BTreeSet<usize> = (0..args.tags)
+        .filter(|t| victim_shards.contains(&shard_of_tag[*t]))
+        .collect();
+    let mut back: HashMap<usize, Instant> = HashMap::new();
+    for f in s.fixes.iter().filter(|f| !f.3 && f.0 > kill_at) {
+        if victim_tags.contains(&f.1) {
+            back.entry(f.1).or_insert(f.0);
+        }
+    }
+    let locator_failover_s =
+        (back.len() == victim_tags.len() && !victim_tags.is_empty()).then(|| {
+            back.values()
+                .map(|t| (*t - kill_at).as_secs_f64())
+                .fold(0.0, f64::max)
+        });
+    // Failover span, in fix times: from a stride before the kill to a stride
+    // after all were back (or the end, if they never were).
+    let span = (
+        kill_unix - STRIDE_S,
+        kill_unix + locator_failover_s.unwrap_or(f64::INFINITY) + STRIDE_S,
+    );
+    let outside = |t: f64| t < span.0 || t > span.1;
+    let mut per_fix: HashMap<(usize, u64), usize> = HashMap::new();
+    let mut per_tag: Vec<Vec<f64>> = vec![Vec::new(); args.tags];
+    for f in s
+        .fixes
+        .iter()
+        .filter(|f| !f.3 && f.0 >= start.at && f.0 < end.at)
+    {
+        *per_fix.entry((f.1, f.2.to_bits())).or_insert(0) += 1;
+        per_tag[f.1].push(f.2);
+    }
+    let duplicates = per_fix
+        .iter()
+        .filter(|((_, t), n)| **n > 1 && outside(f64::from_bits(*t)))
+        .count();
+    let duplicates_in_failover = per_fix
+        .iter()
+        .filter(|((_, t), n)| **n > 1 && !outside(f64::from_bits(*t)))
+        .count();
+    let mut max_gap_windows: f64 = 0.0;
+    let mut tags_with_gaps = 0;
+    for times in &mut per_tag {
+        times.sort_by(f64::total_cmp);
+        times.dedup();
+        let mut worst: f64 = 0.0;
+        for w in times.windows(2) {
+            let overlaps = w[1] >= span.0 && w[0] <= span.1;
+            if !overlaps {
+                worst = worst.max((w[1] - w[0]) / STRIDE_S);
             }
         }
-        let locator_failover_s =
-            (back.len() == victim_tags.len() && !victim_tags.is_empty()).then(|| {
-                back.values()
-                    .map(|t| (*t - kill_at).as_secs_f64())
-                    .fold(0.0, f64::max)
-            });
-        // Failover span, in fix times: from a stride before the kill to a stride
-        // after all were back (or the end, if they never were).
-        let span = (
-            kill_unix - STRIDE_S,
-            kill_unix + locator_failover_s.unwrap_or(f64::INFINITY) + STRIDE_S,
-        );
-        let outside = |t: f64| t < span.0 || t > span.1;
-        let mut per_fix: HashMap<(usize, u64), usize> = HashMap::new();
-        let mut per_tag: Vec<Vec<f64>> = vec![Vec::new(); args.tags];
-        for f in s
-            .fixes
-            .iter()
-            .filter(|f| !f.3 && f.0 >= start.at && f.0 < end.at)
-        {
-            *per_fix.entry((f.1, f.2.to_bits())).or_insert(0) += 1;
-            per_tag[f.1].push(f.2);
+        if worst > 2.0 {
+            tags_with_gaps += 1;
         }
-        let duplicates = per_fix
-            .iter()
-            .filter(|((_, t), n)| **n > 1 && outside(f64::from_bits(*t)))
-            .count();
-        let duplicates_in_failover = per_fix
-            .iter()
-            .filter(|((_, t), n)| **n > 1 && !outside(f64::from_bits(*t)))
-            .count();
-        let mut max_gap_windows: f64 = 0.0;
-        let mut tags_with_gaps = 0;
-        for times in &mut per_tag {
-            times.sort_by(f64::total_cmp);
-            times.dedup();
-            let mut worst: f64 = 0.0;
-            for w in times.windows(2) {
-                let overlaps = w[1] >= span.0 && w[0] <= span.1;
-                if !overlaps {
-                    worst = worst.max((w[1] - w[0]) / STRIDE_S);
-                }
-            }
-            if worst > 2.0 {
-                tags_with_gaps += 1;
-            }
-            max_gap_windows = max_gap_windows.max(worst);
-        }
-        let unanswered: Vec<&String> = requests
-            .iter()
-            .filter(|(id, sent)| {
-                s.replies
-                    .get(id)
-                    .is_none_or(|(at, _)| (*at - *sent).as_secs_f64() > REPLY_WAIT_S)
-            })
-            .map(|(id, _)| id)
-            .collect();
-        let routed = requests
-            .iter()
-            .filter(|(id, _)| s.replies.get(id).is_some_and(|r| r.1))
-            .count();
-        // Before the kill: two locators, steady.
-        let steady_s = (pre.at - start.at).as_secs_f64();
-        let fixes_two = fixes_between(&s, start.at, pre.at, false);
-        let msgs_per_tag = broker_messages(&start, &pre) / fixes_two.max(1) as f64;
-        let cpu_per_tag_ms = (cpu_pre - cpu_start) * 1e3 / fixes_two.max(1) as f64;
-        // After failover: one locator.
-        let one_from =
-            kill_at + Duration::from_secs_f64(locator_failover_s.unwrap_or(0.0) + STRIDE_S);
-        let one_s = (end.at - one_from).as_secs_f64().max(0.0);
-        let fixes_one = fixes_between(&s, one_from, end.at, false);
-        (
-            victim_tags,
-            locator_failover_s,
-            duplicates,
-            duplicates_in_failover,
-            max_gap_windows,
-            tags_with_gaps,
-            unanswered,
-            routed,
-            steady_s,
-            fixes_two,
-            msgs_per_tag,
-            cpu_per_tag_ms,
-            one_s,
-            fixes_one,
-        )
-    };
+        max_gap_windows = max_gap_windows.max(worst);
+    }
+    let unanswered: Vec<&String> = requests
+        .iter()
+        .filter(|(id, sent)| {
+            s.replies
+                .get(id)
+                .is_none_or(|(at, _)| (*at - *sent).as_secs_f64() > REPLY_WAIT_S)
+        })
+        .map(|(id, _)| id)
+        .collect();
+    let routed = requests
+        .iter()
+        .filter(|(id, _)| s.replies.get(id).is_some_and(|r| r.1))
+        .count();
+    // Before the kill: two locators, steady.
+    let steady_s = (pre.at - start.at).as_secs_f64();
+    let fixes_two = fixes_between(&s, start.at, pre.at, false);
+    let msgs_per_tag = broker_messages(&start, &pre) / fixes_two.max(1) as f64;
+    let cpu_per_tag_ms = (cpu_pre - cpu_start) * 1e3 / fixes_two.max(1) as f64;
+    // After failover: one locator.
+    let one_from = kill_at + Duration::from_secs_f64(locator_failover_s.unwrap_or(0.0) + STRIDE_S);
+    let one_s = (end.at - one_from).as_secs_f64().max(0.0);
+    let fixes_one = fixes_between(&s, one_from, end.at, false);
 
     // All-to-all: one real gateway takes every simulated gateway's sightings.
     let n = args.all_to_all_gateways;
