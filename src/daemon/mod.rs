@@ -23,6 +23,10 @@
 //!   nothing from others is taken while a sink is backed up;
 //! - reloads ([`state`]): the new config, site and pipeline are built off the
 //!   event loop and swapped in whole, or refused whole;
+//! - its part among the site's gateways (`[cluster]`): an edge shares what
+//!   it hears and locates nothing; a locator ([`cluster`]) locates only the
+//!   devices of the shards it owns, sends its heartbeats and answers the
+//!   requests of shards it takes over;
 //! - recalibration (`[localizer.recalibration]`, [`recalibration`]):
 //!   on its schedule or on request, the survey-free model is refitted from
 //!   what the store gathered, on a blocking thread, and the pipeline built
@@ -639,6 +643,9 @@ impl Runtime {
             Inbound::Shared(shared) if self.edge => {
                 if let Some(batch) = &mut self.share {
                     batch.extend(shared);
+                    if batch.len() >= EDGE_PENDING_MAX {
+                        self.share_sightings();
+                    }
                 }
             }
             Inbound::Shared(shared) => {
