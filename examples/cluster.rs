@@ -23,12 +23,24 @@
 //! `--all-to-all-gateways` simulated gateways on `<site prefix>/sightings/<gw>`,
 //! as each of them would in all-to-all sharing.
 //!
+//! With `--broker rabbitmq` the same run goes through a three-node RabbitMQ
+//! cluster (Debian package `rabbitmq-server`, started as
+//! `tests/it/mqtt_support/rabbitmq.rs` starts it for the tests): the
+//! locators on nodes 0 and 1 with the others as fallbacks, the simulated
+//! edges spread over all three, the watcher on node 2. A quarter of the way
+//! through, node 0 is killed (SIGKILL); `broker_failover_s` is how long until
+//! the locator that was on it is heard again through another node. RabbitMQ
+//! has no `$SYS` counters, so broker messages and the all-to-all comparison
+//! come from the mosquitto run only.
+//!
 //! It prints what it measured (with `--json`, one JSON line): fixes published
 //! twice, the longest gap between fixes of a tag, the failover time, route
 //! requests unanswered within 10 s, broker messages and CPU per tag located
 //! in both modes (and how each all-to-all figure was obtained). Everything it
 //! starts, it stops.
 
+#[path = "../tests/it/mqtt_support/rabbitmq.rs"]
+mod rabbitmq;
 mod support;
 
 use std::collections::{BTreeSet, HashMap};
@@ -47,7 +59,7 @@ use gangway::site::Site;
 use gangway::topics::Message;
 use rumqttc::{AsyncClient, Event, EventLoop, MqttOptions, Packet, QoS};
 use serde_json::json;
-use support::{Guard, gangway, mosquitto, usage};
+use support::{Guard, free_port, gangway, mosquitto, usage};
 
 const TAG_UUID: &str = "0f0e0d0c-0b0a-4908-8706-050403020100";
 /// The window stride of a gateway: gaps are counted in it.
@@ -83,9 +95,38 @@ struct Args {
     /// Measured span of the all-to-all comparison, after warm-up.
     #[arg(long, default_value_t = 20)]
     all_to_all_seconds: u64,
+    /// The broker: one mosquitto, or a three-node RabbitMQ cluster with a node killed.
+    #[arg(long, value_enum, default_value_t = BrokerKind::Mosquitto)]
+    broker: BrokerKind,
     /// Print one JSON line instead of text.
     #[arg(long)]
     json: bool,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum BrokerKind {
+    Mosquitto,
+    Rabbitmq,
+}
+
+/// The broker the run goes through, stopped on drop.
+enum Brokers {
+    /// The running broker (stopped when dropped) and its port.
+    Mosquitto {
+        _process: Guard,
+        port: u16,
+    },
+    Rabbitmq(rabbitmq::RabbitCluster),
+}
+
+impl Brokers {
+    /// The MQTT port of each node.
+    fn ports(&self) -> Vec<u16> {
+        match self {
+            Brokers::Mosquitto { port, .. } => vec![*port],
+            Brokers::Rabbitmq(cluster) => (0..3).map(|i| cluster.port(i)).collect(),
+        }
+    }
 }
 
 fn unix_now() -> f64 {
@@ -231,6 +272,43 @@ impl Sharing {
     }
 }
 
+/// One MQTT client per broker node, each with whether its node still
+/// answers.
+struct Publishers(Vec<(AsyncClient, Arc<AtomicBool>)>);
+
+impl Publishers {
+    /// Clients `name-<node>` on `ports`, each polled by a task that marks it
+    /// down when its connection fails.
+    fn connect(name: &str, ports: &[u16]) -> Publishers {
+        Publishers(
+            ports
+                .iter()
+                .enumerate()
+                .map(|(i, &port)| {
+                    let (client, mut eventloop) = client(&format!("{name}-{i}"), port);
+                    let up = Arc::new(AtomicBool::new(true));
+                    let flag = up.clone();
+                    tokio::spawn(async move {
+                        while eventloop.poll().await.is_ok() {}
+                        flag.store(false, Relaxed);
+                    });
+                    (client, up)
+                })
+                .collect(),
+        )
+    }
+
+    /// The client receiver `r` publishes through: its node's, or the next
+    /// node's when that one is down (as an edge's `fallback_urls`).
+    fn for_receiver(&self, r: usize) -> &AsyncClient {
+        let n = self.0.len();
+        (0..n)
+            .map(|k| &self.0[(r + k) % n])
+            .find(|(_, up)| up.load(Relaxed))
+            .map_or(&self.0[r % n].0, |(client, _)| client)
+    }
+}
+
 /// Stops the simulated receivers and counts what they published.
 #[derive(Default)]
 struct Switch {
@@ -241,7 +319,7 @@ struct Switch {
 /// Publishes the receivers' sightings (every [`Sharing::every`]) until
 /// `switch.stop`, counting its messages in `switch.published`.
 async fn simulate(
-    client: AsyncClient,
+    publishers: Publishers,
     site: String,
     receivers: Vec<String>,
     tags: Vec<Tag>,
@@ -281,7 +359,8 @@ async fn simulate(
         from = to;
         for (r, heard) in heard {
             for m in sharing.messages(&site, &receivers[r], &heard) {
-                if client
+                if publishers
+                    .for_receiver(r)
                     .publish(m.topic, QoS::AtMostOnce, false, m.payload)
                     .await
                     .is_ok()
@@ -300,6 +379,8 @@ struct Seen {
     fixes: Vec<(Instant, usize, f64, bool)>,
     /// Locator → (state, owned shards), the latest heartbeat.
     beats: HashMap<String, (String, BTreeSet<u16>)>,
+    /// (arrived, locator) of every heartbeat.
+    beat_times: Vec<(Instant, String)>,
     /// Request id → when its first reply came and whether it was a route.
     replies: HashMap<String, (Instant, bool)>,
     /// `$SYS/broker/publish/messages/received` and `…/sent`, latest:
@@ -346,6 +427,7 @@ fn watch(
                             .unwrap_or_default();
                         let state = v["state"].as_str().unwrap_or("").to_owned();
                         seen.beats.insert(locator.to_owned(), (state, owned));
+                        seen.beat_times.push((now, locator.to_owned()));
                     } else if let Some(device) = topic
                         .split_once("/devices/")
                         .and_then(|(_, r)| r.strip_suffix("/location"))
@@ -384,16 +466,25 @@ fn run_gateway(config: &Path, log: &Path) -> Guard {
     )
 }
 
-fn write_config(dir: &Path, id: &str, site: &Path, port: u16, extra: &str) -> PathBuf {
+/// A gateway's config on the broker node at `ports[0]`, the others its
+/// fallbacks.
+fn write_config(dir: &Path, id: &str, site: &Path, ports: &[u16], extra: &str) -> PathBuf {
+    let fallbacks: Vec<String> = ports[1..]
+        .iter()
+        .map(|p| format!("\"mqtt://127.0.0.1:{p}\""))
+        .collect();
     let path = dir.join(format!("{id}.toml"));
     std::fs::write(
         &path,
         format!(
             "gateway_id = \"{id}\"\nsite = \"{}\"\n[window]\norientation = \"advertiser\"\n\
              [localizer]\nmin_confidence = 0.0\n{extra}\n[store]\nenabled = false\n\
-             [web]\nenabled = false\n[mqtt]\nurl = \"mqtt://127.0.0.1:{port}\"\n\
+             [web]\nenabled = false\n[mqtt]\nurl = \"mqtt://127.0.0.1:{}\"\n\
+             fallback_urls = [{}]\n\
              ha_discovery = false\nstats_interval_s = 1\nreconnect_min_s = 0.2\nreconnect_max_s = 1.0\n",
-            site.display()
+            site.display(),
+            ports[0],
+            fallbacks.join(", ")
         ),
     )
     .unwrap();
@@ -456,6 +547,102 @@ fn cpu(pids: &[u32]) -> f64 {
     pids.iter().map(|&p| usage(p).0).sum()
 }
 
+/// What the all-to-all run needs of the cluster run's set-up.
+struct AllToAllRun<'a> {
+    dir: &'a Path,
+    site: &'a Path,
+    port: u16,
+    prefix: &'a str,
+    edges: &'a [String],
+    edge_cells: &'a [[u16; 2]],
+    cells: &'a [[u16; 2]],
+}
+
+/// The all-to-all run's figures.
+#[derive(Default)]
+struct AllToAll {
+    gateways: usize,
+    located: bool,
+    span_s: f64,
+    published: u64,
+    delivered: f64,
+    cpu_s: f64,
+    msgs_per_tag: f64,
+    cpu_ms_per_tag: f64,
+}
+
+/// One real gateway takes every simulated gateway's sightings, as each of
+/// them would in all-to-all sharing.
+async fn all_to_all(
+    args: &Args,
+    run: AllToAllRun<'_>,
+    seen: &Mutex<Seen>,
+    switch: &Arc<Switch>,
+) -> AllToAll {
+    let AllToAllRun {
+        dir,
+        site,
+        port,
+        prefix,
+        edges,
+        edge_cells,
+        cells,
+    } = run;
+    let n = args.all_to_all_gateways;
+    let a2a_receivers: Vec<String> = edges[..n].to_vec();
+    let a2a_tags = tags(args.tags, cells, &edge_cells[..n], args.shards);
+    let config = write_config(dir, "a2a", site, &[port], "");
+    let gateway = run_gateway(&config, &dir.join("a2a.log"));
+    let a2a_pid = gateway.0.id();
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    switch.stop.store(false, Relaxed);
+    let sim = tokio::spawn(simulate(
+        Publishers::connect("cluster-a2a", &[port]),
+        prefix.to_owned(),
+        a2a_receivers,
+        a2a_tags,
+        args.hz,
+        Sharing::AllToAll,
+        switch.clone(),
+    ));
+    let warm = Instant::now();
+    let a2a_located = wait_for(seen, Duration::from_secs(60), |s| {
+        located_since(s, warm, true) == args.tags
+    })
+    .await;
+    let a2a_start = snapshot(seen);
+    let a2a_published_start = switch.published.load(Relaxed);
+    let a2a_cpu_start = usage(a2a_pid).0;
+    tokio::time::sleep(Duration::from_secs(args.all_to_all_seconds)).await;
+    let a2a_end = snapshot(seen);
+    let a2a_cpu = usage(a2a_pid).0 - a2a_cpu_start;
+    let a2a_published = switch.published.load(Relaxed) - a2a_published_start;
+    switch.stop.store(true, Relaxed);
+    let _ = sim.await;
+    drop(gateway);
+    let s = seen.lock().unwrap();
+    let a2a_fixes = fixes_between(&s, a2a_start.at, a2a_end.at, true).max(1) as f64;
+    // What the one gateway took from the broker: the broker's deliveries but
+    // the watcher's.
+    let delivered = (a2a_end.sys.1 - a2a_start.sys.1)
+        .saturating_sub(a2a_end.received - a2a_start.received) as f64;
+    let nf = n as f64;
+    let a2a_msgs_per_tag = (a2a_published as f64 + nf * delivered + nf * a2a_fixes) / a2a_fixes;
+    let a2a_cpu_per_tag_ms = a2a_cpu * nf * 1e3 / a2a_fixes;
+    let a2a_span = (a2a_end.at - a2a_start.at).as_secs_f64();
+
+    AllToAll {
+        gateways: n,
+        located: a2a_located,
+        span_s: a2a_span,
+        published: a2a_published,
+        delivered,
+        cpu_s: a2a_cpu,
+        msgs_per_tag: a2a_msgs_per_tag,
+        cpu_ms_per_tag: a2a_cpu_per_tag_ms,
+    }
+}
+
 fn round(x: f64, places: i32) -> f64 {
     let k = 10f64.powi(places);
     (x * k).round() / k
@@ -482,7 +669,25 @@ async fn main() {
     let prefix = "gangway/sites/waldo-library".to_owned();
     let cells = walkable(&std::fs::read_to_string(&site).unwrap());
 
-    let (_broker, port) = mosquitto(dir.path(), "sys_interval 1\n");
+    let mut brokers = match args.broker {
+        BrokerKind::Mosquitto => {
+            let (guard, port) = mosquitto(dir.path(), "sys_interval 1\n");
+            Brokers::Mosquitto {
+                _process: guard,
+                port,
+            }
+        }
+        BrokerKind::Rabbitmq => Brokers::Rabbitmq(rabbitmq::RabbitCluster::start().await),
+    };
+    let ports = brokers.ports();
+    // Node `i` first, then the others: a gateway's url and fallback_urls.
+    let from_node = |i: usize| -> Vec<u16> {
+        (0..ports.len())
+            .map(|k| ports[(i + k) % ports.len()])
+            .collect()
+    };
+    // The watcher and the requests on the node that never dies.
+    let watch_port = ports[ports.len() - 1];
     let the_tags = tags(args.tags, &cells, &edge_cells, args.shards);
     let ids: HashMap<String, usize> = the_tags
         .iter()
@@ -493,7 +698,7 @@ async fn main() {
 
     // The watcher.
     let seen = Arc::new(Mutex::new(Seen::default()));
-    let (watcher, eventloop) = client("cluster-watch", port);
+    let (watcher, eventloop) = client("cluster-watch", watch_port);
     for topic in [
         format!("{prefix}/devices/+/location"),
         format!("{prefix}/devices/+/path"),
@@ -512,8 +717,9 @@ async fn main() {
     );
     let mut locators: Vec<(String, Option<Guard>, u32)> = ["loc-1", "loc-2"]
         .iter()
-        .map(|id| {
-            let config = write_config(dir.path(), id, &site, port, &cluster);
+        .enumerate()
+        .map(|(i, id)| {
+            let config = write_config(dir.path(), id, &site, &from_node(i), &cluster);
             let g = run_gateway(&config, &dir.path().join(format!("{id}.log")));
             let pid = g.0.id();
             (id.to_string(), Some(g), pid)
@@ -533,10 +739,8 @@ async fn main() {
 
     // The edges.
     let switch = Arc::new(Switch::default());
-    let (sim_client, mut sim_loop) = client("cluster-edges", port);
-    tokio::spawn(async move { while sim_loop.poll().await.is_ok() {} });
     let sim = tokio::spawn(simulate(
-        sim_client,
+        Publishers::connect("cluster-edges", &ports),
         prefix.clone(),
         edges.clone(),
         the_tags,
@@ -551,7 +755,8 @@ async fn main() {
     .await;
     let warmup_s = warm.elapsed().as_secs_f64();
 
-    // Measured span: route requests throughout, one locator killed half way.
+    // Measured span: route requests throughout, one locator killed half way
+    // (and on a cluster, a broker node a quarter of the way).
     let start = snapshot(&seen);
     let published_start = switch.published.load(Relaxed);
     let cpu_start = cpu(&locators.iter().map(|l| l.2).collect::<Vec<_>>());
@@ -560,9 +765,17 @@ async fn main() {
     let half = Duration::from_secs(args.seconds / 2);
     let mut before_kill = None;
     let mut killed: Option<(Instant, f64, String, BTreeSet<u16>)> = None;
+    let mut node_killed: Option<(Instant, f64)> = None;
     let every = Duration::from_secs_f64(1.0 / args.rate.max(0.01));
     let mut next = Instant::now();
     while start.at.elapsed() < Duration::from_secs(args.seconds) {
+        if let Brokers::Rabbitmq(cluster) = &mut brokers
+            && node_killed.is_none()
+            && start.at.elapsed() >= half / 2
+        {
+            cluster.kill(0);
+            node_killed = Some((Instant::now(), unix_now()));
+        }
         if killed.is_none() && start.at.elapsed() >= half {
             before_kill = Some((
                 snapshot(&seen),
@@ -626,13 +839,27 @@ async fn main() {
                 .map(|t| (*t - kill_at).as_secs_f64())
                 .fold(0.0, f64::max)
         });
-    // Failover span, in fix times: from a stride before the kill to a stride
-    // after all were back (or the end, if they never were).
-    let span = (
+    // The broker node's failover: until the locator that was on it is heard
+    // again, through another node.
+    let broker_failover_s = node_killed.map(|(at, _)| {
+        s.beat_times
+            .iter()
+            .find(|(heard, id)| *heard > at && *id == victim)
+            .map(|(heard, _)| (*heard - at).as_secs_f64())
+    });
+    // Failover spans, in fix times: from a stride before a kill to a stride
+    // after it was over (or the end, if it never was).
+    let mut spans = vec![(
         kill_unix - STRIDE_S,
         kill_unix + locator_failover_s.unwrap_or(f64::INFINITY) + STRIDE_S,
-    );
-    let outside = |t: f64| t < span.0 || t > span.1;
+    )];
+    if let (Some((_, node_unix)), Some(failover)) = (node_killed, broker_failover_s) {
+        spans.push((
+            node_unix - STRIDE_S,
+            node_unix + failover.unwrap_or(f64::INFINITY) + STRIDE_S,
+        ));
+    }
+    let outside = |t: f64| spans.iter().all(|span| t < span.0 || t > span.1);
     let mut per_fix: HashMap<(usize, u64), usize> = HashMap::new();
     let mut per_tag: Vec<Vec<f64>> = vec![Vec::new(); args.tags];
     for f in s
@@ -658,7 +885,7 @@ async fn main() {
         times.dedup();
         let mut worst: f64 = 0.0;
         for w in times.windows(2) {
-            let overlaps = w[1] >= span.0 && w[0] <= span.1;
+            let overlaps = spans.iter().any(|span| w[1] >= span.0 && w[0] <= span.1);
             if !overlaps {
                 worst = worst.max((w[1] - w[0]) / STRIDE_S);
             }
@@ -691,52 +918,46 @@ async fn main() {
     let one_s = (end.at - one_from).as_secs_f64().max(0.0);
     let fixes_one = fixes_between(&s, one_from, end.at, false);
 
-    // All-to-all: one real gateway takes every simulated gateway's sightings.
-    let n = args.all_to_all_gateways;
-    let a2a_receivers: Vec<String> = edges[..n].to_vec();
-    let a2a_tags = tags(args.tags, &cells, &edge_cells[..n], args.shards);
-    let config = write_config(dir.path(), "a2a", &site, port, "");
-    let gateway = run_gateway(&config, &dir.path().join("a2a.log"));
-    let a2a_pid = gateway.0.id();
-    tokio::time::sleep(Duration::from_secs(2)).await;
-    switch.stop.store(false, Relaxed);
-    let (sim_client, mut sim_loop) = client("cluster-a2a", port);
-    tokio::spawn(async move { while sim_loop.poll().await.is_ok() {} });
-    let sim = tokio::spawn(simulate(
-        sim_client,
-        prefix.clone(),
-        a2a_receivers,
-        a2a_tags,
-        args.hz,
-        Sharing::AllToAll,
-        switch.clone(),
-    ));
-    let warm = Instant::now();
-    let a2a_located = wait_for(&seen, Duration::from_secs(60), |s| {
-        located_since(s, warm, true) == args.tags
-    })
-    .await;
-    let a2a_start = snapshot(&seen);
-    let a2a_published_start = switch.published.load(Relaxed);
-    let a2a_cpu_start = usage(a2a_pid).0;
-    tokio::time::sleep(Duration::from_secs(args.all_to_all_seconds)).await;
-    let a2a_end = snapshot(&seen);
-    let a2a_cpu = usage(a2a_pid).0 - a2a_cpu_start;
-    let a2a_published = switch.published.load(Relaxed) - a2a_published_start;
-    switch.stop.store(true, Relaxed);
-    let _ = sim.await;
-    drop(gateway);
-    let s = seen.lock().unwrap();
-    let a2a_fixes = fixes_between(&s, a2a_start.at, a2a_end.at, true).max(1) as f64;
-    // What the one gateway took from the broker: the broker's deliveries but
-    // the watcher's.
-    let delivered = (a2a_end.sys.1 - a2a_start.sys.1)
-        .saturating_sub(a2a_end.received - a2a_start.received) as f64;
-    let nf = n as f64;
-    let a2a_msgs_per_tag = (a2a_published as f64 + nf * delivered + nf * a2a_fixes) / a2a_fixes;
-    let a2a_cpu_per_tag_ms = a2a_cpu * nf * 1e3 / a2a_fixes;
-    let a2a_span = (a2a_end.at - a2a_start.at).as_secs_f64();
-
+    // All-to-all (mosquitto only: its `$SYS` counters count the messages).
+    let all_to_all = match brokers {
+        Brokers::Mosquitto { port, .. } => Some(
+            all_to_all(
+                &args,
+                AllToAllRun {
+                    dir: dir.path(),
+                    site: &site,
+                    port,
+                    prefix: &prefix,
+                    edges: &edges,
+                    edge_cells: &edge_cells,
+                    cells: &cells,
+                },
+                &seen,
+                &switch,
+            )
+            .await,
+        ),
+        Brokers::Rabbitmq(_) => None,
+    };
+    let is_mosquitto = all_to_all.is_some();
+    let a2a = all_to_all.unwrap_or_default();
+    let mut notes = vec![
+        "located_tags_per_s: locations published per second, offered load is tags / 2 s stride; the same as offered unless the locators fall behind: not a saturation measurement".to_owned(),
+    ];
+    if is_mosquitto {
+        notes.extend([
+            "cluster figures: mosquitto $SYS publish/messages received + sent (PUBLISH packets, no acks) (less what the watching client received) and both locators' CPU, over the half span before the kill, per location published".to_owned(),
+            format!("all-to-all broker messages: the simulated gateways' publishes ({}) + {} x what the broker delivered to the one real gateway ({}) + {} x its location publishes, per location published; every gateway of all-to-all takes all the others' sightings and publishes every location", a2a.published, a2a.gateways, a2a.delivered, a2a.gateways),
+            format!("all-to-all CPU: the one real gateway's CPU ({}) x {}, per location published", round(a2a.cpu_s, 2), a2a.gateways),
+            "broker_failover_s: null, mosquitto is one node (--broker rabbitmq kills a node of a three-node cluster)".to_owned(),
+        ]);
+    } else {
+        notes.extend([
+            "broker_failover_s: from kill -9 of node 0 to the first heartbeat of the locator that was on it, through another node".to_owned(),
+            "RabbitMQ has no $SYS counters: broker messages and the all-to-all comparison come from the mosquitto run (the default)".to_owned(),
+            "cpu_ms_per_tag: both locators' CPU over the half span before the locator kill (the node kill is in it), per location published".to_owned(),
+        ]);
+    }
     let out = json!({
         "tags": args.tags,
         "edges": args.edges,
@@ -754,30 +975,26 @@ async fn main() {
         "locator_killed": victim,
         "locator_killed_tags": victim_tags.len(),
         "locator_failover_s": locator_failover_s.map(|x| round(x, 2)),
-        "broker_failover_s": null,
+        "broker": if is_mosquitto { "mosquitto" } else { "rabbitmq, 3 nodes" },
+        "broker_node_killed_at_s": node_killed.map(|(at, _)| round((at - start.at).as_secs_f64(), 1)),
+        "broker_failover_s": broker_failover_s.flatten().map(|x| round(x, 2)),
         "requests": requests.len(),
         "requests_routed": routed,
         "requests_unanswered": unanswered.len(),
-        "broker_msgs_per_tag": round(msgs_per_tag, 2),
+        "broker_msgs_per_tag": is_mosquitto.then(|| round(msgs_per_tag, 2)),
         "cpu_ms_per_tag": round(cpu_per_tag_ms, 3),
         "edge_publishes_per_s": round((published_pre - published_start) as f64 / steady_s.max(1e-9), 0),
         "located_tags_per_s_2_locators": round(fixes_two as f64 / steady_s.max(1e-9), 1),
         "located_tags_per_s_1_locator": round(fixes_one as f64 / one_s.max(1e-9), 1),
         "offered_tags_per_s": round(args.tags as f64 / STRIDE_S, 1),
-        "all_to_all_gateways": n,
-        "all_to_all_tags_located": a2a_located,
-        "all_to_all_span_s": round(a2a_span, 1),
-        "broker_msgs_per_tag_all_to_all": round(a2a_msgs_per_tag, 2),
-        "cpu_ms_per_tag_all_to_all": round(a2a_cpu_per_tag_ms, 3),
-        "msgs_ratio": round(a2a_msgs_per_tag / msgs_per_tag.max(1e-9), 1),
-        "cpu_ratio": round(a2a_cpu_per_tag_ms / cpu_per_tag_ms.max(1e-9), 1),
-        "notes": [
-            "cluster figures: mosquitto $SYS publish/messages received + sent (PUBLISH packets, no acks) (less what the watching client received) and both locators' CPU, over the half span before the kill, per location published",
-            format!("all-to-all broker messages: the simulated gateways' publishes ({a2a_published}) + {n} x what the broker delivered to the one real gateway ({delivered}) + {n} x its location publishes, per location published; every gateway of all-to-all takes all the others' sightings and publishes every location"),
-            format!("all-to-all CPU: the one real gateway's CPU ({}) x {n}, per location published", round(a2a_cpu, 2)),
-            "located_tags_per_s: locations published per second, offered load is tags / 2 s stride; the same as offered unless the locators fall behind: not a saturation measurement",
-            "broker_failover_s: not measured, mosquitto is one node (no --broker nats in this example)",
-        ],
+        "all_to_all_gateways": is_mosquitto.then_some(a2a.gateways),
+        "all_to_all_tags_located": is_mosquitto.then_some(a2a.located),
+        "all_to_all_span_s": is_mosquitto.then(|| round(a2a.span_s, 1)),
+        "broker_msgs_per_tag_all_to_all": is_mosquitto.then(|| round(a2a.msgs_per_tag, 2)),
+        "cpu_ms_per_tag_all_to_all": is_mosquitto.then(|| round(a2a.cpu_ms_per_tag, 3)),
+        "msgs_ratio": is_mosquitto.then(|| round(a2a.msgs_per_tag / msgs_per_tag.max(1e-9), 1)),
+        "cpu_ratio": is_mosquitto.then(|| round(a2a.cpu_ms_per_tag / cpu_per_tag_ms.max(1e-9), 1)),
+        "notes": notes,
     });
     drop(s);
     if args.json {

@@ -2,7 +2,9 @@
 //! hear tags and send their sightings by shard, two locators split the
 //! shards between them, and when one is killed (SIGKILL: no goodbye, no
 //! clean disconnect) the other takes its tags over and answers the route
-//! requests sent meanwhile.
+//! requests sent meanwhile. On mosquitto (one node), and on a three-node
+//! RabbitMQ cluster where a broker node is killed too: the gateways on it
+//! move to another node with their sessions.
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::fmt::Write as _;
@@ -10,6 +12,7 @@ use std::time::{Duration, Instant};
 
 use std::path::Path;
 
+use crate::mqtt_support::rabbitmq::RabbitCluster;
 use crate::mqtt_support::*;
 
 const TAG_UUID: &str = "0f0e0d0c-0b0a-4908-8706-050403020100";
@@ -400,6 +403,92 @@ async fn two_locators_split_the_tags_and_one_takes_over_when_the_other_is_killed
         "cluster: the restarted locator took its share back {:.1} s after it started",
         rejoined.elapsed().as_secs_f64() - 10.0
     );
+    assert_all_valid(&fleet.seen.client.seen);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn on_a_three_node_rabbitmq_cluster_gateways_survive_a_node_and_a_locator_dying() {
+    if !RabbitCluster::installed() {
+        return crate::common::cannot_run("rabbitmq-server (apt-get install rabbitmq-server)");
+    }
+    let started = Instant::now();
+    let mut rabbit = RabbitCluster::start().await;
+    eprintln!(
+        "cluster: three RabbitMQ nodes serving MQTT {:.1} s after start",
+        started.elapsed().as_secs_f64()
+    );
+    let [n0, n1, n2] = [0, 1, 2].map(|i| Broker::at_port(rabbit.port(i)));
+    // The test watches from the node that never dies.
+    let mut fleet = Fleet::new(&n2).await;
+    fleet.start_locator("loc-1", &n0, &[&n1, &n2]);
+    fleet.start_locator("loc-2", &n1, &[&n2, &n0]);
+    let split = fleet.split_between(&["loc-1", "loc-2"]).await;
+    fleet.start_edges(
+        [(&n0, [&n1, &n2]), (&n1, [&n2, &n0]), (&n2, [&n0, &n1])],
+        180,
+    );
+    fleet.all_located_since(Instant::now()).await;
+    fleet.seen.every_tag_located_once(10.0).await;
+
+    // kill -9 node 0, the node of loc-1 and gw-a. A route request for one
+    // of loc-1's tags goes out at once: it waits in loc-1's session, which
+    // the cluster keeps (a quorum queue), until loc-1 is back on another
+    // node.
+    let on_loc_1 = (0..TAGS.len())
+        .map(tag)
+        .find(|t| split["loc-1"].contains(&shard_of(t)))
+        .expect("loc-1 holds a tag");
+    rabbit.kill(0);
+    let died = Instant::now();
+    let request = serde_json::json!({"to": "reading room", "request_id": "node-died"});
+    fleet
+        .seen
+        .client
+        .publish(
+            &format!("{SITE}/devices/{on_loc_1}/route/set"),
+            request.to_string(),
+        )
+        .await;
+    let heard_since_death = |fleet: &Fleet, heard: &dyn Fn(&str) -> bool| {
+        fleet
+            .seen
+            .client
+            .seen
+            .iter()
+            .zip(&fleet.seen.at)
+            .any(|(m, at)| *at > died && heard(&m.topic))
+    };
+    let (beat, shards) = (format!("{SITE}/locators/loc-1"), format!("{SITE}/shards/"));
+    let deadline = Instant::now() + WAIT;
+    loop {
+        fleet.seen.gather(0.1).await;
+        let locator = heard_since_death(&fleet, &|t| t == beat);
+        let edge = heard_since_death(&fleet, &|t| t.starts_with(&shards) && t.ends_with("/gw-a"));
+        if locator && edge {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "loc-1 {locator}, gw-a {edge}: not heard again after their node died"
+        );
+    }
+    let moved = died.elapsed().as_secs_f64();
+    eprintln!(
+        "cluster: loc-1 and gw-a heard again through another node {moved:.1} s after their node died (target ≤ 5 s)"
+    );
+    assert!(moved <= 5.0, "{moved:.1} s");
+    let reply = fleet.seen.client.reply(SITE, &on_loc_1, "node-died").await;
+    assert!(
+        reply["line"].is_array() || reply["error"].is_object(),
+        "{reply}"
+    );
+    let split = fleet.split_between(&["loc-1", "loc-2"]).await;
+    fleet.seen.every_tag_located_once(10.0).await;
+
+    // And a locator dying on the cluster, with one node down.
+    let takeover = fleet.kill_locator("loc-2", &split).await;
+    assert!(takeover <= 10.0, "takeover took {takeover:.1} s");
+    fleet.seen.every_tag_located_once(8.0).await;
     assert_all_valid(&fleet.seen.client.seen);
 }
 

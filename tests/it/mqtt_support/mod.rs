@@ -13,6 +13,8 @@ use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use serde_json::Value;
 use tokio::sync::mpsc;
 
+pub(crate) mod rabbitmq;
+
 pub(crate) const WAIT: Duration = Duration::from_secs(30);
 
 pub(crate) fn repo() -> PathBuf {
