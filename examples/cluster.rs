@@ -33,6 +33,11 @@
 //! has no `$SYS` counters, so broker messages and the all-to-all comparison
 //! come from the mosquitto run only.
 //!
+//! With `--locator-cpu F` (root) each locator runs in a cgroup of its own
+//! capped at F of one core, standing for a machine of its own: offered more
+//! than one capped locator can take, the locations per second before and
+//! after the kill are what two locators and one sustain.
+//!
 //! It prints what it measured (with `--json`, one JSON line): fixes published
 //! twice, the longest gap between fixes of a tag, the failover time, route
 //! requests unanswered within 10 s, broker messages and CPU per tag located
@@ -98,6 +103,13 @@ struct Args {
     /// The broker: one mosquitto, or a three-node RabbitMQ cluster with a node killed.
     #[arg(long, value_enum, default_value_t = BrokerKind::Mosquitto)]
     broker: BrokerKind,
+    /// Caps each locator at this share of one core (a cgroup of its own;
+    /// root), so that two locators stand for two machines on a machine with
+    /// few cores: offered more than one capped locator can take, the
+    /// locations per second before and after the kill are the sustained
+    /// rates of two locators and of one.
+    #[arg(long)]
+    locator_cpu: Option<f64>,
     /// Print one JSON line instead of text.
     #[arg(long)]
     json: bool,
@@ -126,6 +138,52 @@ impl Brokers {
             Brokers::Mosquitto { port, .. } => vec![*port],
             Brokers::Rabbitmq(cluster) => (0..3).map(|i| cluster.port(i)).collect(),
         }
+    }
+}
+
+/// A cgroup capping one process's CPU, removed on drop (after the process:
+/// a cgroup with a process in it cannot be removed). Written by hand: the
+/// few files of cgroup v2's `cpu.max` or v1's `cpu.cfs_*` are all it takes.
+struct CpuCap(PathBuf);
+
+impl CpuCap {
+    /// Moves `pid` (all its threads) into a new cgroup `name` capped at
+    /// `share` of one core.
+    fn new(name: &str, share: f64, pid: u32) -> CpuCap {
+        const PERIOD_US: u64 = 100_000;
+        let quota = (share * PERIOD_US as f64).round().max(1_000.0) as u64;
+        let root = Path::new("/sys/fs/cgroup");
+        let v2 = root.join("cgroup.controllers").exists();
+        let dir = if v2 {
+            root.join(name)
+        } else {
+            root.join("cpu").join(name)
+        };
+        let write = |file: &str, text: String| {
+            std::fs::write(dir.join(file), text).unwrap_or_else(|e| {
+                panic!("--locator-cpu: {}/{file}: {e} (run as root)", dir.display())
+            })
+        };
+        if v2 {
+            // The cpu controller must be enabled for the root's children.
+            let _ = std::fs::write(root.join("cgroup.subtree_control"), "+cpu");
+        }
+        std::fs::create_dir(&dir)
+            .unwrap_or_else(|e| panic!("--locator-cpu: {}: {e} (run as root)", dir.display()));
+        if v2 {
+            write("cpu.max", format!("{quota} {PERIOD_US}"));
+        } else {
+            write("cpu.cfs_period_us", PERIOD_US.to_string());
+            write("cpu.cfs_quota_us", quota.to_string());
+        }
+        write("cgroup.procs", pid.to_string());
+        CpuCap(dir)
+    }
+}
+
+impl Drop for CpuCap {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir(&self.0);
     }
 }
 
@@ -715,14 +773,23 @@ async fn main() {
         "[cluster]\nrole = \"locator\"\nshards = {}\nheartbeat_s = 1.0\nlease_s = 3.0\n",
         args.shards
     );
-    let mut locators: Vec<(String, Option<Guard>, u32)> = ["loc-1", "loc-2"]
+    // (id, process, pid, its CPU cap): the cap after the process, so that
+    // it is removed once the process is gone.
+    let mut locators: Vec<(String, Option<Guard>, u32, Option<CpuCap>)> = ["loc-1", "loc-2"]
         .iter()
         .enumerate()
         .map(|(i, id)| {
             let config = write_config(dir.path(), id, &site, &from_node(i), &cluster);
             let g = run_gateway(&config, &dir.path().join(format!("{id}.log")));
             let pid = g.0.id();
-            (id.to_string(), Some(g), pid)
+            let cap = args.locator_cpu.map(|share| {
+                CpuCap::new(
+                    &format!("gangway-cluster-{}-{id}", std::process::id()),
+                    share,
+                    pid,
+                )
+            });
+            (id.to_string(), Some(g), pid, cap)
         })
         .collect();
     let split = wait_for(&seen, Duration::from_secs(30), |s| {
@@ -962,6 +1029,7 @@ async fn main() {
         "tags": args.tags,
         "edges": args.edges,
         "locators": 2,
+        "locator_cpu": args.locator_cpu,
         "cores": cores,
         "hz": args.hz,
         "shards": args.shards,

@@ -31,9 +31,9 @@ use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 // too, to run its load on the same cluster.
 use super::free_port;
 
-/// How long the cluster may take to serve MQTT on every node: about 20 s on
-/// an idle 2-core machine, more when the other tests run beside it.
-const READY_WAIT: Duration = Duration::from_secs(150);
+/// How long the cluster may take to serve MQTT on every node: about 20–30 s
+/// on a 2-core machine, more when the other tests run beside it.
+const READY_WAIT: Duration = Duration::from_secs(120);
 
 const BIN: &str = "/usr/lib/rabbitmq/bin";
 
@@ -55,13 +55,29 @@ impl RabbitCluster {
         Path::new(BIN).join("rabbitmq-server").exists()
     }
 
-    /// Three clustered nodes on loopback, once each serves MQTT.
+    /// Three clustered nodes on loopback, once each serves MQTT. A start
+    /// that fails (a node that exits, a free port taken by another test
+    /// between our look and the node's bind) is retried once on new ports.
     pub(crate) async fn start() -> RabbitCluster {
         assert!(
             Self::installed(),
             "rabbitmq-server is not installed; the clustered-broker test needs it \
              (apt-get install rabbitmq-server; .ci/run does)"
         );
+        let mut failures = Vec::new();
+        for _ in 0..2 {
+            match Self::try_start().await {
+                Ok(cluster) => return cluster,
+                Err(why) => {
+                    eprintln!("RabbitMQ cluster: {why}");
+                    failures.push(why);
+                }
+            }
+        }
+        panic!("the RabbitMQ cluster did not start: {failures:#?}");
+    }
+
+    async fn try_start() -> Result<RabbitCluster, String> {
         let dir = tempfile::tempdir().unwrap();
         let home = dir.path().join("home");
         std::fs::create_dir(&home).unwrap();
@@ -80,36 +96,59 @@ impl RabbitCluster {
         }
         let deadline = Instant::now() + READY_WAIT;
         for i in 0..3 {
-            while !cluster.ctl(i, &["await_startup", "--timeout", "60"]) {
-                assert!(
-                    Instant::now() < deadline,
-                    "RabbitMQ node {} did not start within {READY_WAIT:?}: see {}",
-                    cluster.nodes[i].name,
-                    cluster.node_dir(i).join("log").display()
-                );
+            while !cluster.ctl(i, &["await_startup", "--timeout", "30"]) {
+                let exited = cluster.nodes[i]
+                    .child
+                    .as_mut()
+                    .and_then(|c| c.try_wait().ok().flatten());
+                if exited.is_some() || Instant::now() >= deadline {
+                    return Err(format!(
+                        "node {} did not start within {READY_WAIT:?} ({}); its log ends:\n{}",
+                        cluster.nodes[i].name,
+                        exited.map_or("still running".to_owned(), |e| e.to_string()),
+                        cluster.log_tail(i)
+                    ));
+                }
                 std::thread::sleep(Duration::from_millis(500));
             }
         }
         let seed = cluster.nodes[0].name.clone();
         for i in 1..3 {
             for args in [&["stop_app"][..], &["join_cluster", &seed], &["start_app"]] {
-                assert!(
-                    cluster.ctl(i, args),
-                    "rabbitmqctl {args:?} on {} failed",
-                    cluster.nodes[i].name
-                );
+                if !cluster.ctl(i, args) {
+                    return Err(format!(
+                        "rabbitmqctl {args:?} on {} failed; its log ends:\n{}",
+                        cluster.nodes[i].name,
+                        cluster.log_tail(i)
+                    ));
+                }
             }
         }
         for node in &cluster.nodes {
             while !round_trip(node.mqtt_port).await {
-                assert!(
-                    Instant::now() < deadline,
-                    "the RabbitMQ cluster did not serve MQTT within {READY_WAIT:?}"
-                );
+                if Instant::now() >= deadline {
+                    return Err(format!(
+                        "{} did not serve MQTT within {READY_WAIT:?}",
+                        node.name
+                    ));
+                }
                 tokio::time::sleep(Duration::from_millis(250)).await;
             }
         }
-        cluster
+        Ok(cluster)
+    }
+
+    /// The last lines of node `i`'s log, for a failure message (the
+    /// directory goes with the cluster).
+    fn log_tail(&self, i: usize) -> String {
+        let log = self
+            .node_dir(i)
+            .join("log")
+            .join(format!("{}.log", self.nodes[i].name));
+        let text =
+            std::fs::read_to_string(&log).unwrap_or_else(|e| format!("{}: {e}", log.display()));
+        let lines: Vec<&str> = text.lines().collect();
+        lines[lines.len().saturating_sub(30)..].join("\n")
     }
 
     fn node_dir(&self, i: usize) -> PathBuf {

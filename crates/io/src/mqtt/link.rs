@@ -62,9 +62,9 @@ pub(crate) const MQTT_MAX_PACKET: usize = 268_435_455 + 5;
 /// only a message that would make rumqttc fail the connection is refused.
 pub(crate) const MAX_OUTGOING_PACKET: usize = 1 << 20;
 
-/// Received messages held back (not acknowledged) while the daemon's channel
-/// is full, at most; past it QoS 0 messages are dropped and counted (QoS 1 and
-/// 2 are bounded by the broker's inflight window and stay held).
+/// QoS 0 messages held back while the daemon's channel is full, at most;
+/// past it they are dropped and counted (QoS 1 and 2 are bounded by the
+/// broker's inflight window and stay held).
 const HELD_MAX: usize = 4096;
 
 /// How often one birth topic is re-asserted at most, against someone who
@@ -338,13 +338,56 @@ enum Conn {
 
 type SessionEvent = (u64, Result<Event, ConnectionError>);
 
+/// What the daemon's channel had no room for, in two lines: QoS 1 and 2
+/// messages (route requests, feedback) go first, so that a request is not kept
+/// waiting behind a backlog of QoS 0 sightings and heartbeats, which are soon
+/// stale anyway. Order is kept within each line; PUBACKs, which only QoS 1
+/// has, stay in the order the broker sent the messages.
+#[derive(Default)]
+struct Held {
+    /// QoS 1 and 2: acknowledged once the daemon's channel takes them.
+    acknowledged: VecDeque<(Received, Publish)>,
+    /// QoS 0: at most [`HELD_MAX`].
+    lossy: VecDeque<(Received, Publish)>,
+}
+
+impl Held {
+    fn is_empty(&self) -> bool {
+        self.acknowledged.is_empty() && self.lossy.is_empty()
+    }
+
+    /// Whether a message of `qos` arriving now has to wait behind what is
+    /// held (its own line, and for QoS 0 the other too).
+    fn ahead_of(&self, qos: QoS) -> bool {
+        match qos {
+            QoS::AtMostOnce => !self.is_empty(),
+            QoS::AtLeastOnce | QoS::ExactlyOnce => !self.acknowledged.is_empty(),
+        }
+    }
+
+    fn push(&mut self, received: Received, publish: Publish) {
+        match publish.qos {
+            QoS::AtMostOnce => self.lossy.push_back((received, publish)),
+            QoS::AtLeastOnce | QoS::ExactlyOnce => {
+                self.acknowledged.push_back((received, publish));
+            }
+        }
+    }
+
+    fn pop_front(&mut self) -> Option<(Received, Publish)> {
+        self.acknowledged
+            .pop_front()
+            .or_else(|| self.lossy.pop_front())
+    }
+}
+
 struct Controller {
     settings: LinkSettings,
     stats: Arc<LinkStats>,
     inbound: mpsc::Sender<Received>,
     /// Received, not yet taken by the daemon's channel (full), and so not
     /// yet acknowledged.
-    held: VecDeque<(Received, Publish)>,
+    held: Held,
     queue: OfflineQueue,
     /// Sent after every connect, by topic.
     birth: BTreeMap<String, Outgoing>,
@@ -388,7 +431,7 @@ impl Controller {
             settings,
             stats,
             inbound,
-            held: VecDeque::new(),
+            held: Held::default(),
             birth: BTreeMap::new(),
             reasserted: HashMap::default(),
             overwritten: crate::throttle::Throttle::new(Duration::from_secs(10)),
@@ -740,7 +783,7 @@ impl Controller {
             payload,
             size,
         };
-        if !self.held.is_empty() {
+        if self.held.ahead_of(publish.qos) {
             self.hold(received, publish);
             return;
         }
@@ -756,7 +799,7 @@ impl Controller {
     /// so the broker holds back what follows; past [`HELD_MAX`] a QoS 0
     /// message (which nobody redelivers anyway) is dropped and counted.
     fn hold(&mut self, received: Received, publish: Publish) {
-        if self.held.len() >= HELD_MAX && publish.qos == QoS::AtMostOnce {
+        if publish.qos == QoS::AtMostOnce && self.held.lossy.len() >= HELD_MAX {
             let dropped = self.stats.inbound_dropped.fetch_add(1, Ordering::Relaxed) + 1;
             if dropped.is_power_of_two() {
                 tracing::warn!(
@@ -767,7 +810,7 @@ impl Controller {
             }
             return;
         }
-        self.held.push_back((received, publish));
+        self.held.push(received, publish);
     }
 
     /// Acknowledges a message now, or as soon as the session's channel has
@@ -859,7 +902,7 @@ impl Controller {
         self.queue.requeue_front(undelivered.into_iter());
         // Unacknowledged messages come again from the broker on the next
         // session; only QoS 0 ones, which nobody redelivers, are kept.
-        self.held.retain(|(_, p)| p.qos == QoS::AtMostOnce);
+        self.held.acknowledged.clear();
         self.acks.clear();
         self.stats.connected.store(false, Ordering::Relaxed);
         self.stats.connect_failures.fetch_add(1, Ordering::Relaxed);
@@ -1006,4 +1049,44 @@ async fn sleep_until(at: Option<Instant>) {
 fn broker_address(options: &MqttOptions) -> String {
     let (host, port) = options.broker_address();
     format!("{host}:{port}")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn message(topic: &str, qos: QoS) -> (Received, Publish) {
+        let received = Received {
+            topic: topic.to_owned(),
+            payload: Bytes::new(),
+            size: 0,
+        };
+        (received, Publish::new(topic, qos, Vec::new()))
+    }
+
+    #[test]
+    fn a_held_request_goes_before_the_sightings_held_ahead_of_it() {
+        let mut held = Held::default();
+        for topic in ["sightings/1", "sightings/2"] {
+            let (received, publish) = message(topic, QoS::AtMostOnce);
+            held.push(received, publish);
+        }
+        // A request arriving now need not wait behind QoS 0 messages…
+        assert!(!held.ahead_of(QoS::AtLeastOnce));
+        // …but a sighting waits behind them, and behind a held request.
+        assert!(held.ahead_of(QoS::AtMostOnce));
+        for topic in ["route/set/1", "route/set/2"] {
+            let (received, publish) = message(topic, QoS::AtLeastOnce);
+            held.push(received, publish);
+        }
+        assert!(held.ahead_of(QoS::AtLeastOnce));
+        let order: Vec<String> = std::iter::from_fn(|| held.pop_front())
+            .map(|(r, _)| r.topic)
+            .collect();
+        assert_eq!(
+            order,
+            ["route/set/1", "route/set/2", "sightings/1", "sightings/2"]
+        );
+        assert!(held.is_empty());
+    }
 }
