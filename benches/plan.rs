@@ -159,6 +159,16 @@ fn quantile(sorted: &[f64], q: f64) -> f64 {
 }
 
 fn scale(c: &mut Criterion) {
+    // Training three sites takes a minute: only when no filter is given or
+    // the filter names these rows, so `--bench plan -- "route reply"` stays
+    // quick.
+    let filters: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| !a.starts_with('-') && a.parse::<f64>().is_err())
+        .collect();
+    if !filters.is_empty() && !filters.iter().any(|f| f.contains("desire at")) {
+        return;
+    }
     use gangway::model::{Kind, Metadata};
     use gangway::simulate::{WalkConfig, simulate_walks};
     use gangway::train::write_proto;

@@ -249,6 +249,47 @@ pub struct Site {
     map_hash: String,
     shapes: Shapes,
     floorplan: Option<Floorplan>,
+    /// Per grid cell, the ways out of it that route instructions count to
+    /// find junctions (`plan::instructions`): a search around the cell that
+    /// depends on the map alone, so it is done once per cell and site, the
+    /// first time a route passes there, rather than for every route.
+    ways_out: CellCache,
+}
+
+/// A number per grid cell worked out from the map on first use and kept
+/// ([`Site::cached`]); `u16::MAX` until then. Atomics, so routes planned on
+/// several threads fill it without a lock: two threads that race work out
+/// the same number.
+struct CellCache(Box<[std::sync::atomic::AtomicU16]>);
+
+impl CellCache {
+    const UNKNOWN: u16 = u16::MAX;
+
+    fn new(cells: usize) -> CellCache {
+        CellCache(
+            (0..cells)
+                .map(|_| std::sync::atomic::AtomicU16::new(Self::UNKNOWN))
+                .collect(),
+        )
+    }
+}
+
+impl Clone for CellCache {
+    fn clone(&self) -> CellCache {
+        use std::sync::atomic::{AtomicU16, Ordering};
+        CellCache(
+            self.0
+                .iter()
+                .map(|v| AtomicU16::new(v.load(Ordering::Relaxed)))
+                .collect(),
+        )
+    }
+}
+
+impl fmt::Debug for CellCache {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str("CellCache")
+    }
 }
 
 /// What a site's `obstacles` and `walls` drew onto its grid.
@@ -715,6 +756,7 @@ impl Site {
             }
         }
         let map_hash = hash_map(width, height, &tiles);
+        let ways_out = CellCache::new(tiles.len());
         Ok(Site {
             name: file.name,
             cell_m: file.cell_m,
@@ -729,10 +771,32 @@ impl Site {
             gateways,
             places,
             labels: file.labels,
+            ways_out,
             map_hash,
             shapes,
             floorplan,
         })
+    }
+
+    /// The ways out of `cell` as route instructions count them, worked out
+    /// by `compute` the first time it is asked for that cell (it must depend
+    /// on the map and `cell` alone), then kept.
+    pub(crate) fn cached_ways_out(&self, cell: Cell, compute: impl FnOnce() -> usize) -> usize {
+        use std::sync::atomic::Ordering;
+        let slot = &self.ways_out.0[self.grid_index(cell)];
+        match slot.load(Ordering::Relaxed) {
+            CellCache::UNKNOWN => {
+                let ways = compute();
+                // Beyond u16 (never on a real ring) it is simply not kept.
+                if let Ok(kept) = u16::try_from(ways)
+                    && kept != CellCache::UNKNOWN
+                {
+                    slot.store(kept, Ordering::Relaxed);
+                }
+                ways
+            }
+            ways => usize::from(ways),
+        }
     }
 
     pub fn width(&self) -> u16 {

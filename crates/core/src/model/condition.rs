@@ -17,6 +17,19 @@ pub fn len(width: u16, height: u16) -> usize {
     2 * usize::from(width) * usize::from(height)
 }
 
+/// Squared distances from a bump's centre to the cells it reaches.
+const MAX_D2: usize = 2 * (CUTOFF_CELLS * CUTOFF_CELLS) as usize;
+
+/// A bump's value at each squared distance `d2` ≤ [`MAX_D2`] from its
+/// centre, worked out once: the same few numbers every request, which the
+/// conditional planner encodes per route (twice per sample before).
+fn bump(d2: usize) -> f32 {
+    static BUMP: std::sync::LazyLock<[f32; MAX_D2 + 1]> = std::sync::LazyLock::new(|| {
+        std::array::from_fn(|d2| (-(d2 as f32) / (2.0 * SIGMA_CELLS * SIGMA_CELLS)).exp())
+    });
+    BUMP[d2]
+}
+
 /// Writes the condition for a walk `source → destination` into `out`
 /// (length [`len`]).
 pub fn encode(width: u16, height: u16, source: Cell, destination: Cell, out: &mut [f32]) {
@@ -30,9 +43,8 @@ pub fn encode(width: u16, height: u16, source: Cell, destination: Cell, out: &mu
                 if x < 0 || y < 0 || x >= i32::from(width) || y >= i32::from(height) {
                     continue;
                 }
-                let d2 = (dx * dx + dy * dy) as f32;
                 out[k * plane + y as usize * usize::from(width) + x as usize] =
-                    (-d2 / (2.0 * SIGMA_CELLS * SIGMA_CELLS)).exp();
+                    bump((dx * dx + dy * dy) as usize);
             }
         }
     }
@@ -41,6 +53,14 @@ pub fn encode(width: u16, height: u16, source: Cell, destination: Cell, out: &mu
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_kept_bump_is_the_expression_it_replaces() {
+        for d2 in 0..=MAX_D2 {
+            let direct = (-(d2 as f32) / (2.0 * SIGMA_CELLS * SIGMA_CELLS)).exp();
+            assert_eq!(bump(d2).to_bits(), direct.to_bits(), "d2 {d2}");
+        }
+    }
 
     #[test]
     fn bumps_peak_at_the_endpoints_and_stay_on_the_grid() {

@@ -80,6 +80,35 @@ pub struct Traversal {
 /// Amanatides–Woo traversal of the segment `a → b` (cell units). Cells may be
 /// off the grid (negative or past its size); callers check.
 pub fn traverse(a: GridPoint, b: GridPoint) -> Traversal {
+    let mut out = Traversal::default();
+    walk_segment(a, b, |cell, corner| {
+        if corner {
+            out.corners.push(cell);
+        } else {
+            out.cells.push(cell);
+        }
+        true
+    });
+    out
+}
+
+/// Whether `ok` holds for every cell [`traverse`] gives for `a → b`, its
+/// cells and corners, asked in the order the segment meets them and no
+/// further than the first refused: the checks of a line without the two
+/// vectors (a line check runs per cell of a string-pulled route and per
+/// segment of every served line).
+pub(crate) fn touches_only(
+    a: GridPoint,
+    b: GridPoint,
+    mut ok: impl FnMut([i64; 2]) -> bool,
+) -> bool {
+    walk_segment(a, b, |cell, _| ok(cell))
+}
+
+/// [`traverse`]'s walk, each cell handed to `visit` with whether it is one
+/// of the two beside a corner crossed exactly, until `visit` says stop
+/// (`false`, returned).
+fn walk_segment(a: GridPoint, b: GridPoint, mut visit: impl FnMut([i64; 2], bool) -> bool) -> bool {
     const EPS: f64 = 1e-9;
     let mut cell = [a[0].floor() as i64, a[1].floor() as i64];
     let end = [b[0].floor() as i64, b[1].floor() as i64];
@@ -100,10 +129,9 @@ pub fn traverse(a: GridPoint, b: GridPoint) -> Traversal {
     };
     let (mut t_x, dt_x) = next(0);
     let (mut t_y, dt_y) = next(1);
-    let mut out = Traversal {
-        cells: vec![cell],
-        corners: Vec::new(),
-    };
+    if !visit(cell, false) {
+        return false;
+    }
     // At most one step per boundary crossed; the bound guards against float
     // trouble ever looping.
     let bound = (end[0] - cell[0]).unsigned_abs() + (end[1] - cell[1]).unsigned_abs() + 2;
@@ -112,8 +140,11 @@ pub fn traverse(a: GridPoint, b: GridPoint) -> Traversal {
             break;
         }
         if (t_x - t_y).abs() < EPS {
-            out.corners.push([cell[0] + step[0], cell[1]]);
-            out.corners.push([cell[0], cell[1] + step[1]]);
+            if !visit([cell[0] + step[0], cell[1]], true)
+                || !visit([cell[0], cell[1] + step[1]], true)
+            {
+                return false;
+            }
             cell[0] += step[0];
             cell[1] += step[1];
             t_x += dt_x;
@@ -125,9 +156,11 @@ pub fn traverse(a: GridPoint, b: GridPoint) -> Traversal {
             cell[1] += step[1];
             t_y += dt_y;
         }
-        out.cells.push(cell);
+        if !visit(cell, false) {
+            return false;
+        }
     }
-    out
+    true
 }
 
 /// `[x, y]` as a cell on `site`'s grid, when it is on it.
@@ -139,11 +172,9 @@ fn on_grid(site: &Site, [x, y]: [i64; 2]) -> Option<Cell> {
 /// Whether the segment between the centres of `a` and `b` crosses only cells
 /// `passable` allows, corners included.
 pub(crate) fn clear(site: &Site, a: Cell, b: Cell, passable: impl Fn(Cell) -> bool) -> bool {
-    let t = traverse(centre(a), centre(b));
-    t.cells
-        .iter()
-        .chain(&t.corners)
-        .all(|&c| on_grid(site, c).is_some_and(&passable))
+    touches_only(centre(a), centre(b), |c| {
+        on_grid(site, c).is_some_and(&passable)
+    })
 }
 
 /// The 8-connected cells a walker crosses along the segment `a → b` (cell
@@ -234,7 +265,7 @@ pub(crate) fn polyline_cells(
 /// cell's first visit straight on from its last.
 pub fn without_loops<T>(items: Vec<T>, cell_of: impl Fn(&T) -> Cell) -> Vec<T> {
     let mut out: Vec<T> = Vec::with_capacity(items.len());
-    let mut at: std::collections::HashMap<Cell, usize> = Default::default();
+    let mut at: foldhash::HashMap<Cell, usize> = Default::default();
     for item in items {
         let c = cell_of(&item);
         if let Some(&i) = at.get(&c) {
@@ -493,6 +524,31 @@ mod tests {
 
     fn site(map: &str) -> Arc<Site> {
         Arc::new(Site::of_map(map))
+    }
+
+    proptest::proptest! {
+        /// The line check that stops early answers as the full traversal
+        /// does, whatever the segment and whichever cells are refused.
+        #[test]
+        fn a_line_check_is_the_traversal_checked(
+            a in proptest::array::uniform2(-2.0f64..12.0),
+            b in proptest::array::uniform2(-2.0f64..12.0),
+            centres in proptest::bool::ANY,
+            refused in proptest::collection::hash_set((-2i64..12, -2i64..12), 0..40),
+        ) {
+            // Centre to centre (exact corners) as well as anywhere.
+            let (a, b) = if centres {
+                (a.map(|v| v.floor() + 0.5), b.map(|v| v.floor() + 0.5))
+            } else {
+                (a, b)
+            };
+            let ok = |[x, y]: [i64; 2]| !refused.contains(&(x, y));
+            let t = traverse(a, b);
+            proptest::prop_assert_eq!(
+                touches_only(a, b, ok),
+                t.cells.iter().chain(&t.corners).all(|&c| ok(c))
+            );
+        }
     }
 
     #[test]

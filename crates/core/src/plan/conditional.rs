@@ -10,7 +10,7 @@
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use ndarray::Array2;
+use ndarray::{Array2, ArrayView2};
 use rand::SeedableRng;
 use rand::rngs::Xoshiro256PlusPlus;
 use rand_distr::{Distribution, StandardNormal};
@@ -94,14 +94,18 @@ impl Planner for Conditional {
         let noise = Array2::from_shape_fn((rows, self.generator.noise_dim()), |_| {
             StandardNormal.sample(&mut rng)
         });
-        let mut conditions = Array2::zeros((rows, condition::len(w, h)));
-        for mut row in conditions.rows_mut() {
-            condition::encode(w, h, from, to, row.as_slice_mut().expect("standard layout"));
-        }
+        // Every sample has the same condition: encoded once, its row
+        // repeated (the model's input is laid out from the view).
+        let mut condition = vec![0.0; condition::len(w, h)];
+        condition::encode(w, h, from, to, &mut condition);
+        let one = ArrayView2::from_shape((1, condition.len()), &condition).expect("one row");
+        let conditions = one
+            .broadcast((rows, condition.len()))
+            .expect("a row repeats");
         let started = self.clock.start();
         let frames = self
             .generator
-            .generate(noise.view(), Some(conditions.view()))
+            .generate(noise.view(), Some(conditions))
             .map_err(model_error)?;
         let timings = Timings {
             gen_us: started.elapsed_us(),
@@ -109,15 +113,17 @@ impl Planner for Conditional {
         };
         let mut best: Option<((usize, usize), f64, Planned)> = None;
         for frame in frames.rows() {
-            let frame = frame.to_vec();
+            let frame = frame
+                .as_slice()
+                .expect("a model's output is laid out by row");
             let (route, origin) =
-                route_from_frame(site, self.connectivity, profile, &frame, from, to)?;
+                route_from_frame(site, self.connectivity, profile, frame, from, to)?;
             let dark = route
                 .cells
                 .iter()
-                .filter(|&&c| !bright(&frame, site.grid_index(c)))
+                .filter(|&&c| !bright(frame, site.grid_index(c)))
                 .count();
-            let rank = (super::cells_off_area(site, &frame), dark);
+            let rank = (super::cells_off_area(site, frame), dark);
             let length = route.length_m(site);
             if best
                 .as_ref()
@@ -130,7 +136,8 @@ impl Planner for Conditional {
                         route,
                         origin,
                         samples: rows,
-                        frame: Some(frame),
+                        // Copied only for the best so far, not every sample.
+                        frame: Some(frame.to_vec()),
                         line: None,
                         timings,
                     },

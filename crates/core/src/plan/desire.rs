@@ -28,7 +28,6 @@
 //! The answer carries the line itself ([`Planned::line`]), which is what a
 //! walker is told to follow and what `gangway eval planning` judges.
 
-use std::collections::HashSet;
 use std::sync::Arc;
 
 use super::anyangle::{GridPoint, centre, clear, polyline_cells, segment_cells, string_pulled};
@@ -246,7 +245,7 @@ pub(crate) fn anyangle_cells(
             profile.passable(site, c)
         }));
     }
-    let on_route: HashSet<Cell> = route.cells.iter().copied().collect();
+    let on_route: foldhash::HashSet<Cell> = route.cells.iter().copied().collect();
     Ok(string_pulled(site, &route.cells, |c| {
         profile.passable(site, c) && (profile.cell_cost(site, c) <= 1.0 || on_route.contains(&c))
     }))

@@ -403,7 +403,9 @@ fn junctions(site: &Site, cells: &[Cell], decisions: &[usize]) -> Vec<usize> {
     let mut found = Vec::new();
     let mut run: Option<(usize, usize)> = None;
     for (i, &cell) in cells.iter().enumerate() {
-        let junction = clear(i) && ways_out(site, cell, radius) >= 3;
+        // The radius is the site's (its cell size), so the count is the
+        // cell's alone: kept on the site after the first route through it.
+        let junction = clear(i) && site.cached_ways_out(cell, || ways_out(site, cell, radius)) >= 3;
         match (&mut run, junction) {
             (Some((_, end)), true) if *end + 1 == i => *end = i,
             (_, true) => {
@@ -585,6 +587,26 @@ mod tests {
     use crate::plan::Planner;
     use std::path::Path;
     use std::sync::Arc;
+
+    #[test]
+    fn kept_ways_out_are_the_search_s() {
+        let site = Site::load(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/sites/waldo.toml"),
+        )
+        .unwrap();
+        let radius = (JUNCTION_RADIUS_M / site.cell_m).round().max(2.0) as usize;
+        for &cell in site.open_cells() {
+            let direct = ways_out(&site, cell, radius);
+            // Worked out on first use, then read back.
+            for _ in 0..2 {
+                assert_eq!(
+                    site.cached_ways_out(cell, || ways_out(&site, cell, radius)),
+                    direct
+                );
+            }
+            assert_eq!(site.cached_ways_out(cell, || unreachable!()), direct);
+        }
+    }
 
     #[test]
     fn names_turns_distances_and_places() {

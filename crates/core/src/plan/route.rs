@@ -13,7 +13,7 @@
 
 use serde::Serialize;
 
-use super::anyangle::{GridPoint, centre, traverse, world_of_point};
+use super::anyangle::{GridPoint, centre, touches_only, world_of_point};
 use super::{Connectivity, Planned, Profile};
 use crate::site::{Cell, Site};
 
@@ -134,7 +134,8 @@ impl ServedLine {
 /// `cells` (the waypoints are the cells it crosses, and maneuvers, places
 /// and junctions are looked up on them).
 fn walkable_line(site: &Site, profile: Profile, line: &[GridPoint], cells: &[Cell]) -> bool {
-    let route: std::collections::HashSet<Cell> = cells.iter().copied().collect();
+    // foldhash, not SipHash: up to nine lookups per cell the line crosses.
+    let route: foldhash::HashSet<Cell> = cells.iter().copied().collect();
     let near_route = |cell: Cell| {
         (-1i32..=1).any(|dy| {
             (-1i32..=1).any(|dx| {
@@ -162,10 +163,7 @@ fn walkable_line(site: &Site, profile: Profile, line: &[GridPoint], cells: &[Cel
     };
     at(line.first(), cells.first())
         && at(line.last(), cells.last())
-        && line.windows(2).all(|w| {
-            let t = traverse(w[0], w[1]);
-            t.cells.into_iter().chain(t.corners).all(open)
-        })
+        && line.windows(2).all(|w| touches_only(w[0], w[1], open))
 }
 
 /// `points` with the vertices that stray no more than `tolerance` (cells)
