@@ -355,7 +355,12 @@ pub fn train_desire(
 ) -> anyhow::Result<Trained> {
     let started = Instant::now();
     progress.stage("desire lines", 1);
-    let trained = desire::train(&std::sync::Arc::new(site.clone()), walks)?;
+    // Its per-walk work on `options.threads` threads (same model for any).
+    let site_arc = std::sync::Arc::new(site.clone());
+    let trained = rayon::ThreadPoolBuilder::new()
+        .num_threads(options.threads.max(1))
+        .build()?
+        .install(|| desire::train(&site_arc, walks))?;
     progress.done();
     let mut meta = Metadata::for_site(Kind::DesireLines, site);
     meta.seed = options.seed;

@@ -2,12 +2,12 @@
 //! fixed number of threads, with the same result for a given thread count.
 //!
 //! How the work is split: each matrix product `C = α·A·B + β·C` is cut into
-//! as many blocks of C's columns (or of its rows, when C is taller than it is
-//! wide) as there are threads, and each block is one single-threaded
-//! `general_mat_mul` (the `matrixmultiply` kernels) on its own thread. No
-//! element of C is shared between threads and each one is summed over the
-//! inner dimension by the same kernel in the same order whatever the split,
-//! so the result does not depend on which thread ran which block, nor on
+//! [`BLOCKS_PER_THREAD`] blocks per thread of C's columns (or of its rows,
+//! when C is taller than it is wide), and each block is one single-threaded
+//! `general_mat_mul` (the `matrixmultiply` kernels) on whichever thread takes
+//! it. No element of C is shared between threads and each one is summed over
+//! the inner dimension by the same kernel in the same order whatever the
+//! split, so the result does not depend on which thread ran which block, nor on
 //! timing: a seed and a thread count give the same weights bit for bit. The
 //! cuts fall on multiples of [`ALIGN`], a multiple of every `matrixmultiply`
 //! micro-kernel's tile, so the tiles and their order are those of the whole
@@ -22,9 +22,9 @@
 //! (`perf`, 15,000 GAN iterations). Here each thread packs its own block.
 //!
 //! A training loop runs inside [`Workers::run`], on one thread of a rayon pool
-//! of `threads`: each product's first block is computed there and the others
-//! are taken by the pool's other threads, which wait for work spinning a
-//! little before they sleep. Handing blocks from a thread outside the pool
+//! of `threads`: each product's blocks are queued there, that thread works
+//! through them and the pool's other threads take them from the other end
+//! (rayon's work stealing; idle threads spin a little before they sleep). Handing blocks from a thread outside the pool
 //! instead (rayon's `in_place_scope`) measured 2 threads 1.12× slower than 1
 //! with other builds on the machine: each hand-off put the caller to sleep on
 //! a lock and woke it (0.4 ms of system time an iteration). Products too
@@ -39,6 +39,18 @@ use ndarray::{ArrayView2, ArrayViewMut2, Axis};
 /// largest `matrixmultiply` f32 tile side (16, AVX-512) times 4, which also
 /// matches its row blocking (`MC` = 64).
 pub(crate) const ALIGN: usize = 64;
+
+/// Blocks per thread of each product (and parts of each Adam pass). With
+/// one block per thread, 2 threads measured 1.18× slower than the one-thread
+/// trainer over 15,000 GAN iterations (median of 3 pairs, 0.92–1.58) while
+/// other builds loaded the machine: each of the ~30 products an iteration
+/// waited for its slower thread whenever the scheduler had taken that
+/// thread's core. With several blocks each, a running thread takes the blocks
+/// of one that is not; under the same load 2 threads were still no faster
+/// than 1 (1,500 iterations: A/B 1.09, 0.79–1.55). With a core free, 2
+/// threads (one block each) were 1.35× faster than 1 (`cargo bench --bench
+/// train_step`).
+pub(crate) const BLOCKS_PER_THREAD: usize = 4;
 
 /// Below this many multiply-adds (`m·k·n`) a product runs on the caller:
 /// handing a block to another thread costs a few microseconds.
@@ -144,7 +156,9 @@ impl Workers {
         };
         // Split the longer side of C: its blocks are then the largest.
         let (axis, len) = if n >= m { (Axis(1), n) } else { (Axis(0), m) };
-        let block = len.div_ceil(self.threads).next_multiple_of(ALIGN);
+        let block = len
+            .div_ceil(self.threads * BLOCKS_PER_THREAD)
+            .next_multiple_of(ALIGN);
         if block >= len {
             general_mat_mul(alpha, a, b, beta, c);
             return;
@@ -185,7 +199,9 @@ impl Workers {
             f(p, g, m, v);
             return;
         };
-        let part = len.div_ceil(self.threads).next_multiple_of(ALIGN);
+        let part = len
+            .div_ceil(self.threads * BLOCKS_PER_THREAD)
+            .next_multiple_of(ALIGN);
         let mut parts = p
             .chunks_mut(part)
             .zip(g.chunks(part))
