@@ -1,5 +1,6 @@
 //! Training speed of the paper's GAN with the project's trainer: 50 iterations
-//! at batch 32 on the fixture walks, reported per iteration (throughput).
+//! at batch 32 on the fixture walks, reported per iteration (throughput), on
+//! 1 and on 2 threads (`GanConfig::threads`).
 //! `gangway train --json` reports the wall time of a whole run.
 //!
 //! `cargo bench --bench train_step`
@@ -27,19 +28,22 @@ fn benches(c: &mut Criterion) {
     let mut group = c.benchmark_group("gan");
     group.sample_size(10);
     group.throughput(Throughput::Elements(ITERATIONS as u64));
-    group.bench_function("iteration batch 32", |b| {
-        b.iter(|| {
-            gan::train(
-                &data,
-                GanConfig {
-                    iterations: ITERATIONS,
-                    batch: 32,
-                    seed: 1,
-                },
-                |_, _| {},
-            )
-        })
-    });
+    for threads in [1, 2] {
+        group.bench_function(format!("iteration batch 32, {threads} threads"), |b| {
+            b.iter(|| {
+                gan::train(
+                    &data,
+                    GanConfig {
+                        iterations: ITERATIONS,
+                        batch: 32,
+                        seed: 1,
+                        threads,
+                    },
+                    |_, _| {},
+                )
+            })
+        });
+    }
     group.finish();
 }
 

@@ -44,6 +44,10 @@ pub(super) struct Args {
     batch: usize,
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Threads for the networks' arithmetic (default: the machine's cores).
+    /// A seed and a thread count give the same models, bit for bit.
+    #[arg(long)]
+    threads: Option<usize>,
     /// Also train a generator conditioned on source and destination cells;
     /// the run then exits 0 only if it passes its checks.
     #[arg(long)]
@@ -97,12 +101,22 @@ pub(super) struct Args {
     accept_failed: bool,
 }
 
+impl Args {
+    /// `--threads`, or the machine's cores.
+    fn threads(&self) -> usize {
+        self.threads
+            .unwrap_or_else(crate::train::workers::Workers::available)
+    }
+}
+
 pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(
         args.trajectories.is_some() || args.from_store.is_some() || args.survey.is_some(),
         "nothing to train: give --trajectories and/or --from-store (path models), and/or --survey (cell classifier)"
     );
     anyhow::ensure!(args.batch > 0, "--batch must be at least 1");
+    anyhow::ensure!(args.threads != Some(0), "--threads must be at least 1");
+    let threads = args.threads();
     anyhow::ensure!(
         args.access_weight.is_finite() && args.access_weight >= 0.0,
         "--access-weight must be a number ≥ 0 (0 turns the access penalty off)"
@@ -123,6 +137,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         heldout_share: args.heldout,
         checkpoint_every: args.checkpoint_every,
         accept_failed: args.accept_failed,
+        threads,
     };
     let started = Instant::now();
     let mut bars = Bars::new(args.json);
@@ -247,6 +262,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
             "iterations": args.iterations,
             "batch": args.batch,
             "seed": args.seed,
+            "threads": threads,
             // Only the conditional generator has the penalty.
             "access_weight": if args.conditional { args.access_weight } else { 0.0 },
             "models": models,
@@ -529,8 +545,11 @@ fn model_card(
     if !args.desire_only {
         let _ = writeln!(
             card,
-            "- GAN iterations {}, batch {}, seed {}",
-            args.iterations, args.batch, args.seed
+            "- GAN iterations {}, batch {}, seed {}, {} threads",
+            args.iterations,
+            args.batch,
+            args.seed,
+            args.threads()
         );
     }
     for t in written.iter().filter(|t| t.kind == Kind::DesireLines) {

@@ -194,6 +194,7 @@ fn train_cell_classifier(site: &Site, train: &Survey, seed: u64) -> Result<Onnx,
         heldout_share: 0.0,
         checkpoint_every: None,
         accept_failed: false,
+        threads: 1,
     };
     let trained =
         train_cells(site, train, &options, dir.path(), &mut Silent).map_err(EvalError::Training)?;

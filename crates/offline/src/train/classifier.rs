@@ -12,6 +12,7 @@ use rand::seq::SliceRandom;
 use rand::{RngExt, SeedableRng};
 
 use super::mlp::{Act, Adam, Mlp, argmax_rows, softmax_cross_entropy};
+use super::workers::Workers;
 
 #[derive(Clone, Debug)]
 pub(crate) struct ClassifierConfig {
@@ -20,6 +21,8 @@ pub(crate) struct ClassifierConfig {
     pub batch: usize,
     pub seed: u64,
     pub adam: Adam,
+    /// Threads for the arithmetic ([`Workers`]).
+    pub threads: usize,
 }
 
 /// Trains on the rows `train_rows` of `x` with `labels` (one per row of `x`);
@@ -30,30 +33,34 @@ pub(crate) fn train(
     classes: usize,
     train_rows: &[usize],
     config: &ClassifierConfig,
-    mut progress: impl FnMut(usize, f32),
+    mut progress: impl FnMut(usize, f32) + Send,
 ) -> Mlp {
     assert!(!train_rows.is_empty(), "no training rows");
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(config.seed);
     let sizes = [&[x.ncols()][..], &config.hidden, &[classes]].concat();
     let mut acts = vec![Act::LeakyRelu; config.hidden.len()];
     acts.push(Act::Identity);
-    let mut net = Mlp::new(&sizes, &acts, config.batch, rng.random());
-    let mut batch_x = Array2::zeros((config.batch, x.ncols()));
-    let mut batch_labels = vec![0; config.batch];
-    let mut grad = Array2::zeros((config.batch, classes));
-    for iteration in 1..=config.iterations {
-        for (row, label) in batch_labels.iter_mut().enumerate() {
-            let pick = train_rows[rng.random_range(0..train_rows.len())];
-            batch_x.row_mut(row).assign(&x.row(pick));
-            *label = labels[pick];
+    let workers = Workers::new(config.threads);
+    let mut net = Mlp::new(&sizes, &acts, config.batch, rng.random()).with_workers(workers.clone());
+    // The loop runs on one of the workers' threads (`Workers::run`).
+    workers.run(move || {
+        let mut batch_x = Array2::zeros((config.batch, x.ncols()));
+        let mut batch_labels = vec![0; config.batch];
+        let mut grad = Array2::zeros((config.batch, classes));
+        for iteration in 1..=config.iterations {
+            for (row, label) in batch_labels.iter_mut().enumerate() {
+                let pick = train_rows[rng.random_range(0..train_rows.len())];
+                batch_x.row_mut(row).assign(&x.row(pick));
+                *label = labels[pick];
+            }
+            let logits = net.forward(batch_x.view());
+            let loss = softmax_cross_entropy(logits, &batch_labels, &mut grad.view_mut());
+            net.backward(grad.view(), true, false);
+            net.adam_step(config.adam);
+            progress(iteration, loss);
         }
-        let logits = net.forward(batch_x.view());
-        let loss = softmax_cross_entropy(logits, &batch_labels, &mut grad.view_mut());
-        net.backward(grad.view(), true, false);
-        net.adam_step(config.adam);
-        progress(iteration, loss);
-    }
-    net
+        net
+    })
 }
 
 /// Share of `rows` whose most likely class is not their label.
@@ -155,6 +162,7 @@ mod tests {
             batch: 16,
             seed: 5,
             adam: Adam::DEFAULT,
+            threads: 1,
         };
         let mut net = train(x.view(), &labels, 4, &train_rows, &config, |_, _| {});
         assert_eq!(error_rate(&mut net, x.view(), &labels, &held), 0.0);

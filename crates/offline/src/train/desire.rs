@@ -27,9 +27,16 @@
 //!
 //! What the chosen setting reached in cross-validation is the model's
 //! report card (`cv_*` metrics), and the checks `gangway train` holds it to.
+//!
+//! Threads: the per-walk work (each walk's request, kernel sums and outcome
+//! under a setting) runs on the rayon pool this is called in (`gangway train`
+//! installs one of `--threads`), collected in walk order: the same model for
+//! any thread count.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
+
+use rayon::prelude::*;
 
 use crate::model::desire::{DesireLines, POINTS, Prediction, Settings, Sums, finish};
 use crate::plan::Profile;
@@ -102,8 +109,10 @@ pub fn train(site: &Arc<Site>, walks: &[Trajectory]) -> anyhow::Result<Trained> 
     );
     let step = site.cell_m / 2.0;
     let any = AnyAngle::new(site.clone());
+    // Per walk and independent: on the threads of the rayon pool this runs
+    // in, collected in walk order, so the result does not depend on them.
     let requests: Vec<Request> = prepared
-        .iter()
+        .par_iter()
         .map(|w| request(site, &any, w, step))
         .collect();
     let n = prepared.len();
@@ -137,6 +146,7 @@ pub fn train(site: &Arc<Site>, walks: &[Trajectory]) -> anyhow::Result<Trained> 
         let sigma_cells = (sigma_m / site.cell_m) as f32;
         // The kernel sums depend on σ alone: once per walk.
         let sums: Vec<Sums> = (0..n)
+            .into_par_iter()
             .map(|i| {
                 let [a, b] = prepared[i].ends.map(f32s);
                 banks[fold_of[i]].sums(a, b, sigma_cells)
@@ -151,16 +161,12 @@ pub fn train(site: &Arc<Site>, walks: &[Trajectory]) -> anyhow::Result<Trained> 
                     min_mass: 0.0,
                 };
                 outcomes.clear();
-                for (i, sums) in sums.iter().enumerate() {
-                    outcomes.push(outcome(
-                        site,
-                        &settings,
-                        sums,
-                        &prepared[i],
-                        &requests[i],
-                        step,
-                    ));
-                }
+                sums.par_iter()
+                    .enumerate()
+                    .map(|(i, sums)| {
+                        outcome(site, &settings, sums, &prepared[i], &requests[i], step)
+                    })
+                    .collect_into_vec(&mut outcomes);
                 for min_mass in MIN_MASSES {
                     let score = Score::of(&outcomes, &requests, &baseline, min_mass);
                     if best.as_ref().is_none_or(|(b, _)| score.key() > b.key()) {

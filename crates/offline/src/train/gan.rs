@@ -23,7 +23,8 @@
 //! One iteration = one discriminator step on `batch` real and `batch` fake frames
 //! (one matrix product of `2·batch` rows) then one generator step on the same
 //! fakes. Everything is drawn from one seeded RNG: a seed gives the same weights,
-//! bit for bit, on the same machine and build.
+//! bit for bit, on the same machine and build, whatever `GanConfig::threads`
+//! ([`Workers`] splits each product by blocks of its output).
 
 use ndarray::{Array2, ArrayView2, s};
 use rand::rngs::Xoshiro256PlusPlus;
@@ -31,6 +32,7 @@ use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
 
 use super::mlp::{Act, Adam, Mlp, bce_with_logits};
+use super::workers::Workers;
 
 /// The discriminator's target for real frames: one-sided label smoothing.
 /// With a target of 1 the discriminator grows overconfident, the generator's
@@ -57,6 +59,9 @@ pub struct GanConfig {
     pub iterations: usize,
     pub batch: usize,
     pub seed: u64,
+    /// Threads for the matrix products and Adam ([`Workers`]): a seed and a
+    /// thread count give the same weights, bit for bit.
+    pub threads: usize,
 }
 
 /// The access penalty's settings: which cells no path may light, and how
@@ -89,7 +94,11 @@ pub struct Gan {
 
 /// Trains a GAN on `data` with the paper's loss; `progress` is called after
 /// every iteration.
-pub fn train(data: &GanData, config: GanConfig, progress: impl FnMut(usize, GanLosses)) -> Gan {
+pub fn train(
+    data: &GanData,
+    config: GanConfig,
+    progress: impl FnMut(usize, GanLosses) + Send,
+) -> Gan {
     match train_with_checkpoints(data, config, None, None, progress, |_, _| {
         Ok::<(), std::convert::Infallible>(())
     }) {
@@ -101,13 +110,13 @@ pub fn train(data: &GanData, config: GanConfig, progress: impl FnMut(usize, GanL
 /// [`train`], with the `access` penalty in the generator's loss (`None`:
 /// none), and handing the networks to `checkpoint` after every `every`-th
 /// iteration (`None`: never); the first error it returns stops training.
-pub(crate) fn train_with_checkpoints<E>(
+pub(crate) fn train_with_checkpoints<E: Send>(
     data: &GanData,
     config: GanConfig,
     access: Option<&Access>,
     every: Option<std::num::NonZeroUsize>,
-    mut progress: impl FnMut(usize, GanLosses),
-    mut checkpoint: impl FnMut(usize, &Gan) -> Result<(), E>,
+    mut progress: impl FnMut(usize, GanLosses) + Send,
+    mut checkpoint: impl FnMut(usize, &Gan) -> Result<(), E> + Send,
 ) -> Result<Gan, E> {
     let n = data.frames.nrows();
     assert!(n > 0 && config.batch > 0, "a GAN needs data and a batch");
@@ -115,6 +124,7 @@ pub(crate) fn train_with_checkpoints<E>(
     let cond_dim = data.conditions.as_ref().map_or(0, |c| c.ncols());
     let batch = config.batch;
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(config.seed);
+    let workers = Workers::new(config.threads);
 
     let g_sizes = [
         &[NOISE_DIM + cond_dim][..],
@@ -128,99 +138,104 @@ pub(crate) fn train_with_checkpoints<E>(
         &[Act::LeakyRelu, Act::LeakyRelu, Act::LeakyRelu, Act::Tanh],
         batch,
         rng.random(),
-    );
+    )
+    .with_workers(workers.clone());
     // The discriminator sees real and fake together: 2·batch rows.
     let discriminator = Mlp::new(
         &d_sizes,
         &[Act::LeakyRelu, Act::LeakyRelu, Act::Identity],
         2 * batch,
         rng.random(),
-    );
+    )
+    .with_workers(workers.clone());
     let mut gan = Gan {
         generator,
         discriminator,
     };
 
-    let mut g_input = Array2::<f32>::zeros((batch, NOISE_DIM + cond_dim));
-    let mut d_input = Array2::<f32>::zeros((2 * batch, cells + cond_dim));
-    let mut d_grad = Array2::<f32>::zeros((2 * batch, 1));
-    let access = access.filter(|a| a.weight != 0.0 && !a.blocked.is_empty());
-    // Zero outside the blocked columns, which are rewritten every iteration.
-    let mut access_grad = Array2::<f32>::zeros((batch, cells));
-    let mut picks = vec![0usize; batch];
-    for iteration in 1..=config.iterations {
-        for p in &mut picks {
-            *p = rng.random_range(0..n);
-        }
-        for (row, &p) in picks.iter().enumerate() {
-            d_input
-                .slice_mut(s![row, ..cells])
-                .assign(&data.frames.row(p));
-            if let Some(cond) = &data.conditions {
-                d_input.slice_mut(s![row, cells..]).assign(&cond.row(p));
+    // The loop runs on one of the workers' threads (`Workers::run`).
+    workers.run(move || {
+        let mut g_input = Array2::<f32>::zeros((batch, NOISE_DIM + cond_dim));
+        let mut d_input = Array2::<f32>::zeros((2 * batch, cells + cond_dim));
+        let mut d_grad = Array2::<f32>::zeros((2 * batch, 1));
+        let access = access.filter(|a| a.weight != 0.0 && !a.blocked.is_empty());
+        // Zero outside the blocked columns, which are rewritten every iteration.
+        let mut access_grad = Array2::<f32>::zeros((batch, cells));
+        let mut picks = vec![0usize; batch];
+        for iteration in 1..=config.iterations {
+            for p in &mut picks {
+                *p = rng.random_range(0..n);
+            }
+            for (row, &p) in picks.iter().enumerate() {
                 d_input
-                    .slice_mut(s![batch + row, cells..])
-                    .assign(&cond.row(p));
-                g_input.slice_mut(s![row, NOISE_DIM..]).assign(&cond.row(p));
+                    .slice_mut(s![row, ..cells])
+                    .assign(&data.frames.row(p));
+                if let Some(cond) = &data.conditions {
+                    d_input.slice_mut(s![row, cells..]).assign(&cond.row(p));
+                    d_input
+                        .slice_mut(s![batch + row, cells..])
+                        .assign(&cond.row(p));
+                    g_input.slice_mut(s![row, NOISE_DIM..]).assign(&cond.row(p));
+                }
+            }
+            for v in g_input.slice_mut(s![.., ..NOISE_DIM]) {
+                *v = StandardNormal.sample(&mut rng);
+            }
+
+            // Discriminator step: real rows → REAL_LABEL, fake rows → 0.
+            let fake = gan.generator.forward(g_input.view());
+            d_input.slice_mut(s![batch.., ..cells]).assign(&fake);
+            let logits = gan.discriminator.forward(d_input.view());
+            let grad = d_grad.as_slice_mut().expect("contiguous");
+            let (real_grad, fake_grad) = grad.split_at_mut(batch);
+            let d_loss = bce_with_logits(logits.slice(s![..batch, ..]), REAL_LABEL, real_grad)
+                + bce_with_logits(logits.slice(s![batch.., ..]), 0.0, fake_grad);
+            gan.discriminator.backward(d_grad.view(), true, false);
+            gan.discriminator.adam_step(Adam::GAN);
+
+            // Generator step: make the updated discriminator call the fakes real.
+            let logits = gan.discriminator.forward(d_input.slice(s![batch.., ..]));
+            let grad = &mut d_grad.as_slice_mut().expect("contiguous")[..batch];
+            let g_loss = bce_with_logits(logits, 1.0, grad);
+            // The fakes the discriminator just judged are the generator's output.
+            let access_loss = access.map_or(0.0, |a| {
+                access_penalty(
+                    d_input.slice(s![batch.., ..cells]),
+                    &a.blocked,
+                    // Ramped in from 0: at the start every output sits near 0 and
+                    // every blocked cell counts as lit, so the full weight would
+                    // drive all outputs to saturated off before the adversarial
+                    // loss taught the generator any path (it then never learns
+                    // one: tanh's gradient vanishes there).
+                    a.weight * iteration as f32 / config.iterations as f32,
+                    &mut access_grad,
+                )
+            });
+            let d_fake = gan
+                .discriminator
+                .backward(d_grad.slice(s![..batch, ..]), false, true);
+            gan.generator.backward_with_logit_grad(
+                d_fake.slice(s![.., ..cells]),
+                access.map(|_| access_grad.view()),
+                true,
+                false,
+            );
+            gan.generator.adam_step(Adam::GAN);
+
+            progress(
+                iteration,
+                GanLosses {
+                    discriminator: d_loss,
+                    generator: g_loss,
+                    access: access_loss,
+                },
+            );
+            if every.is_some_and(|k| iteration % k == 0) {
+                checkpoint(iteration, &gan)?;
             }
         }
-        for v in g_input.slice_mut(s![.., ..NOISE_DIM]) {
-            *v = StandardNormal.sample(&mut rng);
-        }
-
-        // Discriminator step: real rows → REAL_LABEL, fake rows → 0.
-        let fake = gan.generator.forward(g_input.view());
-        d_input.slice_mut(s![batch.., ..cells]).assign(&fake);
-        let logits = gan.discriminator.forward(d_input.view());
-        let grad = d_grad.as_slice_mut().expect("contiguous");
-        let (real_grad, fake_grad) = grad.split_at_mut(batch);
-        let d_loss = bce_with_logits(logits.slice(s![..batch, ..]), REAL_LABEL, real_grad)
-            + bce_with_logits(logits.slice(s![batch.., ..]), 0.0, fake_grad);
-        gan.discriminator.backward(d_grad.view(), true, false);
-        gan.discriminator.adam_step(Adam::GAN);
-
-        // Generator step: make the updated discriminator call the fakes real.
-        let logits = gan.discriminator.forward(d_input.slice(s![batch.., ..]));
-        let grad = &mut d_grad.as_slice_mut().expect("contiguous")[..batch];
-        let g_loss = bce_with_logits(logits, 1.0, grad);
-        // The fakes the discriminator just judged are the generator's output.
-        let access_loss = access.map_or(0.0, |a| {
-            access_penalty(
-                d_input.slice(s![batch.., ..cells]),
-                &a.blocked,
-                // Ramped in from 0: at the start every output sits near 0 and
-                // every blocked cell counts as lit, so the full weight would
-                // drive all outputs to saturated off before the adversarial
-                // loss taught the generator any path (it then never learns
-                // one: tanh's gradient vanishes there).
-                a.weight * iteration as f32 / config.iterations as f32,
-                &mut access_grad,
-            )
-        });
-        let d_fake = gan
-            .discriminator
-            .backward(d_grad.slice(s![..batch, ..]), false, true);
-        gan.generator.backward_with_logit_grad(
-            d_fake.slice(s![.., ..cells]),
-            access.map(|_| access_grad.view()),
-            true,
-            false,
-        );
-        gan.generator.adam_step(Adam::GAN);
-
-        progress(
-            iteration,
-            GanLosses {
-                discriminator: d_loss,
-                generator: g_loss,
-                access: access_loss,
-            },
-        );
-        if every.is_some_and(|k| iteration % k == 0) {
-            checkpoint(iteration, &gan)?;
-        }
-    }
-    Ok(gan)
+        Ok(gan)
+    })
 }
 
 /// Output above which a blocked cell counts as lit for [`access_penalty`]:
@@ -300,7 +315,7 @@ mod tests {
         data: &GanData,
         config: GanConfig,
         access: &Access,
-        progress: impl FnMut(usize, GanLosses),
+        progress: impl FnMut(usize, GanLosses) + Send,
     ) -> Gan {
         train_with_checkpoints(data, config, Some(access), None, progress, |_, _| {
             Ok::<(), ()>(())
@@ -315,6 +330,7 @@ mod tests {
             iterations: 5,
             batch: 4,
             seed: 11,
+            threads: 1,
         };
         let mut last = GanLosses::default();
         let a = train(&data, config, |_, l| last = l);
@@ -325,6 +341,48 @@ mod tests {
         assert_ne!(a.generator.layers[3].w, c.generator.layers[3].w);
     }
 
+    /// Frames of the sample site's size (23 × 18 cells), big enough that
+    /// every layer's products are split across threads ([`Workers`]).
+    fn site_sized() -> GanData {
+        let cells = 23 * 18;
+        let frames =
+            Array2::from_shape_fn(
+                (40, cells),
+                |(i, c)| {
+                    if (c + 3 * i) % 7 < 2 { 1.0 } else { -1.0 }
+                },
+            );
+        GanData {
+            frames,
+            conditions: None,
+        }
+    }
+
+    fn weights(gan: &Gan) -> Vec<Array2<f32>> {
+        let nets = [&gan.generator, &gan.discriminator];
+        nets.iter()
+            .flat_map(|net| net.layers.iter().map(|l| l.w.clone()))
+            .collect()
+    }
+
+    /// Training on several threads gives the same weights, bit for bit, run
+    /// after run, and the same as on one thread: every product is split by
+    /// blocks of its output, each summed as the whole product sums it.
+    #[test]
+    fn threads_give_the_same_weights_run_after_run() {
+        let data = site_sized();
+        let config = |threads| GanConfig {
+            iterations: 3,
+            batch: 32,
+            seed: 9,
+            threads,
+        };
+        let two = weights(&train(&data, config(2), |_, _| {}));
+        assert_eq!(two, weights(&train(&data, config(2), |_, _| {})));
+        assert_eq!(two, weights(&train(&data, config(1), |_, _| {})));
+        assert_eq!(two, weights(&train(&data, config(3), |_, _| {})));
+    }
+
     #[test]
     fn checkpoints_come_every_k_iterations_without_changing_training() {
         let data = toy();
@@ -332,6 +390,7 @@ mod tests {
             iterations: 7,
             batch: 4,
             seed: 3,
+            threads: 1,
         };
         let every = std::num::NonZeroUsize::new(3);
         let mut seen = Vec::new();
@@ -465,6 +524,7 @@ mod tests {
             iterations: 80,
             batch: 4,
             seed: 5,
+            threads: 1,
         };
         let access = corners(1.0);
         let mut plain = train(&data, config, |_, _| {});
@@ -498,6 +558,7 @@ mod tests {
             iterations: 6,
             batch: 4,
             seed: 2,
+            threads: 1,
         };
         let mut losses = Vec::new();
         let plain = train(&data, config, |_, _| {});
@@ -528,6 +589,7 @@ mod tests {
                 iterations: 2,
                 batch: 4,
                 seed: 1,
+                threads: 1,
             },
             |_, _| {},
         );

@@ -62,6 +62,9 @@ pub struct Options {
     /// Write generators that fail their checks where planners load them
     /// anyway (experiments, tests of the plumbing with a few iterations).
     pub accept_failed: bool,
+    /// Threads for the networks' arithmetic ([`super::workers`]); a seed and
+    /// a thread count give the same weights.
+    pub threads: usize,
 }
 
 /// A model written by a training run.
@@ -84,8 +87,10 @@ impl Trained {
     }
 }
 
-/// Told about each training stage and iteration (the CLI draws progress bars).
-pub trait Progress {
+/// Told about each training stage and iteration (the CLI draws progress bars);
+/// `Send`: the training loops run on the trainer's own threads
+/// ([`super::workers::Workers::run`]).
+pub trait Progress: Send {
     fn stage(&mut self, name: &str, iterations: usize);
     fn step(&mut self, iteration: usize, losses: &[(&str, f32)]);
     fn done(&mut self);
@@ -197,6 +202,7 @@ fn train_rejection(
         batch: options.batch,
         seed: options.seed,
         adam: Adam::DEFAULT,
+        threads: options.threads,
     };
     progress.stage("path classifier", config.iterations);
     let mut path_classifier = classifier::train(
@@ -265,6 +271,7 @@ fn gan_config(options: &Options) -> GanConfig {
         iterations: options.iterations,
         batch: options.batch,
         seed: options.seed,
+        threads: options.threads,
     }
 }
 
@@ -348,7 +355,12 @@ pub fn train_desire(
 ) -> anyhow::Result<Trained> {
     let started = Instant::now();
     progress.stage("desire lines", 1);
-    let trained = desire::train(&std::sync::Arc::new(site.clone()), walks)?;
+    // Its per-walk work on `options.threads` threads (same model for any).
+    let site_arc = std::sync::Arc::new(site.clone());
+    let trained = rayon::ThreadPoolBuilder::new()
+        .num_threads(options.threads.max(1))
+        .build()?
+        .install(|| desire::train(&site_arc, walks))?;
     progress.done();
     let mut meta = Metadata::for_site(Kind::DesireLines, site);
     meta.seed = options.seed;
@@ -401,6 +413,7 @@ pub fn train_cells(
         batch: 64,
         seed: options.seed,
         adam: Adam::DEFAULT,
+        threads: options.threads,
     };
     progress.stage("cell classifier", config.iterations);
     let cells = site.open_cells();

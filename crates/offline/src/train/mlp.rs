@@ -11,18 +11,25 @@
 //! products go straight to `ndarray`'s `general_mat_mul` (the
 //! `matrixmultiply` kernels, which pick AVX2/FMA at run time), and Adam is one
 //! fused pass over each parameter array. The matrix products are ~5 ms of the
-//! ~6 ms iteration, so what is left is arithmetic. One thread: with
-//! `matrixmultiply`'s `threading` feature, the same products took 5.5 ms per
-//! iteration on 1 thread and 5.5–9.0 ms on 2 on the (shared, busy) machine, and
-//! on a 2-core gateway the other core keeps serving.
+//! ~6 ms iteration, so what is left is arithmetic.
+//!
+//! Threads: a network's products and its Adam pass are split across
+//! [`Workers`] (`gangway train --threads`, default the machine's cores), by
+//! blocks of each product's output, so the weights do not depend on the
+//! thread count (see [`super::workers`] for why not `matrixmultiply`'s own
+//! threading). `perf` of the 15,000-iteration GAN on one thread: the
+//! `matrixmultiply` micro-kernel 52 %, packing the operands 23 %, Adam 13 %,
+//! the element-wise passes 5 %. Its AVX-512 kernel (a feature ndarray leaves
+//! off) was measured no faster than its AVX2/FMA one here (A/B 1.02).
 //!
 //! Layout: a layer's weights are `in × out` (row-major), so a batch `X` of
 //! `n × in` maps to `X·W + b`. The same layout is exported to ONNX as `Gemm`.
 
-use ndarray::linalg::general_mat_mul;
 use ndarray::{Array1, Array2, ArrayView2, Axis, Zip, s};
 use rand::RngExt;
 use rand::rngs::Xoshiro256PlusPlus;
+
+use super::workers::Workers;
 
 /// The activations and LeakyReLU slope of the exported graphs: the file
 /// format owns them, the trainer implements them.
@@ -112,6 +119,8 @@ pub struct Mlp {
     input_grad: Array2<f32>,
     /// Adam steps taken.
     steps: i32,
+    /// Threads for the matrix products and Adam ([`Workers`]).
+    workers: Workers,
 }
 
 impl Mlp {
@@ -143,7 +152,14 @@ impl Mlp {
             layers,
             max_batch,
             steps: 0,
+            workers: Workers::single(),
         }
+    }
+
+    /// The same network, its arithmetic split across `workers`' threads.
+    pub(crate) fn with_workers(mut self, workers: Workers) -> Mlp {
+        self.workers = workers;
+        self
     }
 
     #[cfg(test)]
@@ -195,7 +211,7 @@ impl Mlp {
             let mut out = after[0].slice_mut(s![..n, ..]);
             // out = b (broadcast), then out += src·W.
             out.assign(&layer.b.broadcast((n, layer.outputs())).expect("bias row"));
-            general_mat_mul(1.0, &src, &layer.w, 1.0, &mut out);
+            self.workers.gemm(1.0, &src, &layer.w.view(), 1.0, &mut out);
             match layer.act {
                 Act::LeakyRelu => out.mapv_inplace(|v| if v > 0.0 { v } else { LEAKY_SLOPE * v }),
                 Act::Tanh => out.mapv_inplace(f32::tanh),
@@ -246,7 +262,8 @@ impl Mlp {
                 } else {
                     // dL/d(output of i) = delta_{i+1} · W_{i+1}ᵀ
                     let next = upper[0].slice(s![..n, ..]);
-                    general_mat_mul(1.0, &next, &self.layers[i + 1].w.t(), 0.0, &mut delta);
+                    self.workers
+                        .gemm(1.0, &next, &self.layers[i + 1].w.t(), 0.0, &mut delta);
                 }
                 match act {
                     Act::LeakyRelu => Zip::from(&mut delta).and(&out).for_each(|d, &y| {
@@ -271,14 +288,16 @@ impl Mlp {
                 };
                 let delta = self.deltas[i].slice(s![..n, ..]);
                 let layer = &mut self.layers[i];
-                general_mat_mul(1.0, &src.t(), &delta, 0.0, &mut layer.gw);
+                self.workers
+                    .gemm(1.0, &src.t(), &delta, 0.0, &mut layer.gw.view_mut());
                 layer.gb.assign(&delta.sum_axis(Axis(0)));
             }
         }
         if input_grad {
             let delta = self.deltas[0].slice(s![..n, ..]);
             let mut g = self.input_grad.slice_mut(s![..n, ..]);
-            general_mat_mul(1.0, &delta, &self.layers[0].w.t(), 0.0, &mut g);
+            self.workers
+                .gemm(1.0, &delta, &self.layers[0].w.t(), 0.0, &mut g);
         }
         self.input_grad.slice(s![..n, ..])
     }
@@ -290,13 +309,13 @@ impl Mlp {
         // Bias correction folded into the step size, as Keras and PyTorch do.
         let lr_t = opt.lr * (1.0 - opt.beta2.powi(t)).sqrt() / (1.0 - opt.beta1.powi(t));
         for layer in &mut self.layers {
-            adam_fused(
+            // Element by element: the same result however it is split.
+            self.workers.for_parts(
                 layer.w.as_slice_mut().expect("contiguous"),
                 layer.gw.as_slice().expect("contiguous"),
                 layer.mw.as_slice_mut().expect("contiguous"),
                 layer.vw.as_slice_mut().expect("contiguous"),
-                opt,
-                lr_t,
+                |p, g, m, v| adam_fused(p, g, m, v, opt, lr_t),
             );
             adam_fused(
                 layer.b.as_slice_mut().expect("contiguous"),

@@ -5,6 +5,8 @@
 //! - [`paths`] and [`cells`]: the data sets (walks with their source/destination
 //!   class; survey readings with their cell);
 //! - [`mlp`]: the dense-network trainer (why it is hand-written: see there);
+//! - [`workers`]: its threads (matrix products split by output blocks, so a
+//!   seed and a thread count give the same weights);
 //! - [`gan`] and [`classifier`]: the paper's GAN and the softmax classifiers;
 //! - [`desire`]: the desire-line model (the walks' shapes, settings by
 //!   cross-validation);
@@ -25,6 +27,7 @@ pub(crate) mod mlp;
 pub mod paths;
 pub mod recorded;
 pub mod trajectory;
+pub mod workers;
 
 #[cfg(test)]
 mod runtime_tests;
