@@ -62,9 +62,9 @@ use gangway::mqtt::sightings;
 use gangway::sighting::{BeaconId, Sighting};
 use gangway::site::Site;
 use gangway::topics::Message;
-use rumqttc::{AsyncClient, Event, EventLoop, MqttOptions, Packet, QoS};
+use rumqttc::{AsyncClient, Event, EventLoop, Packet, QoS};
 use serde_json::json;
-use support::{Guard, free_port, gangway, mosquitto, usage};
+use support::{Guard, client, free_port, gangway, mosquitto, usage};
 
 const TAG_UUID: &str = "0f0e0d0c-0b0a-4908-8706-050403020100";
 /// The window stride of a gateway: gaps are counted in it.
@@ -289,17 +289,6 @@ fn tags(n: usize, cells: &[[u16; 2]], receivers: &[[u16; 2]], shards: u16) -> Ve
         .collect()
 }
 
-fn client(id: &str, port: u16) -> (AsyncClient, EventLoop) {
-    let mut options = MqttOptions::new(id, "127.0.0.1", port);
-    options.set_keep_alive(Duration::from_secs(30));
-    options.set_max_packet_size(1 << 20, 1 << 20);
-    let (client, mut eventloop) = AsyncClient::new(options, 100_000);
-    let mut network = eventloop.network_options();
-    network.set_tcp_nodelay(true);
-    eventloop.set_network_options(network);
-    (client, eventloop)
-}
-
 /// Where the simulated receivers publish, as the gateway's own encoders
 /// write it.
 #[derive(Clone, Copy)]
@@ -343,7 +332,7 @@ impl Publishers {
                 .iter()
                 .enumerate()
                 .map(|(i, &port)| {
-                    let (client, mut eventloop) = client(&format!("{name}-{i}"), port);
+                    let (client, mut eventloop) = client(&format!("{name}-{i}"), port, 100_000);
                     let up = Arc::new(AtomicBool::new(true));
                     let flag = up.clone();
                     tokio::spawn(async move {
@@ -756,7 +745,7 @@ async fn main() {
 
     // The watcher.
     let seen = Arc::new(Mutex::new(Seen::default()));
-    let (watcher, eventloop) = client("cluster-watch", watch_port);
+    let (watcher, eventloop) = client("cluster-watch", watch_port, 100_000);
     for topic in [
         format!("{prefix}/devices/+/location"),
         format!("{prefix}/devices/+/path"),

@@ -31,8 +31,8 @@ use clap::Parser;
 use gangway::config::Config;
 use gangway::site::Site;
 use gangway::topics::Topics;
-use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
-use support::{Guard, gangway, mosquitto, percentile, simulate_busy_walk, usage};
+use rumqttc::{Event, Packet, QoS};
+use support::{Guard, client, gangway, mosquitto, percentile, simulate_busy_walk, usage};
 
 #[derive(Parser)]
 struct Args {
@@ -101,14 +101,7 @@ async fn main() {
     let pid = gateway.0.id();
 
     // The client.
-    let mut options = MqttOptions::new("loadtest", "127.0.0.1", port);
-    options.set_keep_alive(Duration::from_secs(30));
-    options.set_max_packet_size(1 << 20, 1 << 20);
-    let (client, mut eventloop) = AsyncClient::new(options, 10_000);
-    // Like the gateway: no Nagle delay on small request packets.
-    let mut network = eventloop.network_options();
-    network.set_tcp_nodelay(true);
-    eventloop.set_network_options(network);
+    let (client, mut eventloop) = client("loadtest", port, 10_000);
     client
         .subscribe(topics.path("+"), QoS::AtLeastOnce)
         .await

@@ -10,6 +10,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+use rumqttc::{AsyncClient, EventLoop, MqttOptions};
+
 /// Kills the child when dropped, so nothing outlives the run.
 pub(crate) struct Guard(pub Child);
 
@@ -26,6 +28,20 @@ pub(crate) fn free_port() -> u16 {
         .local_addr()
         .unwrap()
         .port()
+}
+
+/// A client of the broker on loopback `port` as the load runs use it: large
+/// packets allowed, room for `capacity` requests queued, and no Nagle delay
+/// on small packets (like the gateway's own link).
+pub(crate) fn client(id: &str, port: u16, capacity: usize) -> (AsyncClient, EventLoop) {
+    let mut options = MqttOptions::new(id, "127.0.0.1", port);
+    options.set_keep_alive(Duration::from_secs(30));
+    options.set_max_packet_size(1 << 20, 1 << 20);
+    let (client, mut eventloop) = AsyncClient::new(options, capacity);
+    let mut network = eventloop.network_options();
+    network.set_tcp_nodelay(true);
+    eventloop.set_network_options(network);
+    (client, eventloop)
 }
 
 /// The release binary next to the running example.
