@@ -1,55 +1,73 @@
 //! `gangway check`: load everything the daemon would load and name every
-//! problem, without starting anything.
+//! problem, without starting anything. A building is checked floor by floor
+//! as a one-floor site is (floor plan, pipeline, planner), and its
+//! connectors by which floors they join.
 
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
 
 use crate::config::Config;
-use crate::pipeline::Pipeline;
+use crate::locate::LocalizerError;
+use crate::pipeline::{Pipeline, PipelineConfig, PipelineError};
 use crate::plan::{PlannerConfig, PlannerMode};
-use crate::site::Site;
+use crate::site::{Building, Site};
 
 #[derive(clap::Args)]
 pub(super) struct Args {
-    #[command(flatten)]
-    config: super::ConfigFile,
+    /// The gateway config [default: config/gangway.toml in a checkout of the
+    /// repository, else /etc/gangway/gangway.toml; neither when --site is
+    /// given].
+    #[arg(long, value_name = "FILE", env = "GANGWAY_CONFIG")]
+    config: Option<PathBuf>,
+    /// Check this site or building file instead of the config's `site`
+    /// (without --config, with the default settings).
+    #[arg(long, value_name = "SITE.toml")]
+    site: Option<PathBuf>,
+}
+
+/// What the floors are checked with: the file named in messages, the
+/// pipeline's settings, the models the config itself names and whether a
+/// config chose the settings.
+struct Settings {
+    shown: PathBuf,
+    pipeline: PipelineConfig,
+    named_models: Vec<String>,
+    configured: bool,
 }
 
 pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
     let mut problems: Vec<String> = Vec::new();
-    match Config::load(&args.config.path) {
+    let loaded = match (&args.config, &args.site) {
+        (None, Some(site)) => Ok((
+            site.clone(),
+            Settings {
+                shown: site.clone(),
+                pipeline: PipelineConfig::default(),
+                named_models: Vec::new(),
+                configured: false,
+            },
+        )),
+        (config, site) => {
+            let path = config.clone().unwrap_or_else(super::default_config);
+            Config::load(&path).map(|config| {
+                (
+                    site.clone().unwrap_or(config.site.clone()),
+                    Settings {
+                        named_models: named_models(&path),
+                        shown: path,
+                        pipeline: config.pipeline(),
+                        configured: true,
+                    },
+                )
+            })
+        }
+    };
+    match loaded {
         Err(e) => problems.push(e.to_string()),
-        Ok(config) => match Site::load(&config.site) {
+        Ok((site, settings)) => match Building::load(&site) {
             Err(e) => problems.push(e.to_string()),
-            Ok(site) => {
-                problems.extend(site.check_floorplan());
-                let site = Arc::new(site);
-                if let Err(e) = Pipeline::new(&config.pipeline(), site.clone()) {
-                    problems.push(format!("{}: {e:#}", args.config.path.display()));
-                }
-                let planner =
-                    planner_serving(&config.planner, &site, &named_models(&args.config.path));
-                if let Err(problem) = &planner {
-                    problems.push(format!("{}: {problem}", args.config.path.display()));
-                }
-                if problems.is_empty() {
-                    println!(
-                        "ok: {} (site {:?}: {}×{} cells, {} walkable, {} beacons, {} gateways, {} places)",
-                        args.config.path.display(),
-                        site.name,
-                        site.width(),
-                        site.height(),
-                        site.open_cells().len(),
-                        site.beacons.len(),
-                        site.gateways.len(),
-                        site.places().len()
-                    );
-                    println!("{}", frame(&site));
-                    if let Ok(serving) = planner {
-                        println!("planner: {serving}");
-                    }
-                }
-            }
+            Ok(building) => check(&building, &settings, &mut problems),
         },
     }
     if problems.is_empty() {
@@ -59,6 +77,133 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         eprintln!("error: {p}");
     }
     Ok(ExitCode::FAILURE)
+}
+
+/// Checks every floor of `building` and prints what passed; a one-floor
+/// site prints as it always has.
+fn check(building: &Building, settings: &Settings, problems: &mut Vec<String>) {
+    let shown = settings.shown.display();
+    let mut lines = Vec::new();
+    for floor in building.floors() {
+        let site = &floor.site;
+        // A building's problems say which floor they are on.
+        let on = if building.is_multi_floor() {
+            format!("{shown}: floor `{}`", floor.name)
+        } else {
+            shown.to_string()
+        };
+        let found = problems.len();
+        problems.extend(site.check_floorplan());
+        let mut localizer = None;
+        match Pipeline::new(&settings.pipeline, site.clone()) {
+            Ok(_) => {}
+            // A site no config has asked to locate on may not have its
+            // beacons placed yet (`site import` writes none): that is what to
+            // do next, not a fault of the file.
+            Err(PipelineError::Localizer(LocalizerError::NoAnchorPositions))
+                if !settings.configured =>
+            {
+                localizer = Some(
+                    "localizer: none can locate here yet, no beacon has a position; `gangway \
+                     survey import` estimates them from walks, `gangway site edit` places them",
+                );
+            }
+            Err(e) => problems.push(format!("{on}: {e:#}")),
+        }
+        let planner = planner_serving(&settings.pipeline.planner, site, &settings.named_models);
+        match planner {
+            Err(problem) => problems.push(format!("{on}: {problem}")),
+            Ok(serving) if problems.len() == found => {
+                let summary = summary(site);
+                lines.push(if building.is_multi_floor() {
+                    format!(
+                        "ok: floor {} (level {}): {summary}",
+                        floor.name, floor.level
+                    )
+                } else {
+                    format!("ok: {shown} ({summary})")
+                });
+                lines.push(frame(site));
+                lines.extend(localizer.map(str::to_owned));
+                lines.push(format!("planner: {serving}"));
+            }
+            Ok(_) => {}
+        }
+    }
+    if !problems.is_empty() {
+        return;
+    }
+    if building.is_multi_floor() {
+        println!(
+            "ok: {shown} (building {:?}: {} floors, {} connectors)",
+            building.name,
+            building.floors().len(),
+            building.connectors().len()
+        );
+    }
+    for line in lines {
+        println!("{line}");
+    }
+    if building.is_multi_floor() {
+        println!("{}", connectors(building));
+    }
+}
+
+/// A floor's site in one line.
+fn summary(site: &Site) -> String {
+    format!(
+        "site {:?}: {}×{} cells, {} walkable, {} beacons, {} gateways, {} places",
+        site.name,
+        site.width(),
+        site.height(),
+        site.open_cells().len(),
+        site.beacons.len(),
+        site.gateways.len(),
+        site.places().len()
+    )
+}
+
+/// The connectors by kind, and which floors they join: all of them, and
+/// those a wheelchair may use (lifts and ramps only).
+fn connectors(building: &Building) -> String {
+    let floors = building.floors();
+    let joined = |groups: Vec<Vec<usize>>| {
+        if groups.len() == 1 {
+            return format!("all {} floors joined", floors.len());
+        }
+        let shown: Vec<String> = groups
+            .iter()
+            .map(|g| {
+                g.iter()
+                    .map(|&f| floors[f].name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            })
+            .collect();
+        format!("floors apart: {}", shown.join(" | "))
+    };
+    if building.connectors().is_empty() {
+        return format!(
+            "connectors: none, so no route or walker can change floor; add [[connectors]] to \
+             the building file (docs/floors.md); {}",
+            joined(building.floor_groups(|_| true))
+        );
+    }
+    let mut kinds: Vec<(&str, usize)> = Vec::new();
+    for c in building.connectors() {
+        match kinds.iter_mut().find(|k| k.0 == c.kind.name()) {
+            Some(k) => k.1 += 1,
+            None => kinds.push((c.kind.name(), 1)),
+        }
+    }
+    let kinds: Vec<String> = kinds.iter().map(|(k, n)| format!("{n} {k}")).collect();
+    format!(
+        "connectors: {} ({}): {}; step-free (lifts and ramps only): {}",
+        building.connectors().len(),
+        kinds.join(", "),
+        joined(building.floor_groups(|_| true)),
+        joined(building.floor_groups(|c| c.kind.step_free()))
+    )
 }
 
 /// Which planner would answer route requests, and why. `[planner] mode =
@@ -96,7 +241,7 @@ fn planner_serving(
 
 /// The keys of `[planner.models]` the config file itself sets (the
 /// defaults name files that need not exist).
-fn named_models(path: &std::path::Path) -> Vec<String> {
+fn named_models(path: &Path) -> Vec<String> {
     let table = std::fs::read_to_string(path)
         .ok()
         .and_then(|text| text.parse::<toml::Table>().ok());

@@ -48,7 +48,8 @@ Examples:
 pub(super) const CHECK: &str = "\
 Examples:
   gangway check  # the default config
-  GANGWAY_CONFIG=/etc/gangway/test.toml gangway check  # another config";
+  GANGWAY_CONFIG=/etc/gangway/test.toml gangway check  # another config
+  gangway check --site mall.toml  # a site or building file alone, with the default settings";
 
 pub(super) const PLAN: &str = "\
 Examples:
@@ -74,7 +75,8 @@ Examples:
 
 pub(super) const SITE: &str = "\
 Examples:
-  gangway site edit --site site.toml --image plan.png  # edit over the floor plan at http://127.0.0.1:8080";
+  gangway site edit --site site.toml --image plan.png  # edit over the floor plan at http://127.0.0.1:8080
+  gangway site import --geojson site1 --out mall/mall.toml  # one site per floor folder and the building file";
 
 pub(super) const SURVEY: &str = "\
 Examples:

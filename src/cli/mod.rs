@@ -122,13 +122,13 @@ impl Cli {
     }
 }
 
-/// Loads a config and its site.
+/// Loads a config and its site (one floor, as the daemon serves).
 fn load(
     config: &std::path::Path,
 ) -> anyhow::Result<(crate::config::Config, std::sync::Arc<crate::site::Site>)> {
     let config = crate::config::Config::load(config)?;
-    let site = crate::site::Site::load(&config.site)?;
-    Ok((config, std::sync::Arc::new(site)))
+    let site = crate::daemon::state::served_site(&config.site)?;
+    Ok((config, site))
 }
 
 /// Where a planning command gets its site, models and planner settings: a

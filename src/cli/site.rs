@@ -1,11 +1,13 @@
 //! `gangway site edit`: the site editor in the browser, without a gateway.
 //! Opens (or starts) one site file, serves the editor until Ctrl-C, and
-//! saves there.
+//! saves there. `gangway site import`: a building's GeoJSON floor plans as
+//! its floors' site files and a building file (`survey::building`).
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use crate::survey::building;
 use crate::web::{Editor, Server, Ui, WebConfig};
 
 #[derive(clap::Args)]
@@ -20,6 +22,32 @@ enum Command {
     /// it does not exist yet): scale, walkable cells, obstacles, walls,
     /// beacons and places, checked as `gangway check` checks them.
     Edit(EditArgs),
+    /// A building's floor plans as site files: DIR holds one folder per
+    /// floor named after it (B1, F1, …), each with `geojson_map.json`,
+    /// `floor_info.json` and `floor_image.png`; writes each floor's site
+    /// beside --out and the building file --out listing them, with the
+    /// stairs, lifts, escalators and ramps the plans name as connectors.
+    Import(ImportArgs),
+}
+
+#[derive(clap::Args)]
+struct ImportArgs {
+    /// The directory of floor folders.
+    #[arg(long, value_name = "DIR")]
+    geojson: PathBuf,
+    /// The building file to write; each floor's site goes in
+    /// `<its folder>/<floor>/site.toml` (files of those names are replaced).
+    #[arg(long, value_name = "SITE.toml")]
+    out: PathBuf,
+    /// Metres per cell side, on every floor.
+    #[arg(long, default_value_t = 1.0)]
+    cell_m: f64,
+    /// The building's name [default: DIR's name].
+    #[arg(long)]
+    name: Option<String>,
+    /// Print one JSON object with what was written instead of lines.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(clap::Args)]
@@ -40,7 +68,83 @@ struct EditArgs {
 }
 
 pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
-    let Command::Edit(args) = args.command;
+    match args.command {
+        Command::Edit(args) => edit(args),
+        Command::Import(args) => import(&args),
+    }
+}
+
+fn import(args: &ImportArgs) -> anyhow::Result<ExitCode> {
+    let options = building::Options {
+        name: args.name.clone(),
+        cell_m: args.cell_m,
+    };
+    let json = args.json;
+    let report = building::import(&args.geojson, &args.out, &options, &mut |floor| {
+        if !json {
+            println!(
+                "floor {} (level {}, from its {}): wrote {}: {} of {} cells walkable at {} m, {} \
+                 places, {} stairs/lift/escalator/ramp areas",
+                floor.name,
+                floor.level,
+                floor.level_from,
+                floor.site.display(),
+                floor.walkable_cells,
+                floor.cells,
+                options.cell_m,
+                floor.places,
+                floor.connector_areas
+            );
+        }
+    })?;
+    if json {
+        println!("{}", serde_json::to_value(&report)?);
+        return Ok(ExitCode::SUCCESS);
+    }
+    for skipped in &report.skipped {
+        println!(
+            "skipped {}: no geojson_map.json, so not a floor",
+            skipped.display()
+        );
+    }
+    for c in &report.connectors {
+        println!(
+            "connector `{}` ({}): {}",
+            c.id,
+            c.kind.name(),
+            c.floors.join(", ")
+        );
+    }
+    for area in &report.unjoined {
+        println!(
+            "not joined: {area} lines up with no area of its kind on the next floor within {} m",
+            building::JOIN_M
+        );
+    }
+    if report.connectors.is_empty() {
+        println!(
+            "no connectors found: no area of the plans is named or categorised as stairs, lift, \
+             elevator, escalator or ramp on two floors. Until the building file has some, no \
+             route or walker can change floor: add a [[connectors]] entry per stair, lift, \
+             escalator or ramp to {} (id, kind, stops = [{{ floor = \"B1\", cell = [x, y] }}, …]; \
+             see docs/floors.md), finding each stop's cell with `gangway site edit --site \
+             <floor>/site.toml`",
+            args.out.display()
+        );
+    }
+    println!(
+        "wrote {}: building `{}`, {} floors, {} connectors; check it with `gangway check --site \
+         {}`",
+        report.building.display(),
+        report.name,
+        report.floors.len(),
+        report.connectors.len(),
+        report.building.display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+fn edit(args: EditArgs) -> anyhow::Result<ExitCode> {
     let editor = Editor::open(&args.site, args.image.as_deref())?;
     let config = WebConfig {
         bind: args.bind,

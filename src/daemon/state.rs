@@ -13,7 +13,7 @@ use anyhow::Context;
 use crate::config::Config;
 use crate::locate::recalibrate;
 use crate::pipeline::Pipeline;
-use crate::site::Site;
+use crate::site::{Building, Site};
 
 pub struct Loaded {
     pub config: Config,
@@ -39,7 +39,7 @@ pub fn load_at_start(config_path: &Path) -> anyhow::Result<Loaded> {
 
 fn load_with(config_path: &Path, fall_back: bool) -> anyhow::Result<Loaded> {
     let mut config = Config::load(config_path)?;
-    let site = Arc::new(Site::load(&config.site)?);
+    let site = served_site(&config.site)?;
     // What an earlier recalibration learned outlives restarts and reloads.
     config.localizer = super::recalibration::serving(&config.localizer, &config.store, &site);
     let context = || format!("{}", config_path.display());
@@ -57,6 +57,27 @@ fn load_with(config_path: &Path, fall_back: bool) -> anyhow::Result<Loaded> {
         pipeline,
         fallbacks,
     })
+}
+
+/// The floor the daemon serves: the config's `site`, a site file or a
+/// building file of one floor. A building of several floors is refused,
+/// naming the file: tracking across floors and routes between them are
+/// being built, and serving one floor of it silently would lose every
+/// device on the others.
+pub fn served_site(path: &Path) -> anyhow::Result<Arc<Site>> {
+    let building = Building::load(path)?;
+    if building.is_multi_floor() {
+        let floors: Vec<&str> = building.floors().iter().map(|f| f.name.as_str()).collect();
+        anyhow::bail!(
+            "{}: a building of {} floors ({}); the gateway serves one floor for now: point \
+             `site` in the config at one floor's site file (the `site` of one of its \
+             [[floors]]), and run one gateway per floor",
+            path.display(),
+            floors.len(),
+            floors.join(", ")
+        );
+    }
+    Ok(building.floors()[0].site.clone())
 }
 
 /// The state of `config` on `site` with the survey-free model's calibration

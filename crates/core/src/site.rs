@@ -40,7 +40,9 @@ mod building;
 mod doc;
 mod floorplan;
 
-pub use building::{Building, Connector, ConnectorKind, Floor, Stop};
+pub use building::{
+    Building, BuildingDoc, Connector, ConnectorDoc, ConnectorKind, Floor, FloorDoc, Stop, StopDoc,
+};
 
 pub use doc::{BeaconDoc, FloorplanDoc, SiteDoc, write_doc};
 pub use floorplan::{

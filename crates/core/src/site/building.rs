@@ -31,8 +31,9 @@ use std::collections::{BTreeSet, HashMap};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use toml::Spanned;
+use toml_edit::{Array, DocumentMut, Item, Value};
 
 use super::{Cell, Site, SiteError, line_at};
 
@@ -43,7 +44,7 @@ const MAX_FLOORS: usize = 128;
 const MAX_CONNECTORS: usize = 4096;
 
 /// What joins two or more floors.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ConnectorKind {
     Stairs,
@@ -145,36 +146,74 @@ pub struct Building {
 #[serde(deny_unknown_fields)]
 struct BuildingFile {
     name: String,
-    floors: Vec<Spanned<FloorEntry>>,
+    floors: Vec<Spanned<FloorDoc>>,
     #[serde(default)]
-    connectors: Vec<Spanned<ConnectorEntry>>,
+    connectors: Vec<Spanned<ConnectorDoc>>,
 }
 
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct FloorEntry {
-    name: String,
-    level: i32,
-    site: PathBuf,
+/// A building file as data, for the tools that write one (`gangway site
+/// import`); [`BuildingDoc::to_toml`] writes it, [`Building::parse`] checks it.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct BuildingDoc {
+    pub name: String,
+    pub floors: Vec<FloorDoc>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub connectors: Vec<ConnectorDoc>,
 }
 
-#[derive(Deserialize)]
+/// One `[[floors]]` entry.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-struct ConnectorEntry {
-    id: String,
-    kind: ConnectorKind,
-    #[serde(default)]
-    s_per_level: Option<f64>,
-    #[serde(default)]
-    wait_s: Option<f64>,
-    stops: Vec<StopEntry>,
+pub struct FloorDoc {
+    pub name: String,
+    pub level: i32,
+    /// The floor's site file, relative to the building file.
+    pub site: PathBuf,
 }
 
-#[derive(Deserialize)]
+/// One `[[connectors]]` entry.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-struct StopEntry {
-    floor: String,
-    cell: Cell,
+pub struct ConnectorDoc {
+    pub id: String,
+    pub kind: ConnectorKind,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub s_per_level: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wait_s: Option<f64>,
+    pub stops: Vec<StopDoc>,
+}
+
+/// One stop of a connector: a floor by name and a cell of its grid.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StopDoc {
+    pub floor: String,
+    pub cell: Cell,
+}
+
+impl BuildingDoc {
+    /// The building file's TOML, each connector's `stops` on one line as in
+    /// the hand-written example above.
+    pub fn to_toml(&self) -> String {
+        let text = toml::to_string(self).expect("a building document is plain TOML data");
+        let mut doc: DocumentMut = text.parse().expect("the TOML the toml crate wrote parses");
+        if let Some(connectors) = doc
+            .get_mut("connectors")
+            .and_then(Item::as_array_of_tables_mut)
+        {
+            for connector in connectors.iter_mut() {
+                if let Some(Item::ArrayOfTables(stops)) = connector.get_mut("stops") {
+                    let inline: Array = std::mem::take(stops)
+                        .into_iter()
+                        .map(|stop| Value::InlineTable(stop.into_inline_table()))
+                        .collect();
+                    connector.insert("stops", Item::Value(Value::Array(inline)));
+                }
+            }
+        }
+        doc.to_string()
+    }
 }
 
 impl Building {
@@ -414,6 +453,40 @@ impl Building {
     pub fn is_multi_floor(&self) -> bool {
         self.floors.len() > 1
     }
+
+    /// The floors one can move between through the connectors `usable`
+    /// accepts, as groups of floor indices (each lowest first, the groups by
+    /// their lowest floor): one group when every floor reaches every other.
+    pub fn floor_groups(&self, usable: impl Fn(&Connector) -> bool) -> Vec<Vec<usize>> {
+        let mut group: Vec<usize> = (0..self.floors.len()).collect();
+        fn root(group: &mut [usize], mut f: usize) -> usize {
+            while group[f] != f {
+                group[f] = group[group[f]];
+                f = group[f];
+            }
+            f
+        }
+        for connector in self.connectors.iter().filter(|c| usable(c)) {
+            for pair in connector.stops.windows(2) {
+                let (a, b) = (
+                    root(&mut group, pair[0].floor),
+                    root(&mut group, pair[1].floor),
+                );
+                group[a.max(b)] = a.min(b);
+            }
+        }
+        let mut groups: Vec<Vec<usize>> = Vec::new();
+        let mut of_root = HashMap::new();
+        for f in 0..self.floors.len() {
+            let r = root(&mut group, f);
+            let at = *of_root.entry(r).or_insert_with(|| {
+                groups.push(Vec::new());
+                groups.len() - 1
+            });
+            groups[at].push(f);
+        }
+        groups
+    }
 }
 
 #[cfg(test)]
@@ -476,6 +549,9 @@ site = "F2.toml"
         assert!(lift.kind.step_free());
         // Two levels at 5 s each after a 30 s wait.
         assert_eq!(lift.seconds(&b, lift.stops[0], lift.stops[1]), 40.0);
+        // The lift skips F1.
+        assert_eq!(b.floor_groups(|_| true), [vec![0, 2], vec![1]]);
+        assert_eq!(b.floor_groups(|c| !c.kind.step_free()), [[0], [1], [2]]);
     }
 
     #[test]
@@ -518,6 +594,53 @@ site = "F2.toml"
             err.contains("stops on floor `F9`, which is not in `floors` (B1, F1, F2)"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn a_written_building_reads_back_as_written() {
+        let doc = BuildingDoc {
+            name: "two \"quoted\" floors".into(),
+            floors: vec![
+                FloorDoc {
+                    name: "B1".into(),
+                    level: -1,
+                    site: "B1.toml".into(),
+                },
+                FloorDoc {
+                    name: "F1".into(),
+                    level: 0,
+                    site: "F1.toml".into(),
+                },
+            ],
+            connectors: vec![ConnectorDoc {
+                id: "lift".into(),
+                kind: ConnectorKind::Lift,
+                s_per_level: None,
+                wait_s: Some(10.0),
+                stops: vec![
+                    StopDoc {
+                        floor: "B1".into(),
+                        cell: Cell::new(1, 1),
+                    },
+                    StopDoc {
+                        floor: "F1".into(),
+                        cell: Cell::new(2, 2),
+                    },
+                ],
+            }],
+        };
+        let text = doc.to_toml();
+        assert!(
+            text.contains(
+                "stops = [{ floor = \"B1\", cell = [1, 1] }, { floor = \"F1\", cell = [2, 2] }]"
+            ),
+            "{text}"
+        );
+        let b = parse(&text).unwrap();
+        assert_eq!(b.name, doc.name);
+        assert_eq!(b.floors().len(), 2);
+        assert_eq!(b.connectors()[0].wait_s, 10.0);
+        assert_eq!(b.connectors()[0].stops[1].cell, Cell::new(2, 2));
     }
 
     #[test]

@@ -20,6 +20,12 @@
 //! whichever reading of the coordinates, metres as given or degrees
 //! projected, gives the outline the floor's size (within 2%), and refuses a
 //! plan that matches neither, naming both sizes.
+//!
+//! Two things only a building needs are read too: the floor's number (the
+//! `floor_num` property the plan's floor feature carries) and the areas that
+//! are stairs, lifts, escalators or ramps by their name or category, at their
+//! position in the plan's own coordinates, so that the floors of one building
+//! can be lined up (`survey::building`).
 
 use std::collections::{BTreeMap, VecDeque};
 use std::path::Path;
@@ -27,7 +33,7 @@ use std::path::Path;
 use anyhow::{Context, bail};
 use serde_json::Value;
 
-use crate::site::{Cell, FloorplanDoc, ReferencePoint, SiteDoc, YAxis};
+use crate::site::{Cell, ConnectorKind, FloorplanDoc, ReferencePoint, SiteDoc, YAxis, probe_image};
 
 /// Earth radius of the projection, metres (WGS84's semi-major axis).
 const EARTH_RADIUS_M: f64 = 6_378_137.0;
@@ -52,6 +58,62 @@ pub(crate) struct FloorPlan {
     height_m: f64,
     outline: Vec<Ring>,
     areas: Vec<Area>,
+    /// The `floor_num` property of the plan's floor feature, when it has one.
+    pub(crate) floor_num: Option<i64>,
+    /// Whether the plan's coordinates are WGS84 degrees (else metres).
+    degrees: bool,
+    pub(crate) connectors: Vec<ConnectorArea>,
+}
+
+/// An area of the plan that is stairs, a lift, an escalator or a ramp.
+pub(crate) struct ConnectorArea {
+    /// Its place's name on the floor's site (where its door is).
+    pub(crate) place: String,
+    pub(crate) kind: ConnectorKind,
+    /// The middle of its bounding box in the plan's own coordinates, which
+    /// the floors of one building share.
+    at: [f64; 2],
+}
+
+/// Which connector a word of an area's name or category says it is: English
+/// and the Chinese of the plans of that competition's malls (电梯 lift, 扶梯
+/// escalator, 楼梯 stairs, 坡道 ramp).
+fn connector_kind(text: &str) -> Option<ConnectorKind> {
+    let text = text.to_lowercase();
+    let chinese = [
+        ("扶梯", ConnectorKind::Escalator),
+        ("电梯", ConnectorKind::Lift),
+        ("直梯", ConnectorKind::Lift),
+        ("楼梯", ConnectorKind::Stairs),
+        ("坡道", ConnectorKind::Ramp),
+    ];
+    if let Some((_, kind)) = chinese.iter().find(|(word, _)| text.contains(word)) {
+        return Some(*kind);
+    }
+    // Whole words, so that a shop called "Uplift" is not a lift.
+    text.split(|c: char| !c.is_alphanumeric())
+        .find_map(|word| match word {
+            "lift" | "lifts" | "elevator" | "elevators" => Some(ConnectorKind::Lift),
+            "stair" | "stairs" | "staircase" | "stairway" | "stairwell" => {
+                Some(ConnectorKind::Stairs)
+            }
+            "escalator" | "escalators" => Some(ConnectorKind::Escalator),
+            "ramp" | "ramps" => Some(ConnectorKind::Ramp),
+            _ => None,
+        })
+}
+
+/// The connector a feature's properties say it is: by `name`, `display`,
+/// `type` or `category` (a string or a list of them).
+fn connector_of(props: &Value) -> Option<ConnectorKind> {
+    let mut texts: Vec<&str> = ["name", "display", "type", "category"]
+        .iter()
+        .filter_map(|key| props[*key].as_str())
+        .collect();
+    if let Some(list) = props["category"].as_array() {
+        texts.extend(list.iter().filter_map(Value::as_str));
+    }
+    texts.into_iter().find_map(connector_kind)
 }
 
 /// `floor_info.json`'s `map_info` width and height, metres.
@@ -116,9 +178,10 @@ impl FloorPlan {
         ];
         let projected = [raw[0] * scale[0], raw[1] * scale[1]];
         let fits = |s: [f64; 2]| (0..2).all(|k| (s[k] - size[k]).abs() <= SIZE_TOLERANCE * size[k]);
+        let degrees = !fits(raw) && fits(projected);
         let to_metres: Box<dyn Fn([f64; 2]) -> [f64; 2]> = if fits(raw) {
             Box::new(|p| p)
-        } else if fits(projected) {
+        } else if degrees {
             Box::new(move |p| [(p[0] - lo[0]) * scale[0], (p[1] - lo[1]) * scale[1]])
         } else {
             bail!(
@@ -133,10 +196,16 @@ impl FloorPlan {
                 size[1]
             );
         };
+        let floor_num = features
+            .iter()
+            .find_map(|f| f["properties"]["floor_num"].as_i64());
         let mut names: BTreeMap<String, usize> = BTreeMap::new();
         let mut areas = Vec::new();
+        let mut kinds = Vec::new();
         let mut outline = Vec::new();
         for (i, rings) in polygons {
+            let (lo, hi) = bounds(&rings);
+            let at = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0];
             let rings: Vec<Ring> = rings
                 .into_iter()
                 .map(|r| r.into_iter().map(&to_metres).collect())
@@ -151,6 +220,7 @@ impl FloorPlan {
                 .find_map(|v| v.as_str().map(str::trim).filter(|s| !s.is_empty()))
                 .map_or_else(|| format!("area {i}"), unescape);
             *names.entry(name.clone()).or_default() += 1;
+            kinds.push(connector_of(props).map(|kind| (kind, at)));
             areas.push(Area { name, rings });
         }
         // A name several areas share is numbered in file order.
@@ -162,12 +232,48 @@ impl FloorPlan {
                 area.name = format!("{} #{n}", area.name);
             }
         }
+        let connectors = areas
+            .iter()
+            .zip(kinds)
+            .filter_map(|(area, kind)| {
+                kind.map(|(kind, at)| ConnectorArea {
+                    place: area.name.clone(),
+                    kind,
+                    at,
+                })
+            })
+            .collect();
         Ok(FloorPlan {
             width_m: size[0],
             height_m: size[1],
             outline,
             areas,
+            floor_num,
+            degrees,
+            connectors,
         })
+    }
+
+    /// Metres between a connector area of this floor and one of `other`
+    /// (another floor of the same building, whose plan shares this one's
+    /// coordinates); `None` when one plan is in degrees and the other in
+    /// metres, which cannot be lined up.
+    pub(crate) fn distance_m(
+        &self,
+        a: &ConnectorArea,
+        other: &FloorPlan,
+        b: &ConnectorArea,
+    ) -> Option<f64> {
+        if self.degrees != other.degrees {
+            return None;
+        }
+        let d = [b.at[0] - a.at[0], b.at[1] - a.at[1]];
+        if !self.degrees {
+            return Some(d[0].hypot(d[1]));
+        }
+        let latitude = ((a.at[1] + b.at[1]) / 2.0).to_radians();
+        let per_degree = EARTH_RADIUS_M * 1f64.to_radians();
+        Some((d[0] * per_degree * latitude.cos()).hypot(d[1] * per_degree))
     }
 
     /// The site of this floor at `cell_m`, its places at their doors, and
@@ -232,6 +338,37 @@ impl FloorPlan {
             ..SiteDoc::default()
         }
     }
+}
+
+/// Reads the floor in `floor_dir` (`floor_info.json`, `geojson_map.json`
+/// and `floor_image.png` when there is one), copies its image into `out`
+/// (created if needed) and returns the plan and its site at `cell_m` named
+/// `name`, the image under it.
+pub(crate) fn import_plan(
+    floor_dir: &Path,
+    out: &Path,
+    name: &str,
+    cell_m: f64,
+) -> anyhow::Result<(FloorPlan, SiteDoc)> {
+    let size = floor_size(&floor_dir.join("floor_info.json"))?;
+    let plan = FloorPlan::read(&floor_dir.join("geojson_map.json"), size)?;
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let image_file = "floor_image.png";
+    let image = floor_dir.join(image_file);
+    let image = if image.is_file() {
+        let info = probe_image(&image).map_err(anyhow::Error::msg)?;
+        // Read and written rather than copied, so the copy is writable
+        // (the next import replaces it) whatever the original's mode.
+        let bytes =
+            std::fs::read(&image).with_context(|| format!("{}: cannot read", image.display()))?;
+        std::fs::write(out.join(image_file), bytes)
+            .with_context(|| format!("cannot write {}", out.join(image_file).display()))?;
+        Some((image_file, [info.width, info.height]))
+    } else {
+        None
+    };
+    let doc = plan.site(name, cell_m, image);
+    Ok((plan, doc))
 }
 
 /// The door of `area`: among the cells of the main walkable area (`main`)
@@ -420,5 +557,16 @@ mod tests {
         assert_eq!(unescape("CHOW&amp;RAY"), "CHOW&RAY");
         assert_eq!(unescape("ME&CITY"), "ME&CITY");
         assert_eq!(unescape("&amp;lt;"), "&lt;");
+    }
+
+    #[test]
+    fn connectors_are_known_by_whole_words_and_their_chinese_names() {
+        assert_eq!(connector_kind("Elevator 2"), Some(ConnectorKind::Lift));
+        assert_eq!(connector_kind("east-STAIRS"), Some(ConnectorKind::Stairs));
+        assert_eq!(connector_kind("自动扶梯"), Some(ConnectorKind::Escalator));
+        assert_eq!(connector_kind("Uplift Yoga"), None);
+        assert_eq!(connector_kind("Rampage"), None);
+        let props = serde_json::json!({"name": "A12", "category": ["x", "ramp"]});
+        assert_eq!(connector_of(&props), Some(ConnectorKind::Ramp));
     }
 }

@@ -28,6 +28,7 @@
 //! - **Bad lines.** A line that does not parse is reported with its file,
 //!   line and field and skipped; the rest of the walk is read.
 
+pub mod building;
 mod floor;
 
 use std::collections::BTreeMap;
@@ -41,7 +42,7 @@ use uuid::Uuid;
 use crate::locate::survey::Survey;
 use crate::locate::window::WindowConfig;
 use crate::sighting::BeaconId;
-use crate::site::{BeaconDoc, Site, probe_image, write_doc};
+use crate::site::{BeaconDoc, Site, write_doc};
 
 /// The "not heard" value the survey is written with (`[localizer.knn]
 /// not_heard`'s default).
@@ -345,29 +346,12 @@ pub fn import(floor_dir: &Path, out: &Path, options: &Options) -> anyhow::Result
         options.cell_m > 0.0 && options.window_s > 0.0 && options.stride_s > 0.0,
         "--cell-m, --window-s and --stride-s must be positive"
     );
-    let size = floor::floor_size(&floor_dir.join("floor_info.json"))?;
-    let plan = floor::FloorPlan::read(&floor_dir.join("geojson_map.json"), size)?;
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let image_file = "floor_image.png";
-    let image = floor_dir.join(image_file);
-    let image = if image.is_file() {
-        let info = probe_image(&image).map_err(anyhow::Error::msg)?;
-        // Read and written rather than copied, so the copy is writable
-        // (the next import replaces it) whatever the original's mode.
-        let bytes =
-            std::fs::read(&image).with_context(|| format!("{}: cannot read", image.display()))?;
-        std::fs::write(out.join(image_file), bytes)
-            .with_context(|| format!("cannot write {}", out.join(image_file).display()))?;
-        Some((image_file, [info.width, info.height]))
-    } else {
-        None
-    };
     let name = options.name.clone().unwrap_or_else(|| {
         floor_dir
             .file_name()
             .map_or_else(|| "floor".into(), |n| n.to_string_lossy().into_owned())
     });
-    let mut doc = plan.site(&name, options.cell_m, image);
+    let (_, mut doc) = floor::import_plan(floor_dir, out, &name, options.cell_m)?;
     let site_path = out.join("site.toml");
     let site = Site::parse(&write_doc(&doc, None), &site_path)?;
     let mut report = Report {
