@@ -3,6 +3,7 @@
 use crate::common;
 
 use crate::common::{gangway, write};
+use crate::floors_support;
 
 const SITE: &str = r#"name = "t"
 cell_m = 1.0
@@ -270,4 +271,132 @@ fn the_installed_config_is_the_default_outside_a_checkout() {
             String::from_utf8_lossy(&installed.stderr)
         );
     }
+}
+
+#[test]
+fn a_building_is_checked_floor_by_floor_with_its_connectors() {
+    let dir = tempfile::tempdir().unwrap();
+    let building = floors_support::write_building(dir.path());
+    let out = gangway(&["check", "--site", building.to_str().unwrap()]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("(building \"made-up\": 3 floors, 2 connectors)"),
+        "{stdout}"
+    );
+    // 20 × 12 m at 0.5 m cells.
+    for (floor, level) in [("B1", -1), ("G", 0), ("L1", 1)] {
+        assert!(
+            stdout.contains(&format!(
+                "ok: floor {floor} (level {level}): site \"made-up {floor}\": 40×24 cells"
+            )),
+            "{stdout}"
+        );
+    }
+    assert!(
+        stdout.contains(
+            "connectors: 2 (1 lift, 1 stairs): all 3 floors joined; step-free (lifts and ramps \
+             only): all 3 floors joined"
+        ),
+        "{stdout}"
+    );
+
+    // A config pointing at the building checks it with the config's settings
+    // (the pathloss localizer on each floor's beacons).
+    let config = write(
+        dir.path(),
+        "gangway.toml",
+        "gateway_id = \"gw\"\nsite = \"building.toml\"\n",
+    );
+    let out = gangway(&["check", "--config", config.to_str().unwrap()]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+
+    // L1 is reached by the lift alone: without it, it is apart.
+    let loaded = gangway::site::Building::load(&building).unwrap();
+    assert_eq!(
+        loaded.floor_groups(|c| !c.kind.step_free()),
+        [vec![0, 1], vec![2]]
+    );
+    assert_eq!(loaded.floors()[0].site.cell_m, floors_support::CELL_M);
+}
+
+#[test]
+fn a_building_s_problems_name_its_file_line_and_floor() {
+    let dir = tempfile::tempdir().unwrap();
+    let building = floors_support::write_building(dir.path());
+    // The lift's B1 stop moved into the store.
+    let text = std::fs::read_to_string(&building).unwrap();
+    let [x, y] = floors_support::cell_of([17.0, 6.25]);
+    let store = floors_support::cell_of([3.0, 2.0]);
+    let moved = text.replacen(
+        &format!("{{ floor = \"B1\", cell = [{x}, {y}] }}"),
+        &format!("{{ floor = \"B1\", cell = [{}, {}] }}", store[0], store[1]),
+        1,
+    );
+    assert_ne!(moved, text);
+    std::fs::write(&building, moved).unwrap();
+    let out = gangway(&["check", "--site", building.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("building.toml")
+            && stderr.contains(&format!(
+                "connector `lift` stop on floor `B1` at [{}, {}] is a blocked cell",
+                store[0], store[1]
+            )),
+        "{stderr}"
+    );
+
+    // A floor's own problem names the floor's file.
+    write(
+        dir.path(),
+        "G.toml",
+        "name = \"g\"\ncell_m = 0.5\nwidth_m = 2.0\n",
+    );
+    let out = gangway(&["check", "--site", building.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("floor `G`") && stderr.contains("G.toml"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn the_daemon_refuses_a_building_of_several_floors() {
+    let dir = tempfile::tempdir().unwrap();
+    let building = floors_support::write_building(dir.path());
+    let config = write(
+        dir.path(),
+        "gangway.toml",
+        "gateway_id = \"gw\"\nsite = \"building.toml\"\n",
+    );
+    let out = gangway(&["run", "--config", config.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains(&format!(
+            "{}: a building of 3 floors (B1, G, L1); the gateway serves one floor for now: \
+             point `site` in the config at one floor's site file",
+            building.display()
+        )),
+        "{stderr}"
+    );
+
+    // A building of one floor is that floor.
+    write(
+        dir.path(),
+        "one.toml",
+        "name = \"one\"\n[[floors]]\nname = \"G\"\nlevel = 0\nsite = \"G.toml\"\n",
+    );
+    let site = gangway::daemon::state::served_site(&dir.path().join("one.toml")).unwrap();
+    assert_eq!(site.name, "made-up G");
 }

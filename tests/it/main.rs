@@ -8,6 +8,7 @@
 
 // Shared helpers.
 mod common;
+mod floors_support;
 mod mqtt_support;
 mod web_support;
 
@@ -40,6 +41,7 @@ mod planning_eval;
 mod receivers;
 mod record;
 mod replay;
+mod site_import;
 mod survey;
 mod waldo_site;
 mod walkthrough;
