@@ -387,8 +387,9 @@ fn the_import_scanner_reads_groups_and_skips_other_crates() {
 /// the I/O crate passes in is the step left, docs/architecture.md).
 #[test]
 fn the_core_reads_no_clock_and_files_only_in_its_loaders() {
-    const LOADERS: [&str; 5] = [
+    const LOADERS: [&str; 6] = [
         "site.rs",
+        "site/building.rs",
         "site/floorplan.rs",
         "locate/survey.rs",
         "locate/calibration.rs",

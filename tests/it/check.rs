@@ -2,7 +2,7 @@
 
 use crate::common;
 
-use crate::common::{gangway, write};
+use crate::common::{gangway, gangway_ok, write};
 use crate::floors_support;
 
 const SITE: &str = r#"name = "t"
@@ -277,33 +277,12 @@ fn the_installed_config_is_the_default_outside_a_checkout() {
 fn a_building_is_checked_floor_by_floor_with_its_connectors() {
     let dir = tempfile::tempdir().unwrap();
     let building = floors_support::write_building(dir.path());
-    let out = gangway(&["check", "--site", building.to_str().unwrap()]);
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let stdout = gangway_ok(&["check", "--site", building.to_str().unwrap()]);
     assert!(
         stdout.contains("(building \"made-up\": 3 floors, 2 connectors)"),
         "{stdout}"
     );
-    // 20 × 12 m at 0.5 m cells.
-    for (floor, level) in [("B1", -1), ("G", 0), ("L1", 1)] {
-        assert!(
-            stdout.contains(&format!(
-                "ok: floor {floor} (level {level}): site \"made-up {floor}\": 40×24 cells"
-            )),
-            "{stdout}"
-        );
-    }
-    assert!(
-        stdout.contains(
-            "connectors: 2 (1 lift, 1 stairs): all 3 floors joined; step-free (lifts and ramps \
-             only): all 3 floors joined"
-        ),
-        "{stdout}"
-    );
+    floors_support::assert_checked(&stdout, "1 lift, 1 stairs");
 
     // A config pointing at the building checks it with the config's settings
     // (the pathloss localizer on each floor's beacons).
@@ -312,12 +291,7 @@ fn a_building_is_checked_floor_by_floor_with_its_connectors() {
         "gangway.toml",
         "gateway_id = \"gw\"\nsite = \"building.toml\"\n",
     );
-    let out = gangway(&["check", "--config", config.to_str().unwrap()]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    gangway_ok(&["check", "--config", config.to_str().unwrap()]);
 
     // L1 is reached by the lift alone: without it, it is apart.
     let loaded = gangway::site::Building::load(&building).unwrap();

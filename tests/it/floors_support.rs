@@ -170,3 +170,21 @@ pub(crate) fn write_geojson(dir: &Path) -> PathBuf {
     }
     plans
 }
+
+/// Asserts that `stdout`, `gangway check`'s on the building, passed every
+/// floor (20 × 12 m at 0.5 m cells) and its connectors (`kinds` counted in
+/// the file's order) join every floor, step-free too.
+pub(crate) fn assert_checked(stdout: &str, kinds: &str) {
+    for floor in &FLOORS {
+        let line = format!(
+            "ok: floor {0} (level {1}): site \"made-up {0}\": 40×24 cells",
+            floor.name, floor.level
+        );
+        assert!(stdout.contains(&line), "no {line:?} in {stdout}");
+    }
+    let line = format!(
+        "connectors: 2 ({kinds}): all 3 floors joined; step-free (lifts and ramps only): all 3 \
+         floors joined"
+    );
+    assert!(stdout.contains(&line), "no {line:?} in {stdout}");
+}

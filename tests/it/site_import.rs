@@ -3,38 +3,27 @@
 //! the made-up building of `floors_support` (its stairs and lift found in
 //! the plans) and on the real five-floor mall (no connectors in its plans).
 
+use std::path::Path;
+
 use serde_json::Value;
 
 use crate::common::{self, gangway, gangway_ok};
 use crate::floors_support;
 
 /// `site import` of `plans` into `out` (the building file) with `extra`
-/// flags, as JSON.
-fn import(plans: &std::path::Path, out: &std::path::Path, extra: &[&str]) -> Value {
+/// flags: what it prints.
+fn import(plans: &Path, out: &Path, extra: &[&str]) -> String {
+    let (plans, out) = (plans.to_str().unwrap(), out.to_str().unwrap());
     let args = [
-        &[
-            "site",
-            "import",
-            "--geojson",
-            plans.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--json",
-        ][..],
+        &["site", "import", "--geojson", plans, "--out", out][..],
         extra,
-    ]
-    .concat();
-    serde_json::from_str(&gangway_ok(&args)).unwrap()
+    ];
+    gangway_ok(&args.concat())
 }
 
-fn check_site(building: &std::path::Path) -> String {
-    let out = gangway(&["check", "--site", building.to_str().unwrap()]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8(out.stdout).unwrap()
+/// `gangway check --site building`'s output, failing the test when it fails.
+fn check_site(building: &Path) -> String {
+    gangway_ok(&["check", "--site", building.to_str().unwrap()])
 }
 
 #[test]
@@ -43,7 +32,12 @@ fn the_made_up_plans_import_with_their_lift_and_stairs_as_connectors() {
     let plans = floors_support::write_geojson(dir.path());
     let out = dir.path().join("made-up/building.toml");
     std::fs::create_dir_all(out.parent().unwrap()).unwrap();
-    let report = import(&plans, &out, &["--cell-m", "0.5", "--name", "made-up"]);
+    let report: Value = serde_json::from_str(&import(
+        &plans,
+        &out,
+        &["--cell-m", "0.5", "--name", "made-up", "--json"],
+    ))
+    .unwrap();
 
     // Levels from the folders' names: a building with a G keeps B1 at -1 and
     // L1 at 1.
@@ -97,18 +91,7 @@ fn the_made_up_plans_import_with_their_lift_and_stairs_as_connectors() {
     // Each floor's site is beside the building file, at 0.5 m cells.
     let site = std::fs::read_to_string(out.parent().unwrap().join("L1/site.toml")).unwrap();
     assert!(site.contains("cell_m = 0.5"), "{site}");
-    let stdout = check_site(&out);
-    assert!(
-        stdout.contains("ok: floor L1 (level 1): site \"made-up L1\": 40×24 cells"),
-        "{stdout}"
-    );
-    assert!(
-        stdout.contains(
-            "connectors: 2 (1 stairs, 1 lift): all 3 floors joined; step-free (lifts and ramps \
-             only): all 3 floors joined"
-        ),
-        "{stdout}"
-    );
+    floors_support::assert_checked(&check_site(&out), "1 stairs, 1 lift");
     let building = gangway::site::Building::load(&out).unwrap();
     let lift = &building.connectors()[1];
     assert!(lift.kind.step_free());
@@ -151,15 +134,7 @@ fn the_real_mall_imports_as_five_floors_without_connectors() {
     };
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("mall.toml");
-    let args = [
-        "site",
-        "import",
-        "--geojson",
-        plans.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ];
-    let stdout = gangway_ok(&args);
+    let stdout = import(&plans, &out, &[]);
     // The plans number B1 -1 and F1 1 with no floor 0: F1 is the ground floor.
     for (floor, level) in [("B1", -1), ("F1", 0), ("F2", 1), ("F3", 2), ("F4", 3)] {
         assert!(
