@@ -146,6 +146,12 @@ fn check(building: &Building, settings: &Settings, problems: &mut Vec<String>) {
     }
     if building.is_multi_floor() {
         println!("{}", connectors(building));
+        if settings.configured {
+            println!(
+                "note: `gangway run` serves one floor for now and refuses a building of several: \
+                 point `site` in {shown} at one floor's site file to serve that floor"
+            );
+        }
     }
 }
 

@@ -560,6 +560,40 @@ mod tests {
     }
 
     #[test]
+    fn connector_areas_of_two_floors_are_measured_in_metres() {
+        let floor = |degrees: bool, at: [f64; 2]| FloorPlan {
+            width_m: 10.0,
+            height_m: 10.0,
+            outline: Vec::new(),
+            areas: Vec::new(),
+            floor_num: None,
+            degrees,
+            connectors: vec![ConnectorArea {
+                place: "lift".into(),
+                kind: ConnectorKind::Lift,
+                at,
+            }],
+        };
+        let (a, b) = (floor(false, [1.0, 2.0]), floor(false, [4.0, 6.0]));
+        let d = a.distance_m(&a.connectors[0], &b, &b.connectors[0]);
+        assert_eq!(d, Some(5.0));
+        // A ten-thousandth of a degree east at 60° N is half of one north.
+        let (a, b) = (floor(true, [120.0, 60.0]), floor(true, [120.0001, 60.0]));
+        let east = a
+            .distance_m(&a.connectors[0], &b, &b.connectors[0])
+            .unwrap();
+        let c = floor(true, [120.0, 60.0001]);
+        let north = a
+            .distance_m(&a.connectors[0], &c, &c.connectors[0])
+            .unwrap();
+        assert!((north - 11.13).abs() < 0.01, "{north}");
+        assert!((east / north - 0.5).abs() < 1e-4, "{east} {north}");
+        // Plans in metres and in degrees cannot be lined up.
+        let m = floor(false, [1.0, 2.0]);
+        assert_eq!(a.distance_m(&a.connectors[0], &m, &m.connectors[0]), None);
+    }
+
+    #[test]
     fn connectors_are_known_by_whole_words_and_their_chinese_names() {
         assert_eq!(connector_kind("Elevator 2"), Some(ConnectorKind::Lift));
         assert_eq!(connector_kind("east-STAIRS"), Some(ConnectorKind::Stairs));
