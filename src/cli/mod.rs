@@ -62,7 +62,7 @@ enum Command {
     /// Real walks in: import recorded tracks onto a site, build a scene's site.
     #[command(after_long_help = examples::WALKS)]
     Walks(walks::Args),
-    /// Site files: edit one over its floor plan in the browser.
+    /// Site files: edit one over its floor plan in the browser, import a building's floor plans.
     #[command(after_long_help = examples::SITE)]
     Site(site::Args),
     /// Surveys from walks with timed waypoints: a floor's site, labelled survey and beacon positions.

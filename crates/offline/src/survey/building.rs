@@ -91,7 +91,6 @@ struct Drawn {
     name: String,
     /// Its number as the plan or folder gives it.
     number: i64,
-    level_from: &'static str,
     plan: FloorPlan,
     doc: SiteDoc,
     report: FloorReport,
@@ -152,13 +151,13 @@ pub fn import(
     for pair in drawn.windows(2) {
         if pair[0].report.level == pair[1].report.level {
             bail!(
-                "floors `{}` and `{}` both have level {} ({} and {}); rename one folder, or fix \
-                 the `floor_num` of its geojson_map.json",
+                "floors `{}` and `{}` both have level {} (by {} and by {}); rename one folder, or \
+                 fix the `floor_num` of its geojson_map.json",
                 pair[0].name,
                 pair[1].name,
                 pair[0].report.level,
-                pair[0].level_from,
-                pair[1].level_from
+                pair[0].report.level_from,
+                pair[1].report.level_from
             );
         }
     }
@@ -243,7 +242,6 @@ fn draw(folder: &Path, base: &Path, building: &str, cell_m: f64) -> anyhow::Resu
     Ok(Drawn {
         name,
         number,
-        level_from,
         plan,
         doc,
         report,
