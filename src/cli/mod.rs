@@ -180,17 +180,23 @@ impl PlannerSource {
         crate::plan::PlannerConfig,
         std::sync::Arc<crate::site::Site>,
     )> {
+        let (planner, site) = self.settings()?;
+        Ok((
+            planner,
+            std::sync::Arc::new(crate::site::Site::load(&site)?),
+        ))
+    }
+
+    /// The planner settings and the path of the site file they plan on
+    /// (a building file, for a command that plans across floors).
+    fn settings(&self) -> anyhow::Result<(crate::plan::PlannerConfig, PathBuf)> {
         let (mut planner, site) = match (&self.config, &self.site) {
-            (None, Some(site)) => (
-                crate::plan::PlannerConfig::default(),
-                std::sync::Arc::new(crate::site::Site::load(site)?),
-            ),
+            (None, Some(site)) => (crate::plan::PlannerConfig::default(), site.clone()),
             (config, site) => {
                 let config = crate::config::Config::load(
                     config.clone().unwrap_or_else(default_config).as_path(),
                 )?;
-                let site = crate::site::Site::load(site.as_ref().unwrap_or(&config.site))?;
-                (config.planner, std::sync::Arc::new(site))
+                (config.planner, site.clone().unwrap_or(config.site))
             }
         };
         if let Some(dir) = &self.models {

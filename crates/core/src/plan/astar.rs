@@ -250,7 +250,7 @@ pub(crate) fn search_with(
     Err(PlanError::Unreachable { from, to })
 }
 
-const NEIGHBOURS: [(i16, i16); 8] = [
+pub(crate) const NEIGHBOURS: [(i16, i16); 8] = [
     (1, 0),
     (-1, 0),
     (0, 1),

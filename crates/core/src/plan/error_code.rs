@@ -22,6 +22,10 @@ pub enum RouteErrorCode {
     BlockedCell,
     /// No walkable route joins the device's cell and `to`.
     Unreachable,
+    /// A route exists, but only over stairs or escalators (or stairs within
+    /// a floor), and the walker needs a step-free one (wheelchair): they are
+    /// never sent a staircase.
+    NoStepFreeRoute,
     /// The device has no location yet.
     UnknownDevice,
     /// A `profile` the planner does not know.
@@ -45,11 +49,12 @@ pub enum RouteErrorCode {
 impl RouteErrorCode {
     /// Every code, in the order the schema lists them.
     #[cfg(test)]
-    pub(crate) const ALL: [RouteErrorCode; 13] = [
+    pub(crate) const ALL: [RouteErrorCode; 14] = [
         RouteErrorCode::UnknownPlace,
         RouteErrorCode::OffMap,
         RouteErrorCode::BlockedCell,
         RouteErrorCode::Unreachable,
+        RouteErrorCode::NoStepFreeRoute,
         RouteErrorCode::UnknownDevice,
         RouteErrorCode::UnknownProfile,
         RouteErrorCode::ModelFailed,
@@ -68,6 +73,7 @@ impl RouteErrorCode {
             RouteErrorCode::OffMap => "off_map",
             RouteErrorCode::BlockedCell => "blocked_cell",
             RouteErrorCode::Unreachable => "unreachable",
+            RouteErrorCode::NoStepFreeRoute => "no_step_free_route",
             RouteErrorCode::UnknownDevice => "unknown_device",
             RouteErrorCode::UnknownProfile => "unknown_profile",
             RouteErrorCode::ModelFailed => "model_failed",

@@ -31,7 +31,7 @@ use super::anyangle::{GridPoint, centre};
 use super::lines::nearest_on_segment;
 use super::route::kept_vertices;
 use super::{Profile, Route, ServedLine};
-use crate::site::{Cell, Site, Tile};
+use crate::site::{Cell, ConnectorKind, Site, Tile};
 
 /// How near (in cells) a named place must be to name a turn after it.
 pub(crate) const PLACE_RADIUS_CELLS: f64 = 1.5;
@@ -167,12 +167,24 @@ impl Maneuver {
     /// before it: "Walk 12 metres, with a door after 4 metres, then turn
     /// left at help desk."
     pub(crate) fn sentence(&self, distance_m: f64) -> String {
-        capitalised(&self.clause(distance_m)) + "."
+        self.sentence_towards(distance_m, None)
+    }
+
+    /// [`Maneuver::sentence`] of [`Maneuver::clause_towards`].
+    fn sentence_towards(&self, distance_m: f64, towards: Option<&str>) -> String {
+        capitalised(&self.clause_towards(distance_m, towards)) + "."
     }
 
     /// [`Maneuver::sentence`] without its capital and full stop, to be
     /// joined to another.
     pub(crate) fn clause(&self, distance_m: f64) -> String {
+        self.clause_towards(distance_m, None)
+    }
+
+    /// [`Maneuver::clause`], with an arrival walked `towards` what the walk
+    /// goes on by ("the lift") rather than arrived at: the end of one
+    /// floor's leg of a route across floors.
+    fn clause_towards(&self, distance_m: f64, towards: Option<&str>) -> String {
         let named = self
             .place
             .as_ref()
@@ -187,7 +199,10 @@ impl Maneuver {
             walk.push_str(&feature.warning(f64::from(at_m) - from_m));
         }
         match (self.kind, self.modifier) {
-            (ManeuverType::Arrive, _) => format!("{walk}; you have arrived{named}"),
+            (ManeuverType::Arrive, _) => match towards {
+                Some(what) => format!("{walk} to {what}"),
+                None => format!("{walk}; you have arrived{named}"),
+            },
             (ManeuverType::Continue, Some(m)) if self.place.is_none() => {
                 format!("{walk}, then {} across the junction", m.words())
             }
@@ -204,8 +219,19 @@ pub(crate) fn first_sentence(
     route: &[Cell],
     maneuvers: &[Maneuver],
 ) -> Option<String> {
+    first_sentence_towards(site, route, maneuvers, None)
+}
+
+/// [`first_sentence`], an arrival walked `towards` what the walk goes on
+/// by ([`Maneuver::clause_towards`]).
+fn first_sentence_towards(
+    site: &Site,
+    route: &[Cell],
+    maneuvers: &[Maneuver],
+    towards: Option<&str>,
+) -> Option<String> {
     let first = maneuvers.get(1)?;
-    let walk = first.clause(first.distance_m);
+    let walk = first.clause_towards(first.distance_m, towards);
     Some(match setting_off(site, route) {
         Some(setting_off) => format!("{setting_off}, {walk}."),
         None => capitalised(&walk) + ".",
@@ -534,20 +560,70 @@ fn setting_off(site: &Site, cells: &[Cell]) -> Option<String> {
 /// per turn (the first saying how to set off) and one for arriving; empty
 /// for a route of one cell.
 pub fn instructions(site: &Site, route: &Route, maneuvers: &[Maneuver]) -> Vec<Instruction> {
+    instructions_towards(site, route, maneuvers, None)
+}
+
+/// [`instructions`] for a walk that goes on at its end `towards` something
+/// ("the lift"), which it walks to rather than arrives at.
+pub(crate) fn instructions_towards(
+    site: &Site,
+    route: &Route,
+    maneuvers: &[Maneuver],
+    towards: Option<&str>,
+) -> Vec<Instruction> {
     maneuvers
         .iter()
         .enumerate()
         .filter(|(_, m)| m.is_decision())
         .map(|(i, m)| Instruction {
             text: if i == 1 {
-                first_sentence(site, &route.cells, maneuvers).expect("a first decision")
+                first_sentence_towards(site, &route.cells, maneuvers, towards)
+                    .expect("a first decision")
             } else {
-                m.sentence(m.distance_m)
+                m.sentence_towards(m.distance_m, towards)
             },
             distance_m: m.distance_m,
             at: m.at,
         })
         .collect()
+}
+
+/// What a connector is called in a sentence: "the lift".
+pub(crate) fn connector_noun(kind: ConnectorKind) -> String {
+    format!("the {}", kind.name())
+}
+
+/// The sentence for riding a connector of `kind` `levels` levels (negative:
+/// down) to `floor`: "Take the lift to F3.", "Take the stairs down to B1.",
+/// "Take the escalator up 2 floors to F3." A lift is told only the floor, the
+/// button its rider presses; stairs and escalators also which way and, past
+/// one, how many floors, which a walker who cannot see the landings counts.
+pub(crate) fn ride_sentence(kind: ConnectorKind, levels: i32, floor: &str) -> String {
+    let noun = connector_noun(kind);
+    if kind == ConnectorKind::Lift {
+        return format!("Take {noun} to {floor}.");
+    }
+    let way = if levels < 0 { "down" } else { "up" };
+    match levels.unsigned_abs() {
+        1 => format!("Take {noun} {way} to {floor}."),
+        n => format!("Take {noun} {way} {n} floors to {floor}."),
+    }
+}
+
+/// The sentence for leaving a connector of `kind` on `floor`: "Leave the
+/// lift on F3." It opens the next floor's walk, so a walker who lost count
+/// of the landings hears where they should be.
+pub(crate) fn leave_sentence(kind: ConnectorKind, floor: &str) -> String {
+    format!("Leave {} on {floor}.", connector_noun(kind))
+}
+
+/// The sentence for arriving where a walk of one cell ends (a destination
+/// at a connector's stop): "You have arrived at help desk."
+pub(crate) fn arrived_sentence(site: &Site, at: Cell) -> String {
+    match site.nearest_place(at, PLACE_RADIUS_CELLS) {
+        Some(place) => format!("You have arrived at {place}."),
+        None => "You have arrived.".to_owned(),
+    }
 }
 
 /// Direction from `a` to `b` in degrees, clockwise on the map from east

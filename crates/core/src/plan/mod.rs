@@ -24,6 +24,7 @@ pub mod astar;
 pub(crate) mod conditional;
 pub mod desire;
 mod error_code;
+pub mod floors;
 pub mod frame;
 pub mod instructions;
 pub mod learned;
@@ -70,6 +71,27 @@ pub enum PlanError {
     Blocked(Cell),
     #[error("no walkable route from {from} to {to}")]
     Unreachable { from: Cell, to: Cell },
+    /// Across floors: no connector joins the two floors along a way the
+    /// walker can reach (`from` and `to` name floor and cell).
+    #[error(
+        "no walkable route from {from} to {to}: no connector joins their floors where the walker can reach it"
+    )]
+    NotJoined { from: String, to: String },
+    /// The walker needs a step-free route and every route has steps: `why`
+    /// says where (which stairs or escalators the only routes take).
+    #[error("no step-free route from {from} to {to}: {why}")]
+    NoStepFreeRoute {
+        from: String,
+        to: String,
+        why: String,
+    },
+    /// A floor the building does not have.
+    #[error("unknown floor `{name}`; the building's floors are: {known}")]
+    UnknownFloor { name: String, known: String },
+    /// A destination that does not say its floor, on a building where it
+    /// must: a cell, or a place on several floors or none.
+    #[error("{0}")]
+    FloorUnclear(String),
     /// A model failed at run time (the planner could not produce frames).
     #[error("the path model failed: {reason}")]
     Model { reason: String },
@@ -82,10 +104,15 @@ impl PlanError {
     /// Stable machine-readable code, as sent in MQTT error replies.
     pub fn code(&self) -> RouteErrorCode {
         match self {
-            PlanError::UnknownPlace { .. } => RouteErrorCode::UnknownPlace,
+            PlanError::UnknownPlace { .. }
+            | PlanError::UnknownFloor { .. }
+            | PlanError::FloorUnclear(_) => RouteErrorCode::UnknownPlace,
             PlanError::OffMap { .. } => RouteErrorCode::OffMap,
             PlanError::Blocked(_) => RouteErrorCode::BlockedCell,
-            PlanError::Unreachable { .. } => RouteErrorCode::Unreachable,
+            PlanError::Unreachable { .. } | PlanError::NotJoined { .. } => {
+                RouteErrorCode::Unreachable
+            }
+            PlanError::NoStepFreeRoute { .. } => RouteErrorCode::NoStepFreeRoute,
             PlanError::Model { .. } => RouteErrorCode::ModelFailed,
             PlanError::Invalid { .. } => RouteErrorCode::InvalidRoute,
         }

@@ -2,7 +2,7 @@
 //! each costs them. A profile reads the cell attributes of the site map
 //! ([`Tile`]: stairs, elevator, door, narrow).
 
-use crate::site::{Cell, Site, Tile};
+use crate::site::{Cell, ConnectorKind, Site, Tile};
 
 /// A walker's needs. `Default` walks anywhere walkable, by length.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -20,6 +20,11 @@ pub enum Profile {
 pub(crate) const PROFILE_NAMES: [&str; 3] = ["default", "wheelchair", "low-vision"];
 
 impl Profile {
+    /// Every profile, in the order of [`PROFILE_NAMES`] (and of the enum, so
+    /// `profile as usize` indexes it).
+    pub(crate) const ALL: [Profile; 3] =
+        [Profile::Default, Profile::Wheelchair, Profile::LowVision];
+
     /// The profile called `name`, or `None` for a name not in [`PROFILE_NAMES`].
     pub fn parse(name: &str) -> Option<Profile> {
         match name {
@@ -74,6 +79,22 @@ impl Profile {
             Profile::Default => 1.2,
             Profile::Wheelchair => 1.0,
             Profile::LowVision => 0.9,
+        }
+    }
+
+    /// The factor on a connector's time for this walker, or `None` when they
+    /// may not use it. A wheelchair takes only step-free connectors (lifts,
+    /// ramps): never stairs, nor an escalator, whose steps a wheelchair
+    /// cannot board. A low-vision walker may take any, but would rather ride
+    /// a lift or walk a ramp than step onto a moving escalator (1.5×) or
+    /// climb stairs feeling for each step's edge (2×), so the planner sends
+    /// them to those only when the lift costs more than that.
+    pub fn connector_factor(self, kind: ConnectorKind) -> Option<f64> {
+        match (self, kind) {
+            (Profile::Wheelchair, kind) => kind.step_free().then_some(1.0),
+            (Profile::LowVision, ConnectorKind::Stairs) => Some(2.0),
+            (Profile::LowVision, ConnectorKind::Escalator) => Some(1.5),
+            _ => Some(1.0),
         }
     }
 

@@ -14,6 +14,7 @@
 //! - and what the runtime adds: feedback, adherence, forgotten devices, shared
 //!   sightings and the counters ([`stats`]).
 
+pub mod floors;
 pub mod stats;
 
 use std::sync::Arc;
