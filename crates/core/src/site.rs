@@ -36,8 +36,11 @@ use uuid::Uuid;
 
 use crate::sighting::{BeaconId, Mac};
 
+mod building;
 mod doc;
 mod floorplan;
+
+pub use building::{Building, Connector, ConnectorKind, Floor, Stop};
 
 pub use doc::{BeaconDoc, FloorplanDoc, SiteDoc, write_doc};
 pub use floorplan::{

@@ -1,0 +1,542 @@
+//! A building: its floors, each a one-floor [`Site`] with its own grid, frame,
+//! plan image, beacons and places, and the connectors between them (stairs,
+//! lifts, escalators, ramps).
+//!
+//! A building file lists its floors by name and level and points at each
+//! floor's site file; the floors are not inlined so that every one-floor tool
+//! (the editor, `check`, the radio map, calibration) keeps working on one
+//! floor at a time, and a floor's errors keep naming its own file and line.
+//! A one-floor site file is a building of that one floor (named after the
+//! site, level 0), so every site file people already have loads unchanged.
+//!
+//! ```toml
+//! name = "mall"
+//!
+//! [[floors]]
+//! name = "B1"
+//! level = -1
+//! site = "B1/site.toml"        # relative to this file
+//!
+//! [[connectors]]
+//! id = "lift east"
+//! kind = "lift"                # stairs | lift | escalator | ramp
+//! s_per_level = 12.0           # optional: the kind's default
+//! stops = [{ floor = "B1", cell = [40, 12] }, { floor = "F1", cell = [41, 12] }]
+//! ```
+//!
+//! Which walkers may use a connector is the planner's rule (a wheelchair only
+//! where the connector is step-free); the site only says what it is.
+
+use std::collections::{BTreeSet, HashMap};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use serde::Deserialize;
+use toml::Spanned;
+
+use super::{Cell, Site, SiteError, line_at};
+
+/// The most floors a building may have: per-device state and route searches
+/// grow with it, so a file listing thousands is a mistake, not a building.
+const MAX_FLOORS: usize = 128;
+/// The most connectors a building may have, for the same reason.
+const MAX_CONNECTORS: usize = 4096;
+
+/// What joins two or more floors.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ConnectorKind {
+    Stairs,
+    Lift,
+    Escalator,
+    Ramp,
+}
+
+impl ConnectorKind {
+    /// Whether someone who cannot take a step can use it.
+    pub fn step_free(self) -> bool {
+        matches!(self, ConnectorKind::Lift | ConnectorKind::Ramp)
+    }
+
+    /// Seconds per level when the file gives none: a storey of about 4 m
+    /// climbed on stairs at 0.3 m/s vertical, ridden on an escalator of
+    /// about 12 m at 0.5 m/s, walked up a 1:12 ramp of about 50 m, or in a
+    /// lift (the wait is [`Connector::wait_s`]).
+    pub fn default_s_per_level(self) -> f64 {
+        match self {
+            ConnectorKind::Stairs => 15.0,
+            ConnectorKind::Lift => 5.0,
+            ConnectorKind::Escalator => 25.0,
+            ConnectorKind::Ramp => 45.0,
+        }
+    }
+
+    /// Seconds waited before moving when the file gives none: a lift's
+    /// typical wait in a busy building; nothing for the others.
+    pub fn default_wait_s(self) -> f64 {
+        match self {
+            ConnectorKind::Lift => 30.0,
+            _ => 0.0,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ConnectorKind::Stairs => "stairs",
+            ConnectorKind::Lift => "lift",
+            ConnectorKind::Escalator => "escalator",
+            ConnectorKind::Ramp => "ramp",
+        }
+    }
+}
+
+/// One floor: its name (as people say it: "B1", "Ground"), its level (0 is
+/// the entrance floor, negative below it) and its site.
+#[derive(Clone, Debug)]
+pub struct Floor {
+    pub name: String,
+    pub level: i32,
+    pub site: Arc<Site>,
+}
+
+/// Where a connector can be entered or left on one floor.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Stop {
+    /// Index into [`Building::floors`].
+    pub floor: usize,
+    /// A walkable cell of that floor.
+    pub cell: Cell,
+}
+
+/// Stairs, a lift, an escalator or a ramp, with a stop on every floor it
+/// joins (at least two).
+#[derive(Clone, Debug)]
+pub struct Connector {
+    pub id: String,
+    pub kind: ConnectorKind,
+    /// Seconds to move one level.
+    pub s_per_level: f64,
+    /// Seconds before moving (a lift's wait).
+    pub wait_s: f64,
+    /// Ordered by level.
+    pub stops: Vec<Stop>,
+}
+
+impl Connector {
+    /// Seconds from `from`'s floor to `to`'s, two of its stops.
+    pub fn seconds(&self, building: &Building, from: Stop, to: Stop) -> f64 {
+        let levels = building.floors[from.floor]
+            .level
+            .abs_diff(building.floors[to.floor].level);
+        self.wait_s + self.s_per_level * f64::from(levels)
+    }
+}
+
+/// A loaded, validated building.
+#[derive(Clone, Debug)]
+pub struct Building {
+    pub name: String,
+    /// Ordered by level, lowest first.
+    floors: Vec<Floor>,
+    connectors: Vec<Connector>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BuildingFile {
+    name: String,
+    floors: Vec<Spanned<FloorEntry>>,
+    #[serde(default)]
+    connectors: Vec<Spanned<ConnectorEntry>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FloorEntry {
+    name: String,
+    level: i32,
+    site: PathBuf,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ConnectorEntry {
+    id: String,
+    kind: ConnectorKind,
+    #[serde(default)]
+    s_per_level: Option<f64>,
+    #[serde(default)]
+    wait_s: Option<f64>,
+    stops: Vec<StopEntry>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct StopEntry {
+    floor: String,
+    cell: Cell,
+}
+
+impl Building {
+    /// Loads a building file, or a one-floor site file as a building of one
+    /// floor.
+    pub fn load(path: &Path) -> Result<Building, SiteError> {
+        let text = std::fs::read_to_string(path).map_err(|source| SiteError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
+        Building::parse(&text, path, Site::load)
+    }
+
+    /// A building of one floor: `site`, named after it, at level 0.
+    pub fn of_site(site: Arc<Site>) -> Building {
+        Building {
+            name: site.name.clone(),
+            floors: vec![Floor {
+                name: site.name.clone(),
+                level: 0,
+                site,
+            }],
+            connectors: Vec::new(),
+        }
+    }
+
+    /// Whether `text` is a building file (it lists `floors`) rather than a
+    /// one-floor site file.
+    pub fn is_building_file(text: &str) -> bool {
+        text.parse::<toml::Table>()
+            .is_ok_and(|table| table.contains_key("floors"))
+    }
+
+    /// Parses and validates `text`; `path` names the file in messages and
+    /// floors' site paths are relative to its directory. `load_floor` reads
+    /// one floor's site file (tests give sites from memory).
+    pub fn parse(
+        text: &str,
+        path: &Path,
+        load_floor: impl Fn(&Path) -> Result<Site, SiteError>,
+    ) -> Result<Building, SiteError> {
+        if !Building::is_building_file(text) {
+            return Ok(Building::of_site(Arc::new(Site::parse(text, path)?)));
+        }
+        let file: BuildingFile = toml::from_str(text).map_err(|source| SiteError::Toml {
+            path: path.to_owned(),
+            source,
+        })?;
+        let invalid = |problems: Vec<String>| SiteError::Invalid {
+            path: path.to_owned(),
+            problems,
+        };
+        let line_of = |span: std::ops::Range<usize>| line_at(text, span.start);
+        let mut problems = Vec::new();
+        if file.name.trim().is_empty() {
+            problems.push("`name` is empty; give the building a name".to_owned());
+        }
+        if file.floors.is_empty() {
+            problems.push("`floors` is empty; list at least one `[[floors]]`".to_owned());
+        }
+        if file.floors.len() > MAX_FLOORS {
+            problems.push(format!(
+                "{} floors, more than the {MAX_FLOORS} a building may have",
+                file.floors.len()
+            ));
+        }
+        if file.connectors.len() > MAX_CONNECTORS {
+            problems.push(format!(
+                "{} connectors, more than the {MAX_CONNECTORS} a building may have",
+                file.connectors.len()
+            ));
+        }
+        if !problems.is_empty() {
+            return Err(invalid(problems));
+        }
+
+        let dir = path.parent().unwrap_or(Path::new("."));
+        let mut names = HashMap::new();
+        let mut levels = HashMap::new();
+        let mut floors = Vec::new();
+        for entry in &file.floors {
+            let line = line_of(entry.span());
+            let floor = entry.get_ref();
+            if floor.name.trim().is_empty() {
+                problems.push(format!("line {line}: a floor's `name` is empty"));
+            } else if let Some(first) = names.insert(floor.name.clone(), line) {
+                problems.push(format!(
+                    "line {line}: floor `{}` is also on line {first}; floor names must differ",
+                    floor.name
+                ));
+            }
+            if let Some(first) = levels.insert(floor.level, line) {
+                problems.push(format!(
+                    "line {line}: floor `{}` has level {}, as has the floor on line {first}; \
+                     each floor needs its own level",
+                    floor.name, floor.level
+                ));
+            }
+            match load_floor(&dir.join(&floor.site)) {
+                Ok(site) => floors.push(Floor {
+                    name: floor.name.clone(),
+                    level: floor.level,
+                    site: Arc::new(site),
+                }),
+                Err(e) => problems.push(format!(
+                    "line {line}: floor `{}`: {}",
+                    floor.name,
+                    e.problems().join("; ")
+                )),
+            }
+        }
+        if !problems.is_empty() {
+            return Err(invalid(problems));
+        }
+        floors.sort_by_key(|f| f.level);
+        let index: HashMap<&str, usize> = floors
+            .iter()
+            .enumerate()
+            .map(|(i, f)| (f.name.as_str(), i))
+            .collect();
+
+        let mut ids = HashMap::new();
+        let mut connectors = Vec::new();
+        for entry in &file.connectors {
+            let line = line_of(entry.span());
+            let c = entry.get_ref();
+            if let Some(first) = ids.insert(c.id.clone(), line) {
+                problems.push(format!(
+                    "line {line}: connector `{}` is also on line {first}; ids must differ",
+                    c.id
+                ));
+            }
+            let seconds = |key: &str, value: Option<f64>, default: f64, problems: &mut Vec<_>| {
+                let v = value.unwrap_or(default);
+                if !(v.is_finite() && v >= 0.0) {
+                    problems.push(format!(
+                        "line {line}: connector `{}` `{key}` is {v}; it must be zero or more seconds",
+                        c.id
+                    ));
+                }
+                v
+            };
+            let s_per_level = seconds(
+                "s_per_level",
+                c.s_per_level,
+                c.kind.default_s_per_level(),
+                &mut problems,
+            );
+            let wait_s = seconds("wait_s", c.wait_s, c.kind.default_wait_s(), &mut problems);
+            let mut stops = Vec::new();
+            let mut joined = BTreeSet::new();
+            for stop in &c.stops {
+                let Some(&floor) = index.get(stop.floor.as_str()) else {
+                    problems.push(format!(
+                        "line {line}: connector `{}` stops on floor `{}`, which is not in \
+                         `floors` ({})",
+                        c.id,
+                        stop.floor,
+                        floors
+                            .iter()
+                            .map(|f| f.name.as_str())
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ));
+                    continue;
+                };
+                if !joined.insert(floor) {
+                    problems.push(format!(
+                        "line {line}: connector `{}` stops twice on floor `{}`; give one stop \
+                         per floor",
+                        c.id, stop.floor
+                    ));
+                }
+                let site = &floors[floor].site;
+                if !site.walkable(stop.cell) {
+                    problems.push(format!(
+                        "line {line}: connector `{}` stop on floor `{}` at {} is {}; put it on a \
+                         walkable cell of that floor's grid ({}×{})",
+                        c.id,
+                        stop.floor,
+                        stop.cell,
+                        if site.contains(stop.cell) {
+                            "a blocked cell"
+                        } else {
+                            "off the grid"
+                        },
+                        site.width(),
+                        site.height()
+                    ));
+                }
+                stops.push(Stop {
+                    floor,
+                    cell: stop.cell,
+                });
+            }
+            if c.stops.len() < 2 {
+                problems.push(format!(
+                    "line {line}: connector `{}` has {} stop(s); it must join at least two floors",
+                    c.id,
+                    c.stops.len()
+                ));
+            }
+            stops.sort_by_key(|s| s.floor);
+            connectors.push(Connector {
+                id: c.id.clone(),
+                kind: c.kind,
+                s_per_level,
+                wait_s,
+                stops,
+            });
+        }
+        if !problems.is_empty() {
+            return Err(invalid(problems));
+        }
+        Ok(Building {
+            name: file.name,
+            floors,
+            connectors,
+        })
+    }
+
+    /// The floors, lowest level first.
+    pub fn floors(&self) -> &[Floor] {
+        &self.floors
+    }
+
+    /// The index of the floor called `name`.
+    pub fn floor_named(&self, name: &str) -> Option<usize> {
+        self.floors.iter().position(|f| f.name == name)
+    }
+
+    pub fn connectors(&self) -> &[Connector] {
+        &self.connectors
+    }
+
+    /// Whether it has more than one floor.
+    pub fn is_multi_floor(&self) -> bool {
+        self.floors.len() > 1
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn floor_site(name: &str, map: &str) -> String {
+        format!("name = \"{name}\"\ncell_m = 1.0\nmap = '''\n{map}\n'''\n")
+    }
+
+    /// Floor sites from memory: `B1.toml` and `F1.toml` (3×3 open), `F2.toml`
+    /// (centre blocked).
+    fn load_floor(path: &Path) -> Result<Site, SiteError> {
+        let text = match path.file_name().and_then(|n| n.to_str()) {
+            Some("B1.toml") => floor_site("b1", "###\n###\n###"),
+            Some("F1.toml") => floor_site("f1", "###\n###\n###"),
+            Some("F2.toml") => floor_site("f2", "###\n#.#\n###"),
+            _ => {
+                return Err(SiteError::Read {
+                    path: path.to_owned(),
+                    source: std::io::Error::from(std::io::ErrorKind::NotFound),
+                });
+            }
+        };
+        Site::parse(&text, path)
+    }
+
+    fn parse(text: &str) -> Result<Building, SiteError> {
+        Building::parse(text, Path::new("dir/b.toml"), load_floor)
+    }
+
+    const FLOORS: &str = r#"
+name = "test"
+[[floors]]
+name = "F1"
+level = 0
+site = "F1.toml"
+[[floors]]
+name = "B1"
+level = -1
+site = "B1.toml"
+[[floors]]
+name = "F2"
+level = 1
+site = "F2.toml"
+"#;
+
+    #[test]
+    fn floors_are_ordered_by_level_and_connectors_join_them() {
+        let text = format!(
+            "{FLOORS}[[connectors]]\nid = \"lift\"\nkind = \"lift\"\n\
+             stops = [{{ floor = \"F2\", cell = [0, 0] }}, {{ floor = \"B1\", cell = [2, 2] }}]\n"
+        );
+        let b = parse(&text).unwrap();
+        let names: Vec<_> = b.floors().iter().map(|f| f.name.as_str()).collect();
+        assert_eq!(names, ["B1", "F1", "F2"]);
+        assert_eq!(b.floor_named("F2"), Some(2));
+        let lift = &b.connectors()[0];
+        assert_eq!(lift.stops[0].floor, 0, "stops ordered by level");
+        assert!(lift.kind.step_free());
+        // Two levels at 5 s each after a 30 s wait.
+        assert_eq!(lift.seconds(&b, lift.stops[0], lift.stops[1]), 40.0);
+    }
+
+    #[test]
+    fn a_one_floor_site_file_is_a_building_of_one_floor() {
+        let b = parse(&floor_site("hall", "##\n##")).unwrap();
+        assert!(!b.is_multi_floor());
+        assert_eq!(b.floors()[0].name, "hall");
+        assert_eq!(b.floors()[0].level, 0);
+    }
+
+    #[test]
+    fn errors_name_the_line_and_what_to_change() {
+        let text = format!(
+            "{FLOORS}[[floors]]\nname = \"F1\"\nlevel = 0\nsite = \"missing.toml\"\n\
+             [[connectors]]\nid = \"s\"\nkind = \"stairs\"\n\
+             stops = [{{ floor = \"F2\", cell = [1, 1] }}, {{ floor = \"F9\", cell = [0, 0] }}]\n"
+        );
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(
+            err.contains("line 15: floor `F1` is also on line 3"),
+            "{err}"
+        );
+        assert!(
+            err.contains("has level 0, as has the floor on line 3"),
+            "{err}"
+        );
+        assert!(err.contains("missing.toml"), "{err}");
+        // Floor problems stop the check before connectors are read.
+        let text = format!(
+            "{FLOORS}[[connectors]]\nid = \"s\"\nkind = \"stairs\"\n\
+             stops = [{{ floor = \"F2\", cell = [1, 1] }}, {{ floor = \"F9\", cell = [0, 0] }}]\n"
+        );
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(err.contains("dir/b.toml"), "{err}");
+        assert!(
+            err.contains("stop on floor `F2` at [1, 1] is a blocked cell"),
+            "{err}"
+        );
+        assert!(
+            err.contains("stops on floor `F9`, which is not in `floors` (B1, F1, F2)"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn a_connector_must_join_two_floors_once_each() {
+        let text = format!(
+            "{FLOORS}[[connectors]]\nid = \"r\"\nkind = \"ramp\"\ns_per_level = -1.0\n\
+             stops = [{{ floor = \"F1\", cell = [0, 0] }}, {{ floor = \"F1\", cell = [1, 0] }}]\n"
+        );
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(err.contains("stops twice on floor `F1`"), "{err}");
+        assert!(err.contains("`s_per_level` is -1"), "{err}");
+        let text = format!(
+            "{FLOORS}[[connectors]]\nid = \"r\"\nkind = \"ramp\"\n\
+             stops = [{{ floor = \"F1\", cell = [0, 0] }}]\n"
+        );
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(
+            err.contains("has 1 stop(s); it must join at least two floors"),
+            "{err}"
+        );
+    }
+}
