@@ -57,6 +57,7 @@ fn benches(c: &mut Criterion) {
         b.iter(|| {
             t += 0.05; // 13 beacons at ~1.5 Hz: one window closes every 40 pushes
             let s = Sighting {
+                advertiser_mac: None,
                 t,
                 observer: observer.clone(),
                 advertiser: site.beacons[(t * 20.0) as usize % site.beacons.len()].beacon,

@@ -389,6 +389,7 @@ async fn simulate(
                 let t = (k + tag.phase) / hz;
                 for &(r, rssi) in &tag.heard_by {
                     heard.entry(r).or_default().push(Sighting {
+                        advertiser_mac: None,
                         t,
                         observer: receivers[r].as_str().into(),
                         advertiser: BeaconId {

@@ -53,11 +53,6 @@ struct ImportArgs {
     /// Rows between waypoints implying a faster walk (m/s) are refused.
     #[arg(long, default_value_t = Options::default().max_speed_mps)]
     max_speed: f64,
-    /// An iBeacon id heard from several MAC addresses whose positions lie
-    /// further apart than this (metres) is several beacons the gateway
-    /// cannot tell apart, and is dropped.
-    #[arg(long, default_value_t = Options::default().mac_spread_m)]
-    mac_spread_m: f64,
     /// Print one JSON object with the counts.
     #[arg(long)]
     json: bool,
@@ -72,7 +67,6 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         stride_s: args.stride_s,
         max_gap_s: args.max_gap_s,
         max_speed_mps: args.max_speed,
-        mac_spread_m: args.mac_spread_m,
     };
     let started = Instant::now();
     let report = import(&args.floor_dir, &args.out, &options)?;
@@ -116,13 +110,9 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         f.off_walkable
     );
     println!(
-        "beacons: kept {} readings; dropped {} ids heard from MACs spread over the floor ({} \
-         readings) and {} heard under 3 times at a known position ({} readings)",
-        r.readings_kept,
-        r.shared_ids_dropped,
-        r.shared_readings_dropped,
-        r.rare_ids_dropped,
-        r.rare_readings_dropped
+        "beacons: kept {} readings; {} ids heard from several MACs, one beacon per MAC; dropped \
+         {} heard under 3 times at a known position ({} readings)",
+        r.readings_kept, r.shared_ids_split, r.rare_ids_dropped, r.rare_readings_dropped
     );
     println!("took {seconds:.1} s");
     Ok(ExitCode::SUCCESS)

@@ -116,6 +116,7 @@ fn scans(device: &str, t0: f64, seconds: u32) -> Vec<Event> {
         .flat_map(|s| {
             [(3008, -55), (3005, -72), (3010, -80)].map(|(minor, rssi)| {
                 Event::Advert(Sighting {
+                    advertiser_mac: None,
                     t: t0 + f64::from(s),
                     observer: observer.clone(),
                     advertiser: BeaconId {

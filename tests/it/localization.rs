@@ -953,6 +953,7 @@ async fn the_daemon_recalibrates_from_what_it_heard_and_serves_it() {
                     continue;
                 }
                 events.push(Event::Advert(Sighting {
+                    advertiser_mac: None,
                     t: now - 2_000.0 + f64::from(s),
                     observer: observer.clone(),
                     advertiser: BeaconId {

@@ -66,6 +66,7 @@ fn sightings(seconds: u32, t0: f64) -> Vec<Sighting> {
                 let wobble = f64::from((s * 7 + u32::from(minor) * 3 + i as u32 * 5) % 7) - 3.0;
                 let rssi = (-59.0 - 20.0 * d.max(0.5).log10() + wobble).round() as i16;
                 out.push(Sighting {
+                    advertiser_mac: None,
                     t: t0 + f64::from(s) + 0.1 * i as f64,
                     observer: Arc::from(*id),
                     advertiser: BeaconId {

@@ -798,6 +798,7 @@ mod tests {
         for k in 0..10 {
             for b in &site.beacons {
                 let sighting = crate::sighting::Sighting {
+                    advertiser_mac: b.mac,
                     t: f64::from(k),
                     observer: "phone".into(),
                     advertiser: b.beacon,

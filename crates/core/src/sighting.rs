@@ -37,6 +37,54 @@ impl fmt::Display for BeaconId {
     }
 }
 
+/// A Bluetooth device address (the advertiser's MAC), written
+/// `AA:BB:CC:DD:EE:FF`. Part of a beacon's identity where several
+/// transmitters share one UUID/major/minor and differ only by address.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Mac(pub [u8; 6]);
+
+impl fmt::Display for Mac {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let [a, b, c, d, e, g] = self.0;
+        write!(f, "{a:02X}:{b:02X}:{c:02X}:{d:02X}:{e:02X}:{g:02X}")
+    }
+}
+
+impl std::str::FromStr for Mac {
+    type Err = String;
+
+    /// Six hexadecimal bytes separated by `:` (or `-`), in either case.
+    fn from_str(text: &str) -> Result<Self, String> {
+        let bad = || format!("`{text}` is not a MAC address (six hex bytes: AA:BB:CC:DD:EE:FF)");
+        let mut bytes = [0u8; 6];
+        let mut parts = text.split([':', '-']);
+        for byte in &mut bytes {
+            let part = parts.next().ok_or_else(bad)?;
+            if part.len() != 2 {
+                return Err(bad());
+            }
+            *byte = u8::from_str_radix(part, 16).map_err(|_| bad())?;
+        }
+        if parts.next().is_some() {
+            return Err(bad());
+        }
+        Ok(Mac(bytes))
+    }
+}
+
+impl Serialize for Mac {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.collect_str(self)
+    }
+}
+
+impl<'de> Deserialize<'de> for Mac {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        let text = String::deserialize(deserializer)?;
+        text.parse().map_err(serde::de::Error::custom)
+    }
+}
+
 /// One advert heard by one observer.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Sighting {
@@ -47,6 +95,10 @@ pub struct Sighting {
     pub observer: Arc<str>,
     /// Who was heard.
     pub advertiser: BeaconId,
+    /// The advertiser's address, when the source knows it (the radio, a
+    /// capture or phone scan that gives it); what tells apart beacons that
+    /// share one UUID/major/minor.
+    pub advertiser_mac: Option<Mac>,
     /// The beacon's calibrated RSSI at 1 m ("measured power"), when it sent one.
     pub tx_power: Option<i8>,
     /// Received signal strength in dBm.
@@ -68,6 +120,24 @@ pub fn valid_device_id(id: &str) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn macs_read_back_as_written_and_bad_ones_are_named() {
+        let mac: Mac = "e0:78:a3:3d:b5:d6".parse().unwrap();
+        assert_eq!(mac, Mac([0xE0, 0x78, 0xA3, 0x3D, 0xB5, 0xD6]));
+        assert_eq!(mac.to_string(), "E0:78:A3:3D:B5:D6");
+        assert_eq!("E0-78-A3-3D-B5-D6".parse::<Mac>(), Ok(mac));
+        for bad in [
+            "",
+            "E0:78:A3:3D:B5",
+            "E0:78:A3:3D:B5:D6:00",
+            "E0:78:A3:3D:B5:G6",
+            "E078:A3:3D:B5:D6:0",
+        ] {
+            let err = bad.parse::<Mac>().unwrap_err();
+            assert!(err.contains("is not a MAC address"), "{bad:?}: {err}");
+        }
+    }
 
     #[test]
     fn device_ids_that_break_topics_are_refused() {

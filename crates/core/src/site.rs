@@ -34,7 +34,7 @@ use sha2::{Digest, Sha256};
 use toml::Spanned;
 use uuid::Uuid;
 
-use crate::sighting::BeaconId;
+use crate::sighting::{BeaconId, Mac};
 
 mod building;
 mod doc;
@@ -162,6 +162,9 @@ pub struct Beacon {
     pub mount: Option<Mount>,
     /// Calibrated RSSI at 1 m in dBm, overriding what the frame advertises.
     pub tx_power: Option<i8>,
+    /// The beacon's address, when several transmitters share its
+    /// UUID/major/minor: it then stands only for sightings from this MAC.
+    pub mac: Option<Mac>,
 }
 
 /// A fixed gateway: an anchor when gateways localize the tags they hear.
@@ -382,6 +385,7 @@ struct BeaconEntry {
     pos: Option<Spanned<[f64; 2]>>,
     height_m: Option<Spanned<f64>>,
     tx_power: Option<i8>,
+    mac: Option<Spanned<String>>,
 }
 
 #[derive(Deserialize)]
@@ -655,7 +659,7 @@ impl Site {
 
         let mut beacons = Vec::with_capacity(file.beacons.len());
         let mut seen_ids: HashMap<String, usize> = HashMap::new();
-        let mut seen_beacons: HashMap<BeaconId, usize> = HashMap::new();
+        let mut seen_beacons: HashMap<(BeaconId, Option<Mac>), usize> = HashMap::new();
         for entry in &file.beacons {
             let line = line_of(entry.span());
             let b = entry.get_ref();
@@ -670,10 +674,28 @@ impl Site {
                     b.id
                 ));
             }
-            if let Some(first) = seen_beacons.insert(beacon, line) {
+            let mac = b
+                .mac
+                .as_ref()
+                .and_then(|mac| match mac.get_ref().parse::<Mac>() {
+                    Ok(parsed) => Some(parsed),
+                    Err(e) => {
+                        problems.push(format!(
+                            "line {}: beacon `{}`: `mac`: {e}",
+                            line_of(mac.span()),
+                            b.id
+                        ));
+                        None
+                    }
+                });
+            if let Some(first) = seen_beacons.insert((beacon, mac), line) {
+                let what = match mac {
+                    Some(mac) => format!("uuid/major/minor ({beacon}) and mac ({mac})"),
+                    None => format!("uuid/major/minor ({beacon})"),
+                };
                 problems.push(format!(
-                    "line {line}: beacon `{}` has the same uuid/major/minor ({beacon}) as the \
-                     beacon at line {first}; each physical beacon needs its own major/minor",
+                    "line {line}: beacon `{}` has the same {what} as the beacon at line {first}; \
+                     each physical beacon needs its own major/minor, or its `mac`",
                     b.id
                 ));
             }
@@ -691,6 +713,7 @@ impl Site {
                 cell,
                 mount,
                 tx_power: b.tx_power,
+                mac,
             });
         }
 
@@ -1441,6 +1464,45 @@ door = [2, 1]
 
     fn problems(text: &str) -> String {
         parse(text).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn beacons_sharing_uuid_major_minor_are_told_apart_by_mac() {
+        let twin = |id: &str, mac: &str| {
+            format!(
+                "[[beacon]]\nid = \"{id}\"\nuuid = \"b9407f30-f5f8-466e-aff9-25556b57fe6d\"\n\
+                 major = 1\nminor = 1\ncell = [0, 0]\n{mac}"
+            )
+        };
+        let base = SMALL.replace("[places]\ndoor = [2, 1]\n", "");
+        let two = format!(
+            "{base}{}{}",
+            twin("b2", "mac = \"e0:78:a3:3d:b5:d6\"\n"),
+            twin("b3", "mac = \"E0:78:A3:3D:B5:D7\"\n")
+        );
+        let site = parse(&two).unwrap();
+        assert_eq!(site.beacons[0].mac, None);
+        assert_eq!(
+            site.beacons[1].mac.map(|m| m.to_string()).as_deref(),
+            Some("E0:78:A3:3D:B5:D6")
+        );
+
+        let same_mac = format!(
+            "{base}{}{}",
+            twin("b2", "mac = \"E0:78:A3:3D:B5:D6\"\n"),
+            twin("b3", "mac = \"E0:78:A3:3D:B5:D6\"\n")
+        );
+        let msg = problems(&same_mac);
+        assert!(
+            msg.contains("has the same uuid/major/minor (b9407f30-f5f8-466e-aff9-25556b57fe6d/1/1) and mac (E0:78:A3:3D:B5:D6)"),
+            "{msg}"
+        );
+        let bad = format!("{base}{}", twin("b2", "mac = \"E0:78:A3\"\n"));
+        let msg = problems(&bad);
+        assert!(
+            msg.contains("line 24: beacon `b2`: `mac`: `E0:78:A3` is not a MAC address"),
+            "{msg}"
+        );
     }
 
     #[test]

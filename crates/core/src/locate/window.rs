@@ -25,7 +25,7 @@ use std::sync::Arc;
 use serde::Deserialize;
 
 use super::bounds::Bounds;
-use crate::sighting::{BeaconId, Sighting};
+use crate::sighting::{BeaconId, Mac, Sighting};
 use crate::site::Site;
 
 /// `[window]` in the gateway config.
@@ -130,7 +130,9 @@ struct EntityWindow {
 pub struct Windows {
     config: WindowConfig,
     n_anchors: usize,
-    beacon_anchors: HashMap<BeaconId, u16>,
+    /// The site's beacons by identity: a beacon with a `mac` under
+    /// `(id, Some(mac))`, one without under `(id, None)`.
+    beacon_anchors: HashMap<(BeaconId, Option<Mac>), u16>,
     gateway_anchors: HashMap<Arc<str>, u16>,
     /// Entity ids of advertisers, made once per tag (`uuid-major-minor`).
     advertiser_ids: HashMap<BeaconId, Arc<str>>,
@@ -147,7 +149,7 @@ impl Windows {
             .beacons
             .iter()
             .enumerate()
-            .map(|(i, b)| (b.beacon, i as u16))
+            .map(|(i, b)| ((b.beacon, b.mac), i as u16))
             .collect();
         let gateway_anchors = site
             .gateways
@@ -210,13 +212,20 @@ impl Windows {
         }
     }
 
+    /// The site beacon a sighting is from: the one with its UUID/major/minor
+    /// and its MAC, else the one with its UUID/major/minor and no `mac`
+    /// (which stands for that id from any address).
+    fn beacon_anchor(&self, s: &Sighting) -> Option<u16> {
+        s.advertiser_mac
+            .and_then(|mac| self.beacon_anchors.get(&(s.advertiser, Some(mac))))
+            .or_else(|| self.beacon_anchors.get(&(s.advertiser, None)))
+            .copied()
+    }
+
     /// Adds a sighting; returns the window it closed, if any.
     pub fn push(&mut self, s: &Sighting) -> Option<Fingerprint> {
         let (entity, anchor) = match self.config.orientation {
-            Orientation::Observer => (
-                s.observer.clone(),
-                self.beacon_anchors.get(&s.advertiser).copied(),
-            ),
+            Orientation::Observer => (s.observer.clone(), self.beacon_anchor(s)),
             Orientation::Advertiser => {
                 let id = self
                     .advertiser_ids
@@ -351,5 +360,83 @@ fn aggregate(
         t: end,
         rssi,
         heard,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use super::*;
+
+    const UUID: &str = "b9407f30-f5f8-466e-aff9-25556b57fe6d";
+
+    /// A site whose beacons `a` and `b` share one UUID/major/minor and differ
+    /// by MAC, and whose beacon `c` has no `mac`.
+    fn site() -> Site {
+        let beacon = |id: &str, minor: u16, mac: &str| {
+            format!(
+                "[[beacon]]\nid = \"{id}\"\nuuid = \"{UUID}\"\nmajor = 0\nminor = {minor}\n\
+                 cell = [0, 0]\n{mac}\n"
+            )
+        };
+        let text = format!(
+            "name = \"t\"\ncell_m = 1.0\nmap = '''\n##\n'''\n{}{}{}",
+            beacon("a", 0, "mac = \"AA:00:00:00:00:01\""),
+            beacon("b", 0, "mac = \"AA:00:00:00:00:02\""),
+            beacon("c", 7, "")
+        );
+        Site::parse(&text, Path::new("t.toml")).unwrap()
+    }
+
+    fn heard(minor: u16, mac: Option<&str>, rssi: i16, t: f64) -> Sighting {
+        Sighting {
+            t,
+            observer: Arc::from("phone"),
+            advertiser: BeaconId {
+                uuid: UUID.parse().unwrap(),
+                major: 0,
+                minor,
+            },
+            advertiser_mac: mac.map(|m| m.parse().unwrap()),
+            tx_power: None,
+            rssi,
+        }
+    }
+
+    fn window_of(sightings: &[Sighting]) -> (Fingerprint, u64) {
+        let mut windows = Windows::new(WindowConfig::default(), &site());
+        for s in sightings {
+            assert_eq!(windows.push(s), None);
+        }
+        let unknown = windows.unknown_anchor_count();
+        (windows.flush().remove(0), unknown)
+    }
+
+    #[test]
+    fn a_beacon_with_a_mac_stands_only_for_sightings_from_that_mac() {
+        let (fp, unknown) = window_of(&[
+            heard(0, Some("AA:00:00:00:00:02"), -60, 1.0),
+            heard(0, Some("AA:00:00:00:00:01"), -70, 1.0),
+            // Another transmitter with the same id, and one with no address:
+            // neither is `a` nor `b`.
+            heard(0, Some("AA:00:00:00:00:03"), -50, 1.0),
+            heard(0, None, -50, 1.0),
+        ]);
+        assert_eq!(fp.rssi[..2], [-70.0, -60.0]);
+        assert_eq!(fp.heard, [true, true, false]);
+        assert_eq!(unknown, 2);
+    }
+
+    #[test]
+    fn a_beacon_without_a_mac_stands_for_its_id_from_any_mac() {
+        let (fp, unknown) = window_of(&[
+            heard(7, Some("BB:00:00:00:00:01"), -80, 1.0),
+            heard(7, Some("BB:00:00:00:00:02"), -65, 1.0),
+            heard(7, None, -75, 1.0),
+        ]);
+        assert_eq!(fp.heard, [false, false, true]);
+        assert_eq!(fp.rssi[2], -65.0, "the strongest of the three");
+        assert_eq!(unknown, 0);
     }
 }

@@ -229,6 +229,7 @@ mod tests {
 
     fn heard(table: &mut HeardTable, t: f64, observer: &str, minor: u16, rssi: i16) {
         table.add(&Sighting {
+            advertiser_mac: None,
             t,
             observer: observer.into(),
             advertiser: beacon(minor),

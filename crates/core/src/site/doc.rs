@@ -19,6 +19,7 @@ use toml_edit::{ArrayOfTables, DocumentMut, Item, Table, Value};
 use uuid::Uuid;
 
 use super::{Cell, LabelScheme, ReferencePoint, YAxis};
+use crate::sighting::Mac;
 
 /// Every key of a site file (`config/sites/README.md`), as plain data. Its
 /// JSON form is the TOML's: `beacon` and `gateway` are the arrays of tables.
@@ -93,6 +94,9 @@ pub struct BeaconDoc {
     pub height_m: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tx_power: Option<i8>,
+    /// Where several transmitters share the UUID/major/minor, the one this is.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mac: Option<Mac>,
 }
 
 /// One `[[gateway]]`.
@@ -398,6 +402,7 @@ mod tests {
             pos: Some([20.0, 0.5]),
             height_m: Some(2.5),
             tx_power: None,
+            mac: Some("e0:78:a3:3d:b5:d6".parse().unwrap()),
         });
         let written = write_doc(&doc, Some(&text));
         assert_eq!(SiteDoc::parse(&written).unwrap(), doc);
@@ -410,7 +415,9 @@ mod tests {
         assert!(written.contains("cell = [9, 9]    # J10"), "{written}");
         assert!(!written.contains("printers"));
         assert!(written.contains("\"café <b>\" = [15, 14]"), "{written}");
-        assert!(written.contains("minor = 3014\npos = [20.0, 0.5]\nheight_m = 2.5"));
+        assert!(written.contains(
+            "minor = 3014\npos = [20.0, 0.5]\nheight_m = 2.5\nmac = \"E0:78:A3:3D:B5:D6\""
+        ));
         Site::parse(&written, Path::new("waldo.toml")).unwrap();
     }
 

@@ -243,6 +243,7 @@ mod tests {
             minor,
         };
         let sighting = |minor, t| Sighting {
+            advertiser_mac: None,
             t,
             observer: "edge-1".into(),
             advertiser: tag(minor),

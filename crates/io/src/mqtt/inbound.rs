@@ -29,7 +29,7 @@ use super::sightings;
 use crate::event::{Feedback, Inbound, RouteRequest};
 use crate::plan::{Destination, RouteErrorCode};
 use crate::sighting::valid_device_id;
-use crate::sighting::{BeaconId, Sighting};
+use crate::sighting::{BeaconId, Mac, Sighting};
 use crate::topics::Topics;
 
 /// Why a message was not used; the daemon logs it and counts it.
@@ -110,6 +110,10 @@ struct ScanEntry {
     rssi: i16,
     #[serde(default)]
     tx_power: Option<i8>,
+    /// Parsed whole (six hex bytes) or the scan is refused: it comes from
+    /// anyone who can publish.
+    #[serde(default)]
+    mac: Option<Mac>,
 }
 
 impl Inbox {
@@ -258,7 +262,7 @@ impl Inbox {
             Kind::Scan => {
                 let entries: Vec<ScanEntry> = serde_json::from_slice(payload).map_err(|e| {
                     bad(format!(
-                        "{e}; a scan is [{{\"uuid\", \"major\", \"minor\", \"rssi\"}}, ...]"
+                        "{e}; a scan is [{{\"uuid\", \"major\", \"minor\", \"rssi\", optional \"tx_power\", \"mac\"}}, ...]"
                     ))
                 })?;
                 let observer: Arc<str> = id.into();
@@ -266,6 +270,7 @@ impl Inbox {
                     entries
                         .into_iter()
                         .map(|e| Sighting {
+                            advertiser_mac: e.mac,
                             t: now,
                             observer: observer.clone(),
                             advertiser: BeaconId {
@@ -576,6 +581,29 @@ mod tests {
             panic!()
         };
         assert_eq!((&*s[0].observer, s[0].t, s[0].rssi), ("phone-2", 9.0, -70));
+        assert_eq!(s[0].advertiser_mac, None);
+        let with_mac = br#"[{"uuid":"5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84","major":1,"minor":3001,"rssi":-70,"mac":"e0:78:a3:3d:b5:d6"}]"#;
+        let Inbound::Scan(s) = i.read("gangway/gw/scans/phone-2", with_mac, 9.0).unwrap() else {
+            panic!()
+        };
+        assert_eq!(
+            s[0].advertiser_mac.unwrap().to_string(),
+            "E0:78:A3:3D:B5:D6"
+        );
+        for mac in [
+            "\"E0:78\"",
+            "\"E0:78:A3:3D:B5:D6:00\"",
+            "\"zz:78:A3:3D:B5:D6\"",
+            "7",
+        ] {
+            let scan = format!(
+                r#"[{{"uuid":"5e1a6f3c-2b1d-4c8e-9a70-3d2f1c0b9e84","major":1,"minor":3001,"rssi":-70,"mac":{mac}}}]"#
+            );
+            let err = i
+                .read("gangway/gw/scans/phone-2", scan.as_bytes(), 9.0)
+                .unwrap_err();
+            assert!(matches!(err, Rejected::BadPayload { .. }), "{mac}: {err}");
+        }
         assert!(matches!(
             i.read(
                 "gangway/gw/devices/p/feedback",

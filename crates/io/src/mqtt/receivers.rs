@@ -180,6 +180,7 @@ fn sighting(
         return Err(format!("rssi {rssi} is outside -127..=20 dBm"));
     }
     Ok(Sighting {
+        advertiser_mac: None,
         t: now,
         observer: Arc::from(observer),
         advertiser: beacon,

@@ -98,6 +98,7 @@ pub(crate) fn decode(gateway: &str, payload: &[u8]) -> Result<Vec<Sighting>, Str
                 return Err("`t` must be a finite number of seconds".to_owned());
             }
             Ok(Sighting {
+                advertiser_mac: None,
                 t: s.t,
                 observer: observer.clone(),
                 advertiser: BeaconId {
@@ -119,6 +120,7 @@ mod tests {
     #[test]
     fn a_batch_round_trips_and_names_its_gateway() {
         let s = Sighting {
+            advertiser_mac: None,
             t: 12.5,
             observer: "gw-a".into(),
             advertiser: BeaconId {

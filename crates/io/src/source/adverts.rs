@@ -162,6 +162,7 @@ impl Adverts {
             return self.skip(SkipReason::NoRssi);
         };
         self.pending.push_back(Sighting {
+            advertiser_mac: None,
             t,
             observer: self.observer.clone(),
             advertiser: beacon.id,

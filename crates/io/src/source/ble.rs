@@ -38,7 +38,7 @@ use super::{Shutdown, Source, SourceContext};
 
 use crate::event::Event;
 use crate::publish::stats::BleStatus;
-use crate::sighting::Sighting;
+use crate::sighting::{Mac, Sighting};
 use crate::source::unix_now;
 
 /// How often a scan asks BlueZ whether its adapter is still there and powered
@@ -305,8 +305,9 @@ pub async fn scan(
                 if matches!(event, CentralEvent::StateUpdate(CentralState::PoweredOff)) {
                     break Err(BleError::AdapterLost(name));
                 }
-                if let Some((beacon, rssi)) = heard.event(adapter, event).await {
+                if let Some((beacon, mac, rssi)) = heard.event(adapter, event).await {
                     let sighting = Sighting {
+                        advertiser_mac: Some(mac),
                         t: unix_now(),
                         observer: observer.clone(),
                         advertiser: beacon.id,
@@ -352,12 +353,17 @@ pub async fn scan(
 /// The peripherals known to send iBeacon frames.
 #[derive(Default)]
 struct Heard {
-    beacons: HashMap<PeripheralId, IBeacon>,
+    beacons: HashMap<PeripheralId, (IBeacon, Mac)>,
 }
 
 impl Heard {
-    /// The iBeacon and RSSI an event reports, if it is an advert of one.
-    async fn event(&mut self, adapter: &Adapter, event: CentralEvent) -> Option<(IBeacon, i16)> {
+    /// The iBeacon, its sender's address and the RSSI an event reports, if
+    /// it is an advert of one.
+    async fn event(
+        &mut self,
+        adapter: &Adapter,
+        event: CentralEvent,
+    ) -> Option<(IBeacon, Mac, i16)> {
         match event {
             // A new (or already known) device: its first advert's data.
             CentralEvent::DeviceDiscovered(id) => {
@@ -368,19 +374,23 @@ impl Heard {
                     .properties()
                     .await
                     .ok()??;
-                self.classify(id, &properties.manufacturer_data);
+                let mac = Mac(properties.address.into_inner());
+                self.classify(id, mac, &properties.manufacturer_data);
                 None
             }
             CentralEvent::ManufacturerDataAdvertisement {
                 id,
                 manufacturer_data,
             } => {
-                let beacon = self.classify(id.clone(), &manufacturer_data)?;
                 let peripheral = adapter.peripheral(&id).await.ok()?;
-                let rssi = peripheral.properties().await.ok()??.rssi?;
-                Some((beacon, rssi))
+                let properties = peripheral.properties().await.ok()??;
+                let mac = Mac(properties.address.into_inner());
+                let (beacon, mac) = self.classify(id, mac, &manufacturer_data)?;
+                Some((beacon, mac, properties.rssi?))
             }
-            CentralEvent::RssiUpdate { id, rssi } => self.beacons.get(&id).map(|&b| (b, rssi)),
+            CentralEvent::RssiUpdate { id, rssi } => {
+                self.beacons.get(&id).map(|&(b, mac)| (b, mac, rssi))
+            }
             _ => None,
         }
     }
@@ -390,8 +400,9 @@ impl Heard {
     fn classify(
         &mut self,
         id: PeripheralId,
+        mac: Mac,
         manufacturer_data: &HashMap<u16, Vec<u8>>,
-    ) -> Option<IBeacon> {
+    ) -> Option<(IBeacon, Mac)> {
         let Some(beacon) = manufacturer_data
             .get(&APPLE_COMPANY_ID)
             .and_then(|payload| ibeacon::parse_payload(payload))
@@ -406,8 +417,8 @@ impl Heard {
                 self.beacons.remove(&evicted);
             }
         }
-        self.beacons.insert(id, beacon);
-        Some(beacon)
+        self.beacons.insert(id, (beacon, mac));
+        Some((beacon, mac))
     }
 }
 

@@ -596,6 +596,7 @@ mod tests {
         assert_eq!(
             s,
             vec![Sighting {
+                advertiser_mac: None,
                 t: 1_700_000_000.25,
                 observer: "phone".into(),
                 advertiser: beacon(),
@@ -757,6 +758,7 @@ mod tests {
     fn writer_output_reads_back_to_the_same_sightings_on_every_datalink() {
         let sightings: Vec<Sighting> = (0..20)
             .map(|i| Sighting {
+                advertiser_mac: None,
                 t: 1_700_000_000.0 + f64::from(i) * 0.125,
                 observer: "gw".into(),
                 advertiser: BeaconId {
@@ -785,6 +787,7 @@ mod tests {
     fn writer_refuses_what_a_report_cannot_carry() {
         let mut writer = BtsnoopWriter::new(Vec::new(), Datalink::Monitor).unwrap();
         let s = Sighting {
+            advertiser_mac: None,
             t: 0.0,
             observer: "gw".into(),
             advertiser: beacon(),
@@ -795,6 +798,7 @@ mod tests {
         assert!(
             writer
                 .write(&Sighting {
+                    advertiser_mac: None,
                     tx_power: Some(-59),
                     rssi: -300,
                     ..s

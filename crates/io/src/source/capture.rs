@@ -357,6 +357,7 @@ mod tests {
 
     fn advert(t: f64, observer: &str) -> Event {
         Event::Advert(Sighting {
+            advertiser_mac: None,
             t,
             observer: observer.into(),
             advertiser: BeaconId {

@@ -10,7 +10,8 @@
 //! Every row becomes one advert per beacon heard (any value but the "not heard"
 //! sentinel) at the row's time, observed by one device id, plus a `truth` event
 //! for that device when the row names its cell. The beacon's identity comes from
-//! the site file; a scan log has no measured power, so adverts carry none.
+//! the site file (with its `mac`, where it has one); a scan log has no
+//! measured power, so adverts carry none.
 //!
 //! Rows are replayed in time order whatever their order in the file (the UCI
 //! survey lists its newest rows first). That needs the whole file before the
@@ -126,6 +127,8 @@ impl CsvLog {
             for (beacon, rssi) in site.beacons.iter().zip(&row.rssi) {
                 if let Some(rssi) = *rssi {
                     events.push(Event::Advert(Sighting {
+                        // The column is the site's beacon, so its address too.
+                        advertiser_mac: beacon.mac,
                         t,
                         observer: options.device.clone(),
                         advertiser: beacon.beacon,
@@ -278,6 +281,7 @@ tx_power = -61
                     cell: Cell::new(0, 0)
                 }),
                 Event::Advert(Sighting {
+                    advertiser_mac: None,
                     t: t0,
                     observer: "survey".into(),
                     advertiser: site.beacons[0].beacon,
@@ -290,6 +294,7 @@ tx_power = -61
                     cell: Cell::new(1, 1)
                 }),
                 Event::Advert(Sighting {
+                    advertiser_mac: None,
                     t: t0 + 3.0,
                     observer: "survey".into(),
                     advertiser: site.beacons[1].beacon,

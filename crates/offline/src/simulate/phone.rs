@@ -99,6 +99,7 @@ impl<'a> Phone<'a> {
                 continue;
             }
             events.push(Event::Advert(Sighting {
+                advertiser_mac: beacon.mac,
                 t,
                 observer: observer.clone(),
                 advertiser: beacon.beacon,
@@ -140,6 +141,7 @@ fn hear_survey(
     for (beacon, rssi) in site.beacons.iter().zip(&row.rssi) {
         if let Some(rssi) = *rssi {
             events.push(Event::Advert(Sighting {
+                advertiser_mac: beacon.mac,
                 t,
                 observer: observer.clone(),
                 advertiser: beacon.beacon,

@@ -21,10 +21,11 @@
 //!   `max_speed_mps`, and rows whose position is off the grid or on a blocked
 //!   cell (the survey loader refuses those).
 //! - **Beacons.** See [`estimate`]; an iBeacon id (uuid/major/minor) heard
-//!   from several MAC addresses whose positions are spread over the floor is
-//!   several transmitters the gateway cannot tell apart (it keys anchors on
-//!   uuid/major/minor), so it is dropped and counted, not averaged into one
-//!   position nowhere near any of them.
+//!   from several MAC addresses is several transmitters, so each (id, MAC)
+//!   becomes its own beacon with its `mac` set (the gateway matches those
+//!   only to sightings from that address), not one averaged position nowhere
+//!   near any of them. An id heard from one MAC stays an id without `mac`,
+//!   so it is matched from any address, as a hand-written site would be.
 //! - **Bad lines.** A line that does not parse is reported with its file,
 //!   line and field and skipped; the rest of the walk is read.
 
@@ -41,7 +42,7 @@ use uuid::Uuid;
 
 use crate::locate::survey::Survey;
 use crate::locate::window::WindowConfig;
-use crate::sighting::BeaconId;
+use crate::sighting::{BeaconId, Mac};
 use crate::site::{BeaconDoc, Site, write_doc};
 
 /// The "not heard" value the survey is written with (`[localizer.knn]
@@ -68,9 +69,6 @@ pub struct Options {
     pub max_gap_s: f64,
     /// Rows between waypoints implying a faster walk are refused, m/s.
     pub max_speed_mps: f64,
-    /// An id heard from MACs whose positions are further apart than this
-    /// from the id's own is dropped, metres.
-    pub mac_spread_m: f64,
 }
 
 impl Default for Options {
@@ -83,7 +81,6 @@ impl Default for Options {
             stride_s: window.stride_s,
             max_gap_s: 30.0,
             max_speed_mps: 2.5,
-            mac_spread_m: 10.0,
         }
     }
 }
@@ -107,10 +104,10 @@ pub struct Report {
     pub beacons: usize,
     /// Readings of the beacons kept (with a labelled position).
     pub readings_kept: usize,
-    /// Ids heard from several MACs spread over the floor, and their readings.
-    pub shared_ids_dropped: usize,
-    pub shared_readings_dropped: usize,
-    /// Ids heard fewer than [`MIN_READINGS`] times at a known position.
+    /// Ids heard from several MACs, each MAC then a beacon of its own.
+    pub shared_ids_split: usize,
+    /// Beacons (ids, or an id's MACs) heard fewer than [`MIN_READINGS`]
+    /// times at a known position.
     pub rare_ids_dropped: usize,
     pub rare_readings_dropped: usize,
     /// The problems found, the first few in full.
@@ -127,8 +124,9 @@ pub struct Refused {
     pub off_walkable: usize,
 }
 
-/// A reading at its labelled position: MAC, RSSI dBm, world metres.
-type Heard<'a> = (&'a str, i16, [f64; 2]);
+/// A transmitter as the site knows it: its id, and its MAC where the id is
+/// heard from several.
+pub(crate) type Key = (BeaconId, Option<Mac>);
 
 /// Why a moment of a walk has no position.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -158,7 +156,7 @@ pub(crate) struct Reading {
     /// Seconds (Unix time).
     pub(crate) t: f64,
     pub(crate) id: BeaconId,
-    pub(crate) mac: String,
+    pub(crate) mac: Mac,
     pub(crate) tx_power: i8,
     pub(crate) rssi: i16,
 }
@@ -262,7 +260,10 @@ fn reading(fields: &[&str]) -> Result<Reading, FieldError> {
             minor: number(fields, 4, "minor", "a minor number (0-65535)")?,
         },
         tx_power: number(fields, 5, "tx power", "a power in whole dBm")?,
-        mac: field(fields, 8, "mac")?.to_ascii_uppercase(),
+        mac: {
+            let mac = field(fields, 8, "mac")?;
+            mac.parse().map_err(|e| ("mac", e))?
+        },
         rssi,
     })
 }
@@ -364,54 +365,34 @@ pub fn import(floor_dir: &Path, out: &Path, options: &Options) -> anyhow::Result
     };
     let walks = read_walks(&floor_dir.join("path_data_files"), &mut report)?;
 
-    // Every reading at its own labelled position, per id and MAC.
-    let mut heard: BTreeMap<BeaconId, Vec<Heard>> = BTreeMap::new();
-    let mut tx_powers: BTreeMap<BeaconId, BTreeMap<i8, usize>> = BTreeMap::new();
-    let mut readings_of: BTreeMap<BeaconId, usize> = BTreeMap::new();
+    let keys = Keys::of(&walks);
+    report.shared_ids_split = keys.shared.len();
+    let mut heard: BTreeMap<Key, Vec<(i16, [f64; 2])>> = BTreeMap::new();
+    let mut tx_powers: BTreeMap<Key, BTreeMap<i8, usize>> = BTreeMap::new();
+    let mut readings_of: BTreeMap<Key, usize> = BTreeMap::new();
     for walk in &walks {
         for r in &walk.readings {
-            *readings_of.entry(r.id).or_default() += 1;
+            let key = keys.key(r);
+            *readings_of.entry(key).or_default() += 1;
             if let Ok(at) = labelled(&site, walk, r.t, options) {
-                heard.entry(r.id).or_default().push((&r.mac, r.rssi, at));
+                heard.entry(key).or_default().push((r.rssi, at));
                 *tx_powers
-                    .entry(r.id)
+                    .entry(key)
                     .or_default()
                     .entry(r.tx_power)
                     .or_default() += 1;
             }
         }
     }
-    let mut kept: BTreeMap<BeaconId, [f64; 2]> = BTreeMap::new();
-    for (id, &count) in &readings_of {
-        let readings = heard.get(id).map_or(&[][..], Vec::as_slice);
-        let all: Vec<(i16, [f64; 2])> = readings.iter().map(|h| (h.1, h.2)).collect();
-        let Some(at) = estimate(&all) else {
+    let mut kept: BTreeMap<Key, [f64; 2]> = BTreeMap::new();
+    for (key, &count) in &readings_of {
+        let Some(at) = estimate(heard.get(key).map_or(&[][..], Vec::as_slice)) else {
             report.rare_ids_dropped += 1;
             report.rare_readings_dropped += count;
             continue;
         };
-        let mut macs: BTreeMap<&str, Vec<(i16, [f64; 2])>> = BTreeMap::new();
-        for &(mac, rssi, pos) in readings {
-            macs.entry(mac).or_default().push((rssi, pos));
-        }
-        let spread = macs
-            .values()
-            .filter_map(|h| estimate(h).or_else(|| h.iter().max_by_key(|r| r.0).map(|r| r.1)))
-            .map(|p| (p[0] - at[0]).hypot(p[1] - at[1]))
-            .fold(0.0, f64::max);
-        if macs.len() > 1 && spread > options.mac_spread_m {
-            report.shared_ids_dropped += 1;
-            report.shared_readings_dropped += count;
-            report.problems.push(format!(
-                "{id}: heard from {} MAC addresses up to {spread:.0} m apart, which the gateway \
-                 cannot tell apart (it keys beacons on uuid/major/minor); dropped with its {count} \
-                 readings; give each beacon its own major/minor to use it",
-                macs.len()
-            ));
-            continue;
-        }
         report.readings_kept += count;
-        kept.insert(*id, at);
+        kept.insert(*key, at);
     }
     doc.beacons = beacon_docs(&kept, &tx_powers);
     report.beacons = doc.beacons.len();
@@ -428,14 +409,14 @@ pub fn import(floor_dir: &Path, out: &Path, options: &Options) -> anyhow::Result
     std::fs::write(&site_path, &text)
         .with_context(|| format!("cannot write {}", site_path.display()))?;
 
-    let ids: Vec<BeaconId> = kept.keys().copied().collect();
+    let ids: Vec<Key> = kept.keys().copied().collect();
     let mut csv = String::from("x_m,y_m,t");
     for b in &doc.beacons {
         write!(csv, ",{}", b.id)?;
     }
     csv.push('\n');
     for walk in &walks {
-        rows(&site, walk, &ids, options, &mut report, &mut csv)?;
+        rows(&site, walk, &keys, &ids, options, &mut report, &mut csv)?;
     }
     std::fs::write(&report.survey, &csv)
         .with_context(|| format!("cannot write {}", report.survey.display()))?;
@@ -444,6 +425,32 @@ pub fn import(floor_dir: &Path, out: &Path, options: &Options) -> anyhow::Result
         Survey::load(&report.survey, &site, &anchors, NOT_HEARD)?;
     }
     Ok(report)
+}
+
+/// Which ids are heard from several MACs, so that each MAC is a beacon.
+pub(crate) struct Keys {
+    shared: std::collections::BTreeSet<BeaconId>,
+}
+
+impl Keys {
+    pub(crate) fn of(walks: &[Walk]) -> Keys {
+        let mut macs: BTreeMap<BeaconId, std::collections::BTreeSet<Mac>> = BTreeMap::new();
+        for r in walks.iter().flat_map(|w| &w.readings) {
+            macs.entry(r.id).or_default().insert(r.mac);
+        }
+        Keys {
+            shared: macs
+                .into_iter()
+                .filter(|(_, m)| m.len() > 1)
+                .map(|(id, _)| id)
+                .collect(),
+        }
+    }
+
+    /// The beacon a reading is from.
+    pub(crate) fn key(&self, r: &Reading) -> Key {
+        (r.id, self.shared.contains(&r.id).then_some(r.mac))
+    }
 }
 
 /// Every `*.txt` walk in `dir`, in name order.
@@ -470,27 +477,47 @@ fn read_walks(dir: &Path, report: &mut Report) -> anyhow::Result<Vec<Walk>> {
     Ok(walks)
 }
 
-/// The site's beacons: each kept id at its estimated position (to the
-/// centimetre) with the transmit power its frames advertised most often.
+/// The site's beacons: each kept id (or id and MAC) at its estimated
+/// position (to the centimetre) with the transmit power its frames
+/// advertised most often. Ids are `b-<uuid's first 8 digits>-<major>-<minor>`,
+/// then `-<mac's 12 digits>` for an id heard from several MACs.
 fn beacon_docs(
-    kept: &BTreeMap<BeaconId, [f64; 2]>,
-    tx_powers: &BTreeMap<BeaconId, BTreeMap<i8, usize>>,
+    kept: &BTreeMap<Key, [f64; 2]>,
+    tx_powers: &BTreeMap<Key, BTreeMap<i8, usize>>,
 ) -> Vec<BeaconDoc> {
-    let short = |id: &BeaconId| {
+    let mac_suffix = |mac: &Option<Mac>| {
+        mac.map_or_else(String::new, |m| {
+            format!("-{}", m.to_string().replace(':', "").to_ascii_lowercase())
+        })
+    };
+    let short = |(id, mac): &Key| {
         let uuid = id.uuid.simple().to_string();
-        format!("b-{}-{}-{}", &uuid[..8], id.major, id.minor)
+        format!(
+            "b-{}-{}-{}{}",
+            &uuid[..8],
+            id.major,
+            id.minor,
+            mac_suffix(mac)
+        )
     };
     let mut seen: BTreeMap<String, usize> = BTreeMap::new();
     for id in kept.keys() {
         *seen.entry(short(id)).or_default() += 1;
     }
     kept.iter()
-        .map(|(id, at)| {
-            let name = short(id);
+        .map(|(key, at)| {
+            let (id, mac) = key;
+            let name = short(key);
             BeaconDoc {
                 // Two uuids alike in their first 8 digits keep them whole.
                 id: if seen[&name] > 1 {
-                    format!("b-{}-{}-{}", id.uuid.simple(), id.major, id.minor)
+                    format!(
+                        "b-{}-{}-{}{}",
+                        id.uuid.simple(),
+                        id.major,
+                        id.minor,
+                        mac_suffix(mac)
+                    )
                 } else {
                     name
                 },
@@ -501,8 +528,9 @@ fn beacon_docs(
                 pos: Some(at.map(|v| (v * 100.0).round() / 100.0)),
                 height_m: None,
                 tx_power: tx_powers
-                    .get(id)
+                    .get(key)
                     .and_then(|p| p.iter().max_by_key(|(_, n)| **n).map(|(tx, _)| *tx)),
+                mac: *mac,
             }
         })
         .collect()
@@ -513,7 +541,8 @@ fn beacon_docs(
 fn rows(
     site: &Site,
     walk: &Walk,
-    ids: &[BeaconId],
+    keys: &Keys,
+    ids: &[Key],
     options: &Options,
     report: &mut Report,
     csv: &mut String,
@@ -521,7 +550,7 @@ fn rows(
     let readings: Vec<(f64, usize, i16)> = walk
         .readings
         .iter()
-        .filter_map(|r| Some((r.t, ids.binary_search(&r.id).ok()?, r.rssi)))
+        .filter_map(|r| Some((r.t, ids.binary_search(&keys.key(r)).ok()?, r.rssi)))
         .collect();
     let (Some(first), Some(last)) = (readings.first(), readings.last()) else {
         return Ok(());
@@ -625,7 +654,7 @@ mod tests {
         let walk = read_walk(Path::new("walk.txt"), text, &mut problems);
         assert_eq!(walk.waypoints, vec![(1.0, [1.5, 2.5]), (2.0, [3.5, 2.5])]);
         assert_eq!(walk.readings.len(), 1);
-        assert_eq!(walk.readings[0].mac, "E0:78:A3:3D:B5:D6");
+        assert_eq!(walk.readings[0].mac.to_string(), "E0:78:A3:3D:B5:D6");
         assert_eq!((walk.readings[0].id.minor, walk.readings[0].rssi), (7, -80));
         assert_eq!(problems.len(), 3, "{problems:?}");
         assert!(problems[0].starts_with("walk.txt:4: field `uuid`: \"not-a-uuid\""));

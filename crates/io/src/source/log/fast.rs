@@ -31,6 +31,7 @@ use std::str::FromStr;
 use uuid::Uuid;
 
 use super::{Kind, Line, Text};
+use crate::sighting::Mac;
 
 /// Most digits of a `t` read here; a longer one goes to `serde_json`. 15
 /// digits keep the significand below 2⁵³ and the power of ten at most 10¹⁴.
@@ -56,6 +57,11 @@ pub(super) fn advert(line: &str) -> Option<Line<'_>> {
     } else {
         None
     };
+    let mac = if s.literal(r#","mac":""#).is_some() {
+        Some(Mac::from_str(s.string()?).ok()?)
+    } else {
+        None
+    };
     s.literal("}")?;
     if !s.0.is_empty() {
         return None;
@@ -67,6 +73,7 @@ pub(super) fn advert(line: &str) -> Option<Line<'_>> {
         minor: Some(minor),
         rssi: Some(rssi),
         tx_power,
+        mac,
         ..Line::new(Kind::Advert, t)
     })
 }
@@ -155,8 +162,10 @@ mod tests {
 
     #[test]
     fn reads_what_the_writer_writes() {
-        for tx_power in [Some(-59), None] {
+        let macs = [None, Some(Mac([0xE0, 0x78, 0xA3, 0x3D, 0xB5, 0xD6]))];
+        for (tx_power, advertiser_mac) in [Some(-59), None].into_iter().zip(macs) {
             let event = crate::event::Event::Advert(crate::sighting::Sighting {
+                advertiser_mac,
                 t: 1767225600.097,
                 observer: "walker-01".into(),
                 advertiser: crate::sighting::BeaconId {
@@ -204,7 +213,8 @@ mod tests {
             ("9e84", "9e8"),                                           // not a uuid
             (r#""tx_power":-59}"#, r#""tx_power":-59,"device":"p"}"#), // extra field
             (r#""tx_power":-59}"#, r#""tx_power":-59}}"#),
-            (r#""tx_power":-59}"#, r#""tx_power":-59"#), // cut short
+            (r#""tx_power":-59}"#, r#""tx_power":-59,"mac":"E0:78"}"#), // not a MAC
+            (r#""tx_power":-59}"#, r#""tx_power":-59"#),                // cut short
             (r#""type":"advert""#, r#""type":"truth""#),
         ];
         for (from, to) in cases {

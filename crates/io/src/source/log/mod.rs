@@ -2,7 +2,7 @@
 //! log format").
 //!
 //! ```text
-//! {"t":12.5,"type":"advert","observer":"gw-1","uuid":"…","major":1,"minor":3001,"rssi":-71,"tx_power":-59}
+//! {"t":12.5,"type":"advert","observer":"gw-1","uuid":"…","major":1,"minor":3001,"rssi":-71,"tx_power":-59,"mac":"E0:78:A3:3D:B5:D6"}
 //! {"t":13.0,"type":"request","device":"phone-7","to":"help desk","request_id":"r1"}
 //! {"t":13.0,"type":"truth","device":"phone-7","cell":[9,9]}
 //! ```
@@ -29,7 +29,7 @@ use uuid::Uuid;
 use crate::event::{Event, RouteRequest, Truth};
 use crate::plan::Destination;
 use crate::sighting::valid_device_id;
-use crate::sighting::{BeaconId, Sighting};
+use crate::sighting::{BeaconId, Mac, Sighting};
 use crate::site::Cell;
 use crate::throttle::Throttle;
 
@@ -60,6 +60,8 @@ struct Line<'a> {
     rssi: Option<i16>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     tx_power: Option<i8>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    mac: Option<Mac>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     device: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -96,6 +98,7 @@ impl Line<'_> {
             minor: None,
             rssi: None,
             tx_power: None,
+            mac: None,
             device: None,
             to: None,
             profile: None,
@@ -107,13 +110,14 @@ impl Line<'_> {
     /// The first field present that lines of this type do not have.
     fn foreign_field(&self) -> Option<&'static str> {
         use Kind::{Advert, Request, Truth};
-        let fields: [(&str, bool, &[Kind]); 11] = [
+        let fields: [(&str, bool, &[Kind]); 12] = [
             ("observer", self.observer.is_some(), &[Advert]),
             ("uuid", self.uuid.is_some(), &[Advert]),
             ("major", self.major.is_some(), &[Advert]),
             ("minor", self.minor.is_some(), &[Advert]),
             ("rssi", self.rssi.is_some(), &[Advert]),
             ("tx_power", self.tx_power.is_some(), &[Advert]),
+            ("mac", self.mac.is_some(), &[Advert]),
             ("device", self.device.is_some(), &[Request, Truth]),
             ("to", self.to.is_some(), &[Request]),
             ("profile", self.profile.is_some(), &[Request]),
@@ -264,6 +268,7 @@ impl<R: BufRead> LogReader<R> {
                     }
                 };
                 Event::Advert(Sighting {
+                    advertiser_mac: line.mac,
                     t,
                     observer,
                     advertiser: BeaconId {
@@ -388,6 +393,7 @@ impl<W: Write> LogWriter<W> {
                 minor: Some(s.advertiser.minor),
                 rssi: Some(s.rssi),
                 tx_power: s.tx_power,
+                mac: s.advertiser_mac,
                 ..Line::new(Kind::Advert, s.t)
             },
             Event::Request(r) => Line {
