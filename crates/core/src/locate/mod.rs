@@ -11,6 +11,7 @@ pub mod bounds;
 pub mod calibrate;
 pub mod calibration;
 pub(crate) mod crossval;
+pub mod floors;
 pub mod knn;
 pub mod onnx;
 pub mod pathloss;

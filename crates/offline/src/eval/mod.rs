@@ -2,6 +2,8 @@
 //! same way every time so that figures in notes and CI can be rerun.
 //!
 //! - [`localization`]: `gangway eval localization` on a labelled survey;
+//! - [`floors`]: `gangway eval localization --walks` in a building of several
+//!   floors, beside a k-NN baseline;
 //! - [`guidance`]: `gangway eval guidance`, simulated walkers guided along
 //!   their routes, some taking a wrong turn;
 //! - [`planning`]: `gangway eval planning`, every planner mode on place pairs,
@@ -11,6 +13,7 @@
 //!   over training checkpoints); `plot` draws the line charts.
 
 pub mod figures;
+pub mod floors;
 pub mod guidance;
 pub mod localization;
 pub mod planning;

@@ -301,7 +301,12 @@ pub(crate) fn position_at(
 }
 
 /// [`position_at`], also refusing a position the site does not let anyone stand on.
-fn labelled(site: &Site, walk: &Walk, t: f64, options: &Options) -> Result<[f64; 2], Refusal> {
+pub(crate) fn labelled(
+    site: &Site,
+    walk: &Walk,
+    t: f64,
+    options: &Options,
+) -> Result<[f64; 2], Refusal> {
     let at = position_at(&walk.waypoints, t, options.max_gap_s, options.max_speed_mps)?;
     match site.cell_of_world(at) {
         Some(cell) if site.walkable(cell) => Ok(at),
@@ -367,34 +372,8 @@ pub fn import(floor_dir: &Path, out: &Path, options: &Options) -> anyhow::Result
 
     let keys = Keys::of(&walks);
     report.shared_ids_split = keys.shared.len();
-    let mut heard: BTreeMap<Key, Vec<(i16, [f64; 2])>> = BTreeMap::new();
-    let mut tx_powers: BTreeMap<Key, BTreeMap<i8, usize>> = BTreeMap::new();
-    let mut readings_of: BTreeMap<Key, usize> = BTreeMap::new();
-    for walk in &walks {
-        for r in &walk.readings {
-            let key = keys.key(r);
-            *readings_of.entry(key).or_default() += 1;
-            if let Ok(at) = labelled(&site, walk, r.t, options) {
-                heard.entry(key).or_default().push((r.rssi, at));
-                *tx_powers
-                    .entry(key)
-                    .or_default()
-                    .entry(r.tx_power)
-                    .or_default() += 1;
-            }
-        }
-    }
-    let mut kept: BTreeMap<Key, [f64; 2]> = BTreeMap::new();
-    for (key, &count) in &readings_of {
-        let Some(at) = estimate(heard.get(key).map_or(&[][..], Vec::as_slice)) else {
-            report.rare_ids_dropped += 1;
-            report.rare_readings_dropped += count;
-            continue;
-        };
-        report.readings_kept += count;
-        kept.insert(*key, at);
-    }
-    doc.beacons = beacon_docs(&kept, &tx_powers);
+    let kept = estimate_beacons(&site, &walks, &keys, options, &mut report);
+    doc.beacons = beacon_docs(&kept);
     report.beacons = doc.beacons.len();
 
     let text = format!(
@@ -427,15 +406,66 @@ pub fn import(floor_dir: &Path, out: &Path, options: &Options) -> anyhow::Result
     Ok(report)
 }
 
+/// A beacon estimated from the walks: where, and the transmit power its
+/// frames advertised most often.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Estimate {
+    pub(crate) at: [f64; 2],
+    pub(crate) tx_power: Option<i8>,
+}
+
+/// Every beacon of `keys` heard in `walks` often enough at a labelled
+/// position, placed by [`estimate`]; the readings kept and dropped are
+/// counted in `report`.
+pub(crate) fn estimate_beacons<'a>(
+    site: &Site,
+    walks: impl IntoIterator<Item = &'a Walk>,
+    keys: &Keys,
+    options: &Options,
+    report: &mut Report,
+) -> BTreeMap<Key, Estimate> {
+    let mut heard: BTreeMap<Key, Vec<(i16, [f64; 2])>> = BTreeMap::new();
+    let mut tx_powers: BTreeMap<Key, BTreeMap<i8, usize>> = BTreeMap::new();
+    let mut readings_of: BTreeMap<Key, usize> = BTreeMap::new();
+    for walk in walks {
+        for r in &walk.readings {
+            let key = keys.key(r);
+            *readings_of.entry(key).or_default() += 1;
+            if let Ok(at) = labelled(site, walk, r.t, options) {
+                heard.entry(key).or_default().push((r.rssi, at));
+                *tx_powers
+                    .entry(key)
+                    .or_default()
+                    .entry(r.tx_power)
+                    .or_default() += 1;
+            }
+        }
+    }
+    let mut kept = BTreeMap::new();
+    for (key, &count) in &readings_of {
+        let Some(at) = estimate(heard.get(key).map_or(&[][..], Vec::as_slice)) else {
+            report.rare_ids_dropped += 1;
+            report.rare_readings_dropped += count;
+            continue;
+        };
+        report.readings_kept += count;
+        let tx_power = tx_powers
+            .get(key)
+            .and_then(|p| p.iter().max_by_key(|(_, n)| **n).map(|(tx, _)| *tx));
+        kept.insert(*key, Estimate { at, tx_power });
+    }
+    kept
+}
+
 /// Which ids are heard from several MACs, so that each MAC is a beacon.
 pub(crate) struct Keys {
     shared: std::collections::BTreeSet<BeaconId>,
 }
 
 impl Keys {
-    pub(crate) fn of(walks: &[Walk]) -> Keys {
+    pub(crate) fn of<'a>(walks: impl IntoIterator<Item = &'a Walk>) -> Keys {
         let mut macs: BTreeMap<BeaconId, std::collections::BTreeSet<Mac>> = BTreeMap::new();
-        for r in walks.iter().flat_map(|w| &w.readings) {
+        for r in walks.into_iter().flat_map(|w| &w.readings) {
             macs.entry(r.id).or_default().insert(r.mac);
         }
         Keys {
@@ -454,7 +484,7 @@ impl Keys {
 }
 
 /// Every `*.txt` walk in `dir`, in name order.
-fn read_walks(dir: &Path, report: &mut Report) -> anyhow::Result<Vec<Walk>> {
+pub(crate) fn read_walks(dir: &Path, report: &mut Report) -> anyhow::Result<Vec<Walk>> {
     let mut paths: Vec<PathBuf> = std::fs::read_dir(dir)
         .with_context(|| format!("{}: cannot read the walks' directory", dir.display()))?
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -481,10 +511,7 @@ fn read_walks(dir: &Path, report: &mut Report) -> anyhow::Result<Vec<Walk>> {
 /// position (to the centimetre) with the transmit power its frames
 /// advertised most often. Ids are `b-<uuid's first 8 digits>-<major>-<minor>`,
 /// then `-<mac's 12 digits>` for an id heard from several MACs.
-fn beacon_docs(
-    kept: &BTreeMap<Key, [f64; 2]>,
-    tx_powers: &BTreeMap<Key, BTreeMap<i8, usize>>,
-) -> Vec<BeaconDoc> {
+pub(crate) fn beacon_docs(kept: &BTreeMap<Key, Estimate>) -> Vec<BeaconDoc> {
     let mac_suffix = |mac: &Option<Mac>| {
         mac.map_or_else(String::new, |m| {
             format!("-{}", m.to_string().replace(':', "").to_ascii_lowercase())
@@ -505,7 +532,7 @@ fn beacon_docs(
         *seen.entry(short(id)).or_default() += 1;
     }
     kept.iter()
-        .map(|(key, at)| {
+        .map(|(key, estimate)| {
             let (id, mac) = key;
             let name = short(key);
             BeaconDoc {
@@ -525,35 +552,33 @@ fn beacon_docs(
                 major: id.major,
                 minor: id.minor,
                 cell: None,
-                pos: Some(at.map(|v| (v * 100.0).round() / 100.0)),
+                pos: Some(estimate.at.map(|v| (v * 100.0).round() / 100.0)),
                 height_m: None,
-                tx_power: tx_powers
-                    .get(key)
-                    .and_then(|p| p.iter().max_by_key(|(_, n)| **n).map(|(tx, _)| *tx)),
+                tx_power: estimate.tx_power,
                 mac: *mac,
             }
         })
         .collect()
 }
 
-/// One walk's survey rows, appended to `csv`: one per window of the kept
-/// beacons' readings, labelled at the mean time of its readings.
-fn rows(
-    site: &Site,
+/// One walk's windows over the beacons `ids` (sorted): the mean time of
+/// each window's readings and the strongest reading of each beacon heard
+/// (index into `ids`, dBm). A window holding the same readings as the one
+/// before is left out (the same row again).
+pub(crate) fn windows(
     walk: &Walk,
     keys: &Keys,
     ids: &[Key],
     options: &Options,
-    report: &mut Report,
-    csv: &mut String,
-) -> anyhow::Result<()> {
+) -> Vec<(f64, Vec<(usize, i16)>)> {
     let readings: Vec<(f64, usize, i16)> = walk
         .readings
         .iter()
         .filter_map(|r| Some((r.t, ids.binary_search(&keys.key(r)).ok()?, r.rssi)))
         .collect();
+    let mut out = Vec::new();
     let (Some(first), Some(last)) = (readings.first(), readings.last()) else {
-        return Ok(());
+        return out;
     };
     let (start, last) = (first.0, last.0);
     let (mut lo, mut hi, mut previous) = (0, 0, None);
@@ -568,13 +593,34 @@ fn rows(
         while lo < hi && readings[lo].0 <= end - options.window_s {
             lo += 1;
         }
-        // A window holding the same readings as the last is the same row.
         if lo == hi || previous == Some((lo, hi)) {
             continue;
         }
         previous = Some((lo, hi));
         let window = &readings[lo..hi];
         let t = window.iter().map(|r| r.0).sum::<f64>() / window.len() as f64;
+        let mut strongest: BTreeMap<usize, i16> = BTreeMap::new();
+        for &(_, i, rssi) in window {
+            let s = strongest.entry(i).or_insert(rssi);
+            *s = (*s).max(rssi);
+        }
+        out.push((t, strongest.into_iter().collect()));
+    }
+    out
+}
+
+/// One walk's survey rows, appended to `csv`: one per window of the kept
+/// beacons' readings, labelled at the mean time of its readings.
+fn rows(
+    site: &Site,
+    walk: &Walk,
+    keys: &Keys,
+    ids: &[Key],
+    options: &Options,
+    report: &mut Report,
+    csv: &mut String,
+) -> anyhow::Result<()> {
+    for (t, heard) in windows(walk, keys, ids, options) {
         let at = match labelled(site, walk, t, options) {
             Ok(at) => at,
             Err(why) => {
@@ -583,10 +629,8 @@ fn rows(
             }
         };
         let mut strongest = vec![NOT_HEARD; ids.len()];
-        for &(_, i, rssi) in window {
-            if strongest[i] == NOT_HEARD || rssi > strongest[i] {
-                strongest[i] = rssi;
-            }
+        for (i, rssi) in heard {
+            strongest[i] = rssi;
         }
         write!(csv, "{:.3},{:.3},{t:.3}", at[0], at[1])?;
         for v in strongest {

@@ -1,0 +1,471 @@
+//! Localization in a building of several floors, from walks with timed
+//! waypoints (the Indoor Location Competition layout, one folder of walks per
+//! floor): is the floor right, and how far off is the fix on the right floor.
+//!
+//! - **Split by time.** Each floor's walks in the order of their first
+//!   timestamp; the later [`TEST_SHARE`] are held out. Nothing below sees a
+//!   held-out walk before it is measured.
+//! - **What the daemon would have.** From the training walks only, as
+//!   `gangway survey import` would make them: the beacons' identities (an id
+//!   heard from several MACs is one beacon per MAC), each floor's beacons
+//!   (every beacon heard on that floor often enough, at the position the
+//!   import estimates from that floor's readings), each floor's survey (the
+//!   import's windows, positions interpolated between waypoints, its
+//!   refusals), and the localizer `[localizer] method` builds from them.
+//! - **Floor.** How strongly each beacon is heard from each floor (received
+//!   power summed per floor over the training readings) is the evidence of
+//!   [`locate::floors`](crate::locate::floors); each held-out walk's windows
+//!   go through its floor filter in order, and each window is located on
+//!   the floor it decides, by that floor's localizer and tracker.
+//! - **Baseline**, same windows: a k-NN regressor (k = 5, uniform weights,
+//!   Euclidean over RSSI vectors of every beacon of the building with "not
+//!   heard" = −100 dBm, as scikit-learn's `KNeighborsRegressor` defaults):
+//!   x, y the neighbours' mean, the floor their majority.
+//!
+//! Errors are metres between the fix (its cell's centre) and the
+//! interpolated truth, counted only where the floor is right.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::Path;
+use std::sync::Arc;
+
+use anyhow::Context;
+use serde::Serialize;
+
+use crate::locate::floors::{FloorEvidence, FloorFilter};
+use crate::locate::survey::Sample;
+use crate::locate::tracker::{Tracker, TrackerConfig};
+use crate::locate::window::WindowConfig;
+use crate::locate::{Localizer, LocalizerConfig, Method, knn, radiomap::RadioMap, rehearsal};
+use crate::score::ErrorSummary;
+use crate::site::{Beacon, Building, Mount, Site};
+use crate::survey::{self, Key, Keys, Options, Report, Walk};
+
+/// Share of each floor's walks held out, the latest.
+pub const TEST_SHARE: f64 = 0.3;
+/// The baseline's neighbours.
+const BASELINE_K: usize = 5;
+/// The baseline's "not heard", dBm.
+const BASELINE_NOT_HEARD: f32 = -100.0;
+
+/// What to evaluate.
+#[derive(Clone, Debug)]
+pub struct FloorsSetup {
+    pub method: Method,
+    pub localizer: LocalizerConfig,
+    pub window: WindowConfig,
+    pub tracker: TrackerConfig,
+    /// The floor filter's probability of changing floor between windows.
+    pub floor_switch: f64,
+}
+
+/// Floor accuracy and errors on the right floor.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct FloorMetrics {
+    pub floor_accuracy: f64,
+    pub mean_error_m: f64,
+    pub median_error_m: f64,
+    pub p90_error_m: f64,
+    pub fixes: usize,
+}
+
+/// One method's figures, overall and per floor (by the true floor).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct FloorsMetrics {
+    #[serde(flatten)]
+    pub overall: FloorMetrics,
+    pub floors: BTreeMap<String, FloorMetrics>,
+}
+
+/// Ours and the baseline's, on the same held-out windows.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct FloorsReport {
+    pub method: String,
+    #[serde(flatten)]
+    pub ours: FloorsMetrics,
+    pub baseline: FloorsMetrics,
+    pub train_walks: usize,
+    pub test_walks: usize,
+    /// Held-out windows with no position (the import's refusals).
+    pub refused_windows: usize,
+}
+
+/// One floor's walks, split.
+struct FloorWalks {
+    train: Vec<Walk>,
+    test: Vec<Walk>,
+}
+
+/// One fix or guess: its floor, and its error in metres when the floor is right.
+#[derive(Clone, Copy)]
+struct Outcome {
+    truth_floor: usize,
+    floor: usize,
+    error_m: f64,
+}
+
+/// Evaluates `building` with the walks in `walks_dir/<floor name>/path_data_files`.
+pub fn evaluate(
+    building: &Building,
+    walks_dir: &Path,
+    setup: &FloorsSetup,
+) -> anyhow::Result<FloorsReport> {
+    let options = Options {
+        window_s: setup.window.length_s,
+        stride_s: setup.window.stride_s,
+        ..Options::default()
+    };
+    let floors = building.floors();
+    let mut split = Vec::with_capacity(floors.len());
+    for floor in floors {
+        let dir = walks_dir.join(&floor.name).join("path_data_files");
+        let mut walks = survey::read_walks(&dir, &mut Report::default())
+            .with_context(|| format!("floor `{}`", floor.name))?;
+        walks.sort_by(|a, b| first_time(a).total_cmp(&first_time(b)));
+        let test = (walks.len() as f64 * TEST_SHARE).round() as usize;
+        anyhow::ensure!(
+            test > 0 && test < walks.len(),
+            "{}: {} walks cannot be split {:.0}/{:.0} by time",
+            dir.display(),
+            walks.len(),
+            100.0 * (1.0 - TEST_SHARE),
+            100.0 * TEST_SHARE
+        );
+        let test = walks.split_off(walks.len() - test);
+        split.push(FloorWalks { train: walks, test });
+    }
+    let keys = Keys::of(split.iter().flat_map(|f| &f.train));
+
+    // Each floor's beacons and the building's: every key some floor kept.
+    let mut per_floor = Vec::with_capacity(floors.len());
+    for (floor, walks) in floors.iter().zip(&split) {
+        let estimates = survey::estimate_beacons(
+            &floor.site,
+            &walks.train,
+            &keys,
+            &options,
+            &mut Report::default(),
+        );
+        per_floor.push(estimates);
+    }
+    let all: Vec<Key> = per_floor
+        .iter()
+        .flat_map(|e| e.keys().copied())
+        .collect::<BTreeSet<_>>()
+        .into_iter()
+        .collect();
+
+    let evidence = floor_evidence(&split, &keys, &all, floors.len());
+    let mut localizers = Vec::with_capacity(floors.len());
+    let mut baseline_train = Vec::new();
+    for (f, (floor, walks)) in floors.iter().zip(&split).enumerate() {
+        let (site, ids) = floor_site(&floor.site, &per_floor[f]);
+        let site = Arc::new(site);
+        let windows = labelled_windows(&site, &walks.train, &keys, &all, &options);
+        let samples: Vec<Sample> = windows
+            .iter()
+            .map(|(t, at, heard)| {
+                let mut rssi = vec![None; ids.len()];
+                for &(a, r) in heard {
+                    if let Ok(i) = ids.binary_search(&all[a]) {
+                        rssi[i] = Some(r);
+                    }
+                }
+                let cell = site
+                    .cell_of_world(*at)
+                    .expect("labelled on a walkable cell");
+                Sample {
+                    cell,
+                    at: *at,
+                    t: Some(*t),
+                    rssi,
+                }
+            })
+            .collect();
+        baseline_train.extend(windows.into_iter().map(|(_, at, heard)| (f, at, heard)));
+        let refs: Vec<&Sample> = samples.iter().collect();
+        let localizer = localizer(setup, &site, &refs)
+            .with_context(|| format!("floor `{}`: its localizer", floor.name))?;
+        let tracker = Tracker::new(setup.tracker.clone(), site.clone());
+        localizers.push((site, ids, localizer, tracker));
+    }
+    let baseline = Baseline::new(&baseline_train, all.len());
+
+    let mut ours = Vec::new();
+    let mut theirs = Vec::new();
+    let mut refused_windows = 0;
+    let mut floor_evidence = vec![0.0; floors.len()];
+    for (truth_floor, walks) in split.iter().enumerate() {
+        let truth_site = &floors[truth_floor].site;
+        for (w, walk) in walks.test.iter().enumerate() {
+            let entity: Arc<str> = Arc::from(format!("{truth_floor}-{w}"));
+            let mut filter = FloorFilter::new(floors.len(), setup.floor_switch);
+            for (t, heard) in survey::windows(walk, &keys, &all, &options) {
+                let heard_f: Vec<(usize, f32)> =
+                    heard.iter().map(|&(a, r)| (a, f32::from(r))).collect();
+                evidence.window(&heard_f, &mut floor_evidence);
+                let (floor, _) = filter.update(&floor_evidence);
+                let Ok(truth) = survey::labelled(truth_site, walk, t, &options) else {
+                    refused_windows += 1;
+                    continue;
+                };
+                let (site, ids, localizer, tracker) = &mut localizers[floor];
+                let mut rssi = vec![setup.window.missing_dbm; ids.len()];
+                let mut heard_on_floor = vec![false; ids.len()];
+                for &(a, r) in &heard {
+                    if let Ok(i) = ids.binary_search(&all[a]) {
+                        rssi[i] = f32::from(r);
+                        heard_on_floor[i] = true;
+                    }
+                }
+                let mut ll = vec![0.0f32; site.open_cells().len()];
+                localizer.log_likelihood(&rssi, &heard_on_floor, &mut ll);
+                let fix = tracker.update(&entity, t, &ll);
+                let at = site.world_of_cell(fix.cell);
+                ours.push(Outcome {
+                    truth_floor,
+                    floor,
+                    error_m: (at[0] - truth[0]).hypot(at[1] - truth[1]),
+                });
+                let (floor, at) = baseline.predict(&heard);
+                theirs.push(Outcome {
+                    truth_floor,
+                    floor,
+                    error_m: (at[0] - truth[0]).hypot(at[1] - truth[1]),
+                });
+            }
+        }
+    }
+    let names: Vec<&str> = floors.iter().map(|f| f.name.as_str()).collect();
+    Ok(FloorsReport {
+        method: setup.method.name().into(),
+        ours: summarise(&ours, &names),
+        baseline: summarise(&theirs, &names),
+        train_walks: split.iter().map(|f| f.train.len()).sum(),
+        test_walks: split.iter().map(|f| f.test.len()).sum(),
+        refused_windows,
+    })
+}
+
+fn first_time(walk: &Walk) -> f64 {
+    let waypoint = walk.waypoints.first().map_or(f64::INFINITY, |w| w.0);
+    let reading = walk.readings.first().map_or(f64::INFINITY, |r| r.t);
+    waypoint.min(reading)
+}
+
+/// How strongly each of `all` is heard from each floor in the training
+/// walks: its readings' power summed per floor, mW.
+fn floor_evidence(split: &[FloorWalks], keys: &Keys, all: &[Key], floors: usize) -> FloorEvidence {
+    let mut heard_on = vec![vec![0.0; floors]; all.len()];
+    for (f, walks) in split.iter().enumerate() {
+        for r in walks.train.iter().flat_map(|w| &w.readings) {
+            if let Ok(a) = all.binary_search(&keys.key(r)) {
+                heard_on[a][f] += 10f64.powf(f64::from(r.rssi) / 10.0);
+            }
+        }
+    }
+    FloorEvidence::new(floors, &heard_on)
+}
+
+/// The floor's site with the beacons estimated for it (sorted by key, which
+/// is also the order of the returned keys).
+fn floor_site(site: &Site, estimates: &BTreeMap<Key, survey::Estimate>) -> (Site, Vec<Key>) {
+    let docs = survey::beacon_docs(estimates);
+    let mut site = site.clone();
+    site.beacons = docs
+        .into_iter()
+        .zip(estimates)
+        .map(|(doc, (key, estimate))| Beacon {
+            id: doc.id,
+            beacon: key.0,
+            cell: site.cell_of_world(estimate.at),
+            mount: Some(Mount {
+                at: estimate.at,
+                height_m: None,
+            }),
+            tx_power: estimate.tx_power,
+            mac: key.1,
+        })
+        .collect();
+    (site, estimates.keys().copied().collect())
+}
+
+/// Each beacon heard in a window: its index in the building's beacons, dBm.
+type Heard = Vec<(usize, i16)>;
+
+/// The labelled windows of `walks` (on `site`'s walkable cells): time,
+/// position, and each beacon of `all` heard.
+fn labelled_windows(
+    site: &Site,
+    walks: &[Walk],
+    keys: &Keys,
+    all: &[Key],
+    options: &Options,
+) -> Vec<(f64, [f64; 2], Heard)> {
+    let mut out = Vec::new();
+    for walk in walks {
+        for (t, heard) in survey::windows(walk, keys, all, options) {
+            if let Ok(at) = survey::labelled(site, walk, t, options) {
+                out.push((t, at, heard));
+            }
+        }
+    }
+    out
+}
+
+/// The localizer `setup.method` builds for one floor's survey.
+fn localizer(
+    setup: &FloorsSetup,
+    site: &Arc<Site>,
+    samples: &[&Sample],
+) -> anyhow::Result<Box<dyn Localizer>> {
+    let ids: Vec<String> = site.beacons.iter().map(|b| b.id.clone()).collect();
+    Ok(match setup.method {
+        Method::Auto => crate::locate::auto::surveyed(
+            &setup.localizer,
+            site,
+            &ids,
+            &setup.window,
+            &setup.tracker,
+            samples,
+        )?,
+        Method::Knn => knn::surveyed(
+            &setup.localizer.knn,
+            site,
+            &setup.tracker,
+            samples,
+            setup.window.missing_dbm,
+        )?,
+        Method::Radiomap => Box::new(RadioMap::new(
+            &setup.localizer.radiomap,
+            site,
+            &ids,
+            setup.window.orientation,
+            &setup.tracker,
+            samples,
+        )?),
+        Method::Pathloss => rehearsal::path_loss(
+            &setup.localizer.pathloss,
+            None,
+            site,
+            &setup.window,
+            &setup.tracker,
+        )?,
+        Method::Strongest => rehearsal::strongest(
+            &setup.localizer.pathloss,
+            site,
+            &setup.window,
+            &setup.tracker,
+        )?,
+        Method::Onnx => anyhow::bail!(
+            "--method onnx is not evaluated on walks; train a model with `gangway train` and \
+             evaluate it on a survey"
+        ),
+    })
+}
+
+/// The k-NN baseline over the training windows of every floor.
+struct Baseline {
+    /// Per training window: floor, position, heard (beacon, dBm − not heard).
+    rows: Vec<(usize, [f64; 2], f64)>,
+    /// Per beacon: (training window, its dBm above "not heard").
+    by_beacon: Vec<Vec<(usize, f32)>>,
+}
+
+impl Baseline {
+    fn new(train: &[(usize, [f64; 2], Heard)], beacons: usize) -> Baseline {
+        let mut by_beacon = vec![Vec::new(); beacons];
+        let rows = train
+            .iter()
+            .enumerate()
+            .map(|(i, (floor, at, heard))| {
+                let mut norm = 0.0;
+                for &(a, r) in heard {
+                    let v = f32::from(r) - BASELINE_NOT_HEARD;
+                    by_beacon[a].push((i, v));
+                    norm += f64::from(v * v);
+                }
+                (*floor, *at, norm)
+            })
+            .collect();
+        Baseline { rows, by_beacon }
+    }
+
+    /// The floor and position of one window: the k nearest training windows'
+    /// majority floor (ties to the lower floor index, as scikit-learn's mode)
+    /// and mean position. With the vectors shifted so that "not heard" is 0,
+    /// |a − b|² = |a|² + |b|² − 2 a·b, and a·b runs over the beacons both heard.
+    fn predict(&self, heard: &[(usize, i16)]) -> (usize, [f64; 2]) {
+        let mut dot = vec![0.0f64; self.rows.len()];
+        let mut norm = 0.0;
+        for &(a, r) in heard {
+            let v = f32::from(r) - BASELINE_NOT_HEARD;
+            norm += f64::from(v * v);
+            for &(i, w) in &self.by_beacon[a] {
+                dot[i] += f64::from(v * w);
+            }
+        }
+        let mut nearest: Vec<(f64, usize)> = self
+            .rows
+            .iter()
+            .zip(&dot)
+            .enumerate()
+            .map(|(i, (row, d))| (norm + row.2 - 2.0 * d, i))
+            .collect();
+        let k = BASELINE_K.min(nearest.len());
+        if k == 0 {
+            return (0, [0.0, 0.0]);
+        }
+        nearest.select_nth_unstable_by(k - 1, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let nearest = &nearest[..k];
+        let mut votes: BTreeMap<usize, usize> = BTreeMap::new();
+        let mut at = [0.0; 2];
+        for &(_, i) in nearest {
+            let (floor, pos, _) = self.rows[i];
+            *votes.entry(floor).or_default() += 1;
+            at[0] += pos[0] / k as f64;
+            at[1] += pos[1] / k as f64;
+        }
+        let most = votes.values().copied().max().unwrap_or(0);
+        let floor = votes
+            .into_iter()
+            .find(|&(_, n)| n == most)
+            .map_or(0, |(f, _)| f);
+        (floor, at)
+    }
+}
+
+fn metrics(outcomes: &[&Outcome]) -> FloorMetrics {
+    let right: Vec<f64> = outcomes
+        .iter()
+        .filter(|o| o.floor == o.truth_floor)
+        .map(|o| o.error_m)
+        .collect();
+    let errors = ErrorSummary::of(&right, 1.0).unwrap_or_default();
+    FloorMetrics {
+        floor_accuracy: if outcomes.is_empty() {
+            0.0
+        } else {
+            right.len() as f64 / outcomes.len() as f64
+        },
+        mean_error_m: errors.mean_error_m,
+        median_error_m: errors.median_error_m,
+        p90_error_m: errors.p90_error_m,
+        fixes: outcomes.len(),
+    }
+}
+
+fn summarise(outcomes: &[Outcome], names: &[&str]) -> FloorsMetrics {
+    let all: Vec<&Outcome> = outcomes.iter().collect();
+    FloorsMetrics {
+        overall: metrics(&all),
+        floors: names
+            .iter()
+            .enumerate()
+            .map(|(f, name)| {
+                let on: Vec<&Outcome> = outcomes.iter().filter(|o| o.truth_floor == f).collect();
+                ((*name).to_owned(), metrics(&on))
+            })
+            .collect(),
+    }
+}
