@@ -292,10 +292,11 @@ fn planning(args: PlanningArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// `eval localization --walks`: a building's floors from walks.
-fn floors(args: &LocalizationArgs, walks: &Path) -> anyhow::Result<ExitCode> {
-    let building = Building::load(&args.site)?;
-    let (window, localizer, tracker) = match &args.config {
+/// `--config`'s `[window]`, `[localizer]` and `[tracker]`, else the defaults.
+fn settings(
+    args: &LocalizationArgs,
+) -> anyhow::Result<(WindowConfig, LocalizerConfig, TrackerConfig)> {
+    Ok(match &args.config {
         Some(path) => {
             let c = Config::load(path)?;
             (c.window, c.localizer, c.tracker)
@@ -305,7 +306,13 @@ fn floors(args: &LocalizationArgs, walks: &Path) -> anyhow::Result<ExitCode> {
             LocalizerConfig::default(),
             TrackerConfig::default(),
         ),
-    };
+    })
+}
+
+/// `eval localization --walks`: a building's floors from walks.
+fn floors(args: &LocalizationArgs, walks: &Path) -> anyhow::Result<ExitCode> {
+    let building = Building::load(&args.site)?;
+    let (window, localizer, tracker) = settings(args)?;
     let setup = FloorsSetup {
         method: args.method.unwrap_or(localizer.method),
         localizer,
@@ -355,17 +362,7 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
         return floors(&args, walks);
     }
     let site = Arc::new(Site::load(&args.site)?);
-    let (window, mut localizer, tracker) = match &args.config {
-        Some(path) => {
-            let c = Config::load(path)?;
-            (c.window, c.localizer, c.tracker)
-        }
-        None => (
-            WindowConfig::default(),
-            LocalizerConfig::default(),
-            TrackerConfig::default(),
-        ),
-    };
+    let (window, mut localizer, tracker) = settings(&args)?;
     if let Some(not_heard) = args.not_heard {
         localizer.knn.not_heard = not_heard;
     }
