@@ -254,13 +254,21 @@ fn first_time(walk: &Walk) -> f64 {
 }
 
 /// How strongly each of `all` is heard from each floor in the training
-/// walks: its readings' power summed per floor, mW.
+/// walks: its readings' power per second walked on that floor, mW/s. Per
+/// second, not summed: floors are walked for very different times (the
+/// mall's B1 has twice F2's readings), and a beacon heard as loudly from
+/// two floors must not point at the one surveyed longer.
 fn floor_evidence(split: &[FloorWalks], keys: &Keys, all: &[Key], floors: usize) -> FloorEvidence {
     let mut heard_on = vec![vec![0.0; floors]; all.len()];
     for (f, walks) in split.iter().enumerate() {
+        let walked_s: f64 = walks
+            .train
+            .iter()
+            .filter_map(|w| Some(w.waypoints.last()?.0 - w.waypoints.first()?.0))
+            .sum();
         for r in walks.train.iter().flat_map(|w| &w.readings) {
             if let Ok(a) = all.binary_search(&keys.key(r)) {
-                heard_on[a][f] += 10f64.powf(f64::from(r.rssi) / 10.0);
+                heard_on[a][f] += 10f64.powf(f64::from(r.rssi) / 10.0) / walked_s.max(1.0);
             }
         }
     }
