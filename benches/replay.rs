@@ -80,6 +80,7 @@ fn benches(c: &mut Criterion) {
                 .expect("open");
                 let serving = Loaded {
                     config: config.clone(),
+                    building: pipeline.building().clone(),
                     site: site.clone(),
                     pipeline,
                     fallbacks: Vec::new(),

@@ -50,7 +50,15 @@ pub(super) struct Args {
 }
 
 pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
-    let (config, site) = super::load(&args.config.path)?;
+    let (config, building) = super::load(&args.config.path)?;
+    anyhow::ensure!(
+        !building.is_multi_floor(),
+        "{}: `calibrate` fits one floor's radio model; the config's site is a building of {} \
+         floors: give a config whose `site` is one floor's site file",
+        args.config.path.display(),
+        building.floors().len()
+    );
+    let site = building.floors()[0].site.clone();
     let orientation = config.window.orientation;
     let ids = anchor_ids(&site, orientation);
     let mut trajectories = Vec::new();

@@ -122,13 +122,14 @@ impl Cli {
     }
 }
 
-/// Loads a config and its site (one floor, as the daemon serves).
+/// Loads a config and its site, a building of one floor or several, as
+/// the daemon serves it.
 fn load(
     config: &std::path::Path,
-) -> anyhow::Result<(crate::config::Config, std::sync::Arc<crate::site::Site>)> {
+) -> anyhow::Result<(crate::config::Config, std::sync::Arc<crate::site::Building>)> {
     let config = crate::config::Config::load(config)?;
-    let site = crate::daemon::state::served_site(&config.site)?;
-    Ok((config, site))
+    let building = crate::daemon::state::served_building(&config)?;
+    Ok((config, building))
 }
 
 /// Where a planning command gets its site, models and planner settings: a

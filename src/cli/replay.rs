@@ -104,7 +104,10 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         args.speed >= 0.0 && args.speed.is_finite(),
         "--speed must be 0 (as fast as possible) or a positive factor"
     );
-    let (config, site) = super::load(&args.config.path)?;
+    let (config, building) = super::load(&args.config.path)?;
+    // The capture's CSV columns, the score's truth cells and the map are
+    // one floor's: the lowest (the only one of a one-floor site).
+    let site = building.floors()[0].site.clone();
     if std::fs::metadata(&args.log).is_ok_and(|m| m.len() == 0) {
         tracing::warn!(
             "{}: the capture is empty (0 bytes): nothing to replay",
@@ -118,7 +121,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         tolerance_s >= 0.0 && tolerance_s.is_finite(),
         "--tolerance-s must be a number of seconds, 0 or more"
     );
-    let pipeline = Pipeline::new(&config.pipeline(), site.clone())?;
+    let pipeline = Pipeline::for_building(&config.pipeline(), building.clone())?;
 
     let replayed = super::batch_runtime()?.block_on(async {
         let topics = Topics::new(config.topic_prefix());
@@ -169,6 +172,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         }
         let serving = Loaded {
             config,
+            building,
             site: site.clone(),
             pipeline,
             fallbacks: Vec::new(),

@@ -169,6 +169,7 @@ mod tests {
             t: 0.0,
             device: "p".into(),
             to: Destination::Place("x".into()),
+            floor: None,
             profile: None,
             request_id: Some(id.into()),
         }

@@ -17,6 +17,12 @@ use crate::site::{Building, Site};
 
 pub struct Loaded {
     pub config: Config,
+    /// What the pipeline serves: the config's `site`, a building of one
+    /// floor or several.
+    pub building: Arc<Building>,
+    /// Its lowest floor, the only one of a one-floor site: what the sinks
+    /// that show one floor (the map, the editor, Home Assistant's places)
+    /// are given.
     pub site: Arc<Site>,
     pub pipeline: Pipeline,
     /// Components that failed to load at start-up and what serves instead
@@ -39,45 +45,45 @@ pub fn load_at_start(config_path: &Path) -> anyhow::Result<Loaded> {
 
 fn load_with(config_path: &Path, fall_back: bool) -> anyhow::Result<Loaded> {
     let mut config = Config::load(config_path)?;
-    let site = served_site(&config.site)?;
+    let building = served_building(&config)?;
+    let site = building.floors()[0].site.clone();
     // What an earlier recalibration learned outlives restarts and reloads.
     config.localizer = super::recalibration::serving(&config.localizer, &config.store, &site);
     let context = || format!("{}", config_path.display());
     let (pipeline, fallbacks) = if fall_back {
-        Pipeline::with_fallbacks(&config.pipeline(), site.clone()).with_context(context)?
+        Pipeline::with_fallbacks(&config.pipeline(), building.clone()).with_context(context)?
     } else {
         (
-            Pipeline::new(&config.pipeline(), site.clone()).with_context(context)?,
+            Pipeline::for_building(&config.pipeline(), building.clone()).with_context(context)?,
             Vec::new(),
         )
     };
     Ok(Loaded {
         config,
+        building,
         site,
         pipeline,
         fallbacks,
     })
 }
 
-/// The floor the daemon serves: the config's `site`, a site file or a
-/// building file of one floor. A building of several floors is refused,
-/// naming the file: tracking across floors and routes between them are
-/// being built, and serving one floor of it silently would lose every
-/// device on the others.
-pub fn served_site(path: &Path) -> anyhow::Result<Arc<Site>> {
+/// The building the daemon serves: the config's `site`, a site file or a
+/// building file. Recalibration learns one floor's radio model from what
+/// that floor's devices hear, so on a building of several floors it is
+/// refused, naming the file and the key.
+pub fn served_building(config: &Config) -> anyhow::Result<Arc<Building>> {
+    let path = &config.site;
     let building = Building::load(path)?;
-    if building.is_multi_floor() {
-        let floors: Vec<&str> = building.floors().iter().map(|f| f.name.as_str()).collect();
+    if building.is_multi_floor() && config.localizer.recalibration.enabled {
         anyhow::bail!(
-            "{}: a building of {} floors ({}); the gateway serves one floor for now: point \
-             `site` in the config at one floor's site file (the `site` of one of its \
-             [[floors]]), and run one gateway per floor",
+            "{}: a building of {} floors, and [localizer.recalibration] enabled = true: \
+             recalibration learns one floor's radio model; turn it off for a building, or \
+             point `site` at one floor's site file",
             path.display(),
-            floors.len(),
-            floors.join(", ")
+            building.floors().len()
         );
     }
-    Ok(building.floors()[0].site.clone())
+    Ok(Arc::new(building))
 }
 
 /// The state of `config` on `site` with the survey-free model's calibration
@@ -93,6 +99,7 @@ pub(crate) fn recalibrated(
     let pipeline = Pipeline::new(&config.pipeline(), site.clone())?;
     Ok(Loaded {
         config,
+        building: pipeline.building().clone(),
         site: site.clone(),
         pipeline,
         fallbacks: Vec::new(),

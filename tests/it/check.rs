@@ -349,33 +349,46 @@ fn a_building_s_problems_name_its_file_line_and_floor() {
     );
 }
 
+/// The daemon serves a building of several floors, but what learns one
+/// floor's radio model refuses it, naming the file and what to change.
 #[test]
-fn the_daemon_refuses_a_building_of_several_floors() {
+fn what_learns_one_floor_s_radio_model_refuses_a_building_of_several() {
     let dir = tempfile::tempdir().unwrap();
     let building = floors_support::write_building(dir.path());
     let config = write(
         dir.path(),
         "gangway.toml",
-        "gateway_id = \"gw\"\nsite = \"building.toml\"\n",
+        "gateway_id = \"gw\"\nsite = \"building.toml\"\n\
+         [localizer.recalibration]\nenabled = true\n",
     );
     let out = gangway(&["run", "--config", config.to_str().unwrap()]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(
         stderr.contains(&format!(
-            "{}: a building of 3 floors (B1, G, L1); the gateway serves one floor for now: \
-             point `site` in the config at one floor's site file",
+            "{}: a building of 3 floors, and [localizer.recalibration] enabled = true",
             building.display()
         )),
         "{stderr}"
     );
 
-    // A building of one floor is that floor.
-    write(
+    let config = write(
         dir.path(),
-        "one.toml",
-        "name = \"one\"\n[[floors]]\nname = \"G\"\nlevel = 0\nsite = \"G.toml\"\n",
+        "gangway.toml",
+        "gateway_id = \"gw\"\nsite = \"building.toml\"\n",
     );
-    let site = gangway::daemon::state::served_site(&dir.path().join("one.toml")).unwrap();
-    assert_eq!(site.name, "made-up G");
+    let capture = write(dir.path(), "capture.jsonl", "");
+    let out = gangway(&[
+        "calibrate",
+        "--config",
+        config.to_str().unwrap(),
+        "--from",
+        capture.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("`calibrate` fits one floor's radio model"),
+        "{stderr}"
+    );
 }

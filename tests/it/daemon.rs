@@ -137,6 +137,7 @@ fn route(device: &str, to: &str, id: &str) -> Input {
         t: 0.0,
         device: device.into(),
         to: Destination::Place(to.into()),
+        floor: None,
         profile: None,
         request_id: Some(id.into()),
     }))
@@ -147,6 +148,7 @@ fn reply(id: &str) -> impl Fn(&Output) -> Option<Result<f64, RouteErrorCode>> + 
     move |o| match o {
         Output::Route(r) if r.request_id.as_deref() == Some(id) => Some(match &r.outcome {
             RouteOutcome::Route(body) => Ok(body.length_m),
+            RouteOutcome::Floors(body) => Ok(body.length_m),
             RouteOutcome::Error { error } => Err(error.code),
         }),
         _ => None,

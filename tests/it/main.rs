@@ -18,6 +18,7 @@ mod captures;
 mod check;
 mod daemon;
 mod fixtures;
+mod floors_daemon;
 mod floors_routes;
 mod guidance;
 mod hass;

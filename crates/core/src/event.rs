@@ -41,6 +41,10 @@ pub struct RouteRequest {
     pub t: f64,
     pub device: String,
     pub to: Destination,
+    /// The floor `to` is on, by name; needed on a building of several
+    /// floors unless `to` is a place only one floor has.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub floor: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub profile: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -49,6 +49,7 @@ mod test_support {
             schema: LOCATION_SCHEMA,
             device: device.into(),
             t,
+            floor: None,
             cell,
             label: None,
             x_m: None,

@@ -18,7 +18,7 @@
 
 use serde::Serialize;
 
-use crate::publish::{Location, Output};
+use crate::publish::{FloorName, Location, Output};
 use crate::site::Cell;
 
 /// One outgoing message, its payload already written.
@@ -59,6 +59,7 @@ struct LocationPayload<'a> {
     cell: Option<Cell>,
     confidence: f64,
     device: &'a str,
+    floor: &'a Option<FloorName>,
     label: &'a Option<String>,
     place: &'a Option<String>,
     schema: &'static str,
@@ -73,6 +74,7 @@ impl LocationPayload<'_> {
             schema,
             device,
             t,
+            floor,
             cell,
             label,
             x_m,
@@ -86,6 +88,7 @@ impl LocationPayload<'_> {
             cell: *cell,
             confidence: f64::from(*confidence),
             device,
+            floor,
             label,
             place,
             schema,
@@ -259,6 +262,10 @@ mod tests {
             schema: crate::publish::LOCATION_SCHEMA,
             device: device.into(),
             t: 1_767_225_600.593,
+            floor: cell.map(|_| FloorName {
+                name: "G \"east\"".into(),
+                level: -1,
+            }),
             cell,
             label: cell.map(|_| "L03".into()),
             x_m: cell.map(|c| f64::from(c.x) + 0.5),

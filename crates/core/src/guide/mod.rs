@@ -172,6 +172,10 @@ pub enum GuidanceEvent {
     Reassure,
     OffRoute,
     Arrived,
+    /// At the connector that ends one floor's leg of a route across
+    /// floors: the text says which to take and to which floor, and the
+    /// next floor's leg is guided once the walker is located there.
+    Connector,
     Cancelled,
     Expired,
 }
@@ -433,13 +437,16 @@ impl Guide {
         for (d, s) in idle {
             self.finish(&d, &s, t, Ending::Expired);
         }
-        let rerouted_from = match self.sessions.remove(device) {
-            Some(old) if rerouted => Some(old.walked()),
+        let end = route.cells.last().copied();
+        let (rerouted_from, leg_end) = match self.sessions.remove(device) {
+            // Re-planned to the end of a floor's leg: still walks to its
+            // connector.
+            Some(old) if rerouted => (Some(old.walked()), end.and_then(|end| old.leg_end_at(end))),
             Some(old) => {
                 self.finish(device, &old, t, Ending::Replaced);
-                None
+                (None, None)
             }
-            None => None,
+            None => (None, None),
         };
         if self.sessions.len() >= self.config.max_sessions
             && let Some(oldest) = self
@@ -459,7 +466,8 @@ impl Guide {
             RouteLine::along(site, route, line),
             t,
             rerouted_from,
-        );
+        )
+        .with_leg_end(leg_end);
         let first = session.depart(site, device, t);
         self.sessions.insert(device.to_owned(), session);
         first
@@ -521,6 +529,30 @@ impl Guide {
             moves,
             share: self.config.walk_prior,
         })
+    }
+
+    /// Makes the session of `device` one floor's leg of a route across
+    /// floors, ending at a connector (`Session::end_at_connector`); returns
+    /// its first message, which walks to the connector.
+    pub(crate) fn end_at_connector(
+        &mut self,
+        site: &Site,
+        device: &str,
+        noun: String,
+        ride: String,
+        t: f64,
+    ) -> Option<Guidance> {
+        let session = self.sessions.get_mut(device)?;
+        session.end_at_connector(noun, ride);
+        Some(session.depart(site, device, t))
+    }
+
+    /// Ends the session of `device`, if it has one, without a message: it
+    /// left this floor, and the next floor's guide takes it on.
+    pub(crate) fn leave(&mut self, device: &str, t: f64) {
+        if let Some(session) = self.sessions.remove(device) {
+            self.finish(device, &session, t, Ending::Replaced);
+        }
     }
 
     /// Ends the session of `device`, if it has one (one that has arrived

@@ -84,6 +84,15 @@ enum Leaving {
     No,
 }
 
+/// The connector a floor's leg ends at.
+#[derive(Clone, Debug)]
+pub(super) struct LegEnd {
+    /// What the walk goes to: "the lift".
+    noun: String,
+    /// What to do there: "Take the lift to L1."
+    ride: String,
+}
+
 #[derive(Clone, Debug)]
 pub(crate) struct Session {
     request_id: Option<String>,
@@ -98,6 +107,10 @@ pub(crate) struct Session {
     maneuver_count: u16,
     /// The named place or landmark the route arrives at.
     destination_place: Option<String>,
+    /// Where one floor's leg of a route across floors ends: the route
+    /// walks to it rather than arriving, and its arrival is the
+    /// connector's announcement. Boxed: most sessions have none.
+    leg_end: Option<Box<LegEnd>>,
     /// Index in the route's maneuvers of the next decision point.
     next: usize,
     /// Maneuvers before this index have been announced.
@@ -160,6 +173,7 @@ impl Session {
             window_start: 0,
             maneuver_count,
             destination_place,
+            leg_end: None,
             next: 1,
             announced: 1,
             state: if reroutes > 0 {
@@ -309,7 +323,34 @@ impl Session {
                 .filter_map(|m| m.place.as_ref().map(String::capacity))
                 .sum::<usize>()
             + self.destination_place.as_ref().map_or(0, String::capacity)
+            + self.leg_end.as_ref().map_or(0, |end| {
+                std::mem::size_of::<LegEnd>() + end.noun.capacity() + end.ride.capacity()
+            })
             + self.request_id.as_ref().map_or(0, String::capacity)
+    }
+
+    /// Makes this session one floor's leg of a route across floors, ending
+    /// at a connector: walked to `noun` ("the lift"), and `ride` ("Take
+    /// the lift to L1.") said on arrival.
+    pub(super) fn end_at_connector(&mut self, noun: String, ride: String) {
+        self.leg_end = Some(Box::new(LegEnd { noun, ride }));
+    }
+
+    /// The connector this session's leg ends at, when it ends at
+    /// `destination`: a route re-planned to the same end keeps it.
+    pub(super) fn leg_end_at(&self, destination: Cell) -> Option<Box<LegEnd>> {
+        self.leg_end
+            .clone()
+            .filter(|_| self.destination() == destination)
+    }
+
+    pub(super) fn with_leg_end(mut self, leg_end: Option<Box<LegEnd>>) -> Session {
+        self.leg_end = leg_end;
+        self
+    }
+
+    fn towards(&self) -> Option<&str> {
+        self.leg_end.as_ref().map(|end| end.noun.as_str())
     }
 
     /// The first message: the first step of the route.
@@ -321,7 +362,7 @@ impl Session {
         };
         // The first maneuvers, in the window until the walker moves on.
         let start: Vec<Cell> = self.line.cells().take(4).collect();
-        let text = first_sentence(site, &start, &self.window);
+        let text = first_sentence(site, &start, &self.window, self.towards());
         self.message(device, t, Some(event), text)
     }
 
@@ -549,13 +590,11 @@ impl Session {
             self.state = SessionState::Arrived;
             self.next = usize::from(self.maneuver_count);
             let place = self.destination_place.as_ref();
-            Some((
-                GuidanceEvent::Arrived,
-                match place {
-                    Some(p) => format!("You have arrived at {p}."),
-                    None => "You have arrived.".to_owned(),
-                },
-            ))
+            Some(match (&self.leg_end, place) {
+                (Some(end), _) => (GuidanceEvent::Connector, end.ride.clone()),
+                (None, Some(p)) => (GuidanceEvent::Arrived, format!("You have arrived at {p}.")),
+                (None, None) => (GuidanceEvent::Arrived, "You have arrived.".to_owned()),
+            })
         } else if let Some(m) = self.maneuver(self.next) {
             let ahead = m.along_m - self.progress_m;
             // Half the walk until the next judgement (as long again as
@@ -569,7 +608,10 @@ impl Session {
             } else if self.progress_m - self.spoken_at_m >= config.reassure_m {
                 Some((
                     GuidanceEvent::Reassure,
-                    format!("You are on the route. {}", m.sentence(ahead)),
+                    format!(
+                        "You are on the route. {}",
+                        m.sentence(ahead, self.towards())
+                    ),
                 ))
             } else {
                 None
@@ -590,13 +632,14 @@ impl Session {
         let Some(first) = self.maneuver(self.next) else {
             return String::new();
         };
-        let mut text = first.sentence(first.along_m - self.progress_m);
+        let towards = self.towards();
+        let mut text = first.sentence(first.along_m - self.progress_m, towards);
         let mut k = self.next + 1;
         while let Some(m) = self.maneuver(k)
             && m.distance_m < announce_m
         {
             text.push_str(" After that, ");
-            text.push_str(&m.clause(m.distance_m));
+            text.push_str(&m.clause(m.distance_m, towards));
             text.push('.');
             k += 1;
         }

@@ -130,6 +130,11 @@ impl FloorFilter {
         self.floor()
     }
 
+    /// The probability of `floor` (0 for a floor it does not have).
+    pub fn probability(&self, floor: usize) -> f64 {
+        self.ln_belief.get(floor).map_or(0.0, |b| b.exp())
+    }
+
     /// The most likely floor and its probability.
     pub fn floor(&self) -> (usize, f64) {
         let (floor, ln_p) = self

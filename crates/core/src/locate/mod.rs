@@ -11,6 +11,7 @@ pub mod bounds;
 pub mod calibrate;
 pub mod calibration;
 pub(crate) mod crossval;
+pub(crate) mod floor_track;
 pub mod floors;
 pub mod knn;
 pub mod onnx;
@@ -116,6 +117,46 @@ impl LocalizerConfig {
             .map_err(|e| format!("[localizer.recalibration] {e}"))
     }
 
+    /// This config for the floor called `floor` of a building of several:
+    /// `{floor}` in its survey, model and calibration paths becomes the
+    /// floor's name. A file the method reads without `{floor}` in its
+    /// path would be one floor's read on every floor: refused.
+    pub fn for_floor(&self, floor: &str) -> Result<LocalizerConfig, LocalizerError> {
+        let mut config = self.clone();
+        let uses_model = config.method == Method::Onnx;
+        let files = [
+            ("[localizer.knn] survey", config.knn.survey.as_mut(), true),
+            (
+                "[localizer.radiomap] survey",
+                config.radiomap.survey.as_mut(),
+                true,
+            ),
+            (
+                "[localizer.pathloss] calibration",
+                config.pathloss.calibration.as_mut(),
+                true,
+            ),
+            (
+                "[localizer.onnx] model",
+                Some(&mut config.onnx.model),
+                uses_model,
+            ),
+        ];
+        for (key, path, used) in files {
+            let Some(path) = path else { continue };
+            let text = path.to_string_lossy();
+            if text.contains("{floor}") {
+                *path = text.replace("{floor}", floor).into();
+            } else if used {
+                return Err(LocalizerError::OneFileForAllFloors {
+                    key,
+                    path: path.clone(),
+                });
+            }
+        }
+        Ok(config)
+    }
+
     /// Makes the survey, model and calibration paths relative to `base` (the
     /// config file's directory).
     pub fn resolve_paths(&mut self, base: &Path) {
@@ -178,6 +219,16 @@ pub enum LocalizerError {
          [localizer.radiomap]"
     )]
     NoSurvey,
+    /// A building of several floors with a file that names one floor's.
+    #[error(
+        "{key} = \"{}\" names one file for every floor of a building of several; put \
+         `{{floor}}` in it where each floor's name goes (`surveys/{{floor}}.csv`)",
+        path.display()
+    )]
+    OneFileForAllFloors {
+        key: &'static str,
+        path: std::path::PathBuf,
+    },
     #[error(
         "[localizer.radiomap] and [localizer.knn] name different surveys ({} and {}); \
          method = \"auto\" chooses between them on one survey: name the same file or one of them",

@@ -145,21 +145,32 @@ pub struct Windows {
 
 impl Windows {
     pub fn new(config: WindowConfig, site: &Site) -> Self {
-        let beacon_anchors = site
-            .beacons
+        let beacons: Vec<_> = site.beacons.iter().map(|b| (b.beacon, b.mac)).collect();
+        let gateways: Vec<&str> = site.gateways.iter().map(|g| g.id.as_str()).collect();
+        Self::of_anchors(config, &beacons, &gateways)
+    }
+
+    /// Windows over anchors listed in their fingerprint order: beacons by
+    /// identity (`None` for a beacon heard from any MAC), gateways by id. A
+    /// building's pipeline lists every floor's anchors once.
+    pub fn of_anchors(
+        config: WindowConfig,
+        beacons: &[(BeaconId, Option<Mac>)],
+        gateways: &[&str],
+    ) -> Self {
+        let beacon_anchors = beacons
             .iter()
             .enumerate()
-            .map(|(i, b)| ((b.beacon, b.mac), i as u16))
+            .map(|(i, &key)| (key, i as u16))
             .collect();
-        let gateway_anchors = site
-            .gateways
+        let gateway_anchors = gateways
             .iter()
             .enumerate()
-            .map(|(i, g)| (Arc::from(g.id.as_str()), i as u16))
+            .map(|(i, &g)| (Arc::from(g), i as u16))
             .collect();
         let n_anchors = match config.orientation {
-            Orientation::Observer => site.beacons.len(),
-            Orientation::Advertiser => site.gateways.len(),
+            Orientation::Observer => beacons.len(),
+            Orientation::Advertiser => gateways.len(),
         };
         Windows {
             config,

@@ -165,26 +165,16 @@ impl Maneuver {
     /// The English sentence for the walk up to this maneuver and the
     /// maneuver itself, as a screen reader speaks it, from `distance_m`
     /// before it: "Walk 12 metres, with a door after 4 metres, then turn
-    /// left at help desk."
-    pub(crate) fn sentence(&self, distance_m: f64) -> String {
-        self.sentence_towards(distance_m, None)
-    }
-
-    /// [`Maneuver::sentence`] of [`Maneuver::clause_towards`].
-    fn sentence_towards(&self, distance_m: f64, towards: Option<&str>) -> String {
-        capitalised(&self.clause_towards(distance_m, towards)) + "."
+    /// left at help desk." An arrival is walked `towards` what the walk
+    /// goes on by ("the lift") when there is one: the end of one floor's
+    /// leg of a route across floors.
+    pub(crate) fn sentence(&self, distance_m: f64, towards: Option<&str>) -> String {
+        capitalised(&self.clause(distance_m, towards)) + "."
     }
 
     /// [`Maneuver::sentence`] without its capital and full stop, to be
     /// joined to another.
-    pub(crate) fn clause(&self, distance_m: f64) -> String {
-        self.clause_towards(distance_m, None)
-    }
-
-    /// [`Maneuver::clause`], with an arrival walked `towards` what the walk
-    /// goes on by ("the lift") rather than arrived at: the end of one
-    /// floor's leg of a route across floors.
-    fn clause_towards(&self, distance_m: f64, towards: Option<&str>) -> String {
+    pub(crate) fn clause(&self, distance_m: f64, towards: Option<&str>) -> String {
         let named = self
             .place
             .as_ref()
@@ -213,25 +203,17 @@ impl Maneuver {
 }
 
 /// The sentence a walker sets off along `route` with: how to orient without
-/// a compass, then the walk to the first decision point of its `maneuvers`.
+/// a compass, then the walk to the first decision point of its `maneuvers`
+/// (an arrival walked `towards` what the walk goes on by, as in
+/// [`Maneuver::sentence`]).
 pub(crate) fn first_sentence(
-    site: &Site,
-    route: &[Cell],
-    maneuvers: &[Maneuver],
-) -> Option<String> {
-    first_sentence_towards(site, route, maneuvers, None)
-}
-
-/// [`first_sentence`], an arrival walked `towards` what the walk goes on
-/// by ([`Maneuver::clause_towards`]).
-fn first_sentence_towards(
     site: &Site,
     route: &[Cell],
     maneuvers: &[Maneuver],
     towards: Option<&str>,
 ) -> Option<String> {
     let first = maneuvers.get(1)?;
-    let walk = first.clause_towards(first.distance_m, towards);
+    let walk = first.clause(first.distance_m, towards);
     Some(match setting_off(site, route) {
         Some(setting_off) => format!("{setting_off}, {walk}."),
         None => capitalised(&walk) + ".",
@@ -577,10 +559,9 @@ pub(crate) fn instructions_towards(
         .filter(|(_, m)| m.is_decision())
         .map(|(i, m)| Instruction {
             text: if i == 1 {
-                first_sentence_towards(site, &route.cells, maneuvers, towards)
-                    .expect("a first decision")
+                first_sentence(site, &route.cells, maneuvers, towards).expect("a first decision")
             } else {
-                m.sentence_towards(m.distance_m, towards)
+                m.sentence(m.distance_m, towards)
             },
             distance_m: m.distance_m,
             at: m.at,
@@ -889,12 +870,12 @@ mod tests {
         // Announced 6 m before the turn, the door is 2 m ahead.
         let turn = &maneuvers(&site, &route, Profile::Default)[1];
         assert_eq!(
-            turn.sentence(6.0),
+            turn.sentence(6.0, None),
             "Walk 6 metres, with a door after 2 metres, then turn right at desk."
         );
         // Past the door, it is not mentioned again.
         assert_eq!(
-            turn.sentence(3.0),
+            turn.sentence(3.0, None),
             "Walk 3 metres, then turn right at desk."
         );
     }

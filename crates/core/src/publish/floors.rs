@@ -11,7 +11,7 @@ use crate::plan::{Planner, Profile};
 use crate::site::{Building, Cell};
 
 /// A cell and the floor it is on.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct FloorPosition {
     pub floor: String,
     pub level: i32,
@@ -31,7 +31,7 @@ impl FloorPosition {
 
 /// One floor's leg: the floor, and its route as a one-floor reply has it
 /// (its `instructions` are the leg's part of the whole way's).
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct LegBody {
     pub floor: String,
     pub level: i32,
@@ -40,7 +40,7 @@ pub struct LegBody {
 }
 
 /// A connector taken between two legs.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct ConnectorBody {
     pub id: String,
     /// `stairs`, `lift`, `escalator` or `ramp`.
@@ -51,7 +51,7 @@ pub struct ConnectorBody {
 }
 
 /// One spoken step and the floor it is on.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct FloorInstruction {
     pub floor: String,
     pub level: i32,
@@ -60,7 +60,7 @@ pub struct FloorInstruction {
 }
 
 /// The published form of a route across floors.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct FloorsRouteBody {
     pub from: FloorPosition,
     pub to: FloorPosition,
@@ -74,6 +74,11 @@ pub struct FloorsRouteBody {
     pub length_m: f64,
     /// Walking at the profile's speed plus the connectors' time, seconds.
     pub total_s: f64,
+    /// Why a route was sent without a request: `next_floor` for the rest
+    /// of a route across floors, planned when the walker came onto the
+    /// next floor. Absent on replies.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reason: Option<&'static str>,
     /// Time from request to route, microseconds.
     pub latency_us: u64,
 }
@@ -142,7 +147,14 @@ impl FloorsRouteBody {
             instructions,
             length_m: route.length_m(),
             total_s: route.total_s,
+            reason: None,
             latency_us,
         }
+    }
+
+    /// The same route sent for `reason` instead of a request.
+    pub fn with_reason(mut self, reason: &'static str) -> FloorsRouteBody {
+        self.reason = Some(reason);
+        self
     }
 }

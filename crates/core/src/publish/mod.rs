@@ -78,6 +78,10 @@ pub struct Location {
     pub device: String,
     /// Time of the fix (end of its fingerprint window), seconds.
     pub t: f64,
+    /// The floor the device is on; `null` when no floor is more likely
+    /// than the others together (then `cell` is `null` too). A one-floor
+    /// site's floor is the site (its name, level 0).
+    pub floor: Option<FloorName>,
     pub cell: Option<Cell>,
     /// The cell's survey label (`O02`) when the site has a label scheme.
     pub label: Option<String>,
@@ -91,6 +95,14 @@ pub struct Location {
     pub confidence: f32,
     /// How many anchors were heard in the window.
     pub anchors_heard: usize,
+}
+
+/// A floor as people name it, and its level (0 the entrance floor,
+/// negative below it).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FloorName {
+    pub name: String,
+    pub level: i32,
 }
 
 /// The answer to a route request: a route or an error, never both.
@@ -109,7 +121,11 @@ pub struct RouteReply {
 #[serde(untagged)]
 pub enum RouteOutcome {
     Route(RouteBody),
-    Error { error: ErrorBody },
+    /// A route across floors (a building of several), one leg per floor.
+    Floors(Box<floors::FloorsRouteBody>),
+    Error {
+        error: ErrorBody,
+    },
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize)]

@@ -89,6 +89,8 @@ pub struct Inbox {
 struct RouteSet {
     to: Destination,
     #[serde(default)]
+    floor: Option<String>,
+    #[serde(default)]
     profile: Option<String>,
     #[serde(default)]
     request_id: Option<String>,
@@ -351,10 +353,22 @@ impl Inbox {
                 RouteErrorCode::InvalidRequest,
                 REQUEST_ID_RULE.to_owned(),
             ),
+            Ok(r)
+                if r.floor
+                    .as_ref()
+                    .is_some_and(|f| f.is_empty() || f.len() > MAX_FLOOR_NAME) =>
+            {
+                bad(
+                    request_id,
+                    RouteErrorCode::InvalidRequest,
+                    format!("`floor` must be a floor's name, 1 to {MAX_FLOOR_NAME} bytes"),
+                )
+            }
             Ok(r) => Inbound::Route(RouteRequest {
                 t: now,
                 device: device.to_owned(),
                 to: r.to,
+                floor: r.floor,
                 profile: r.profile,
                 request_id: r.request_id,
             }),
@@ -362,7 +376,7 @@ impl Inbox {
                 request_id,
                 RouteErrorCode::InvalidRequest,
                 format!(
-                    "{e}; a request is {{\"to\": \"<place>\" or [x, y], \"profile\"?: \"...\", \"request_id\"?: \"...\"}}"
+                    "{e}; a request is {{\"to\": \"<place>\" or [x, y], \"floor\"?: \"<floor>\", \"profile\"?: \"...\", \"request_id\"?: \"...\"}}"
                 ),
             ),
         }
@@ -432,6 +446,10 @@ pub const DEFAULT_MAX_CLOCK_SKEW_S: f64 = 5.0;
 /// Longest request id, in bytes: ids are echoed in replies and kept in the
 /// learning store, so a client cannot make them large.
 pub(crate) const MAX_REQUEST_ID_BYTES: usize = 128;
+/// The longest floor name a request may give: a building's floor names
+/// are short ("B1", "Ground"), and the name is echoed in errors.
+const MAX_FLOOR_NAME: usize = 64;
+
 const REQUEST_ID_RULE: &str = "`request_id` must be 1 to 128 bytes without control characters";
 
 fn valid_request_id(id: &str) -> bool {
@@ -513,6 +531,7 @@ mod tests {
                 t: 5.0,
                 device: "phone-1".into(),
                 to: Destination::Place("help desk".into()),
+                floor: None,
                 profile: None,
                 request_id: Some("r1".into()),
             })

@@ -93,7 +93,9 @@ impl Recorder {
                     planner: body.planner.to_owned(),
                     cells: body.waypoints.iter().map(|w| w.cell).collect(),
                 },
-                RouteOutcome::Error { .. } => return None,
+                // A route across floors is not one floor's walk: the store
+                // learns walks per floor, and feedback on it is refused.
+                RouteOutcome::Floors(_) | RouteOutcome::Error { .. } => return None,
             },
             Output::Feedback(f) => Record::Feedback {
                 device: f.device.clone(),

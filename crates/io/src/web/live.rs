@@ -445,6 +445,8 @@ pub(super) struct RouteBody {
     device: String,
     to: Destination,
     #[serde(default)]
+    floor: Option<String>,
+    #[serde(default)]
     profile: Option<String>,
 }
 
@@ -462,6 +464,7 @@ pub(super) async fn route(State(live): State<Arc<Live>>, Json(body): Json<RouteB
         t: crate::source::unix_now(),
         device: body.device,
         to: body.to,
+        floor: body.floor,
         profile: body.profile,
         request_id: Some(request_id.clone()),
     });

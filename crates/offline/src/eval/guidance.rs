@@ -249,6 +249,7 @@ pub fn evaluate(
             t,
             device: device.to_string(),
             to: Destination::Place(to),
+            floor: None,
             profile: None,
             request_id: Some(format!("{device}-r")),
         };

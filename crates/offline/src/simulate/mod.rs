@@ -171,6 +171,7 @@ pub fn simulate(site: &Arc<Site>, config: &SimConfig, survey: Option<&Survey>) -
                 t: config.start_t + round_ms(when),
                 device: name.to_string(),
                 to: Destination::Place(to.clone()),
+                floor: None,
                 profile: None,
                 request_id: Some(format!("{name}-r{}", r + 1)),
             }));

@@ -67,6 +67,8 @@ struct Line<'a> {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     to: Option<Destination>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    floor: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     profile: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     request_id: Option<String>,
@@ -101,6 +103,7 @@ impl Line<'_> {
             mac: None,
             device: None,
             to: None,
+            floor: None,
             profile: None,
             request_id: None,
             cell: None,
@@ -110,7 +113,7 @@ impl Line<'_> {
     /// The first field present that lines of this type do not have.
     fn foreign_field(&self) -> Option<&'static str> {
         use Kind::{Advert, Request, Truth};
-        let fields: [(&str, bool, &[Kind]); 12] = [
+        let fields: [(&str, bool, &[Kind]); 13] = [
             ("observer", self.observer.is_some(), &[Advert]),
             ("uuid", self.uuid.is_some(), &[Advert]),
             ("major", self.major.is_some(), &[Advert]),
@@ -120,6 +123,7 @@ impl Line<'_> {
             ("mac", self.mac.is_some(), &[Advert]),
             ("device", self.device.is_some(), &[Request, Truth]),
             ("to", self.to.is_some(), &[Request]),
+            ("floor", self.floor.is_some(), &[Request]),
             ("profile", self.profile.is_some(), &[Request]),
             ("request_id", self.request_id.is_some(), &[Request]),
             ("cell", self.cell.is_some(), &[Truth]),
@@ -284,6 +288,7 @@ impl<R: BufRead> LogReader<R> {
                 t,
                 device: topic_id(required(line.device, "device")?, "device")?,
                 to: required(line.to, "to")?,
+                floor: line.floor,
                 profile: line.profile,
                 request_id: line.request_id,
             }),
@@ -399,6 +404,7 @@ impl<W: Write> LogWriter<W> {
             Event::Request(r) => Line {
                 device: Some(r.device.clone()),
                 to: Some(r.to.clone()),
+                floor: r.floor.clone(),
                 profile: r.profile.clone(),
                 request_id: r.request_id.clone(),
                 ..Line::new(Kind::Request, r.t)

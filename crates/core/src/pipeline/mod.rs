@@ -4,28 +4,48 @@
 //! guided device a guidance message, and a route re-planned from where the
 //! device is when it has left its route.
 //!
+//! It serves a building: a one-floor site is a building of one floor. Each
+//! floor has its own localizer, tracker and guidance sessions
+//! ([`floor`]); the fingerprint windows span every floor's anchors, and on
+//! a building of several floors each device's floor comes from what it
+//! hears, changing only where and when a connector allows
+//! ([`crate::locate::floor_track`]). Routes within a floor are a floor's
+//! reply, as on a one-floor site; routes across floors have one leg per
+//! floor, and guidance follows the walker from leg to leg.
+//!
 //! It does no I/O and keeps no clock of its own: the runtime (`daemon` in the
 //! binary) and the tests feed it [`Event`]s and hand the typed [`Output`]s it returns
 //! to the sinks. It knows no topic and writes no JSON. That keeps replay as
 //! fast as the CPU allows and makes the daemon's behaviour testable from a log.
 
+mod floor;
+
 use std::sync::Arc;
 
+use foldhash::HashMap;
 use serde::Deserialize;
 
 use crate::clock::{Clock, Stopwatch};
 use crate::event::{Event, RouteRequest};
-use crate::guide::{GuidanceConfig, GuidanceEvent, Guide, Located};
-use crate::locate::tracker::{Tracker, TrackerConfig};
+use crate::guide::{Guidance, GuidanceConfig, GuidanceEvent};
+use crate::locate;
+use crate::locate::bounds::Bounds;
+use crate::locate::floor_track::{FloorChange, FloorTracks};
+use crate::locate::floors::FloorEvidence;
+use crate::locate::tracker::TrackerConfig;
 use crate::locate::window::{Fingerprint, Orientation, WindowConfig, Windows};
-use crate::locate::{self, Localizer};
-use crate::plan::{self, Planner, PlannerConfig, Profile, RouteErrorCode};
+use crate::plan::floors::{BuildingPlanner, FloorCell};
+use crate::plan::instructions::{connector_noun, leave_sentence};
+use crate::plan::{self, PlannerConfig, Profile, RouteErrorCode};
+use crate::publish::floors::FloorsRouteBody;
 use crate::publish::{
-    ErrorBody, LOCATION_SCHEMA, Location, Output, PATH_SCHEMA, RouteBody, RouteOutcome, RouteReply,
+    ErrorBody, FloorName, LOCATION_SCHEMA, Location, Output, PATH_SCHEMA, RouteBody, RouteOutcome,
+    RouteReply,
 };
 use crate::sighting::heard::{HeardBeacon, HeardTable};
 use crate::sighting::valid_device_id;
-use crate::site::{Cell, Site};
+use crate::site::{Building, Cell, Site};
+use floor::FloorStages;
 
 /// The sections of the gateway config a pipeline is built from (the config
 /// file composes them with the I/O parts' sections; `Config::pipeline` in
@@ -161,13 +181,18 @@ impl std::ops::AddAssign for Stats {
 }
 
 pub struct Pipeline {
-    site: Arc<Site>,
+    building: Arc<Building>,
+    /// One per floor, in [`Building::floors`]' order.
+    floors: Vec<FloorStages>,
+    /// Each device's floor; `None` on a building of one floor.
+    floor_tracks: Option<FloorTracks>,
+    /// Plans within a floor with the floor's planner, across floors over
+    /// the connectors.
+    planner: BuildingPlanner,
     windows: Windows,
-    localizer: Box<dyn Localizer>,
-    tracker: Tracker,
-    planner: Box<dyn Planner>,
-    guide: Guide,
-    log_likelihood: Vec<f32>,
+    /// Routes across floors being walked, by device.
+    journeys: HashMap<Arc<str>, Journey>,
+    journey_bounds: Bounds,
     /// Published confidence under which a fix is published as unknown.
     min_confidence: f32,
     /// The anchors' ids when what is heard is kept for recalibration.
@@ -177,7 +202,25 @@ pub struct Pipeline {
     stats: Stats,
     /// Every beacon heard, known or not, bounded by `[limits] max_devices`.
     heard: HeardTable,
+    /// The anchors heard in one window, for the floor's evidence.
+    heard_scratch: Vec<(usize, f32)>,
 }
+
+/// A route across floors being walked: what guiding it on from floor to
+/// floor needs (each floor's leg is a session of that floor's guide).
+struct Journey {
+    request_id: Option<String>,
+    profile: Profile,
+    to: FloorCell,
+    /// The connector the leg being walked ends at (index into
+    /// [`Building::connectors`]); none on the last leg.
+    connector: Option<usize>,
+    t: f64,
+}
+
+/// The probability a floor needs to be published: more likely than all
+/// the others together. Under it the device is on an unknown floor.
+const FLOOR_KNOWN: f64 = 0.5;
 
 /// How many beacons a pipeline heard ([`Pipeline::heard_counts`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -203,96 +246,129 @@ pub enum PipelineError {
     },
     #[error(transparent)]
     Planner(#[from] plan::BuildError),
+    /// More anchors over all floors than a fingerprint can index.
+    #[error(
+        "the building's floors list {0} distinct anchors, more than 65535; split it into buildings"
+    )]
+    TooManyAnchors(usize),
 }
 
 impl Pipeline {
     /// Builds the pipeline a config describes, on an already loaded site.
     pub fn new(config: &PipelineConfig, site: Arc<Site>) -> Result<Pipeline, PipelineError> {
-        Ok(Self::build(config, site, false)?.0)
+        Self::for_building(config, Arc::new(Building::of_site(site)))
     }
 
-    /// [`Pipeline::new`] for a gateway starting up: a localizer or planner
-    /// whose files do not load (a missing survey, a corrupt or mismatched
-    /// model) is replaced by the one that needs no files, `pathloss` or
-    /// `astar`, instead of stopping the gateway, so it keeps locating and
-    /// routing while someone fixes the file. Config mistakes are still errors.
-    /// Returns, for each replacement, what failed and what serves instead.
+    /// [`Pipeline::new`] on a building: one floor's stages per floor, and
+    /// each device's floor from what it hears.
+    pub fn for_building(
+        config: &PipelineConfig,
+        building: Arc<Building>,
+    ) -> Result<Pipeline, PipelineError> {
+        Ok(Self::build(config, building, false)?.0)
+    }
+
+    /// [`Pipeline::for_building`] for a gateway starting up: a localizer or
+    /// planner whose files do not load (a missing survey, a corrupt or
+    /// mismatched model) is replaced by the one that needs no files,
+    /// `pathloss` or `astar`, instead of stopping the gateway, so it keeps
+    /// locating and routing while someone fixes the file. Config mistakes
+    /// are still errors. Returns, for each replacement, what failed and
+    /// what serves instead.
     pub fn with_fallbacks(
         config: &PipelineConfig,
-        site: Arc<Site>,
+        building: Arc<Building>,
     ) -> Result<(Pipeline, Vec<String>), PipelineError> {
-        Self::build(config, site, true)
+        Self::build(config, building, true)
     }
 
     fn build(
         config: &PipelineConfig,
-        site: Arc<Site>,
+        building: Arc<Building>,
         fall_back: bool,
     ) -> Result<(Pipeline, Vec<String>), PipelineError> {
         let mut fallbacks = Vec::new();
-        let build = |localizer: &locate::LocalizerConfig| {
-            locate::build(localizer, &site, &config.window, &config.tracker)
-        };
-        let localizer = match build(&config.localizer) {
-            Err(e) if fall_back && e.is_file_failure() => {
-                let failed = format!(
-                    "[localizer] method = \"{}\": {e}",
-                    config.localizer.method.name()
-                );
-                // The survey-free model stands in; without its calibration
-                // file when that is what failed.
-                let mut pathloss = locate::LocalizerConfig {
-                    method: locate::Method::Pathloss,
-                    ..config.localizer.clone()
-                };
-                if matches!(e, locate::LocalizerError::Calibration(_)) {
-                    pathloss.pathloss.calibration = None;
+        let anchors = BuildingAnchors::of(&building, config.window.orientation)?;
+        let multi_floor = building.is_multi_floor();
+        let mut floors = Vec::with_capacity(building.floors().len());
+        let mut planners = Vec::with_capacity(building.floors().len());
+        for (index, floor) in building.floors().iter().enumerate() {
+            let localizer = if multi_floor {
+                config.localizer.for_floor(&floor.name)?
+            } else {
+                config.localizer.clone()
+            };
+            floors.push(FloorStages::build(
+                config,
+                &localizer,
+                floor.site.clone(),
+                anchors.of_floor[index].clone(),
+                fall_back,
+                &mut fallbacks,
+            )?);
+            // A config names one floor's trained models: the floors of a
+            // building are planned on their geometry.
+            let mode = if multi_floor {
+                plan::PlannerMode::Astar
+            } else {
+                config.planner.mode
+            };
+            let planner = match plan::build_mode(&config.planner, mode, floor.site.clone()) {
+                Err(e @ plan::BuildError::Model { .. })
+                    if fall_back && mode != plan::PlannerMode::Astar =>
+                {
+                    fallbacks.push(format!("{e} (planning with astar instead)"));
+                    plan::build_mode(
+                        &config.planner,
+                        plan::PlannerMode::Astar,
+                        floor.site.clone(),
+                    )?
                 }
-                let localizer = build(&pathloss).map_err(|error| PipelineError::NoStandIn {
-                    failed: failed.clone(),
-                    error,
-                })?;
-                fallbacks.push(format!("{failed} (locating with pathloss instead)"));
-                localizer
-            }
-            built => built?,
-        };
-        let planner = match plan::build(&config.planner, site.clone()) {
-            Err(e @ plan::BuildError::Model { .. })
-                if fall_back && config.planner.mode != plan::PlannerMode::Astar =>
-            {
-                fallbacks.push(format!("{e} (planning with astar instead)"));
-                plan::build_mode(&config.planner, plan::PlannerMode::Astar, site.clone())?
-            }
-            built => built?,
-        };
+                built => built?,
+            };
+            planners.push(planner);
+        }
         for fallback in &fallbacks {
             tracing::error!("{fallback}");
         }
+        let limits = &config.limits;
+        let floor_tracks = multi_floor.then(|| {
+            FloorTracks::new(
+                &building,
+                FloorEvidence::new(building.floors().len(), &anchors.heard_on),
+                FLOOR_SWITCH,
+                config.tracker.reset_after_s,
+            )
+            .bound(limits.max_devices, limits.device_idle_s)
+        });
+        let first = &building.floors()[0].site;
         let pipeline = Pipeline {
-            windows: Windows::new(config.window.clone(), &site)
-                .bound(config.limits.max_devices, config.limits.device_idle_s),
-            localizer,
-            tracker: Tracker::new(config.tracker.clone(), site.clone())
-                .bound(config.limits.max_devices, config.limits.device_idle_s),
-            planner,
-            guide: Guide::new(
-                config.guidance.clone(),
-                config.guidance.fix_lag_s(&config.window),
-            ),
-            log_likelihood: vec![0.0; site.open_cells().len()],
+            windows: Windows::of_anchors(
+                config.window.clone(),
+                &anchors.beacons,
+                &anchors.gateways(),
+            )
+            .bound(limits.max_devices, limits.device_idle_s),
+            heard_ids: (config.localizer.recalibration.enabled && !multi_floor)
+                .then(|| locate::window::anchor_ids(first, config.window.orientation)),
+            planner: BuildingPlanner::new(building.clone(), config.planner.connectivity, planners),
+            floors,
+            floor_tracks,
+            journeys: HashMap::default(),
+            journey_bounds: Bounds::new(limits.max_devices, limits.device_idle_s),
             min_confidence: config.localizer.min_confidence,
-            heard_ids: config
-                .localizer
-                .recalibration
-                .enabled
-                .then(|| locate::window::anchor_ids(&site, config.window.orientation)),
-            site,
+            building,
             clock: config.planner.clock,
             stats: Stats::default(),
-            heard: HeardTable::new(config.limits.max_devices),
+            heard: HeardTable::new(limits.max_devices),
+            heard_scratch: Vec::new(),
         };
         Ok((pipeline, fallbacks))
+    }
+
+    /// The building served.
+    pub fn building(&self) -> &Arc<Building> {
+        &self.building
     }
 
     /// The counters so far.
@@ -300,16 +376,26 @@ impl Pipeline {
         Stats {
             sightings_ignored: self.windows.unknown_anchor_count(),
             evicted_windows: self.windows.evicted_count(),
-            evicted_devices: self.tracker.evicted_count(),
+            evicted_devices: self.floors.iter().map(|f| f.tracker.evicted_count()).sum(),
             ..self.stats
+        }
+    }
+
+    /// The floor a device is on (always the only one of a one-floor site);
+    /// `None` before it is heard on a building of several.
+    fn floor_of(&self, device: &str) -> Option<usize> {
+        match &self.floor_tracks {
+            Some(tracks) => tracks.floor_of(device),
+            None => Some(0),
         }
     }
 
     /// Bytes held for guiding `device`, if it has a session: the session
     /// and its tracker's belief of a walker walking the route.
     pub fn guided_bytes(&self, device: &str) -> Option<usize> {
-        let session = self.guide.session(device)?;
-        Some(session.state_bytes() + self.tracker.walking_bytes(device))
+        let floor = &self.floors[self.floor_of(device)?];
+        let session = floor.guide.session(device)?;
+        Some(session.state_bytes() + floor.tracker.walking_bytes(device))
     }
 
     /// The beacons heard most so far, at most `limit`, each marked `known`
@@ -331,32 +417,59 @@ impl Pipeline {
     }
 
     fn known_beacons(&self) -> foldhash::HashSet<crate::sighting::BeaconId> {
-        self.site.beacons.iter().map(|b| b.beacon).collect()
+        self.building
+            .floors()
+            .iter()
+            .flat_map(|f| f.site.beacons.iter().map(|b| b.beacon))
+            .collect()
     }
 
     /// Hands what this pipeline keeps per device on to the one replacing
-    /// it (a reload), so that nothing starts afresh that the new site can
-    /// still use: what was heard; the tracks (moved where the grid is the
-    /// same, else restarted from their last place in metres:
-    /// `Tracker::take_over`), so devices keep their location and their
-    /// route requests their `from`; and, on the same grid, the guided
-    /// sessions (on another they end, `Guide::take_over`); the open
-    /// fingerprint windows where the anchors are the same
-    /// (`Windows::take_over`). Tracks and sessions that end are reported
-    /// with the next outputs (forgotten, adherence). Returns how many tracks
-    /// were kept.
+    /// it (a reload), so that nothing starts afresh that the new building
+    /// can still use: what was heard; each floor's tracks, to the floor of
+    /// the same name (moved where the grid is the same, else restarted from
+    /// their last place in metres: `Tracker::take_over`), so devices keep
+    /// their location and their route requests their `from`; and, on the
+    /// same grid, the guided sessions (on another they end,
+    /// `Guide::take_over`); the devices' floors and routes across floors
+    /// when the floors are the same; the open fingerprint windows where the
+    /// anchors are the same (`Windows::take_over`). Tracks and sessions that
+    /// end are reported with the next outputs (forgotten, adherence).
+    /// Returns how many tracks were kept.
     pub fn hand_over_to(&mut self, next: &mut Pipeline) -> usize {
         let heard = std::mem::replace(&mut self.heard, HeardTable::new(1));
         next.heard.absorb(heard);
         next.windows.take_over(&mut self.windows);
-        next.guide
-            .take_over(&mut self.guide, next.site.same_grid(&self.site));
-        next.tracker.take_over(&mut self.tracker)
+        let same_floors = self.building.floors().len() == next.building.floors().len()
+            && self
+                .building
+                .floors()
+                .iter()
+                .zip(next.building.floors())
+                .all(|(a, b)| a.name == b.name);
+        if same_floors {
+            std::mem::swap(&mut next.floor_tracks, &mut self.floor_tracks);
+            std::mem::swap(&mut next.journeys, &mut self.journeys);
+            if next.floor_tracks.is_none() != self.floor_tracks.is_none() {
+                std::mem::swap(&mut next.floor_tracks, &mut self.floor_tracks);
+            }
+        }
+        let mut kept = 0;
+        for (index, floor) in next.building.floors().iter().enumerate() {
+            let Some(old) = self.building.floor_named(&floor.name) else {
+                continue;
+            };
+            let (old, new) = (&mut self.floors[old], &mut next.floors[index]);
+            new.guide
+                .take_over(&mut old.guide, new.site.same_grid(&old.site));
+            kept += new.tracker.take_over(&mut old.tracker);
+        }
+        kept
     }
 
     /// Number of entities with a track.
     pub fn tracked(&self) -> usize {
-        self.tracker.len()
+        self.floors.iter().map(|f| f.tracker.len()).sum()
     }
 
     /// Entities with an open fingerprint window.
@@ -388,7 +501,10 @@ impl Pipeline {
     /// Ends the guidance session of `device` at its request, publishing its
     /// last message (`cancelled`); nothing when it has none.
     pub fn cancel(&mut self, device: &str, t: f64, out: &mut Vec<Output>) {
-        if let Some(last) = self.guide.cancel(device, t) {
+        self.journeys.remove(device);
+        if let Some(floor) = self.floor_of(device)
+            && let Some(last) = self.floors[floor].guide.cancel(device, t)
+        {
             out.push(Output::Guidance(Box::new(last)));
         }
         self.forgotten_and_finished(out);
@@ -404,18 +520,22 @@ impl Pipeline {
     /// What the stages let go of since the last call: devices whose tracks
     /// were forgotten, and the adherence of guidance sessions that ended.
     fn forgotten_and_finished(&mut self, out: &mut Vec<Output>) {
-        out.extend(
-            self.tracker
-                .take_evicted()
-                .into_iter()
-                .map(Output::Forgotten),
-        );
-        out.extend(
-            self.guide
-                .take_finished()
-                .into_iter()
-                .map(Output::Adherence),
-        );
+        for floor in &mut self.floors {
+            for device in floor.tracker.take_evicted() {
+                if let Some(tracks) = &mut self.floor_tracks {
+                    tracks.forget(&device);
+                }
+                self.journeys.remove(&device);
+                out.push(Output::Forgotten(device));
+            }
+            out.extend(
+                floor
+                    .guide
+                    .take_finished()
+                    .into_iter()
+                    .map(Output::Adherence),
+            );
+        }
     }
 
     /// Guidance between fixes: the sighting's time tells a guided device's
@@ -424,10 +544,20 @@ impl Pipeline {
     /// hear; a guided advertiser (a tag heard by gateways) is judged at
     /// its fixes only.
     fn tick(&mut self, sighting: &crate::sighting::Sighting, out: &mut Vec<Output>) {
-        if self.guide.is_empty() || self.orientation() != Orientation::Observer {
+        if self.orientation() != Orientation::Observer {
             return;
         }
-        if let Some(guidance) = self.guide.tick(&self.site, &sighting.observer, sighting.t) {
+        let Some(index) = self.floor_of(&sighting.observer) else {
+            return;
+        };
+        let floor = &mut self.floors[index];
+        if floor.guide.is_empty() {
+            return;
+        }
+        if let Some(guidance) = floor
+            .guide
+            .tick(&floor.site, &sighting.observer, sighting.t)
+        {
             out.push(Output::Guidance(Box::new(guidance)));
             self.forgotten_and_finished(out);
         }
@@ -442,27 +572,54 @@ impl Pipeline {
             self.stats.bad_device_ids += 1;
             return;
         }
-        self.localizer
-            .log_likelihood(&fp.rssi, &fp.heard, &mut self.log_likelihood);
-        let walk = self.guide.expected_walk(&self.site, &fp.entity, fp.t);
-        let (fix, walked_mean) =
-            self.tracker
-                .update_walking(&fp.entity, fp.t, &self.log_likelihood, walk.as_ref());
+        let (index, floor_probability, entered) = match &mut self.floor_tracks {
+            None => (0, 1.0, None),
+            Some(tracks) => {
+                self.heard_scratch.clear();
+                self.heard_scratch.extend(
+                    fp.heard
+                        .iter()
+                        .zip(&fp.rssi)
+                        .enumerate()
+                        .filter(|(_, (heard, _))| **heard)
+                        .map(|(anchor, (_, &rssi))| (anchor, rssi)),
+                );
+                let before = tracks.floor_of(&fp.entity);
+                let step = tracks.update(&fp.entity, fp.t, &self.heard_scratch);
+                let entered = match step.change {
+                    FloorChange::From(from) => Some(tracks.entries(from, step.floor).to_vec()),
+                    _ => None,
+                };
+                if let Some(left) = before.filter(|&f| f != step.floor) {
+                    self.floors[left].tracker.forget(&fp.entity);
+                    self.floors[left].guide.leave(&fp.entity, fp.t);
+                }
+                (step.floor, step.probability, entered)
+            }
+        };
+        let floor = &mut self.floors[index];
+        let located = floor.locate(fp, entered.as_deref());
         self.stats.fixes += 1;
-        let confidence = self.localizer.confidence(fix.confidence, fp.heard_count());
-        let known = confidence >= self.min_confidence;
-        let cell = known.then_some(fix.cell);
-        let world = cell.map(|c| self.site.world_of_cell(c));
+        let floor_known = floor_probability >= FLOOR_KNOWN;
+        let confidence = located.confidence * floor_probability as f32;
+        let known = floor_known && confidence >= self.min_confidence;
+        let cell = known.then_some(located.fix.cell);
+        let world = cell.map(|c| floor.site.world_of_cell(c));
+        let building_floor = &self.building.floors()[index];
         let location = Location {
             schema: LOCATION_SCHEMA,
             device: fp.entity.to_string(),
             t: fp.t,
+            floor: floor_known.then(|| FloorName {
+                name: building_floor.name.clone(),
+                level: building_floor.level,
+            }),
             cell,
-            label: cell.and_then(|c| self.site.label(c)),
+            label: cell.and_then(|c| floor.site.label(c)),
             x_m: world.map(|[x, _]| x),
             y_m: world.map(|[_, y]| y),
             place: cell
-                .and_then(|c| self.site.nearest_place(c, 2.0))
+                .and_then(|c| floor.site.nearest_place(c, 2.0))
                 .map(str::to_owned),
             confidence,
             anchors_heard: fp.heard_count(),
@@ -475,47 +632,97 @@ impl Pipeline {
         {
             out.push(Output::Heard(heard));
         }
+        if entered.is_some() && self.journeys.contains_key(&fp.entity) {
+            // Onto another floor on a route across floors: its leg there.
+            self.next_leg(&fp.entity, index, located.fix.cell, fp.t, out);
+            return;
+        }
         // Leaving the route is judged on the fix, progress along it on the
         // belief of a walker walking it ([`Tracker::update_walking`]).
-        let mean = walked_mean.unwrap_or(fix.mean);
-        let located = cell.map(|cell| Located::with_mean(&self.site, cell, mean.map(f64::from)));
-        if let Some(guidance) = self
-            .guide
-            .update(&self.site, &fp.entity, located, fp.t, now)
-        {
+        let seen = floor.located(cell, &located.fix, located.walked_mean);
+        if let Some(guidance) = floor.guide.update(&floor.site, &fp.entity, seen, fp.t, now) {
             let off_route = guidance.event == Some(GuidanceEvent::OffRoute);
             out.push(Output::Guidance(Box::new(guidance)));
             if off_route {
-                self.reroute(&fp.entity, fix.cell, fp.t, out);
+                self.reroute(&fp.entity, index, located.fix.cell, fp.t, out);
             }
         }
         self.forgotten_and_finished(out);
     }
 
+    /// A device on a route across floors came onto floor `floor` at `cell`:
+    /// the rest of its way is planned from there (the next leg when it took
+    /// the connector it was sent to) and guided on.
+    fn next_leg(
+        &mut self,
+        device: &Arc<str>,
+        floor: usize,
+        cell: Cell,
+        t: f64,
+        out: &mut Vec<Output>,
+    ) {
+        let Some(journey) = self.journeys.get(&**device) else {
+            return;
+        };
+        let (to, profile, request_id) = (journey.to, journey.profile, journey.request_id.clone());
+        let started = self.clock.start();
+        match self.planner.plan(FloorCell { floor, cell }, to, profile) {
+            Ok(route) => {
+                let body =
+                    FloorsRouteBody::new(&self.planner, profile, &route, started.elapsed_us())
+                        .with_reason("next_floor");
+                let reply = RouteReply {
+                    schema: PATH_SCHEMA,
+                    device: device.to_string(),
+                    request_id,
+                    t,
+                    outcome: RouteOutcome::Floors(Box::new(body)),
+                };
+                self.reply(reply, true, out);
+            }
+            Err(e) => {
+                tracing::warn!(
+                    device = &**device,
+                    code = e.code().as_str(),
+                    "cannot plan on from the floor a device came onto: {e}"
+                );
+                self.journeys.remove(&**device);
+                self.forgotten_and_finished(out);
+            }
+        }
+    }
+
     /// Publishes a route reply and, for a route, starts guiding along it.
     fn reply(&mut self, reply: RouteReply, rerouted: bool, out: &mut Vec<Output>) {
-        if let RouteOutcome::Route(body) = &reply.outcome {
-            let first = self.guide_along(&reply, body, rerouted);
-            out.push(Output::Route(Box::new(reply)));
+        let first = match &reply.outcome {
+            RouteOutcome::Route(body) => {
+                self.journeys.remove(reply.device.as_str());
+                Some(self.guide_along(0, &reply, body, rerouted))
+            }
+            RouteOutcome::Floors(body) => self.guide_across(&reply, body, rerouted),
+            RouteOutcome::Error { .. } => None,
+        };
+        out.push(Output::Route(Box::new(reply)));
+        if let Some(first) = first {
             out.push(Output::Guidance(Box::new(first)));
-        } else {
-            out.push(Output::Route(Box::new(reply)));
         }
         self.forgotten_and_finished(out);
     }
 
-    /// Starts guiding a device along a route just published; returns the
-    /// session's first message.
+    /// Starts guiding `reply`'s device along `body`, a route just
+    /// published on floor `floor`; returns the session's first message.
     fn guide_along(
         &mut self,
+        floor: usize,
         reply: &RouteReply,
         body: &RouteBody,
         rerouted: bool,
-    ) -> crate::guide::Guidance {
-        let (route, line) = body.route_and_line(&self.site);
+    ) -> Guidance {
+        let floor = &mut self.floors[floor];
+        let (route, line) = body.route_and_line(&floor.site);
         let profile = Profile::parse(body.profile).unwrap_or_default();
-        self.guide.start(
-            &self.site,
+        floor.guide.start(
+            &floor.site,
             &reply.device,
             reply.request_id.clone(),
             profile,
@@ -526,18 +733,88 @@ impl Pipeline {
         )
     }
 
+    /// Starts guiding a route across floors along its first leg, to its
+    /// connector, keeping what the next floors' legs need; `None` when the
+    /// first leg's floor is not one of the building's (it always is: the
+    /// planner drew it).
+    fn guide_across(
+        &mut self,
+        reply: &RouteReply,
+        body: &FloorsRouteBody,
+        rerouted: bool,
+    ) -> Option<Guidance> {
+        let leg = body.legs.first()?;
+        let floor = self.building.floor_named(&leg.floor)?;
+        let to = FloorCell {
+            floor: self.building.floor_named(&body.to.floor)?,
+            cell: body.to.cell,
+        };
+        let connector = body.connectors.first().and_then(|c| {
+            self.building
+                .connectors()
+                .iter()
+                .position(|known| known.id == c.id)
+        });
+        // Came off the connector of the leg before: "Leave the lift on L1."
+        let left = self
+            .journeys
+            .get(reply.device.as_str())
+            .and_then(|j| j.connector)
+            .map(|c| &self.building.connectors()[c])
+            .filter(|c| rerouted && c.stops.iter().any(|s| s.floor == floor))
+            .map(|c| leave_sentence(c.kind, &self.building.floors()[floor].name));
+        let device: Arc<str> = Arc::from(reply.device.as_str());
+        let full = self.journeys.len() >= self.journey_bounds.max()
+            && !self.journeys.contains_key(&device);
+        self.journey_bounds
+            .make_room(&mut self.journeys, reply.t, full, |j| j.t, |_| {});
+        self.journeys.insert(
+            device,
+            Journey {
+                request_id: reply.request_id.clone(),
+                profile: Profile::parse(body.profile).unwrap_or_default(),
+                to,
+                connector,
+                t: reply.t,
+            },
+        );
+        let mut first = self.guide_along(floor, reply, &leg.route, rerouted);
+        if let (Some(c), Some(ride)) = (connector, leg.route.instructions.last()) {
+            let stages = &mut self.floors[floor];
+            first = stages
+                .guide
+                .end_at_connector(
+                    &stages.site,
+                    &reply.device,
+                    connector_noun(self.building.connectors()[c].kind),
+                    ride.text.clone(),
+                    reply.t,
+                )
+                .unwrap_or(first);
+        }
+        if let Some(left) = left {
+            first.text = Some(match first.text {
+                Some(text) => format!("{left} {text}"),
+                None => left,
+            });
+        }
+        Some(first)
+    }
+
     /// Re-plans the route of a device that left it, from its tracked `cell`
-    /// to the same destination, and publishes it with reason `off_route`.
+    /// on floor `floor` to the same destination (the end of the floor's leg
+    /// on a route across floors), and publishes it with reason `off_route`.
     /// When no route can be planned the session stays off route (and the
     /// device is told so by its guidance) until it walks back or asks again.
-    fn reroute(&mut self, device: &str, cell: Cell, t: f64, out: &mut Vec<Output>) {
-        let Some(session) = self.guide.session(device) else {
+    fn reroute(&mut self, device: &str, floor: usize, cell: Cell, t: f64, out: &mut Vec<Output>) {
+        let Some(session) = self.floors[floor].guide.session(device) else {
             return;
         };
         let (to, profile) = (session.destination(), session.profile());
         let request_id = session.request_id().map(str::to_owned);
         let started = self.clock.start();
-        let planned = match self.planner.plan(cell, to, profile) {
+        let planner = self.planner.floor_planner(floor);
+        let planned = match planner.plan(cell, to, profile) {
             Ok(planned) => planned,
             Err(e) => {
                 tracing::warn!(
@@ -548,9 +825,10 @@ impl Pipeline {
                 return;
             }
         };
+        let site = &self.floors[floor].site;
         let mut body = RouteBody::new(
-            &self.site,
-            &*self.planner,
+            site,
+            planner,
             profile,
             cell,
             to,
@@ -564,9 +842,14 @@ impl Pipeline {
             device: device.to_owned(),
             request_id,
             t,
-            outcome: RouteOutcome::Route(body),
+            outcome: RouteOutcome::Route(body.clone()),
         };
-        self.reply(reply, true, out);
+        // A leg of a route across floors stays one (its session still
+        // walks to its connector), and the journey goes on.
+        let first = self.guide_along(floor, &reply, &body, true);
+        out.push(Output::Route(Box::new(reply)));
+        out.push(Output::Guidance(Box::new(first)));
+        self.forgotten_and_finished(out);
     }
 
     /// Plans a route from the device's tracked cell; every failure becomes an
@@ -579,6 +862,12 @@ impl Pipeline {
             RouteOutcome::Route(body) => {
                 self.stats.routes += 1;
                 self.count_line(body);
+            }
+            RouteOutcome::Floors(body) => {
+                self.stats.routes += 1;
+                for leg in &body.legs {
+                    self.count_line(&leg.route);
+                }
             }
             RouteOutcome::Error { .. } => self.stats.request_errors += 1,
         }
@@ -649,7 +938,14 @@ impl Pipeline {
                 }
             },
         };
-        let Some(fix) = self.tracker.last_fix(&request.device) else {
+        let fix = self.floor_of(&request.device).and_then(|floor| {
+            let fix = self.floors[floor].tracker.last_fix(&request.device)?;
+            Some(FloorCell {
+                floor,
+                cell: fix.cell,
+            })
+        });
+        let Some(from) = fix else {
             return error(
                 RouteErrorCode::UnknownDevice,
                 format!(
@@ -658,23 +954,104 @@ impl Pipeline {
                 ),
             );
         };
-        let to = match request.to.resolve(&self.site) {
-            Ok(cell) => cell,
+        let to = match self.planner.resolve(request.floor.as_deref(), &request.to) {
+            Ok(to) => to,
             Err(e) => return error(e.code(), e.to_string()),
         };
-        match self.planner.plan(fix.cell, to, profile) {
-            Ok(planned) => RouteOutcome::Route(RouteBody::new(
-                &self.site,
-                &*self.planner,
+        if !self.building.is_multi_floor() {
+            let floor = &self.floors[0];
+            let planner = self.planner.floor_planner(0);
+            return match planner.plan(from.cell, to.cell, profile) {
+                Ok(planned) => RouteOutcome::Route(RouteBody::new(
+                    &floor.site,
+                    planner,
+                    profile,
+                    from.cell,
+                    to.cell,
+                    &planned,
+                    started.elapsed_us(),
+                )),
+                Err(e) => error(e.code(), e.to_string()),
+            };
+        }
+        match self.planner.plan(from, to, profile) {
+            Ok(route) => RouteOutcome::Floors(Box::new(FloorsRouteBody::new(
+                &self.planner,
                 profile,
-                fix.cell,
-                to,
-                &planned,
+                &route,
                 started.elapsed_us(),
-            )),
+            ))),
             Err(e) => error(e.code(), e.to_string()),
         }
     }
+}
+
+/// The probability per window that a device changes floor, for the floor
+/// filter: people change floor a few times in an hour of 2 s windows, and
+/// the connectors' times ([`FloorTracks`]) keep one odd window from moving
+/// a device anyway.
+const FLOOR_SWITCH: f64 = 0.01;
+
+/// Every floor's anchors listed once, in the order of the building's
+/// fingerprints.
+struct BuildingAnchors {
+    beacons: Vec<(crate::sighting::BeaconId, Option<crate::sighting::Mac>)>,
+    gateways: Vec<String>,
+    /// Per floor, for each of its anchors (its site's order): the
+    /// building's index of it.
+    of_floor: Vec<Vec<usize>>,
+    /// Per building anchor, per floor: 1 where the floor lists it.
+    heard_on: Vec<Vec<f64>>,
+}
+
+impl BuildingAnchors {
+    fn of(building: &Building, orientation: Orientation) -> Result<BuildingAnchors, PipelineError> {
+        let mut anchors = BuildingAnchors {
+            beacons: Vec::new(),
+            gateways: Vec::new(),
+            of_floor: Vec::new(),
+            heard_on: Vec::new(),
+        };
+        let floors = building.floors().len();
+        for (index, floor) in building.floors().iter().enumerate() {
+            let site = &floor.site;
+            let of_floor = match orientation {
+                Orientation::Observer => site
+                    .beacons
+                    .iter()
+                    .map(|b| position_or_push(&mut anchors.beacons, (b.beacon, b.mac)))
+                    .collect::<Vec<_>>(),
+                Orientation::Advertiser => site
+                    .gateways
+                    .iter()
+                    .map(|g| position_or_push(&mut anchors.gateways, g.id.clone()))
+                    .collect(),
+            };
+            for &anchor in &of_floor {
+                if anchors.heard_on.len() <= anchor {
+                    anchors.heard_on.resize(anchor + 1, vec![0.0; floors]);
+                }
+                anchors.heard_on[anchor][index] = 1.0;
+            }
+            anchors.of_floor.push(of_floor);
+        }
+        if anchors.heard_on.len() > usize::from(u16::MAX) {
+            return Err(PipelineError::TooManyAnchors(anchors.heard_on.len()));
+        }
+        Ok(anchors)
+    }
+
+    fn gateways(&self) -> Vec<&str> {
+        self.gateways.iter().map(String::as_str).collect()
+    }
+}
+
+/// The index of `item` in `list`, added at its end when it is not there.
+fn position_or_push<T: PartialEq>(list: &mut Vec<T>, item: T) -> usize {
+    list.iter().position(|x| *x == item).unwrap_or_else(|| {
+        list.push(item);
+        list.len() - 1
+    })
 }
 
 #[cfg(test)]
@@ -683,10 +1060,8 @@ mod tests {
 
     use super::*;
 
-    impl Pipeline {
-        fn site(&self) -> &Arc<Site> {
-            &self.site
-        }
+    fn building(site: Arc<Site>) -> Arc<Building> {
+        Arc::new(Building::of_site(site))
     }
 
     /// The repository's root, the pipeline sections of the shipped config
@@ -720,7 +1095,7 @@ mod tests {
         let (_, _, site) = shipped();
         assert!(Pipeline::new(&config, site.clone()).is_err());
 
-        let (pipeline, fallbacks) = Pipeline::with_fallbacks(&config, site).unwrap();
+        let (pipeline, fallbacks) = Pipeline::with_fallbacks(&config, building(site)).unwrap();
         assert_eq!(fallbacks.len(), 2, "{fallbacks:?}");
         assert!(
             fallbacks[0].starts_with("[localizer] method = \"onnx\": ")
@@ -737,13 +1112,14 @@ mod tests {
             fallbacks[1]
         );
         // What serves instead are working stages.
-        assert_eq!(pipeline.planner.mode(), "astar");
-        let site = pipeline.site().clone();
+        let planner = pipeline.planner.floor_planner(0);
+        assert_eq!(planner.mode(), "astar");
+        let site = pipeline.building().floors()[0].site.clone();
         let (from, to) = (
             site.place("help desk").unwrap(),
             site.place("printers").unwrap(),
         );
-        assert!(pipeline.planner.plan(from, to, Profile::Default).is_ok());
+        assert!(planner.plan(from, to, Profile::Default).is_ok());
     }
 
     /// Only files fall back: a config mistake stops the start-up as it
@@ -755,7 +1131,7 @@ mod tests {
         let mut no_survey = shipped.clone();
         no_survey.localizer.method = locate::Method::Knn;
         no_survey.localizer.knn.survey = None;
-        let err = Pipeline::with_fallbacks(&no_survey, site.clone())
+        let err = Pipeline::with_fallbacks(&no_survey, building(site.clone()))
             .err()
             .unwrap();
         assert!(format!("{err:#}").contains("set `survey`"), "{err:#}");
@@ -763,7 +1139,7 @@ mod tests {
         let mut no_samples = shipped.clone();
         no_samples.planner.mode = plan::PlannerMode::Conditional;
         no_samples.planner.conditional.samples = 0;
-        let err = Pipeline::with_fallbacks(&no_samples, site.clone())
+        let err = Pipeline::with_fallbacks(&no_samples, building(site.clone()))
             .err()
             .unwrap();
         assert!(format!("{err:#}").contains("samples"), "{err:#}");
@@ -779,7 +1155,7 @@ mod tests {
             std::path::Path::new("unplaced.toml"),
         )
         .unwrap();
-        let err = Pipeline::with_fallbacks(&broken_config(), Arc::new(unplaced))
+        let err = Pipeline::with_fallbacks(&broken_config(), building(Arc::new(unplaced)))
             .err()
             .unwrap();
         let text = format!("{err:#}");
@@ -818,6 +1194,7 @@ mod tests {
             device: "phone".into(),
             request_id: Some("r".into()),
             to: plan::Destination::Place("help desk".into()),
+            floor: None,
             profile: None,
             t: 10.0,
         });

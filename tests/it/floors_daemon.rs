@@ -1,0 +1,251 @@
+//! The gateway serving a building of several floors (the made-up one of
+//! [`floors_support`]): a phone walks on B1 to the lift, rides it to L1 and
+//! walks on. Its published locations carry its floor, which changes once,
+//! from B1 to L1, through the lift; a wheelchair user's route to L1 asked
+//! for on B1 has a leg per floor joined by the lift, never the stairs;
+//! guidance announces the lift at the end of the first leg and follows the
+//! walker onto L1 with the rest of the way.
+//!
+//! The phone's readings come from a plain path-loss law with a loss per
+//! floor between beacon and phone, not from the gateway's own model.
+
+use std::path::{Path, PathBuf};
+
+use serde_json::Value;
+
+use crate::common::{gangway_ok, write};
+use crate::floors_support::{self, BEACONS, FLOORS};
+use crate::mqtt_support::*;
+
+const UUID: &str = "8b0c3f0e-6a51-4d27-9c1e-2f4a6b8d0e13";
+/// Where the walk starts on B1, the lift's stop (every floor) and where it
+/// ends on L1, metres.
+const START: [f64; 2] = [9.0, 2.0];
+const LIFT: [f64; 2] = [17.0, 6.25];
+const END: [f64; 2] = [11.0, 2.5];
+/// When the phone reaches the lift, enters it (after waiting for it) and
+/// leaves it on L1, seconds from the start: heard by nobody in the car (it
+/// shields the phone).
+const AT_LIFT_S: f64 = 10.0;
+const BOARD_S: f64 = 24.0;
+const LEAVE_S: f64 = 40.0;
+const END_S: f64 = 60.0;
+const T0: f64 = 1_767_225_600.0;
+
+/// Where the phone is at `s` seconds: its floor's index and position.
+fn walker(s: f64) -> Option<(usize, [f64; 2])> {
+    let between = |a: [f64; 2], b: [f64; 2], f: f64| {
+        let f = f.clamp(0.0, 1.0);
+        [a[0] + (b[0] - a[0]) * f, a[1] + (b[1] - a[1]) * f]
+    };
+    if s <= BOARD_S {
+        Some((0, between(START, LIFT, s / AT_LIFT_S)))
+    } else if s < LEAVE_S {
+        None
+    } else {
+        Some((2, between(LIFT, END, (s - LEAVE_S) / 12.0)))
+    }
+}
+
+/// RSSI of beacon `b` heard at `at` on floor `floor`: −59 dBm at 1 m,
+/// exponent 2.5, 18 dB per floor between, a small deterministic ripple;
+/// `None` under −95 dBm.
+fn rssi(b: usize, floor: usize, at: [f64; 2], k: u32) -> Option<i16> {
+    let (_, beacon_floor, pos, _) = BEACONS[b];
+    let beacon_floor = FLOORS.iter().position(|f| f.name == beacon_floor).unwrap();
+    let d = ((pos[0] - at[0]).powi(2) + (pos[1] - at[1]).powi(2))
+        .sqrt()
+        .max(0.5);
+    let floors = beacon_floor.abs_diff(floor) as f64;
+    let ripple = f64::from((k * 7 + b as u32 * 3) % 5) - 2.0;
+    let dbm = -59.0 - 25.0 * d.log10() - 18.0 * floors + ripple;
+    (dbm >= -95.0).then_some(dbm.round() as i16)
+}
+
+/// The walk as a JSON Lines capture (an advert per beacon heard per
+/// second), and `extra` lines after the advert of second `at`.
+fn capture(dir: &Path, extra: &[(f64, Value)]) -> PathBuf {
+    let mut lines = Vec::new();
+    for k in 0..=END_S as u32 {
+        let s = f64::from(k);
+        if let Some((floor, at)) = walker(s) {
+            for (b, beacon) in BEACONS.iter().enumerate() {
+                if let Some(rssi) = rssi(b, floor, at, k) {
+                    lines.push(serde_json::json!({
+                        "type": "advert", "t": T0 + s, "observer": "phone",
+                        "uuid": UUID, "major": 7, "minor": beacon.3, "rssi": rssi,
+                    }));
+                }
+            }
+        }
+        for (at, line) in extra.iter().filter(|(at, _)| *at == s) {
+            let mut line = line.clone();
+            line["t"] = (T0 + at).into();
+            lines.push(line);
+        }
+    }
+    let text: Vec<String> = lines.iter().map(Value::to_string).collect();
+    write(dir, "walk.jsonl", &(text.join("\n") + "\n"))
+}
+
+fn request_to_l1(request_id: &str) -> Value {
+    serde_json::json!({
+        "to": floors_support::cell_of(END),
+        "floor": "L1",
+        "profile": "wheelchair",
+        "request_id": request_id,
+    })
+}
+
+#[test]
+fn a_walk_from_b1_to_l1_by_lift_is_located_routed_and_guided_floor_by_floor() {
+    let dir = tempfile::tempdir().unwrap();
+    floors_support::write_building(dir.path());
+    // Five beacons over three floors of 0.5 m cells: a fix is rarely
+    // within one cell, so every fix is published (and guided) here.
+    let config = write(
+        dir.path(),
+        "gangway.toml",
+        "gateway_id = \"gw\"\nsite = \"building.toml\"\n[localizer]\nmin_confidence = 0.0\n",
+    );
+    let mut request = request_to_l1("r1");
+    request["type"] = "request".into();
+    request["device"] = "phone".into();
+    let walk = capture(dir.path(), &[(4.0, request)]);
+    let printed = gangway_ok(&[
+        "replay",
+        walk.to_str().unwrap(),
+        "--config",
+        config.to_str().unwrap(),
+        "--print",
+    ]);
+    let messages: Vec<(String, Value)> = printed
+        .lines()
+        .map(|l| {
+            let v: Value = serde_json::from_str(l).unwrap();
+            (
+                v["topic"].as_str().unwrap().to_owned(),
+                v["payload"].clone(),
+            )
+        })
+        .collect();
+    let of = |suffix: &str| -> Vec<&Value> {
+        messages
+            .iter()
+            .filter(|(topic, _)| topic.ends_with(suffix))
+            .map(|(_, p)| p)
+            .collect()
+    };
+
+    // Every location names its floor (or none), and the floor changes once,
+    // B1 to L1, no sooner than the lift can carry the phone there.
+    let locations = of("/devices/phone/location");
+    let floors: Vec<(f64, Option<&str>)> = locations
+        .iter()
+        .map(|l| (l["t"].as_f64().unwrap() - T0, l["floor"]["name"].as_str()))
+        .collect();
+    let named: Vec<(f64, &str)> = floors.iter().filter_map(|&(t, f)| Some((t, f?))).collect();
+    assert!(named.len() >= 10, "{floors:?}");
+    assert_eq!(named.first().unwrap().1, "B1", "{floors:?}");
+    assert_eq!(named.last().unwrap().1, "L1", "{floors:?}");
+    let changes: Vec<_> = named.windows(2).filter(|w| w[0].1 != w[1].1).collect();
+    assert_eq!(changes.len(), 1, "{floors:?}");
+    // Two levels of the lift move in 10 s at least.
+    assert!(changes[0][1].0 >= BOARD_S + 10.0, "{floors:?}");
+    for l in &locations {
+        check_schema("location", l).unwrap();
+        if l["floor"].is_null() {
+            assert!(l["cell"].is_null(), "a cell on an unknown floor: {l}");
+        }
+    }
+
+    // The route: a leg on B1 to the lift, the lift, a leg on L1.
+    let paths = of("/devices/phone/path");
+    let route = paths
+        .iter()
+        .find(|p| p["request_id"] == "r1" && p.get("reason").is_none())
+        .expect("the reply to r1");
+    check_schema("path", route).unwrap();
+    let legs: Vec<&str> = route["legs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|l| l["floor"].as_str().unwrap())
+        .collect();
+    assert_eq!(legs, ["B1", "L1"], "{route}");
+    assert_eq!(route["connectors"][0]["kind"], "lift", "{route}");
+    let said: Vec<&str> = route["instructions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|i| i["text"].as_str().unwrap())
+        .collect();
+    assert!(said.contains(&"Take the lift to L1."), "{said:?}");
+
+    // Guidance: the lift announced on B1, then the rest of the way planned
+    // from where the phone came onto L1, and guided there.
+    let guidance = of("/devices/phone/guidance");
+    let connector = guidance
+        .iter()
+        .position(|g| g["event"] == "connector")
+        .unwrap_or_else(|| panic!("no connector announced: {guidance:?}"));
+    assert_eq!(
+        guidance[connector]["text"], "Take the lift to L1.",
+        "{}",
+        guidance[connector]
+    );
+    let next = paths
+        .iter()
+        .find(|p| p["reason"] == "next_floor")
+        .unwrap_or_else(|| panic!("no route on from L1: {paths:?}"));
+    check_schema("path", next).unwrap();
+    assert_eq!(next["legs"].as_array().unwrap().len(), 1, "{next}");
+    assert_eq!(next["legs"][0]["floor"], "L1", "{next}");
+    assert_eq!(next["request_id"], "r1");
+    assert!(
+        guidance[connector..].iter().any(|g| g["text"]
+            .as_str()
+            .is_some_and(|t| t.starts_with("Leave the lift on L1."))),
+        "{guidance:?}"
+    );
+    for g in &guidance {
+        check_schema("guidance", g).unwrap();
+    }
+}
+
+/// The same walk served by `gangway run` from a real mosquitto: the route
+/// request arrives over MQTT, names the floor, and is refused for a floor
+/// the building does not have.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn route_requests_across_floors_arrive_over_mqtt() {
+    let dir = tempfile::tempdir().unwrap();
+    let building = floors_support::write_building(dir.path());
+    let walk = capture(dir.path(), &[]);
+    let broker = Broker::start();
+    let config = gateway_config("gw-floors", &building, &broker, "");
+    let prefix = "gangway/gw-floors";
+    let mut client = Client::connect(&broker, "test-floors", &[&format!("{prefix}/#")]).await;
+    let mut gateway = Gateway::start(&config.path, &["--replay", walk.to_str().unwrap()]);
+    let location = format!("{prefix}/devices/phone/location");
+    let first = client
+        .wait_for("a location of the phone", |m| m.topic == location)
+        .await
+        .json();
+    assert_eq!(first["floor"]["name"], "B1", "{first}");
+
+    let set = format!("{prefix}/devices/phone/route/set");
+    client.publish(&set, request_to_l1("m1").to_string()).await;
+    let reply = client.reply(prefix, "phone", "m1").await;
+    check_schema("path", &reply).unwrap();
+    assert_eq!(reply["legs"][1]["floor"], "L1", "{reply}");
+    assert_eq!(reply["connectors"][0]["kind"], "lift", "{reply}");
+
+    let mut wrong = request_to_l1("m2");
+    wrong["floor"] = "L9".into();
+    client.publish(&set, wrong.to_string()).await;
+    let reply = client.reply(prefix, "phone", "m2").await;
+    assert_eq!(reply["error"]["code"], "unknown_place", "{reply}");
+    let message = reply["error"]["message"].as_str().unwrap();
+    assert!(message.contains("`B1`, `G`, `L1`"), "{message}");
+    assert!(gateway.terminate().success());
+}
