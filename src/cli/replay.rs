@@ -148,7 +148,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         if let Some(url) = &url {
             sinks.push(Box::new(mqtt::sink::publisher(
                 &config.mqtt,
-                &config.broker_identity(&site),
+                &config.broker_identity(&building.name),
                 url,
             )?));
         }

@@ -64,8 +64,12 @@ async fn serve(args: Args) -> anyhow::Result<()> {
     let config = &serving.config;
     let site = serving.site.clone();
     let url = mqtt::broker_url(&config.mqtt, args.mqtt_url)?;
-    let (broker, subscriptions) =
-        mqtt::sink::gateway(&config.mqtt, &config.broker_identity(&site), &site, &url)?;
+    let (broker, subscriptions) = mqtt::sink::gateway(
+        &config.mqtt,
+        &config.broker_identity(&serving.building.name),
+        &serving.building,
+        &url,
+    )?;
     let mut sources: Vec<Box<dyn Source>> = vec![Box::new(subscriptions)];
     let mut sinks: Vec<Box<dyn Sink>> = vec![Box::new(broker)];
     let radio = match &args.replay {
@@ -133,7 +137,7 @@ async fn serve(args: Args) -> anyhow::Result<()> {
     let latency = web.map(|web| web.add_to(&mut sources, &mut sinks));
     if let Some(out) = &args.out {
         sinks.push(Box::new(JsonLines::create(
-            config.broker_identity(&site).topics(),
+            config.broker_identity(&serving.building.name).topics(),
             out,
         )?));
     }

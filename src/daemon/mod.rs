@@ -912,8 +912,8 @@ impl Runtime {
             heard_unknown: heard.unknown as u64,
             scan_restarts: ble.scan_restarts,
             ble,
-            site: self.state.site.name.clone(),
-            site_hash: self.state.site.map_hash().to_owned(),
+            site: self.state.building.name.clone(),
+            site_hash: self.state.building.map_hash(),
             fallbacks,
             ..Stats::default()
         };
@@ -1040,14 +1040,14 @@ impl Runtime {
                         self.recalibration = Recalibration::new(&self.state);
                     }
                     tracing::info!(
-                        site = self.state.site.name,
-                        site_hash = self.state.site.map_hash(),
+                        site = self.state.building.name,
+                        site_hash = self.state.building.map_hash(),
                         tracks_kept = kept,
                         "reloaded config and site"
                     );
                     self.counters.reloads += 1;
                     for sink in &mut self.sinks {
-                        sink.reload(&self.state.site);
+                        sink.reload(&self.state.building);
                     }
                     None
                 }

@@ -124,7 +124,9 @@ pub(crate) fn restart_needed(old: &Loaded, new: &Loaded) -> Option<&'static str>
         Some("[cluster] changed")
     } else if old.config.window.orientation != new.config.window.orientation {
         Some("[window] orientation changed")
-    } else if old.config.site_prefix(&old.site.name) != new.config.site_prefix(&new.site.name) {
+    } else if old.config.site_prefix(&old.building.name)
+        != new.config.site_prefix(&new.building.name)
+    {
         Some("the site name (and with it the shared-sightings prefix) changed")
     } else {
         None

@@ -213,9 +213,9 @@ fn a_walk_from_b1_to_l1_by_lift_is_located_routed_and_guided_floor_by_floor() {
     }
 }
 
-/// The same walk served by `gangway run` from a real mosquitto: the route
-/// request arrives over MQTT, names the floor, and is refused for a floor
-/// the building does not have.
+/// The same walk served by `gangway run` from a real mosquitto: the phone
+/// is counted on its floor, and the route request arrives over MQTT, names
+/// the floor, and is refused for a floor the building does not have.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn route_requests_across_floors_arrive_over_mqtt() {
     let dir = tempfile::tempdir().unwrap();
@@ -232,6 +232,16 @@ async fn route_requests_across_floors_arrive_over_mqtt() {
         .await
         .json();
     assert_eq!(first["floor"]["name"], "B1", "{first}");
+    // Occupancy counts the phone on its floor.
+    let occupancy = format!("{prefix}/occupancy");
+    let counts = client
+        .wait_for("the phone counted on B1", |m| {
+            m.topic == occupancy && m.json()["floors"]["B1"] == 1
+        })
+        .await
+        .json();
+    check_schema("occupancy", &counts).unwrap();
+    assert_eq!(counts["floors"]["L1"], 0, "{counts}");
 
     let set = format!("{prefix}/devices/phone/route/set");
     client.publish(&set, request_to_l1("m1").to_string()).await;

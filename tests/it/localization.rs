@@ -866,7 +866,7 @@ impl gangway::sink::Sink for Swaps {
         Ok(())
     }
 
-    fn reload(&mut self, _: &gangway::site::Site) {
+    fn reload(&mut self, _: &gangway::site::Building) {
         self.0.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
     }
 

@@ -18,7 +18,6 @@ use crate::mqtt::cluster::{ClusterConfig, Role};
 use crate::mqtt::{self, MqttConfig};
 use crate::pipeline::{LimitsConfig, PipelineConfig};
 use crate::plan::PlannerConfig;
-use crate::site::Site;
 use crate::source::ble::BleConfig;
 use crate::store::StoreConfig;
 use crate::web::WebConfig;
@@ -277,12 +276,12 @@ impl Config {
     }
 
     /// Who this gateway is on the broker for `site`, for the MQTT sink.
-    pub fn broker_identity(&self, site: &Site) -> mqtt::sink::Identity {
+    pub fn broker_identity(&self, site_name: &str) -> mqtt::sink::Identity {
         mqtt::sink::Identity {
             gateway_id: self.gateway_id.clone(),
             client_id: self.client_id(),
             topic_prefix: self.topic_prefix(),
-            site_prefix: self.site_prefix(&site.name),
+            site_prefix: self.site_prefix(site_name),
             shares_sightings: self.shares_sightings(),
             role: self.cluster.role,
             shards: self.cluster.shards,

@@ -449,6 +449,21 @@ impl Building {
         &self.connectors
     }
 
+    /// What models and stats identify the building's maps by: a one-floor
+    /// site's own [`Site::map_hash`]; for several floors, SHA-256 of each
+    /// floor's name and map hash in order.
+    pub fn map_hash(&self) -> String {
+        if let [floor] = &self.floors[..] {
+            return floor.site.map_hash().to_owned();
+        }
+        use sha2::Digest;
+        let mut hash = sha2::Sha256::new();
+        for floor in &self.floors {
+            hash.update(format!("{}:{}\n", floor.name, floor.site.map_hash()));
+        }
+        hash.finalize().iter().map(|b| format!("{b:02x}")).collect()
+    }
+
     /// Whether it has more than one floor.
     pub fn is_multi_floor(&self) -> bool {
         self.floors.len() > 1

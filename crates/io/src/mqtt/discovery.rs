@@ -3,10 +3,12 @@
 //! Assistant create
 //! - a `device_tracker` per tracked device: state from the plain-text
 //!   `<prefix>/devices/<device>/presence` ([`Discovery::presence`]), attributes
-//!   x, y, place, confidence, cell, label and t from its location messages;
+//!   floor, level, x, y, place, confidence, cell, label and t from its
+//!   location messages;
 //! - for the gateway: a connectivity sensor, one sensor per counter of
-//!   `<prefix>/stats`, and one occupancy sensor per named place of the site,
-//!   reading `<prefix>/occupancy` (see `occupancy`).
+//!   `<prefix>/stats`, and one occupancy sensor per named place of the site
+//!   and, on a building of several floors, per floor, reading
+//!   `<prefix>/occupancy` (see `occupancy`).
 //!
 //! Why a separate presence topic: Home Assistant's MQTT device tracker (up to
 //! 2024.1 at least) compares a value template's result only with
@@ -17,6 +19,7 @@
 
 use serde_json::json;
 
+use super::occupancy::place_key;
 use crate::publish::Location;
 use crate::publish::stats::{COUNTERS, GAUGES};
 use crate::topics::{Message, Topics};
@@ -29,7 +32,9 @@ pub(crate) const NOT_HOME: &str = "not_home";
 /// The tracker's attributes, from one location message. `get` keeps keys the
 /// message leaves out (an older gateway's `label`) from failing the template:
 /// every message updates every attribute, null when it has no value.
-const TRACKER_ATTRIBUTES: &str = "{{ {'x': value_json.get('x_m'), 'y': value_json.get('y_m'), \
+const TRACKER_ATTRIBUTES: &str = "{{ {'floor': (value_json.get('floor') or {}).get('name'), \
+     'level': (value_json.get('floor') or {}).get('level'), \
+     'x': value_json.get('x_m'), 'y': value_json.get('y_m'), \
      'place': value_json.get('place'), 'confidence': value_json.get('confidence'), \
      'cell': value_json.get('cell'), 'label': value_json.get('label'), \
      't': value_json.get('t')} | tojson }}";
@@ -40,29 +45,29 @@ pub(crate) struct Discovery {
     gateway_id: String,
     node: String,
     topics: Topics,
-    /// The site's named places with the object id of each one's occupancy
-    /// sensor, in the site's order.
+    /// The named places (by `occupancy::place_key`) with the object id of
+    /// each one's occupancy sensor, in the building's order.
     places: Vec<(String, String)>,
+    /// A building's floors with the object id of each one's sensor; none on
+    /// a one-floor site.
+    floors: Vec<(String, String)>,
 }
 
 impl Discovery {
-    pub(crate) fn new<'a>(
+    pub(crate) fn new(
         discovery_prefix: &str,
         gateway_id: &str,
         topics: Topics,
-        places: impl IntoIterator<Item = &'a str>,
+        places: Vec<String>,
+        floors: Vec<String>,
     ) -> Self {
-        let places: Vec<&str> = places.into_iter().collect();
-        let places = places
-            .iter()
-            .map(|&place| (place.to_owned(), occupancy_object_id(place, &places)))
-            .collect();
         Discovery {
             prefix: discovery_prefix.to_owned(),
             gateway_id: gateway_id.to_owned(),
             node: object_id(gateway_id),
             topics,
-            places,
+            places: with_object_ids("occupancy", places),
+            floors: with_object_ids("floor", floors),
         }
     }
 
@@ -129,23 +134,33 @@ impl Discovery {
             ));
         }
         for (place, object) in &self.places {
-            out.push(self.occupancy_sensor(place, object));
+            out.push(self.occupancy_sensor("places", &format!("{place} occupancy"), place, object));
+        }
+        for (floor, object) in &self.floors {
+            out.push(self.occupancy_sensor(
+                "floors",
+                &format!("Devices on {floor}"),
+                floor,
+                object,
+            ));
         }
         out
     }
 
-    fn occupancy_sensor(&self, place: &str, object: &str) -> Message {
+    /// A sensor of the count under `key` in the occupancy message's
+    /// `counts` (`places` or `floors`).
+    fn occupancy_sensor(&self, counts: &str, name: &str, key: &str, object: &str) -> Message {
         // A JSON string is also a Jinja string literal: quotes and backslashes
         // in a place's name stay inside it.
-        let key = serde_json::Value::from(place).to_string();
+        let key = serde_json::Value::from(key).to_string();
         self.config(
             "sensor",
             object,
             json!({
-                "name": format!("{place} occupancy"),
+                "name": name,
                 "unique_id": format!("gangway_{}_{object}", self.node),
                 "state_topic": self.topics.occupancy(),
-                "value_template": format!("{{{{ value_json.places[{key}] | default(0) }}}}"),
+                "value_template": format!("{{{{ value_json.{counts}[{key}] | default(0) }}}}"),
                 "unit_of_measurement": "devices",
                 "state_class": "measurement",
                 "icon": "mdi:account-group",
@@ -155,14 +170,19 @@ impl Discovery {
         )
     }
 
-    /// The named places with an occupancy sensor.
-    pub(crate) fn place_names(&self) -> impl Iterator<Item = &str> {
-        self.places.iter().map(|(name, _)| name.as_str())
+    /// The config topics of the occupancy sensors, places' and floors': an
+    /// empty retained message on one removes its sensor.
+    pub(crate) fn sensor_config_topics(&self) -> impl Iterator<Item = String> + '_ {
+        self.places
+            .iter()
+            .chain(&self.floors)
+            .map(|(_, object)| self.config_topic("sensor", object))
     }
 
     /// The config topic of `place`'s occupancy sensor (`None` for a name the
-    /// site does not have): an empty retained message there removes it.
-    pub(crate) fn occupancy_config_topic(&self, place: &str) -> Option<String> {
+    /// site does not have).
+    #[cfg(test)]
+    fn occupancy_config_topic(&self, place: &str) -> Option<String> {
         self.places
             .iter()
             .find(|(name, _)| name == place)
@@ -205,12 +225,17 @@ impl Discovery {
     /// place, [`HOME`] in the building at no named place, or [`NOT_HOME`]
     /// when the location is unknown (no cell).
     pub(crate) fn presence(&self, location: &Location) -> (String, String) {
+        let floor = location
+            .floor
+            .as_ref()
+            .map(|f| f.name.as_str())
+            .filter(|_| !self.floors.is_empty());
         let state = match (location.cell, &location.place) {
-            (None, _) => NOT_HOME,
-            (Some(_), Some(place)) => place,
-            (Some(_), None) => HOME,
+            (None, _) => NOT_HOME.to_owned(),
+            (Some(_), Some(place)) => place_key(floor, place),
+            (Some(_), None) => HOME.to_owned(),
         };
-        (self.topics.presence(&location.device), state.to_owned())
+        (self.topics.presence(&location.device), state)
     }
 }
 
@@ -246,19 +271,28 @@ fn device_object_id(id: &str) -> String {
     out
 }
 
-/// `occupancy_<place>`, made unique among `all` places: names that map to the
-/// same object id (`a b`, `a_b`) each get a short hash of their own name.
-fn occupancy_object_id(place: &str, all: &[&str]) -> String {
+/// Each of `names` with its object id `<kind>_<name>`, made unique among
+/// them: names that map to the same object id (`a b`, `a_b`) each get a
+/// short hash of their own name.
+fn with_object_ids(kind: &str, names: Vec<String>) -> Vec<(String, String)> {
     use sha2::Digest;
-    let id = object_id(place);
-    if all.iter().filter(|&&p| object_id(p) == id).count() == 1 {
-        return format!("occupancy_{id}");
-    }
-    let hash = sha2::Sha256::digest(place.as_bytes());
-    format!(
-        "occupancy_{id}_{:02x}{:02x}{:02x}{:02x}",
-        hash[0], hash[1], hash[2], hash[3]
-    )
+    let ids: Vec<String> = names.iter().map(|n| object_id(n)).collect();
+    names
+        .into_iter()
+        .zip(&ids)
+        .map(|(name, id)| {
+            let object = if ids.iter().filter(|&other| other == id).count() == 1 {
+                format!("{kind}_{id}")
+            } else {
+                let hash = sha2::Sha256::digest(name.as_bytes());
+                format!(
+                    "{kind}_{id}_{:02x}{:02x}{:02x}{:02x}",
+                    hash[0], hash[1], hash[2], hash[3]
+                )
+            };
+            (name, object)
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -271,7 +305,8 @@ mod tests {
             "homeassistant",
             "gw.1",
             Topics::new("gangway/gw.1"),
-            ["help desk", "north stacks"],
+            vec!["help desk".into(), "north stacks".into()],
+            Vec::new(),
         )
     }
 
@@ -372,7 +407,8 @@ mod tests {
 
     #[test]
     fn places_with_the_same_object_id_get_distinct_sensors() {
-        let d = Discovery::new("ha", "gw", Topics::new("gangway/gw"), ["a b", "a_b", "c"]);
+        let names = ["a b", "a_b", "c"].map(String::from).to_vec();
+        let d = Discovery::new("ha", "gw", Topics::new("gangway/gw"), names, Vec::new());
         let topics: Vec<_> = ["a b", "a_b", "c"]
             .iter()
             .map(|p| d.occupancy_config_topic(p).unwrap())
@@ -380,5 +416,33 @@ mod tests {
         assert_ne!(topics[0], topics[1]);
         assert!(topics[0].starts_with("ha/sensor/gw/occupancy_a_b_"));
         assert_eq!(topics[2], "ha/sensor/gw/occupancy_c/config");
+    }
+
+    #[test]
+    fn a_building_has_a_sensor_per_floor_and_places_named_with_their_floor() {
+        let d = Discovery::new(
+            "ha",
+            "gw",
+            Topics::new("gangway/gw"),
+            vec!["B1/Store".into(), "G/Store".into()],
+            vec!["B1".into(), "G".into()],
+        );
+        let configs = d.gateway();
+        let b1 = configs
+            .iter()
+            .find(|m| m.topic == "ha/sensor/gw/floor_B1/config")
+            .expect("a sensor for B1");
+        assert_eq!(b1.value()["name"], "Devices on B1");
+        assert_eq!(
+            b1.value()["value_template"],
+            "{{ value_json.floors[\"B1\"] | default(0) }}"
+        );
+        assert_eq!(d.sensor_config_topics().count(), 4);
+        let mut at = crate::test_support::location("p", 1.0, Some(Cell::new(1, 1)), Some("Store"));
+        at.floor = Some(crate::publish::FloorName {
+            name: "G".into(),
+            level: 0,
+        });
+        assert_eq!(d.presence(&at).1, "G/Store");
     }
 }

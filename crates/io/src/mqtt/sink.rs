@@ -22,7 +22,7 @@ use super::MqttConfig;
 use super::cluster::{self, Role};
 use super::discovery::Discovery;
 use super::inbound::Inbox;
-use super::occupancy::Occupancy;
+use super::occupancy::{Occupancy, places_and_floors};
 use super::source::MqttSource;
 use super::tracker_gate::{GateConfig, TrackerGate};
 use super::{Link, LinkStats, MqttError, sightings};
@@ -30,7 +30,7 @@ use crate::locate::bounds::Bounds;
 use crate::publish::Output;
 use crate::publish::stats::Stats;
 use crate::sink::Sink;
-use crate::site::Site;
+use crate::site::Building;
 use crate::source::unix_now;
 use crate::topics::{Message, Topics};
 
@@ -109,7 +109,7 @@ impl Identity {
 pub fn gateway(
     config: &MqttConfig,
     identity: &Identity,
-    site: &Site,
+    building: &Building,
     url: &str,
 ) -> anyhow::Result<(MqttSink, MqttSource)> {
     let topics = identity.topics();
@@ -117,7 +117,7 @@ pub fn gateway(
     anyhow::ensure!(
         super::config::valid_prefix(&site_prefix),
         "the site name {:?} cannot be part of a topic ({site_prefix:?}); set [mqtt] site_prefix",
-        site.name
+        building.name
     );
     let inbox = Inbox::new(
         topics.clone(),
@@ -143,11 +143,11 @@ pub fn gateway(
     // A locator knows only its own devices: a count per place, or a tracker
     // that moves between locators, would mislead (docs/scaling.md).
     if identity.role != Role::Locator {
-        sink.occupancy = Some(occupancy(site));
+        sink.occupancy = Some(occupancy(building));
         sink.publish_occupancy();
     }
     if config.ha_discovery {
-        let discovery = sink.discovery_for(site);
+        let discovery = sink.discovery_for(building);
         sink.link.set_birth(&discovery.gateway(), true);
         sink.discovery = Some(discovery);
     }
@@ -174,9 +174,10 @@ pub fn publisher(
     ))
 }
 
-/// Occupancy of the site's places, everyone away.
-fn occupancy(site: &Site) -> Occupancy {
-    Occupancy::new(site.places().keys().map(String::as_str))
+/// Occupancy of the building's places and floors, everyone away.
+fn occupancy(building: &Building) -> Occupancy {
+    let (places, floors) = places_and_floors(building);
+    Occupancy::new(places, floors)
 }
 
 impl MqttSink {
@@ -235,14 +236,19 @@ impl MqttSink {
         self.subscribed_shards = owned.to_vec();
     }
 
-    /// Home Assistant discovery for `site`'s places.
-    fn discovery_for(&self, site: &Site) -> Discovery {
-        let places = site.places().keys().map(String::as_str);
+    /// Home Assistant discovery for `building`'s places and floors.
+    fn discovery_for(&self, building: &Building) -> Discovery {
+        let (mut places, mut floors) = places_and_floors(building);
+        if self.occupancy.is_none() {
+            places.clear();
+            floors.clear();
+        }
         Discovery::new(
             &self.discovery_prefix,
             &self.gateway_id,
             self.topics.clone(),
-            places.filter(|_| self.occupancy.is_some()),
+            places,
+            floors,
         )
     }
 
@@ -402,20 +408,17 @@ impl Sink for MqttSink {
     /// After a reload: occupancy starts afresh with the tracks, and Home
     /// Assistant gets sensors for the new site's places (and loses those of
     /// places it no longer has).
-    fn reload(&mut self, site: &Site) {
+    fn reload(&mut self, building: &Building) {
         if self.occupancy.is_some() {
-            self.occupancy = Some(occupancy(site));
+            self.occupancy = Some(occupancy(building));
             self.publish_occupancy();
         }
         let Some(old) = self.discovery.take() else {
             return;
         };
-        let new = self.discovery_for(site);
-        for place in old.place_names() {
-            let topic = old.occupancy_config_topic(place);
-            if let Some(gone) =
-                topic.filter(|t| new.occupancy_config_topic(place).as_ref() != Some(t))
-            {
+        let new = self.discovery_for(building);
+        for gone in old.sensor_config_topics() {
+            if !new.sensor_config_topics().any(|t| t == gone) {
                 self.link.clear_retained(gone);
             }
         }

@@ -26,7 +26,7 @@ use futures::future::BoxFuture;
 
 use crate::publish::Output;
 use crate::publish::stats::Stats;
-use crate::site::Site;
+use crate::site::Building;
 
 /// Where outputs go. Everything but [`Sink::name`], [`Sink::send`] and
 /// [`Sink::shutdown`] has a default that does nothing.
@@ -47,8 +47,8 @@ pub trait Sink: Send {
     /// Once a second, for periodic work (`now` in seconds since the epoch).
     fn tick(&mut self, _now: f64) {}
 
-    /// A reload swapped the site (places may have changed).
-    fn reload(&mut self, _site: &Site) {}
+    /// A reload swapped the building (floors and places may have changed).
+    fn reload(&mut self, _building: &Building) {}
 
     /// A reload was refused (`why`): the gateway serves what it served.
     fn reload_refused(&mut self, _why: &str) {}

@@ -37,7 +37,7 @@ use crate::plan::Destination;
 use crate::publish::Output;
 use crate::publish::stats::Stats;
 use crate::sink::Sink;
-use crate::site::{Cell, Site};
+use crate::site::{Building, Cell, Site};
 use crate::source::{Source, SourceContext};
 
 use crate::event::{Inbound, RouteRequest};
@@ -331,8 +331,9 @@ impl Sink for WebSink {
         self.live.metrics.set_stats(stats);
     }
 
-    fn reload(&mut self, site: &Site) {
-        *self.live.site.write().unwrap_or_else(|e| e.into_inner()) = Arc::new(site.clone());
+    fn reload(&mut self, building: &Building) {
+        let site = building.floors()[0].site.clone();
+        *self.live.site.write().unwrap_or_else(|e| e.into_inner()) = site;
         self.live.broadcast("site", String::from("{}"));
         self.live.reloaded.send_modify(|r| {
             r.count += 1;
