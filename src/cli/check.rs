@@ -95,7 +95,19 @@ fn check(building: &Building, settings: &Settings, problems: &mut Vec<String>) {
         let found = problems.len();
         problems.extend(site.check_floorplan());
         let mut localizer = None;
-        match Pipeline::new(&settings.pipeline, site.clone()) {
+        // Each floor as the daemon builds it: its own files where the
+        // config names them per floor.
+        let mut pipeline = settings.pipeline.clone();
+        if building.is_multi_floor() {
+            match pipeline.localizer.for_floor(&floor.name) {
+                Ok(per_floor) => pipeline.localizer = per_floor,
+                Err(e) => {
+                    problems.push(format!("{on}: {e}"));
+                    continue;
+                }
+            }
+        }
+        match Pipeline::new(&pipeline, site.clone()) {
             Ok(_) => {}
             // A site no config has asked to locate on may not have its
             // beacons placed yet (`site import` writes none): that is what to
@@ -146,12 +158,6 @@ fn check(building: &Building, settings: &Settings, problems: &mut Vec<String>) {
     }
     if building.is_multi_floor() {
         println!("{}", connectors(building));
-        if settings.configured {
-            println!(
-                "note: `gangway run` serves one floor for now and refuses a building of several: \
-                 point `site` in {shown} at one floor's site file to serve that floor"
-            );
-        }
     }
 }
 

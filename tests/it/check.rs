@@ -292,10 +292,21 @@ fn a_building_is_checked_floor_by_floor_with_its_connectors() {
         "gateway_id = \"gw\"\nsite = \"building.toml\"\n",
     );
     let stdout = gangway_ok(&["check", "--config", config.to_str().unwrap()]);
-    // …and says the daemon would not serve it yet.
+    floors_support::assert_checked(&stdout, "1 lift, 1 stairs");
+    // A survey named once for every floor is refused: one floor's would be
+    // read on all of them.
+    let config = write(
+        dir.path(),
+        "gangway.toml",
+        "gateway_id = \"gw\"\nsite = \"building.toml\"\n[localizer.knn]\nsurvey = \"survey.csv\"\n",
+    );
+    let out = gangway(&["check", "--config", config.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
     assert!(
-        stdout.contains("note: `gangway run` serves one floor for now"),
-        "{stdout}"
+        stderr.contains("floor `B1`: [localizer.knn] survey = ")
+            && stderr.contains("put `{floor}` in it"),
+        "{stderr}"
     );
 
     // L1 is reached by the lift alone: without it, it is apart.
