@@ -370,7 +370,8 @@ fn what_learns_one_floor_s_radio_model_refuses_a_building_of_several() {
         dir.path(),
         "gangway.toml",
         "gateway_id = \"gw\"\nsite = \"building.toml\"\n\
-         [localizer.recalibration]\nenabled = true\n",
+         [localizer.recalibration]\nenabled = true\n[store]\nenabled = true\n\
+         path = \"learning.sqlite\"\n",
     );
     let out = gangway(&["run", "--config", config.to_str().unwrap()]);
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -395,6 +396,8 @@ fn what_learns_one_floor_s_radio_model_refuses_a_building_of_several() {
         config.to_str().unwrap(),
         "--from",
         capture.to_str().unwrap(),
+        "--out",
+        dir.path().join("calibration.toml").to_str().unwrap(),
     ]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());

@@ -101,8 +101,10 @@ pub struct Location {
 /// negative below it).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct FloorName {
-    pub name: String,
+    // Fields in key order: the MQTT encoder writes a location's keys sorted
+    // (`gangway_io::topics`), and so does serde here.
     pub level: i32,
+    pub name: String,
 }
 
 /// The answer to a route request: a route or an error, never both.
