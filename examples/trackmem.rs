@@ -18,7 +18,7 @@
 //! open cells, the adverts, and the replay's wall time, CPU seconds, peak
 //! RSS and its RSS last sampled (every 100 ms) before it exited: the
 //! steady state with every device tracked, where the tracks' beliefs show
-//! (the peak can be the localizer's start-up rehearsal), and every 5 s.
+//! (the peak can be the localizer's start-up rehearsal), and every 30 s.
 //! `--gangway PATH` replays with another build of the gateway (the same
 //! log: the simulation is seeded). `--keep DIR` writes the site, config and log there and
 //! keeps them. Everything it starts, it stops.
@@ -172,7 +172,7 @@ fn main() {
     let children = format!("/proc/{0}/task/{0}/children", timed.id());
     let mut replay_pid = None;
     let mut last_rss_kib = 0;
-    let mut every_5s = Vec::new();
+    let mut every_30s = Vec::new();
     let mut samples = 0u64;
     let status = loop {
         if let Some(status) = timed.try_wait().unwrap() {
@@ -187,8 +187,8 @@ fn main() {
             let (_, rss, _) = usage(pid);
             if rss > 0 {
                 last_rss_kib = rss;
-                if samples.is_multiple_of(50) {
-                    every_5s.push((rss as f64 / 1024.0).round());
+                if samples.is_multiple_of(300) {
+                    every_30s.push((rss as f64 / 1024.0).round());
                 }
                 samples += 1;
             }
@@ -214,7 +214,7 @@ fn main() {
         "replay_cpu_s": number("User time (seconds)") + number("System time (seconds)"),
         "replay_peak_rss_mib": number("Maximum resident set size (kbytes)") / 1024.0,
         "replay_last_sampled_rss_mib": last_rss_kib as f64 / 1024.0,
-        "replay_rss_mib_every_5s": every_5s,
+        "replay_rss_mib_every_30s": every_30s,
     });
     println!("{}", serde_json::to_string_pretty(&summary).unwrap());
 }
