@@ -823,9 +823,10 @@ impl Mass for f32 {
 }
 
 /// A belief kept small, however large the site: some of its open cells and
-/// their masses (the rest taken as none). A walking belief keeps few, in
-/// bfloat16 ([`Sparse::pack`]); a track's belief between fixes keeps those
-/// holding nearly all its mass, in full ([`Sparse::pack_heaviest`]).
+/// their masses (the rest taken as none), or, with no cells, a mass for
+/// every open cell in order. A walking belief keeps few, in bfloat16
+/// ([`Sparse::pack`]); a track's belief between fixes keeps those holding
+/// nearly all its mass, in full ([`Sparse::pack_heaviest`]).
 struct Sparse<M = Bf16> {
     cells: Vec<u32>,
     mass: Vec<M>,
@@ -842,15 +843,16 @@ impl<M> Default for Sparse<M> {
 
 impl<M: Mass> Sparse<M> {
     fn is_empty(&self) -> bool {
-        self.cells.is_empty()
+        self.mass.is_empty()
     }
 
     /// The kept cells and their masses.
     fn iter(&self) -> impl Iterator<Item = (u32, f32)> + Clone + '_ {
-        self.cells
-            .iter()
+        // No cells but masses: one mass per open cell, in order.
+        let every = self.cells.is_empty();
+        (0..)
             .zip(&self.mass)
-            .map(|(&i, &m)| (i, m.load()))
+            .map(move |(k, &m)| (if every { k } else { self.cells[k as usize] }, m.load()))
     }
 
     fn heap_bytes(&self) -> usize {
@@ -863,6 +865,10 @@ impl<M: Mass> Sparse<M> {
     fn unpack(&self, n: usize, dense: &mut Vec<f32>) {
         dense.clear();
         if self.is_empty() {
+            return;
+        }
+        if self.cells.is_empty() {
+            dense.extend(self.mass.iter().map(|&m| m.load()));
             return;
         }
         dense.resize(n, 0.0);
@@ -917,21 +923,22 @@ impl Sparse<f32> {
     /// Keeps `belief`, dense over the open cells: its heaviest cells that
     /// hold all but [`DROPPED_MASS`] of it (to within a factor of two:
     /// cells are weighed by their mass's binary exponent, in one pass), at
-    /// most [`MAX_TRACKED`], rescaled to sum to 1. On a site of no more
-    /// open cells than that, every cell with any mass, as it is: the
-    /// bound holds anyway, and the belief is the dense one bit for bit.
-    /// Empty when it has no mass. Room beyond twice what it keeps is given
-    /// back.
+    /// most [`MAX_TRACKED`], rescaled to sum to 1. Where that would be more
+    /// than half the open cells, and on any site of at most
+    /// [`MAX_TRACKED`], the whole belief as it is, a mass per open cell: no
+    /// more bytes than the listed cells would take, and the dense belief
+    /// bit for bit. Empty when it has no mass. Room beyond twice what it
+    /// keeps is given back.
     fn pack_heaviest(&mut self, belief: &[f32], scratch: &mut PackScratch) {
+        let every = |sparse: &mut Self| {
+            sparse.cells.clear();
+            sparse.cells.shrink_to_fit();
+            sparse.mass.clear();
+            sparse.mass.extend_from_slice(belief);
+            sparse.mass.shrink_to_fit();
+        };
         if belief.len() <= MAX_TRACKED {
-            self.cells.clear();
-            self.mass.clear();
-            for (i, &b) in (0..).zip(belief) {
-                if b > 0.0 && b.is_finite() {
-                    self.cells.push(i);
-                    self.mass.push(b);
-                }
-            }
+            every(self);
             return;
         }
         let exponents = &mut scratch.exponents;
@@ -966,8 +973,15 @@ impl Sparse<f32> {
         }
         let least_bits = (least as u32) << 23;
         let kept = |b: f32| b > 0.0 && b.is_finite() && b.to_bits() >= least_bits;
-        let count: u32 = exponents[least..].iter().map(|&(_, n)| n).sum();
-        if count as usize > MAX_TRACKED {
+        let count = exponents[least..]
+            .iter()
+            .map(|&(_, n)| n as usize)
+            .sum::<usize>();
+        if 2 * count.min(MAX_TRACKED) > belief.len() {
+            every(self);
+            return;
+        }
+        if count > MAX_TRACKED {
             let heaviest = &mut scratch.heaviest;
             heaviest.clear();
             heaviest.extend((0..).zip(belief.iter().copied()).filter(|&(_, b)| kept(b)));
@@ -1488,7 +1502,8 @@ mod tests {
         let mut tracker = Tracker::new(TrackerConfig::default(), site.clone());
         let me: Arc<str> = "me".into();
         tracker.update(&me, 0.0, &peak_at(&site, Cell::new(2, 0), 10.0));
-        assert!(tracker.belief_bytes() > 0);
+        // A small site's belief is kept whole: a mass per open cell.
+        assert_eq!(tracker.belief_bytes(), 4 * site.open_cells().len());
         assert!(tracker.forget("me"));
         assert_eq!(tracker.last_fix("me"), None);
         assert!(!tracker.forget("me"));
