@@ -117,10 +117,28 @@ pub struct ExpectedWalk {
 
 struct Track {
     t: f64,
-    belief: Vec<f32>,
+    /// The belief over the open cells, its heaviest cells only between
+    /// fixes ([`Sparse::pack_heaviest`]); empty before the first.
+    belief: Sparse<f32>,
     /// The belief given an [`ExpectedWalk`], while there is one.
     walking: Sparse,
     fix: Fix,
+}
+
+impl Track {
+    /// A track with no belief yet (its first window starts it).
+    fn new() -> Self {
+        Track {
+            t: f64::NEG_INFINITY,
+            belief: Sparse::default(),
+            walking: Sparse::default(),
+            fix: Fix {
+                cell: Cell::new(0, 0),
+                confidence: 0.0,
+                mean: [0.5, 0.5],
+            },
+        }
+    }
 }
 
 /// The tracks of all entities on one site.
@@ -213,8 +231,7 @@ impl Tracker {
                 self.evicted.push_back(id);
                 continue;
             };
-            let mut belief = vec![0.0; self.neighbours.len()];
-            belief[index] = 1.0;
+            let belief = Sparse::one(index as u32);
             let fix = Fix {
                 cell,
                 confidence: track.fix.confidence,
@@ -302,36 +319,14 @@ impl Tracker {
         log_likelihood: &[f32],
         walk: Option<&ExpectedWalk>,
     ) -> (Fix, Option<[f32; 2]>) {
+        self.make_room(entity, t);
         let model = MotionModel {
             config: &self.config,
             neighbours: &self.neighbours,
             inflows: &self.inflows,
             cell_m: self.site.cell_m,
         };
-        let full = self.tracks.len() >= self.bounds.max() && !self.tracks.contains_key(entity);
-        let evicted = &mut self.evicted;
-        self.bounds.make_room(
-            &mut self.tracks,
-            t,
-            full,
-            |track| track.t,
-            |id| {
-                if evicted.len() >= MAX_EVICTED_KEPT {
-                    evicted.pop_front();
-                }
-                evicted.push_back(id.clone());
-            },
-        );
-        let track = self.tracks.entry(entity.clone()).or_insert_with(|| Track {
-            t: f64::NEG_INFINITY,
-            belief: Vec::new(),
-            walking: Sparse::default(),
-            fix: Fix {
-                cell: Cell::new(0, 0),
-                confidence: 0.0,
-                mean: [0.5, 0.5],
-            },
-        });
+        let track = self.tracks.entry(entity.clone()).or_insert_with(Track::new);
         let mut likelihood = std::mem::take(&mut self.scratch.likelihood);
         model.likelihood(log_likelihood, &mut likelihood);
         let steps = model.steps(t - track.t);
@@ -339,7 +334,7 @@ impl Tracker {
             (Some(walk), Some(steps)) => {
                 if track.walking.is_empty() {
                     // Starts where the track's belief is.
-                    track.walking.pack((0..).zip(track.belief.iter().copied()));
+                    track.walking.pack(track.belief.iter());
                 }
                 let mean = self.walked.step(
                     &self.site,
@@ -363,16 +358,106 @@ impl Tracker {
                 None
             }
         };
-        model.filter(&mut track.belief, steps, &likelihood, &mut self.scratch);
-        self.scratch.likelihood = likelihood;
         track.t = t;
-        track.fix = estimate(
-            self.config.estimate,
+        track.fix = model.fold(
             &self.site,
-            &track.belief,
-            &mut self.scratch.median,
+            &mut track.belief,
+            steps,
+            &likelihood,
+            &mut self.scratch,
         );
+        self.scratch.likelihood = likelihood;
         (track.fix, walked_mean)
+    }
+
+    /// Starts (or restarts) the entity's track as it enters this tracker's
+    /// floor (at a connector, from another floor's tracker): a prior spread
+    /// evenly over the `prior` cells that are open here (none: uniform, as
+    /// a new track), weighed by one window's log-likelihoods as
+    /// [`Tracker::update`] weighs its prior. Counts towards the bounds as a
+    /// new track does.
+    // used by the building pipeline (#28)
+    #[cfg_attr(not(test), allow(dead_code))]
+    pub(crate) fn enter(
+        &mut self,
+        entity: &Arc<str>,
+        t: f64,
+        prior: &[Cell],
+        log_likelihood: &[f32],
+    ) -> Fix {
+        self.make_room(entity, t);
+        let model = MotionModel {
+            config: &self.config,
+            neighbours: &self.neighbours,
+            inflows: &self.inflows,
+            cell_m: self.site.cell_m,
+        };
+        let mut cells: Vec<u32> = prior
+            .iter()
+            .filter_map(|&c| self.site.open_index(c))
+            .map(|i| i as u32)
+            .collect();
+        cells.sort_unstable();
+        cells.dedup();
+        let share = 1.0 / cells.len().max(1) as f32;
+        let mut track = Track::new();
+        track.belief.mass = vec![share; cells.len()];
+        track.belief.cells = cells;
+        track.t = t;
+        let mut likelihood = std::mem::take(&mut self.scratch.likelihood);
+        model.likelihood(log_likelihood, &mut likelihood);
+        // No motion: the prior is where the entity is now. Without tracking
+        // the evidence alone decides, as ever.
+        let steps = (self.config.kind == TrackerKind::Hmm).then_some(0);
+        track.fix = model.fold(
+            &self.site,
+            &mut track.belief,
+            steps,
+            &likelihood,
+            &mut self.scratch,
+        );
+        self.scratch.likelihood = likelihood;
+        let fix = track.fix;
+        self.tracks.insert(entity.clone(), track);
+        fix
+    }
+
+    /// Drops the entity's track without reporting it evicted (it moved to
+    /// another floor's tracker); whether it had one.
+    // used by the building pipeline (#28)
+    #[cfg_attr(not(test), allow(dead_code))]
+    pub(crate) fn forget(&mut self, entity: &str) -> bool {
+        self.tracks.remove(entity).is_some()
+    }
+
+    /// Heap bytes of all tracks' beliefs as kept between fixes (and of
+    /// their walking beliefs).
+    // used by the building pipeline (#28)
+    #[cfg_attr(not(test), allow(dead_code))]
+    pub(crate) fn belief_bytes(&self) -> usize {
+        self.tracks
+            .values()
+            .map(|t| t.belief.heap_bytes() + t.walking.heap_bytes())
+            .sum()
+    }
+
+    /// Room for the entity's track at `t`: idle tracks go, and the least
+    /// recently updated when the tracker is full and it has none.
+    fn make_room(&mut self, entity: &Arc<str>, t: f64) {
+        let full = self.tracks.len() >= self.bounds.max() && !self.tracks.contains_key(entity);
+        let evicted = &mut self.evicted;
+        self.bounds.make_room(
+            &mut self.tracks,
+            t,
+            full,
+            |track| track.t,
+            |id| {
+                if evicted.len() >= MAX_EVICTED_KEPT {
+                    evicted.pop_front();
+                }
+                evicted.push_back(id.clone());
+            },
+        );
     }
 
     /// Fixed-lag smoothing of one recorded trajectory, given as (time,
@@ -522,6 +607,9 @@ struct FilterScratch {
     outflow: Vec<f32>,
     /// The relative likelihood of the fix being filtered.
     likelihood: Vec<f32>,
+    /// The belief of the track being filtered, over every open cell.
+    belief: Vec<f32>,
+    pack: PackScratch,
     median: MedianScratch,
 }
 
@@ -614,6 +702,26 @@ impl MotionModel<'_> {
         })
     }
 
+    /// [`MotionModel::filter`] of a track's belief as kept between fixes:
+    /// unpacked into the scratch, filtered, estimated (the fix returned)
+    /// and packed again.
+    fn fold(
+        &self,
+        site: &Site,
+        belief: &mut Sparse<f32>,
+        steps: Option<usize>,
+        likelihood: &[f32],
+        scratch: &mut FilterScratch,
+    ) -> Fix {
+        let mut dense = std::mem::take(&mut scratch.belief);
+        belief.unpack(self.neighbours.len(), &mut dense);
+        self.filter(&mut dense, steps, likelihood, scratch);
+        let fix = estimate(self.config.estimate, site, &dense, &mut scratch.median);
+        belief.pack_heaviest(&dense, &mut scratch.pack);
+        scratch.belief = dense;
+        fix
+    }
+
     /// The backward step of [`MotionModel::filter`]'s prediction: for each cell,
     /// the expected `message` one window later, over `steps` moves and the
     /// recovery mass.
@@ -703,33 +811,120 @@ fn mean(site: &Site, belief: impl Iterator<Item = (u32, f32)>) -> Option<[f32; 2
     (sum > 0.0).then(|| [(mx / sum) as f32, (my / sum) as f32])
 }
 
-/// Least share of its largest mass a cell of a [`Sparse`] belief holds to
-/// be kept: less changes no mean a guide reads off it.
+/// Least share of its largest mass a cell of a walking belief holds to be
+/// kept ([`Sparse::pack`]): less changes no mean a guide reads off it.
 const KEPT_SHARE: f32 = 1e-4;
 
-/// Most cells a [`Sparse`] belief keeps (those of the largest mass): 6
-/// bytes each, held for all of them while a device is guided (240 bytes),
-/// so a guided session stays under 1 KB. A guided walker's
-/// belief is a few metres of the route: tens of cells, unless the evidence
-/// is poor, when a coarser mean still serves.
+/// Most cells a walking belief keeps (those of the largest mass): 6 bytes
+/// each, held for all of them while a device is guided (240 bytes), so a
+/// guided session stays under 1 KB. A guided walker's belief is a few
+/// metres of the route: tens of cells, unless the evidence is poor, when a
+/// coarser mean still serves.
 const MAX_KEPT: usize = 40;
 
-/// A belief kept small, however large the site: the open cells holding at
-/// least [`KEPT_SHARE`] of its largest mass, at most [`MAX_KEPT`] of them
-/// (the rest taken as none), each mass in bfloat16, the upper half of an
-/// f32 (three significant digits).
-#[derive(Default)]
-struct Sparse {
-    cells: Vec<u32>,
-    mass: Vec<u16>,
+/// Mass a track's belief leaves out between fixes ([`Sparse::pack_heaviest`]):
+/// its lightest cells, up to this much in all. A tenth of what recovery
+/// spreads over the site at every step, so the next prior hardly differs.
+const DROPPED_MASS: f64 = 1e-4;
+
+/// Most cells a track's belief keeps between fixes (its heaviest): 8 bytes
+/// each, 32 KiB a track at most where a dense belief over a 240 × 180 m
+/// floor at 1 m cells is 170 KB. Tens to hundreds of cells hold all but
+/// [`DROPPED_MASS`] of a settled belief; only a diffuse one (weak
+/// evidence, recovery spread everywhere) reaches this.
+const MAX_TRACKED: usize = 4096;
+
+/// How a [`Sparse`] belief stores each kept mass.
+trait Mass: Copy {
+    fn store(mass: f32) -> Self;
+    fn load(self) -> f32;
 }
 
-impl Sparse {
-    fn is_empty(&self) -> bool {
-        self.cells.is_empty()
+/// bfloat16: the upper half of an f32 (three significant digits).
+#[derive(Clone, Copy)]
+struct Bf16(u16);
+
+impl Mass for Bf16 {
+    fn store(mass: f32) -> Self {
+        // Rounded to nearest: beliefs are finite and non-negative.
+        Bf16(((mass.to_bits() + 0x8000) >> 16) as u16)
     }
 
-    /// Keeps `belief`, given as (open cell, mass).
+    fn load(self) -> f32 {
+        f32::from_bits(u32::from(self.0) << 16)
+    }
+}
+
+impl Mass for f32 {
+    fn store(mass: f32) -> Self {
+        mass
+    }
+
+    fn load(self) -> f32 {
+        self
+    }
+}
+
+/// A belief kept small, however large the site: some of its open cells and
+/// their masses (the rest taken as none), or, with no cells, a mass for
+/// every open cell in order. A walking belief keeps few, in bfloat16
+/// ([`Sparse::pack`]); a track's belief between fixes keeps those holding
+/// nearly all its mass, in full ([`Sparse::pack_heaviest`]).
+struct Sparse<M = Bf16> {
+    cells: Vec<u32>,
+    mass: Vec<M>,
+}
+
+impl<M> Default for Sparse<M> {
+    fn default() -> Self {
+        Sparse {
+            cells: Vec::new(),
+            mass: Vec::new(),
+        }
+    }
+}
+
+impl<M: Mass> Sparse<M> {
+    fn is_empty(&self) -> bool {
+        self.mass.is_empty()
+    }
+
+    /// The kept cells and their masses.
+    fn iter(&self) -> impl Iterator<Item = (u32, f32)> + Clone + '_ {
+        // No cells but masses: one mass per open cell, in order.
+        let every = self.cells.is_empty();
+        (0..)
+            .zip(&self.mass)
+            .map(move |(k, &m)| (if every { k } else { self.cells[k as usize] }, m.load()))
+    }
+
+    fn heap_bytes(&self) -> usize {
+        self.cells.capacity() * std::mem::size_of::<u32>()
+            + self.mass.capacity() * std::mem::size_of::<M>()
+    }
+
+    /// The belief over all `n` open cells into `dense`; left empty when
+    /// this is.
+    fn unpack(&self, n: usize, dense: &mut Vec<f32>) {
+        dense.clear();
+        if self.is_empty() {
+            return;
+        }
+        if self.cells.is_empty() {
+            dense.extend(self.mass.iter().map(|&m| m.load()));
+            return;
+        }
+        dense.resize(n, 0.0);
+        for (i, b) in self.iter() {
+            dense[i as usize] = b;
+        }
+    }
+}
+
+impl Sparse<Bf16> {
+    /// Keeps `belief`, given as (open cell, mass): the cells holding at
+    /// least [`KEPT_SHARE`] of its largest mass, at most [`MAX_KEPT`] of
+    /// them.
     fn pack(&mut self, belief: impl Iterator<Item = (u32, f32)> + Clone) {
         let peak = belief.clone().fold(0.0, |peak, (_, b)| b.max(peak));
         let mut least = (peak * KEPT_SHARE).max(f32::MIN_POSITIVE);
@@ -750,23 +945,116 @@ impl Sparse {
         for (i, b) in belief {
             if b >= least && self.cells.len() < MAX_KEPT {
                 self.cells.push(i);
-                // Rounded to nearest: beliefs are finite and non-negative.
-                self.mass.push(((b.to_bits() + 0x8000) >> 16) as u16);
+                self.mass.push(Bf16::store(b));
             }
         }
     }
+}
 
-    /// The kept cells and their masses.
-    fn iter(&self) -> impl Iterator<Item = (u32, f32)> + '_ {
-        self.cells
+/// [`Sparse::pack_heaviest`]'s buffers, kept between fixes.
+#[derive(Default)]
+struct PackScratch {
+    /// Per binary exponent of a mass: the mass of the cells with it, and
+    /// how many they are.
+    exponents: Vec<(f64, u32)>,
+    /// The cells kept when more than [`MAX_TRACKED`] qualify: (open cell,
+    /// mass).
+    heaviest: Vec<(u32, f32)>,
+}
+
+impl Sparse<f32> {
+    /// Keeps `belief`, dense over the open cells: its heaviest cells that
+    /// hold all but [`DROPPED_MASS`] of it (to within a factor of two:
+    /// cells are weighed by their mass's binary exponent, in one pass), at
+    /// most [`MAX_TRACKED`], rescaled to sum to 1. Where that would be more
+    /// than half the open cells, and on any site of at most
+    /// [`MAX_TRACKED`], the whole belief as it is, a mass per open cell: no
+    /// more bytes than the listed cells would take, and the dense belief
+    /// bit for bit. Empty when it has no mass. Room beyond twice what it
+    /// keeps is given back.
+    fn pack_heaviest(&mut self, belief: &[f32], scratch: &mut PackScratch) {
+        let every = |sparse: &mut Self| {
+            sparse.cells.clear();
+            sparse.cells.shrink_to_fit();
+            sparse.mass.clear();
+            sparse.mass.extend_from_slice(belief);
+            sparse.mass.shrink_to_fit();
+        };
+        if belief.len() <= MAX_TRACKED {
+            every(self);
+            return;
+        }
+        let exponents = &mut scratch.exponents;
+        exponents.clear();
+        exponents.resize(256, (0.0, 0));
+        let mut total = 0.0f64;
+        for &b in belief {
+            // Positive finite masses only: the exponent is bits 23..31.
+            if b > 0.0 && b.is_finite() {
+                let e = &mut exponents[(b.to_bits() >> 23) as usize];
+                e.0 += f64::from(b);
+                e.1 += 1;
+                total += f64::from(b);
+            }
+        }
+        self.cells.clear();
+        self.mass.clear();
+        if total <= 0.0 {
+            self.cells.shrink_to_fit();
+            self.mass.shrink_to_fit();
+            return;
+        }
+        // The lightest exponents whose cells hold at most DROPPED_MASS go.
+        let mut dropped = 0.0;
+        let mut least = 0;
+        for (e, &(mass, _)) in exponents.iter().enumerate() {
+            if dropped + mass > DROPPED_MASS * total {
+                least = e;
+                break;
+            }
+            dropped += mass;
+        }
+        let least_bits = (least as u32) << 23;
+        let kept = |b: f32| b > 0.0 && b.is_finite() && b.to_bits() >= least_bits;
+        let count = exponents[least..]
             .iter()
-            .zip(&self.mass)
-            .map(|(&i, &m)| (i, f32::from_bits(u32::from(m) << 16)))
+            .map(|&(_, n)| n as usize)
+            .sum::<usize>();
+        if 2 * count.min(MAX_TRACKED) > belief.len() {
+            every(self);
+            return;
+        }
+        if count > MAX_TRACKED {
+            let heaviest = &mut scratch.heaviest;
+            heaviest.clear();
+            heaviest.extend((0..).zip(belief.iter().copied()).filter(|&(_, b)| kept(b)));
+            heaviest.select_nth_unstable_by(MAX_TRACKED - 1, |a, b| b.1.total_cmp(&a.1));
+            heaviest.truncate(MAX_TRACKED);
+            heaviest.sort_unstable_by_key(|&(i, _)| i);
+            self.cells.extend(heaviest.iter().map(|&(i, _)| i));
+            self.mass.extend(heaviest.iter().map(|&(_, b)| b));
+        } else {
+            for (i, &b) in (0..).zip(belief) {
+                if kept(b) {
+                    self.cells.push(i);
+                    self.mass.push(b);
+                }
+            }
+        }
+        let sum: f32 = self.mass.iter().sum();
+        self.mass.iter_mut().for_each(|m| *m /= sum);
+        if self.cells.capacity() > 2 * self.cells.len() {
+            self.cells.shrink_to(self.cells.len());
+            self.mass.shrink_to(self.mass.len());
+        }
     }
 
-    fn heap_bytes(&self) -> usize {
-        self.cells.capacity() * std::mem::size_of::<u32>()
-            + self.mass.capacity() * std::mem::size_of::<u16>()
+    /// All the belief in one open cell.
+    fn one(cell: u32) -> Self {
+        Sparse {
+            cells: vec![cell],
+            mass: vec![1.0],
+        }
     }
 }
 
@@ -1223,6 +1511,86 @@ mod tests {
         // Once nobody walks it, none is kept.
         assert_eq!(tracker.update_walking(&me, 5.0, &start, None).1, None);
         assert!(tracker.tracks[&me].walking.is_empty());
+    }
+
+    #[test]
+    fn entering_at_a_far_cell_holds_the_first_fix_near_it() {
+        let text = "name = \"c\"\ncell_m = 1.0\nmap = '''\n####################\n'''\n";
+        let site = Arc::new(Site::parse(text, Path::new("c.toml")).unwrap());
+        let mut tracker = Tracker::new(TrackerConfig::default(), site.clone()).bound(1, 60.0);
+        let (me, other): (Arc<str>, Arc<str>) = ("me".into(), "other".into());
+        // Weak evidence for the far end of the corridor...
+        let weak = peak_at(&site, Cell::new(17, 0), 0.2);
+        // ...which alone wins.
+        let alone = tracker.update(&other, 0.0, &weak);
+        assert!(alone.cell.x >= 15, "{alone:?}");
+        // Entered at a connector at the near end (and a cell that is not
+        // open, ignored), the fix stays near it.
+        let entered = tracker.enter(&me, 1.0, &[Cell::new(2, 0), Cell::new(2, 5)], &weak);
+        assert!(entered.cell.x <= 3, "{entered:?}");
+        // It counts towards the bounds as a new track: the other one went.
+        assert_eq!(tracker.len(), 1);
+        assert_eq!(tracker.take_evicted(), vec![other.clone()]);
+        // And it tracks on from there.
+        let next = tracker.update(&me, 2.0, &weak);
+        assert!(next.cell.x <= 5, "{next:?}");
+        // An empty prior is a fresh track's: the evidence alone.
+        let fresh = tracker.enter(&me, 3.0, &[], &weak);
+        assert_eq!(fresh, alone);
+    }
+
+    #[test]
+    fn forgetting_a_track_is_no_eviction() {
+        let site = site();
+        let mut tracker = Tracker::new(TrackerConfig::default(), site.clone());
+        let me: Arc<str> = "me".into();
+        tracker.update(&me, 0.0, &peak_at(&site, Cell::new(2, 0), 10.0));
+        // A small site's belief is kept whole: a mass per open cell.
+        assert_eq!(tracker.belief_bytes(), 4 * site.open_cells().len());
+        assert!(tracker.forget("me"));
+        assert_eq!(tracker.last_fix("me"), None);
+        assert!(!tracker.forget("me"));
+        assert_eq!(tracker.evicted_count(), 0);
+        assert!(tracker.take_evicted().is_empty());
+        assert_eq!(tracker.belief_bytes(), 0);
+    }
+
+    #[test]
+    fn a_track_keeps_a_settled_belief_in_few_cells_and_fixes_as_dense() {
+        // A 240 × 180 m floor at 1 m cells; a walk along its middle.
+        let text = "name = \"big\"\ncell_m = 1.0\nwidth_m = 240.0\nheight_m = 180.0\n";
+        let site = Arc::new(Site::parse(text, Path::new("big.toml")).unwrap());
+        let n = site.open_cells().len();
+        let mut tracker = Tracker::new(TrackerConfig::default(), site.clone());
+        let reference = Tracker::new(TrackerConfig::default(), site.clone());
+        let model = reference.model();
+        let (mut dense, mut scratch) = (Vec::new(), FilterScratch::default());
+        let mut likelihood = Vec::new();
+        let me: Arc<str> = "me".into();
+        for k in 0..10u16 {
+            let ll = peak_at(&site, Cell::new(100 + k, 90), 1.0);
+            let fix = tracker.update(&me, f64::from(k), &ll);
+            // The same window filtered dense, as before beliefs were kept sparse.
+            model.likelihood(&ll, &mut likelihood);
+            let steps = model.steps(if k == 0 { -1.0 } else { 1.0 });
+            model.filter(&mut dense, steps, &likelihood, &mut scratch);
+            let mut median = MedianScratch::default();
+            let want = estimate(Estimate::Median, &site, &dense, &mut median);
+            assert_eq!(fix.cell, want.cell, "window {k}: {fix:?} {want:?}");
+            // What the dense belief's lightest cells would have added
+            // shows in the third decimal at most.
+            assert!(
+                (fix.confidence - want.confidence).abs() < 5e-3,
+                "window {k}: {fix:?} {want:?}"
+            );
+            assert!(
+                (fix.mean[0] - want.mean[0]).abs() < 0.05,
+                "window {k}: {fix:?} {want:?}"
+            );
+        }
+        let kept = tracker.tracks[&me].belief.cells.len();
+        assert!(kept < n / 20, "{kept} of {n} cells");
+        assert!(tracker.belief_bytes() <= MAX_TRACKED * 8);
     }
 
     #[test]
