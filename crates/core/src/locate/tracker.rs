@@ -256,49 +256,6 @@ impl Tracker {
             .map_or(0, |t| t.walking.heap_bytes())
     }
 
-    /// Starts the entity's track afresh at `t` on the cells of `prior` (a
-    /// connector's stops: it came onto this floor there), weighed by one
-    /// window's log-likelihoods like [`Tracker::update`]. Cells that are
-    /// not open are passed over; with none left the track starts from the
-    /// evidence alone, as a new one does.
-    pub(crate) fn enter(
-        &mut self,
-        entity: &Arc<str>,
-        t: f64,
-        prior: &[Cell],
-        log_likelihood: &[f32],
-    ) -> Fix {
-        let mut belief = vec![0.0; self.neighbours.len()];
-        for index in prior.iter().filter_map(|&c| self.site.open_index(c)) {
-            belief[index] = 1.0;
-        }
-        if normalize(&mut belief).is_none() {
-            belief.clear();
-        }
-        let start = Track {
-            t,
-            belief,
-            walking: Sparse::default(),
-            fix: Fix {
-                cell: prior.first().copied().unwrap_or(Cell::new(0, 0)),
-                confidence: 0.0,
-                mean: [0.5, 0.5],
-            },
-        };
-        if let Some(track) = self.tracks.get_mut(entity) {
-            *track = start;
-        } else if self.tracks.len() < self.bounds.max() {
-            self.tracks.insert(entity.clone(), start);
-        }
-        self.update(entity, t, log_likelihood)
-    }
-
-    /// Drops the entity's track without reporting it forgotten: it went to
-    /// another floor, whose tracker has it now. Returns whether it had one.
-    pub(crate) fn forget(&mut self, entity: &str) -> bool {
-        self.tracks.remove(entity).is_some()
-    }
-
     /// Folds one window's log-likelihoods (one per open cell) into the entity's
     /// track and returns the new fix.
     pub fn update(&mut self, entity: &Arc<str>, t: f64, log_likelihood: &[f32]) -> Fix {
@@ -376,8 +333,6 @@ impl Tracker {
     /// a new track), weighed by one window's log-likelihoods as
     /// [`Tracker::update`] weighs its prior. Counts towards the bounds as a
     /// new track does.
-    // used by the building pipeline (#28)
-    #[cfg_attr(not(test), allow(dead_code))]
     pub(crate) fn enter(
         &mut self,
         entity: &Arc<str>,
@@ -424,16 +379,13 @@ impl Tracker {
 
     /// Drops the entity's track without reporting it evicted (it moved to
     /// another floor's tracker); whether it had one.
-    // used by the building pipeline (#28)
-    #[cfg_attr(not(test), allow(dead_code))]
     pub(crate) fn forget(&mut self, entity: &str) -> bool {
         self.tracks.remove(entity).is_some()
     }
 
     /// Heap bytes of all tracks' beliefs as kept between fixes (and of
     /// their walking beliefs).
-    // used by the building pipeline (#28)
-    #[cfg_attr(not(test), allow(dead_code))]
+    #[cfg(test)]
     pub(crate) fn belief_bytes(&self) -> usize {
         self.tracks
             .values()
