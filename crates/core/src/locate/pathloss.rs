@@ -210,6 +210,13 @@ pub struct PathLoss {
     log_hit: Vec<f32>,
     /// ln P(not heard), same layout.
     log_miss: Vec<f32>,
+    /// Per cell, the sum of `log_miss` over every anchor: the log-likelihood
+    /// of hearing nothing. A window hears a few of a building's hundreds of
+    /// beacons, so a fix starts from this and visits the heard anchors only
+    /// (`cells × heard`, not `cells × anchors`).
+    miss_total: Vec<f32>,
+    /// The anchors heard in the window being scored.
+    heard_scratch: Vec<usize>,
     /// 1/σ per anchor.
     inv_sigma: Vec<f32>,
     /// ln(1/σ) per anchor: the Gaussian's normalising term, taken once here
@@ -268,6 +275,7 @@ impl PathLoss {
                 model.log_miss[i] = (1.0 - p).ln() as f32;
             }
         }
+        model.miss_total = miss_totals(&model.log_miss, n, model.n_cells);
         Ok(model)
     }
 
@@ -367,6 +375,8 @@ impl PathLoss {
         PathLoss {
             n_cells,
             n_anchors: inv_sigma.len(),
+            miss_total: miss_totals(&log_miss, inv_sigma.len(), n_cells),
+            heard_scratch: Vec::new(),
             expected,
             log_hit,
             log_miss,
@@ -385,28 +395,43 @@ impl Localizer for PathLoss {
         debug_assert_eq!(rssi.len(), self.n_anchors);
         debug_assert_eq!(out.len(), self.n_cells);
         let n = self.n_anchors;
+        self.heard_scratch.clear();
+        self.heard_scratch.extend((0..n).filter(|&a| heard[a]));
         let rows = self
             .expected
             .chunks_exact(n)
             .zip(self.log_hit.chunks_exact(n))
             .zip(self.log_miss.chunks_exact(n));
-        for (slot, ((expected, log_hit), log_miss)) in out.iter_mut().zip(rows) {
-            let mut ll = 0.0f32;
-            for a in 0..n {
-                if heard[a] {
-                    let mu = expected[a];
-                    if mu.is_nan() {
-                        continue;
-                    }
-                    let z = (rssi[a] - mu) * self.inv_sigma[a];
-                    ll += log_hit[a] - 0.5 * z * z + self.ln_inv_sigma[a];
-                } else {
-                    ll += log_miss[a];
+        for ((slot, ((expected, log_hit), log_miss)), &nothing) in
+            out.iter_mut().zip(rows).zip(&self.miss_total)
+        {
+            // Hearing nothing, then each heard anchor's miss swapped for
+            // its hit (an anchor without a position weighs nothing).
+            let mut ll = nothing;
+            for &a in &self.heard_scratch {
+                ll -= log_miss[a];
+                let mu = expected[a];
+                if mu.is_nan() {
+                    continue;
                 }
+                let z = (rssi[a] - mu) * self.inv_sigma[a];
+                ll += log_hit[a] - 0.5 * z * z + self.ln_inv_sigma[a];
             }
             *slot = ll;
         }
     }
+}
+
+/// Per cell of `n_cells`, the sum of its row of `log_miss` (`n` anchors a
+/// row).
+fn miss_totals(log_miss: &[f32], n: usize, n_cells: usize) -> Vec<f32> {
+    if n == 0 {
+        return vec![0.0; n_cells];
+    }
+    log_miss
+        .chunks_exact(n)
+        .map(|row| row.iter().sum())
+        .collect()
 }
 
 #[cfg(test)]
