@@ -32,11 +32,12 @@ use std::sync::Arc;
 use anyhow::Context;
 use serde::Serialize;
 
+use super::localization::{Surveyed, surveyed_localizer};
 use crate::locate::floors::{FloorEvidence, FloorFilter};
 use crate::locate::survey::Sample;
 use crate::locate::tracker::{Tracker, TrackerConfig};
 use crate::locate::window::WindowConfig;
-use crate::locate::{Localizer, LocalizerConfig, Method, knn, radiomap::RadioMap, rehearsal};
+use crate::locate::{Localizer, LocalizerConfig, Method};
 use crate::score::ErrorSummary;
 use crate::site::{Beacon, Building, Mount, Site};
 use crate::survey::{self, Key, Keys, Options, Report, Walk};
@@ -328,47 +329,20 @@ fn localizer(
     samples: &[&Sample],
 ) -> anyhow::Result<Box<dyn Localizer>> {
     let ids: Vec<String> = site.beacons.iter().map(|b| b.id.clone()).collect();
-    Ok(match setup.method {
-        Method::Auto => crate::locate::auto::surveyed(
-            &setup.localizer,
-            site,
-            &ids,
-            &setup.window,
-            &setup.tracker,
-            samples,
-        )?,
-        Method::Knn => knn::surveyed(
-            &setup.localizer.knn,
-            site,
-            &setup.tracker,
-            samples,
-            setup.window.missing_dbm,
-        )?,
-        Method::Radiomap => Box::new(RadioMap::new(
-            &setup.localizer.radiomap,
-            site,
-            &ids,
-            setup.window.orientation,
-            &setup.tracker,
-            samples,
-        )?),
-        Method::Pathloss => rehearsal::path_loss(
-            &setup.localizer.pathloss,
-            None,
-            site,
-            &setup.window,
-            &setup.tracker,
-        )?,
-        Method::Strongest => rehearsal::strongest(
-            &setup.localizer.pathloss,
-            site,
-            &setup.window,
-            &setup.tracker,
-        )?,
-        Method::Onnx => anyhow::bail!(
+    let from = Surveyed {
+        localizer: &setup.localizer,
+        window: &setup.window,
+        tracker: &setup.tracker,
+        site,
+        ids: &ids,
+        samples,
+        calibration: None,
+    };
+    surveyed_localizer(setup.method, from, || {
+        anyhow::bail!(
             "--method onnx is not evaluated on walks; train a model with `gangway train` and \
              evaluate it on a survey"
-        ),
+        )
     })
 }
 

@@ -172,6 +172,57 @@ pub enum EvalError {
     Training(anyhow::Error),
 }
 
+/// What a localizer is built from in an evaluation: its settings, the site
+/// and the surveyed rows it may learn from (never those it is scored on).
+pub(super) struct Surveyed<'a> {
+    pub(super) localizer: &'a LocalizerConfig,
+    pub(super) window: &'a WindowConfig,
+    pub(super) tracker: &'a TrackerConfig,
+    pub(super) site: &'a Arc<Site>,
+    /// The anchors' ids, in the fingerprints' order.
+    pub(super) ids: &'a [String],
+    pub(super) samples: &'a [&'a Sample],
+    /// The survey-free model's calibration, when it is evaluated with one.
+    pub(super) calibration: Option<&'a Calibration>,
+}
+
+/// The localizer of `method` from `from`; `onnx` trains the cell classifier
+/// where the caller can (it needs the survey's rows, not just samples).
+pub(super) fn surveyed_localizer<E: From<LocalizerError>>(
+    method: Method,
+    from: Surveyed<'_>,
+    onnx: impl FnOnce() -> Result<Box<dyn Localizer>, E>,
+) -> Result<Box<dyn Localizer>, E> {
+    let Surveyed {
+        localizer,
+        window,
+        tracker,
+        site,
+        ids,
+        samples,
+        calibration,
+    } = from;
+    Ok(match method {
+        Method::Knn => knn::surveyed(&localizer.knn, site, tracker, samples, window.missing_dbm)?,
+        Method::Radiomap => Box::new(RadioMap::new(
+            &localizer.radiomap,
+            site,
+            ids,
+            window.orientation,
+            tracker,
+            samples,
+        )?),
+        Method::Onnx => onnx()?,
+        Method::Auto => {
+            crate::locate::auto::surveyed(localizer, site, ids, window, tracker, samples)?
+        }
+        Method::Strongest => rehearsal::strongest(&localizer.pathloss, site, window, tracker)?,
+        Method::Pathloss => {
+            rehearsal::path_loss(&localizer.pathloss, calibration, site, window, tracker)?
+        }
+    })
+}
+
 /// Iterations of the cell classifier trained for each split (as `gangway train`).
 const CELL_CLASSIFIER_ITERATIONS: usize = 3_000;
 
@@ -260,49 +311,22 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
                 gap_s: setup.session_gap_s,
             });
         }
-        let mut localizer: Box<dyn Localizer> = match setup.method {
-            Method::Knn => knn::surveyed(
-                &setup.localizer.knn,
+        let mut localizer = surveyed_localizer(
+            setup.method,
+            Surveyed {
+                localizer: &setup.localizer,
+                window: &setup.window,
+                tracker: &setup.tracker,
                 site,
-                &setup.tracker,
-                &train,
-                setup.window.missing_dbm,
-            )?,
-            Method::Radiomap => Box::new(RadioMap::new(
-                &setup.localizer.radiomap,
-                site,
-                &survey.anchors,
-                setup.window.orientation,
-                &setup.tracker,
-                &train,
-            )?),
-            Method::Onnx => Box::new(train_cell_classifier(
-                site,
-                &survey.subset(&train_rows),
-                seed,
-            )?),
-            Method::Auto => crate::locate::auto::surveyed(
-                &setup.localizer,
-                site,
-                &survey.anchors,
-                &setup.window,
-                &setup.tracker,
-                &train,
-            )?,
-            Method::Strongest => rehearsal::strongest(
-                &setup.localizer.pathloss,
-                site,
-                &setup.window,
-                &setup.tracker,
-            )?,
-            Method::Pathloss => rehearsal::path_loss(
-                &setup.localizer.pathloss,
-                calibrated.as_ref(),
-                site,
-                &setup.window,
-                &setup.tracker,
-            )?,
-        };
+                ids: &survey.anchors,
+                samples: &train,
+                calibration: calibrated.as_ref(),
+            },
+            || -> Result<Box<dyn Localizer>, EvalError> {
+                let onnx = train_cell_classifier(site, &survey.subset(&train_rows), seed)?;
+                Ok(Box::new(onnx))
+            },
+        )?;
         let mut tracker = Tracker::new(setup.tracker.clone(), site.clone());
         let entities: Vec<Arc<str>> = (0..sessions)
             .map(|s| Arc::from(format!("session-{s}")))
