@@ -35,6 +35,16 @@ impl Event {
     }
 }
 
+/// The rule for a request's `floor`, said to whoever broke it: a building's
+/// floor names are short ("B1", "Ground"), and the name is echoed in errors.
+pub const FLOOR_NAME_RULE: &str = "`floor` must be a floor's name, 1 to 64 bytes";
+
+/// Whether `floor`, from a request (the broker, the web API), may be a
+/// floor's name ([`FLOOR_NAME_RULE`]).
+pub fn valid_floor_name(floor: &str) -> bool {
+    (1..=64).contains(&floor.len())
+}
+
 /// A route request: from the device's current location to `to`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RouteRequest {

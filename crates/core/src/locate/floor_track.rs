@@ -144,6 +144,13 @@ impl FloorTracks {
         self
     }
 
+    /// After a reload onto a building of the same floors: takes over the
+    /// devices' floors of `old`, judged from now on by this one's evidence
+    /// and connectors.
+    pub(crate) fn take_over(&mut self, old: &mut FloorTracks) {
+        self.devices = std::mem::take(&mut old.devices);
+    }
+
     /// The cells of floor `to` where a device coming from floor `from`
     /// arrives.
     pub(crate) fn entries(&self, from: usize, to: usize) -> &[Cell] {

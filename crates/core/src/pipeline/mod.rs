@@ -448,11 +448,12 @@ impl Pipeline {
                 .zip(next.building.floors())
                 .all(|(a, b)| a.name == b.name);
         if same_floors {
-            std::mem::swap(&mut next.floor_tracks, &mut self.floor_tracks);
-            std::mem::swap(&mut next.journeys, &mut self.journeys);
-            if next.floor_tracks.is_none() != self.floor_tracks.is_none() {
-                std::mem::swap(&mut next.floor_tracks, &mut self.floor_tracks);
+            // The devices' floors move; the evidence stays the new
+            // building's (its beacons may have changed).
+            if let (Some(new), Some(old)) = (&mut next.floor_tracks, &mut self.floor_tracks) {
+                new.take_over(old);
             }
+            std::mem::swap(&mut next.journeys, &mut self.journeys);
         }
         let mut kept = 0;
         for (index, floor) in next.building.floors().iter().enumerate() {

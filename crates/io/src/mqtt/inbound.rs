@@ -26,7 +26,7 @@ use uuid::Uuid;
 use super::cluster::{self, Role};
 use super::receivers::{self, EspresenseConfig, TheengsConfig};
 use super::sightings;
-use crate::event::{Feedback, Inbound, RouteRequest};
+use crate::event::{FLOOR_NAME_RULE, Feedback, Inbound, RouteRequest, valid_floor_name};
 use crate::plan::{Destination, RouteErrorCode};
 use crate::sighting::valid_device_id;
 use crate::sighting::{BeaconId, Mac, Sighting};
@@ -353,17 +353,11 @@ impl Inbox {
                 RouteErrorCode::InvalidRequest,
                 REQUEST_ID_RULE.to_owned(),
             ),
-            Ok(r)
-                if r.floor
-                    .as_ref()
-                    .is_some_and(|f| f.is_empty() || f.len() > MAX_FLOOR_NAME) =>
-            {
-                bad(
-                    request_id,
-                    RouteErrorCode::InvalidRequest,
-                    format!("`floor` must be a floor's name, 1 to {MAX_FLOOR_NAME} bytes"),
-                )
-            }
+            Ok(r) if !r.floor.as_deref().is_none_or(valid_floor_name) => bad(
+                request_id,
+                RouteErrorCode::InvalidRequest,
+                FLOOR_NAME_RULE.to_owned(),
+            ),
             Ok(r) => Inbound::Route(RouteRequest {
                 t: now,
                 device: device.to_owned(),
@@ -446,9 +440,6 @@ pub const DEFAULT_MAX_CLOCK_SKEW_S: f64 = 5.0;
 /// Longest request id, in bytes: ids are echoed in replies and kept in the
 /// learning store, so a client cannot make them large.
 pub(crate) const MAX_REQUEST_ID_BYTES: usize = 128;
-/// The longest floor name a request may give: a building's floor names
-/// are short ("B1", "Ground"), and the name is echoed in errors.
-const MAX_FLOOR_NAME: usize = 64;
 
 const REQUEST_ID_RULE: &str = "`request_id` must be 1 to 128 bytes without control characters";
 
@@ -535,6 +526,25 @@ mod tests {
                 profile: None,
                 request_id: Some("r1".into()),
             })
+        );
+    }
+
+    #[test]
+    fn a_floor_name_is_bounded() {
+        let i = inbox();
+        let t = "gangway/gw/devices/p/route/set";
+        let long = format!(
+            r#"{{"to":[1,2],"floor":"{}","request_id":"r1"}}"#,
+            "F".repeat(65)
+        );
+        assert_eq!(
+            code(i.read(t, long.as_bytes(), 0.0).unwrap()),
+            (RouteErrorCode::InvalidRequest, Some("r1".into()))
+        );
+        let named = i.read(t, br#"{"to":[1,2],"floor":"L1"}"#, 0.0).unwrap();
+        assert!(
+            matches!(&named, Inbound::Route(r) if r.floor.as_deref() == Some("L1")),
+            "{named:?}"
         );
     }
 

@@ -40,7 +40,7 @@ use crate::sink::Sink;
 use crate::site::{Building, Cell, Site};
 use crate::source::{Source, SourceContext};
 
-use crate::event::{Inbound, RouteRequest};
+use crate::event::{FLOOR_NAME_RULE, Inbound, RouteRequest, valid_floor_name};
 
 /// Fixes kept per device for its trail.
 pub(crate) const TRAIL: usize = 20;
@@ -458,6 +458,9 @@ pub(super) async fn route(State(live): State<Arc<Live>>, Json(body): Json<RouteB
             "invalid_request",
             "not a device id (1 to 128 bytes, no '+', '#', '/' or control characters)",
         );
+    }
+    if !body.floor.as_deref().is_none_or(valid_floor_name) {
+        return error(StatusCode::BAD_REQUEST, "invalid_request", FLOOR_NAME_RULE);
     }
     let n = live.request_ids.fetch_add(1, Ordering::Relaxed) + 1;
     let request_id = format!("web-{n}");
