@@ -43,6 +43,28 @@ pub(super) fn floors(building: &Building) -> Vec<FloorView> {
         .collect()
 }
 
+/// The stops of `building`'s connectors on floor `i`, as the map draws
+/// them: id, kind, cell and the floors it goes to from there.
+pub(super) fn connectors(building: &Building, i: usize) -> Vec<serde_json::Value> {
+    let floors = building.floors();
+    building
+        .connectors()
+        .iter()
+        .filter_map(|c| {
+            let here = c.stops.iter().find(|s| s.floor == i)?;
+            let to: Vec<&str> = c
+                .stops
+                .iter()
+                .filter(|s| s.floor != i)
+                .map(|s| floors[s.floor].name.as_str())
+                .collect();
+            Some(serde_json::json!({
+                "id": c.id, "kind": c.kind.name(), "cell": here.cell, "to": to,
+            }))
+        })
+        .collect()
+}
+
 /// The index in `floors` of the floor `asked` names (none: the first, the
 /// lowest), or the 404 that says which floors there are.
 pub(super) fn pick(floors: &[FloorView], asked: Option<&str>) -> Result<usize, Response> {

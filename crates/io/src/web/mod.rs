@@ -325,6 +325,9 @@ async fn site(State(app): State<App>, Query(q): Query<floor::FloorQuery>) -> Res
         .expect("plain data serializes");
     view["floor"] = serde_json::json!({ "name": floor.name, "level": floor.level });
     view["floors"] = serde_json::to_value(floor::floors(&building)).expect("plain data");
+    if building.is_multi_floor() {
+        view["connectors"] = floor::connectors(&building, i).into();
+    }
     axum::Json(view).into_response()
 }
 

@@ -37,6 +37,7 @@ let site = null;
 let access = {};
 let floors = []; // the building's floors, lowest first ({ name, level })
 let floor = null; // the floor shown, on a building of several; null on one floor
+let buildingName = "";
 // Dragging pans, except on a device or a place, which take clicks.
 const view = new PlanView($("plan"), {
   panWithLeft: (e) => !(e.target.closest && e.target.closest(".device, .place")),
@@ -110,7 +111,9 @@ function floorUrl(path) {
 /** The floors of the building (again after a reload) and the one to show:
  * the one asked for (the switcher, the address), else the lowest. */
 async function loadFloors(asked) {
-  floors = (await api("/api/floors")).floors;
+  const building = await api("/api/floors");
+  floors = building.floors;
+  buildingName = building.building;
   const several = floors.length > 1;
   floor = several ? (floors.find((f) => f.name === asked) || floors[0]).name : null;
   $("floor-switch").hidden = !several;
@@ -159,8 +162,9 @@ async function loadSite(first, asked) {
   const before = { site, floor };
   await loadFloors(asked);
   site = await api(floorUrl("/api/site"));
-  fill($("site-name"), site.name);
+  fill($("site-name"), floor === null ? site.name : buildingName);
   fill($("floor-name"), floor === null ? "" : `floor ${floor}`);
+  $("plan").dataset.site = site.name;
   $("edit-link").href = floorUrl("/edit");
   $("edit-link").textContent = floor === null ? "Edit site" : `Edit floor ${floor}`;
   document.title = floor === null ? `gangway · ${site.name}` : `gangway · ${site.name} · floor ${floor}`;
@@ -173,6 +177,7 @@ async function loadSite(first, asked) {
   if (first || (before.floor !== floor && resized)) view.fit(0, 0, site.width, site.height);
   redraw = true;
   listDirty = true;
+  renderList(true); // where each device is, said for this floor at once
   schedule();
   showRoute();
   drawHeat();
@@ -473,11 +478,13 @@ $("device-filter").addEventListener("input", () => {
 
 let listTimer = 0;
 let listed = { ids: [], rows: new Map(), more: 0 }; // what the list shows
-function renderList() {
-  // The list is text; at most once a second however fast fixes come, and
-  // rebuilt only when its devices change (otherwise its texts are updated).
-  if (listTimer) return;
-  listTimer = setTimeout(() => {
+function renderList(now = false) {
+  // The list is text; at most once a second however fast fixes come (at
+  // once when the floor shown changes), and rebuilt only when its devices
+  // change (otherwise its texts are updated).
+  if (listTimer && !now) return;
+  clearTimeout(listTimer);
+  const render = () => {
     listTimer = 0;
     const filter = $("device-filter").value.trim().toLowerCase();
     const all = [...devices.keys()].filter((id) => !filter || id.toLowerCase().includes(filter)).sort();
@@ -508,7 +515,9 @@ function renderList() {
       if (row.li.dataset.cell !== cell) row.li.dataset.cell = cell;
     }
     countFloors();
-  }, 1000);
+  };
+  if (now) render();
+  else listTimer = setTimeout(render, 1000);
 }
 
 // ---- routes ----
