@@ -975,7 +975,10 @@ async fn the_map_of_a_building_switches_floors() {
     let (status, unknown) = get("/api/site?floor=L9");
     assert_eq!(status, 404, "{unknown}");
     let message = unknown["error"]["message"].as_str().unwrap();
-    assert!(message.contains("L9") && message.contains("B1, G, L1"), "{message}");
+    assert!(
+        message.contains("L9") && message.contains("B1, G, L1"),
+        "{message}"
+    );
     assert_eq!(get("/api/floorplan?floor=L9").0, 404);
 
     browser.client.goto(&format!("{url}/")).await.unwrap();
@@ -1030,13 +1033,25 @@ async fn the_map_of_a_building_switches_floors() {
     };
     show("L1").await;
     browser
-        .until("the phone drawn on L1", &format!("{drawn} === '1'"), describe)
+        .until(
+            "the phone drawn on L1",
+            &format!("{drawn} === '1'"),
+            describe,
+        )
         .await;
     let pressed = browser
         .js("return document.querySelector('#floor-switch button[aria-pressed=true]').dataset.floor")
         .await;
     assert_eq!(pressed, json!("L1"));
-    assert!(browser.client.current_url().await.unwrap().as_str().ends_with("?floor=L1"));
+    assert!(
+        browser
+            .client
+            .current_url()
+            .await
+            .unwrap()
+            .as_str()
+            .ends_with("?floor=L1")
+    );
     let row = "return document.querySelector('#devices li[data-device=phone]').textContent";
     assert!(!browser.js(row).await.to_string().contains("on floor"));
     let connectors = browser
@@ -1048,7 +1063,11 @@ async fn the_map_of_a_building_switches_floors() {
     browser.screenshot("map-building.png").await;
     show("G").await;
     browser
-        .until("the phone not drawn on G", &format!("{drawn} === '0'"), describe)
+        .until(
+            "the phone not drawn on G",
+            &format!("{drawn} === '0'"),
+            describe,
+        )
         .await;
     assert!(browser.text("devices").await.contains("on floor L1"));
 

@@ -35,7 +35,9 @@ use super::floor::{FloorQuery, FloorView};
 use super::live::Reloaded;
 use super::security::error;
 use super::view::SiteView;
-use crate::site::{Building, MAX_IMAGE_BYTES, Site, SiteDoc, mime_of_bytes, probe_image, write_doc};
+use crate::site::{
+    Building, MAX_IMAGE_BYTES, Site, SiteDoc, mime_of_bytes, probe_image, write_doc,
+};
 
 /// URL the editor fetches a floor-plan image from (`?name=` relative to the
 /// site file's directory).
@@ -261,12 +263,12 @@ impl Editors {
 pub(super) struct OnFloor(Arc<Editor>);
 
 impl axum::extract::FromRequestParts<Arc<Editors>> for OnFloor {
-    type Rejection = Response;
+    type Rejection = super::floor::NotFound;
 
     async fn from_request_parts(
         parts: &mut axum::http::request::Parts,
         editors: &Arc<Editors>,
-    ) -> Result<OnFloor, Response> {
+    ) -> Result<OnFloor, super::floor::NotFound> {
         if editors.floors.is_empty() {
             return Ok(OnFloor(editors.editors[0].clone()));
         }
@@ -278,10 +280,7 @@ impl axum::extract::FromRequestParts<Arc<Editors>> for OnFloor {
 
 /// `GET /api/editor`: the file as a document, and the plan image to show;
 /// on a building, which floor it is and the floors to choose from.
-pub(super) async fn get(
-    State(editors): State<Arc<Editors>>,
-    OnFloor(editor): OnFloor,
-) -> Response {
+pub(super) async fn get(State(editors): State<Arc<Editors>>, OnFloor(editor): OnFloor) -> Response {
     let (text, suggested) = {
         let opened = editor.lock();
         (opened.text.clone(), opened.suggested.clone())

@@ -4,7 +4,7 @@
 //! building does not have.
 
 use axum::http::StatusCode;
-use axum::response::Response;
+use axum::response::{IntoResponse, Response};
 use serde::{Deserialize, Serialize};
 
 use super::security::error;
@@ -67,19 +67,30 @@ pub(super) fn connectors(building: &Building, i: usize) -> Vec<serde_json::Value
 
 /// The index in `floors` of the floor `asked` names (none: the first, the
 /// lowest), or the 404 that says which floors there are.
-pub(super) fn pick(floors: &[FloorView], asked: Option<&str>) -> Result<usize, Response> {
+pub(super) fn pick(floors: &[FloorView], asked: Option<&str>) -> Result<usize, NotFound> {
     let Some(asked) = asked else { return Ok(0) };
     floors.iter().position(|f| f.name == asked).ok_or_else(|| {
         let names: Vec<&str> = floors.iter().map(|f| f.name.as_str()).collect();
-        error(
-            StatusCode::NOT_FOUND,
-            "unknown_floor",
-            format!(
+        NotFound {
+            code: "unknown_floor",
+            message: format!(
                 "no floor {asked:?} here; the floors are {}",
                 names.join(", ")
             ),
-        )
+        }
     })
+}
+
+/// A floor (or a map) a request asks for that is not here: a 404.
+pub(super) struct NotFound {
+    pub(super) code: &'static str,
+    pub(super) message: String,
+}
+
+impl IntoResponse for NotFound {
+    fn into_response(self) -> Response {
+        error(StatusCode::NOT_FOUND, self.code, self.message)
+    }
 }
 
 /// `path` with `?floor=NAME` when `floor` is given.

@@ -335,7 +335,11 @@ impl Sink for WebSink {
     }
 
     fn reload(&mut self, building: &Building) {
-        *self.live.building.write().unwrap_or_else(|e| e.into_inner()) = Arc::new(building.clone());
+        *self
+            .live
+            .building
+            .write()
+            .unwrap_or_else(|e| e.into_inner()) = Arc::new(building.clone());
         self.live.broadcast("site", String::from("{}"));
         self.live.reloaded.send_modify(|r| {
             r.count += 1;

@@ -313,7 +313,7 @@ async fn access(State(app): State<App>) -> impl IntoResponse {
 async fn site(State(app): State<App>, Query(q): Query<floor::FloorQuery>) -> Response {
     let (building, i) = match current(&app, q.floor.as_deref()) {
         Ok(found) => found,
-        Err(response) => return response,
+        Err(response) => return response.into_response(),
     };
     let floor = &building.floors()[i];
     let named = building.is_multi_floor().then_some(floor.name.as_str());
@@ -339,19 +339,18 @@ async fn floors(State(app): State<App>) -> Response {
             "floors": floor::floors(&building),
         }))
         .into_response(),
-        Err(response) => response,
+        Err(response) => response.into_response(),
     }
 }
 
 /// The building the map shows now and the index of the floor `asked`
 /// names (the lowest when none), or the 404 saying why not.
-fn current(app: &App, asked: Option<&str>) -> Result<(Arc<Building>, usize), Response> {
+fn current(app: &App, asked: Option<&str>) -> Result<(Arc<Building>, usize), floor::NotFound> {
     let Some(cell) = app.building.as_ref() else {
-        return Err(security::error(
-            axum::http::StatusCode::NOT_FOUND,
-            "not_found",
-            "this server edits a site file and maps none; see /edit",
-        ));
+        return Err(floor::NotFound {
+            code: "not_found",
+            message: "this server edits a site file and maps none; see /edit".into(),
+        });
     };
     let building = cell.read().unwrap_or_else(|e| e.into_inner()).clone();
     let i = floor::pick(&floor::floors(&building), asked)?;
@@ -373,7 +372,7 @@ async fn metrics(State(live): State<Arc<Live>>) -> Response {
 async fn floorplan(State(app): State<App>, Query(q): Query<floor::FloorQuery>) -> Response {
     let (building, i) = match current(&app, q.floor.as_deref()) {
         Ok(found) => found,
-        Err(response) => return response,
+        Err(response) => return response.into_response(),
     };
     match building.floors()[i].site.floorplan() {
         Some(plan) => editor::image_file(&plan.image),
