@@ -43,6 +43,30 @@ fn editor(site: &Path, extra: &[&str]) -> (Proc, String) {
     (Proc(child), url)
 }
 
+/// `gangway run --replay LOG --speed SPEED` in `dir` with the web UI on a
+/// free port, the embedded broker and stats every second; `config` is the
+/// rest of the config file (`gateway_id`, `site`, other tables). Returns it
+/// and the UI's base URL.
+fn replay_with_web(dir: &Path, config: &str, log: &Path, speed: u32) -> (Proc, String) {
+    let file = dir.join("live.toml");
+    std::fs::write(
+        &file,
+        format!(
+            "{config}[mqtt]\nembedded_port = {}\nstats_interval_s = 1\n[web]\nbind = \"127.0.0.1:0\"\n",
+            free_port()
+        ),
+    )
+    .unwrap();
+    let mut command = Command::new(env!("CARGO_BIN_EXE_gangway"));
+    command
+        .args(["run", "--config"])
+        .arg(&file)
+        .arg("--replay")
+        .arg(log)
+        .args(["--speed", &speed.to_string()]);
+    web_support::with_web_ui(command)
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_web_ui_in_a_real_browser() {
     let Some(plan) = common::shared_data("uci-ble-rssi/iBeacon_Layout.jpg") else {
@@ -93,23 +117,12 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
     // The gateway's own copy of the site: the editor saves it.
     let site_path = dir.join("waldo.toml");
     std::fs::copy(common::root().join("config/sites/waldo.toml"), &site_path).unwrap();
-    let config = common::write(
+    let (_gateway, url) = replay_with_web(
         dir,
-        "live.toml",
-        &format!(
-            "gateway_id = \"gw-web\"\nsite = \"waldo.toml\"\n[planner]\nmode = \"astar\"\n\
-             [mqtt]\nembedded_port = {}\nstats_interval_s = 1\n[web]\nbind = \"127.0.0.1:0\"\n",
-            free_port()
-        ),
+        "gateway_id = \"gw-web\"\nsite = \"waldo.toml\"\n[planner]\nmode = \"astar\"\n",
+        &log_path,
+        3,
     );
-    let mut command = Command::new(env!("CARGO_BIN_EXE_gangway"));
-    command
-        .args(["run", "--config"])
-        .arg(&config)
-        .arg("--replay")
-        .arg(&log_path)
-        .args(["--speed", "3"]);
-    let (_gateway, url) = web_support::with_web_ui(command);
     browser.client.goto(&format!("{url}/")).await.unwrap();
     let listed = "return document.querySelectorAll('#devices li[data-device]').length >= 3";
     browser
@@ -366,23 +379,12 @@ async fn the_editor_in_the_gateway_applies_a_save(
     let summary = "return document.getElementById('check-summary').textContent";
     browser.until("the site's check", checked, summary).await;
     assert!(browser.text("file").await.contains("saving applies it"));
-    let saved = |what: &'static str| async move {
-        browser.click_id("save").await;
-        browser
-            .until(
-                what,
-                "const s = document.getElementById('save-status').textContent; return s.startsWith('saved')",
-                "return document.getElementById('save-status').textContent",
-            )
-            .await;
-        browser.text("save-status").await
-    };
 
     browser.type_into("name", "waldo-renamed").await;
     browser
         .until("the renamed site's check", checked, summary)
         .await;
-    let status = saved("the refused reload").await;
+    let status = browser.save("the refused reload").await;
     assert!(
         status.contains("refused") && status.contains("site name") && status.contains("restart"),
         "{status}"
@@ -409,7 +411,7 @@ async fn the_editor_in_the_gateway_applies_a_save(
         )
         .await;
     browser.until("the site's check", checked, summary).await;
-    let status = saved("the applied reload").await;
+    let status = browser.save("the applied reload").await;
     assert!(
         status.contains("the gateway reloaded it and serves it now"),
         "{status}"
@@ -610,14 +612,7 @@ async fn the_editor_goes_from_a_plan_image_to_a_valid_site(
     browser.screenshot("editor.png").await;
 
     // 5. Save; `gangway check` accepts the file.
-    browser.click_id("save").await;
-    browser
-        .until(
-            "the save",
-            "return document.getElementById('save-status').textContent.startsWith('saved')",
-            "return document.getElementById('save-status').textContent",
-        )
-        .await;
+    browser.save("the save").await;
     let saved = std::fs::read_to_string(site).unwrap();
     assert!(
         saved.contains("[floorplan]") && saved.contains("image = \"iBeacon_Layout.jpg\""),
@@ -924,24 +919,13 @@ async fn the_map_of_a_building_switches_floors() {
     let dir = tempfile::tempdir().unwrap();
     crate::floors_support::write_building(dir.path());
     let walk = crate::floors_daemon::capture(dir.path(), &[]);
-    let config = common::write(
+    // Every fix published: five beacons over three floors of 0.5 m cells.
+    let (_gateway, url) = replay_with_web(
         dir.path(),
-        "live.toml",
-        &format!(
-            "gateway_id = \"gw-floors\"\nsite = \"building.toml\"\n[localizer]\n\
-             min_confidence = 0.0\n[mqtt]\nembedded_port = {}\nstats_interval_s = 1\n[web]\n\
-             bind = \"127.0.0.1:0\"\n",
-            free_port()
-        ),
+        "gateway_id = \"gw-floors\"\nsite = \"building.toml\"\n[localizer]\nmin_confidence = 0.0\n",
+        &walk,
+        10,
     );
-    let mut command = Command::new(env!("CARGO_BIN_EXE_gangway"));
-    command
-        .args(["run", "--config"])
-        .arg(&config)
-        .arg("--replay")
-        .arg(&walk)
-        .args(["--speed", "10"]);
-    let (_gateway, url) = web_support::with_web_ui(command);
 
     // The API: the floors, lowest first; `?floor=` names one, an unknown
     // one is a 404 that lists them.
@@ -1103,15 +1087,7 @@ async fn the_map_of_a_building_switches_floors() {
         .await;
     browser.until("L1's check", checked, summary).await;
     browser.screenshot("editor-building.png").await;
-    browser.click_id("save").await;
-    browser
-        .until(
-            "the save",
-            "return document.getElementById('save-status').textContent.startsWith('saved')",
-            "return document.getElementById('save-status').textContent",
-        )
-        .await;
-    let status = browser.text("save-status").await;
+    let status = browser.save("the save").await;
     assert!(
         status.contains("L1.toml") && status.contains("the gateway reloaded it"),
         "{status}"
