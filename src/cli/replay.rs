@@ -166,7 +166,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
                 web: crate::web::WebConfig { bind, ..config.web.clone() },
                 ..config.clone()
             };
-            if let Some(web) = crate::web::start(&config.web, &config.site, &config.window, config.limits.max_devices, site.clone(), &mut Vec::new(), None).await {
+            if let Some(web) = crate::web::start(&config.web, &config.site, &config.window, config.limits.max_devices, building.clone(), &mut Vec::new(), None).await {
                 latency = Some(web.add_to(&mut sources, &mut sinks));
             }
         }

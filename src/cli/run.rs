@@ -129,7 +129,7 @@ async fn serve(args: Args) -> anyhow::Result<()> {
         &config.site,
         &config.window,
         config.limits.max_devices,
-        site.clone(),
+        serving.building.clone(),
         &mut fallbacks,
         Some(reload),
     )

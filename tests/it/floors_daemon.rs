@@ -64,7 +64,7 @@ fn rssi(b: usize, floor: usize, at: [f64; 2], k: u32) -> Option<i16> {
 
 /// The walk as a JSON Lines capture (an advert per beacon heard per
 /// second), and `extra` lines after the advert of second `at`.
-fn capture(dir: &Path, extra: &[(f64, Value)]) -> PathBuf {
+pub(crate) fn capture(dir: &Path, extra: &[(f64, Value)]) -> PathBuf {
     let mut lines = Vec::new();
     for k in 0..=END_S as u32 {
         let s = f64::from(k);

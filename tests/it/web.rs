@@ -43,6 +43,30 @@ fn editor(site: &Path, extra: &[&str]) -> (Proc, String) {
     (Proc(child), url)
 }
 
+/// `gangway run --replay LOG --speed SPEED` in `dir` with the web UI on a
+/// free port, the embedded broker and stats every second; `config` is the
+/// rest of the config file (`gateway_id`, `site`, other tables). Returns it
+/// and the UI's base URL.
+fn replay_with_web(dir: &Path, config: &str, log: &Path, speed: u32) -> (Proc, String) {
+    let file = dir.join("live.toml");
+    std::fs::write(
+        &file,
+        format!(
+            "{config}[mqtt]\nembedded_port = {}\nstats_interval_s = 1\n[web]\nbind = \"127.0.0.1:0\"\n",
+            free_port()
+        ),
+    )
+    .unwrap();
+    let mut command = Command::new(env!("CARGO_BIN_EXE_gangway"));
+    command
+        .args(["run", "--config"])
+        .arg(&file)
+        .arg("--replay")
+        .arg(log)
+        .args(["--speed", &speed.to_string()]);
+    web_support::with_web_ui(command)
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_web_ui_in_a_real_browser() {
     let Some(plan) = common::shared_data("uci-ble-rssi/iBeacon_Layout.jpg") else {
@@ -93,23 +117,12 @@ async fn the_live_map_follows_a_replay_and_routes_a_click(browser: &Browser, dir
     // The gateway's own copy of the site: the editor saves it.
     let site_path = dir.join("waldo.toml");
     std::fs::copy(common::root().join("config/sites/waldo.toml"), &site_path).unwrap();
-    let config = common::write(
+    let (_gateway, url) = replay_with_web(
         dir,
-        "live.toml",
-        &format!(
-            "gateway_id = \"gw-web\"\nsite = \"waldo.toml\"\n[planner]\nmode = \"astar\"\n\
-             [mqtt]\nembedded_port = {}\nstats_interval_s = 1\n[web]\nbind = \"127.0.0.1:0\"\n",
-            free_port()
-        ),
+        "gateway_id = \"gw-web\"\nsite = \"waldo.toml\"\n[planner]\nmode = \"astar\"\n",
+        &log_path,
+        3,
     );
-    let mut command = Command::new(env!("CARGO_BIN_EXE_gangway"));
-    command
-        .args(["run", "--config"])
-        .arg(&config)
-        .arg("--replay")
-        .arg(&log_path)
-        .args(["--speed", "3"]);
-    let (_gateway, url) = web_support::with_web_ui(command);
     browser.client.goto(&format!("{url}/")).await.unwrap();
     let listed = "return document.querySelectorAll('#devices li[data-device]').length >= 3";
     browser
@@ -366,23 +379,12 @@ async fn the_editor_in_the_gateway_applies_a_save(
     let summary = "return document.getElementById('check-summary').textContent";
     browser.until("the site's check", checked, summary).await;
     assert!(browser.text("file").await.contains("saving applies it"));
-    let saved = |what: &'static str| async move {
-        browser.click_id("save").await;
-        browser
-            .until(
-                what,
-                "const s = document.getElementById('save-status').textContent; return s.startsWith('saved')",
-                "return document.getElementById('save-status').textContent",
-            )
-            .await;
-        browser.text("save-status").await
-    };
 
     browser.type_into("name", "waldo-renamed").await;
     browser
         .until("the renamed site's check", checked, summary)
         .await;
-    let status = saved("the refused reload").await;
+    let status = browser.save("the refused reload").await;
     assert!(
         status.contains("refused") && status.contains("site name") && status.contains("restart"),
         "{status}"
@@ -409,7 +411,7 @@ async fn the_editor_in_the_gateway_applies_a_save(
         )
         .await;
     browser.until("the site's check", checked, summary).await;
-    let status = saved("the applied reload").await;
+    let status = browser.save("the applied reload").await;
     assert!(
         status.contains("the gateway reloaded it and serves it now"),
         "{status}"
@@ -610,14 +612,7 @@ async fn the_editor_goes_from_a_plan_image_to_a_valid_site(
     browser.screenshot("editor.png").await;
 
     // 5. Save; `gangway check` accepts the file.
-    browser.click_id("save").await;
-    browser
-        .until(
-            "the save",
-            "return document.getElementById('save-status').textContent.startsWith('saved')",
-            "return document.getElementById('save-status').textContent",
-        )
-        .await;
+    browser.save("the save").await;
     let saved = std::fs::read_to_string(site).unwrap();
     assert!(
         saved.contains("[floorplan]") && saved.contains("image = \"iBeacon_Layout.jpg\""),
@@ -904,4 +899,206 @@ fn a_site_that_cannot_be_written_is_saved_in_the_state_directory() {
         std::fs::read(&site).unwrap(),
         std::fs::read(common::root().join("config/sites/waldo.toml")).unwrap()
     );
+}
+
+/// The live map of a building (the made-up B1, G, L1 of `floors_support`)
+/// served by `gangway run --replay` of a phone riding the lift from B1 to
+/// L1: a floor switcher lists the floors, each shows its own plan, the phone
+/// is drawn on L1 only (and listed, saying where, on the others); the site
+/// endpoints take `?floor=` and name the floors for one the building lacks;
+/// the editor edits one floor's site file at a time and a save reloads the
+/// building.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_map_of_a_building_switches_floors() {
+    let browser =
+        match Browser::start_with(&common::root().join("target/web-screenshots"), &[]).await {
+            Ok(browser) => browser,
+            Err(missing) => return common::cannot_run(&missing),
+        };
+    let browser = &browser;
+    let dir = tempfile::tempdir().unwrap();
+    crate::floors_support::write_building(dir.path());
+    let walk = crate::floors_daemon::capture(dir.path(), &[]);
+    // Every fix published: five beacons over three floors of 0.5 m cells.
+    let (_gateway, url) = replay_with_web(
+        dir.path(),
+        "gateway_id = \"gw-floors\"\nsite = \"building.toml\"\n[localizer]\nmin_confidence = 0.0\n",
+        &walk,
+        10,
+    );
+
+    // The API: the floors, lowest first; `?floor=` names one, an unknown
+    // one is a 404 that lists them.
+    let get = |path: &str| {
+        let mut reply = ureq::get(&format!("{url}{path}"))
+            .config()
+            .http_status_as_error(false)
+            .build()
+            .call()
+            .unwrap();
+        let json: Value = reply.body_mut().read_json().unwrap();
+        (reply.status().as_u16(), json)
+    };
+    let (_, floors) = get("/api/floors");
+    assert_eq!(
+        floors["floors"],
+        json!([{ "name": "B1", "level": -1 }, { "name": "G", "level": 0 }, { "name": "L1", "level": 1 }]),
+        "{floors}"
+    );
+    let (status, lowest) = get("/api/site");
+    assert_eq!((status, &lowest["name"]), (200, &json!("made-up B1")));
+    let (_, l1) = get("/api/site?floor=L1");
+    assert_eq!(l1["name"], "made-up L1");
+    assert_eq!(l1["floor"], json!({ "name": "L1", "level": 1 }));
+    let lift = crate::floors_support::cell_of([17.0, 6.25]);
+    assert_eq!(
+        l1["connectors"],
+        json!([{ "id": "lift", "kind": "lift", "cell": lift, "to": ["B1", "G"] }]),
+        "{l1}"
+    );
+    let (status, unknown) = get("/api/site?floor=L9");
+    assert_eq!(status, 404, "{unknown}");
+    let message = unknown["error"]["message"].as_str().unwrap();
+    assert!(
+        message.contains("L9") && message.contains("B1, G, L1"),
+        "{message}"
+    );
+    assert_eq!(get("/api/floorplan?floor=L9").0, 404);
+
+    browser.client.goto(&format!("{url}/")).await.unwrap();
+    let describe = "return document.getElementById('connection').textContent + ' | ' + \
+                    document.getElementById('floor-switch').textContent + ' | ' + \
+                    document.getElementById('devices').textContent";
+    browser
+        .until(
+            "the floor switcher",
+            "return document.querySelectorAll('#floor-switch button').length === 3",
+            describe,
+        )
+        .await;
+    let buttons = browser
+        .js("return [...document.querySelectorAll('#floor-switch button')].map(b => [b.dataset.floor, b.getAttribute('aria-pressed')])")
+        .await;
+    assert_eq!(
+        buttons,
+        json!([["L1", "false"], ["G", "false"], ["B1", "true"]]),
+        "highest on top, the lowest shown first"
+    );
+    assert_eq!(browser.text("site-name").await, "made-up");
+    assert_eq!(browser.text("floor-name").await, "floor B1");
+    // The phone ends the walk on L1: listed on B1, saying so, not drawn.
+    browser
+        .until(
+            "the phone on L1",
+            "const li = document.querySelector('#devices li[data-device=phone]'); return !!li && li.dataset.floor === 'L1' && li.textContent.includes('on floor L1')",
+            describe,
+        )
+        .await;
+    let drawn = "return document.getElementById('devices-layer').dataset.drawn";
+    assert_eq!(browser.js(drawn).await, json!("0"));
+
+    let show = |name: &'static str| async move {
+        browser
+            .js(&format!(
+                "document.querySelector('#floor-switch button[data-floor={name}]').click(); return true"
+            ))
+            .await;
+        browser
+            .until(
+                "the floor shown",
+                &format!(
+                    "return document.getElementById('plan').dataset.floor === '{name}' && \
+                     document.getElementById('plan').dataset.site === 'made-up {name}' && \
+                     document.getElementById('floor-name').textContent === 'floor {name}'"
+                ),
+                describe,
+            )
+            .await;
+    };
+    show("L1").await;
+    browser
+        .until(
+            "the phone drawn on L1",
+            &format!("{drawn} === '1'"),
+            describe,
+        )
+        .await;
+    let pressed = browser
+        .js("return document.querySelector('#floor-switch button[aria-pressed=true]').dataset.floor")
+        .await;
+    assert_eq!(pressed, json!("L1"));
+    assert!(
+        browser
+            .client
+            .current_url()
+            .await
+            .unwrap()
+            .as_str()
+            .ends_with("?floor=L1")
+    );
+    let row = "return document.querySelector('#devices li[data-device=phone]').textContent";
+    assert!(!browser.js(row).await.to_string().contains("on floor"));
+    let connectors = browser
+        .js("return [...document.querySelectorAll('#plan .connector-name')].map(l => l.textContent)")
+        .await;
+    assert_eq!(connectors, json!(["lift → B1, G"]));
+    let labels = browser.label_problems().await;
+    assert_eq!(labels["problems"], json!([]), "{labels}");
+    browser.screenshot("map-building.png").await;
+    show("G").await;
+    browser
+        .until(
+            "the phone not drawn on G",
+            &format!("{drawn} === '0'"),
+            describe,
+        )
+        .await;
+    assert!(browser.text("devices").await.contains("on floor L1"));
+
+    // The editor of L1's site file: a place added there and saved reloads
+    // the building, and L1 serves it; B1's file is untouched.
+    let b1_before = std::fs::read_to_string(dir.path().join("B1.toml")).unwrap();
+    browser
+        .client
+        .goto(&format!("{url}/edit?floor=L1"))
+        .await
+        .unwrap();
+    let checked = "return document.getElementById('check-summary').textContent.startsWith('ok:')";
+    let summary = "return document.getElementById('check-summary').textContent + ' | ' + document.getElementById('file').textContent";
+    browser.until("L1's check", checked, summary).await;
+    assert!(browser.text("file").await.contains("L1.toml"));
+    let chosen = browser
+        .js("return [document.getElementById('floor').value, document.getElementById('floor').options.length, document.getElementById('floor-box').hidden]")
+        .await;
+    assert_eq!(chosen, json!(["L1", 3, false]));
+    browser.tool("place").await;
+    browser.type_into("place-name", "reading room").await;
+    let [x, y] = crate::floors_support::cell_of([12.0, 2.0]);
+    let at = browser
+        .grid_points(&[[f64::from(x) + 0.5, f64::from(y) + 0.5]])
+        .await[0];
+    browser.click_at(at).await;
+    browser
+        .until(
+            "the new place",
+            "return document.getElementById('places').textContent.includes('reading room')",
+            summary,
+        )
+        .await;
+    browser.until("L1's check", checked, summary).await;
+    browser.screenshot("editor-building.png").await;
+    let status = browser.save("the save").await;
+    assert!(
+        status.contains("L1.toml") && status.contains("the gateway reloaded it"),
+        "{status}"
+    );
+    let l1_file = std::fs::read_to_string(dir.path().join("L1.toml")).unwrap();
+    assert!(l1_file.contains("reading room"), "{l1_file}");
+    assert_eq!(
+        std::fs::read_to_string(dir.path().join("B1.toml")).unwrap(),
+        b1_before
+    );
+    let (_, l1) = get("/api/site?floor=L1");
+    assert!(l1["places"].to_string().contains("reading room"), "{l1}");
+    browser.client.clone().close().await.unwrap();
 }

@@ -318,6 +318,19 @@ impl Browser {
 }
 
 impl Browser {
+    /// Clicks the editor's Save and waits for `what` (a save, applied or
+    /// not); returns what the page says of it.
+    pub(crate) async fn save(&self, what: &str) -> String {
+        self.click_id("save").await;
+        self.until(
+            what,
+            "return document.getElementById('save-status').textContent.startsWith('saved')",
+            "return document.getElementById('save-status').textContent",
+        )
+        .await;
+        self.text("save-status").await
+    }
+
     /// Moves the pointer to `[x, y]` (viewport coordinates).
     pub(crate) async fn move_to(&self, [x, y]: [f64; 2]) {
         let mouse = MouseActions::new("mouse".into()).then(PointerAction::MoveTo {

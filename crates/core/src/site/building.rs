@@ -98,6 +98,9 @@ pub struct Floor {
     pub name: String,
     pub level: i32,
     pub site: Arc<Site>,
+    /// The site file it was loaded from (a building file's floor resolved
+    /// against its directory); none for a site given in memory.
+    pub file: Option<PathBuf>,
 }
 
 /// Where a connector can be entered or left on one floor.
@@ -235,6 +238,7 @@ impl Building {
                 name: site.name.clone(),
                 level: 0,
                 site,
+                file: None,
             }],
             connectors: Vec::new(),
         }
@@ -256,7 +260,9 @@ impl Building {
         load_floor: impl Fn(&Path) -> Result<Site, SiteError>,
     ) -> Result<Building, SiteError> {
         if !Building::is_building_file(text) {
-            return Ok(Building::of_site(Arc::new(Site::parse(text, path)?)));
+            let mut building = Building::of_site(Arc::new(Site::parse(text, path)?));
+            building.floors[0].file = Some(path.to_owned());
+            return Ok(building);
         }
         let file: BuildingFile = toml::from_str(text).map_err(|source| SiteError::Toml {
             path: path.to_owned(),
@@ -312,11 +318,13 @@ impl Building {
                     floor.name, floor.level
                 ));
             }
-            match load_floor(&dir.join(&floor.site)) {
+            let file = dir.join(&floor.site);
+            match load_floor(&file) {
                 Ok(site) => floors.push(Floor {
                     name: floor.name.clone(),
                     level: floor.level,
                     site: Arc::new(site),
+                    file: Some(file),
                 }),
                 Err(e) => problems.push(format!(
                     "line {line}: floor `{}`: {}",

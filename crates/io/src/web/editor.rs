@@ -3,7 +3,9 @@
 //! floor-plan image.
 //!
 //! The editor edits one file, named when the server starts (`gangway site
-//! edit --site S`, or the gateway's own site). What the page sends is data;
+//! edit --site S`, or the gateway's own site); in a gateway serving a
+//! building, one per floor ([`Editors`]), each floor's site file, the
+//! requests naming it with `?floor=NAME`. What the page sends is data;
 //! the server writes the TOML (keeping the opened file's text where nothing
 //! changed) and loads it with the same [`Site::parse`] the gateway uses, so
 //! there is one validation and its messages are the CLI's. A save is refused
@@ -29,10 +31,13 @@ use axum::response::{IntoResponse, Response};
 use serde::Deserialize;
 use tokio::sync::{mpsc, watch};
 
+use super::floor::{FloorQuery, FloorView};
 use super::live::Reloaded;
 use super::security::error;
 use super::view::SiteView;
-use crate::site::{MAX_IMAGE_BYTES, Site, SiteDoc, mime_of_bytes, probe_image, write_doc};
+use crate::site::{
+    Building, MAX_IMAGE_BYTES, Site, SiteDoc, mime_of_bytes, probe_image, write_doc,
+};
 
 /// URL the editor fetches a floor-plan image from (`?name=` relative to the
 /// site file's directory).
@@ -51,6 +56,8 @@ pub struct Editor {
     fallback_dir: Option<PathBuf>,
     /// The gateway serving the file, when it runs in one.
     gateway: Option<Gateway>,
+    /// The building floor whose site file this is, when there are several.
+    floor: Option<String>,
 }
 
 /// The gateway serving the edited file: its reloads, and what became of them.
@@ -116,6 +123,7 @@ impl Editor {
             }),
             fallback_dir,
             gateway: None,
+            floor: None,
         })
     }
 
@@ -155,16 +163,19 @@ impl Editor {
         let info = probe_image(&self.dir.join(name)).ok()?;
         Some(serde_json::json!({
             "name": name,
-            "url": image_url(name),
+            "url": image_url(self.floor.as_deref(), name),
             "width": info.width,
             "height": info.height,
         }))
     }
 }
 
-fn image_url(name: &str) -> String {
+fn image_url(floor: Option<&str>, name: &str) -> String {
     let mut url = url::Url::parse("http://x/").expect("a valid base");
     url.set_path(IMAGE_URL);
+    if let Some(floor) = floor {
+        url.query_pairs_mut().append_pair("floor", floor);
+    }
     url.query_pairs_mut().append_pair("name", name);
     format!("{}?{}", url.path(), url.query().unwrap_or(""))
 }
@@ -200,8 +211,76 @@ fn relative(dir: &Path, target: &Path) -> anyhow::Result<String> {
         .map_err(|_| anyhow::anyhow!("{}: the image path is not UTF-8", target.display()))
 }
 
-/// `GET /api/editor`: the file as a document, and the plan image to show.
-pub(super) async fn get(State(editor): State<Arc<Editor>>) -> Response {
+/// The editors a server serves: one site file, or each floor's of a
+/// building (`?floor=NAME`, the lowest floor when absent).
+pub struct Editors {
+    floors: Vec<FloorView>,
+    /// `editors[i]` edits `floors[i]`'s file.
+    editors: Vec<Arc<Editor>>,
+}
+
+impl Editors {
+    /// The editor of one site file.
+    pub fn one(editor: Editor) -> Editors {
+        Editors {
+            floors: Vec::new(),
+            editors: vec![Arc::new(editor)],
+        }
+    }
+
+    /// The editors of what a gateway serves: `site_file` when `building`
+    /// has one floor, else each floor's site file; with `gateway` (its
+    /// reloads and what became of them), saves apply as SIGHUP does.
+    pub(super) fn open(
+        site_file: &Path,
+        building: &Building,
+        gateway: Option<(mpsc::Sender<()>, watch::Receiver<Reloaded>)>,
+    ) -> anyhow::Result<Editors> {
+        let serve = |editor: Editor| match &gateway {
+            Some((reload, reloaded)) => editor.served_by(reload.clone(), reloaded.clone()),
+            None => editor,
+        };
+        if !building.is_multi_floor() {
+            return Ok(Editors::one(serve(Editor::open(site_file, None)?)));
+        }
+        let mut editors = Vec::new();
+        for floor in building.floors() {
+            let file = floor.file.as_deref().ok_or_else(|| {
+                anyhow::anyhow!("floor {} was not loaded from a file", floor.name)
+            })?;
+            let mut editor = serve(Editor::open(file, None)?);
+            editor.floor = Some(floor.name.clone());
+            editors.push(Arc::new(editor));
+        }
+        Ok(Editors {
+            floors: super::floor::floors(building),
+            editors,
+        })
+    }
+}
+
+/// The editor a request is for: its `?floor=`'s.
+pub(super) struct OnFloor(Arc<Editor>);
+
+impl axum::extract::FromRequestParts<Arc<Editors>> for OnFloor {
+    type Rejection = super::floor::NotFound;
+
+    async fn from_request_parts(
+        parts: &mut axum::http::request::Parts,
+        editors: &Arc<Editors>,
+    ) -> Result<OnFloor, super::floor::NotFound> {
+        if editors.floors.is_empty() {
+            return Ok(OnFloor(editors.editors[0].clone()));
+        }
+        let asked = FloorQuery::of(&parts.uri).floor;
+        let i = super::floor::pick(&editors.floors, asked.as_deref())?;
+        Ok(OnFloor(editors.editors[i].clone()))
+    }
+}
+
+/// `GET /api/editor`: the file as a document, and the plan image to show;
+/// on a building, which floor it is and the floors to choose from.
+pub(super) async fn get(State(editors): State<Arc<Editors>>, OnFloor(editor): OnFloor) -> Response {
     let (text, suggested) = {
         let opened = editor.lock();
         (opened.text.clone(), opened.suggested.clone())
@@ -224,6 +303,8 @@ pub(super) async fn get(State(editor): State<Arc<Editor>>) -> Response {
         "open_error": open_error,
         "image": image,
         "served_by_gateway": editor.gateway.is_some(),
+        "floor": editor.floor,
+        "floors": editors.floors,
     }))
     .into_response()
 }
@@ -236,10 +317,7 @@ pub(super) struct DocBody {
 
 /// `POST /api/editor/check`: the TOML the document would be saved as, and
 /// its problems or its view.
-pub(super) async fn check(
-    State(editor): State<Arc<Editor>>,
-    Json(body): Json<DocBody>,
-) -> Response {
+pub(super) async fn check(OnFloor(editor): OnFloor, Json(body): Json<DocBody>) -> Response {
     let (toml, result) = editor.check(&body.doc);
     let (problems, view) = match result {
         Ok(site) => (Vec::new(), Some(SiteView::new(&site, None))),
@@ -258,7 +336,7 @@ pub(super) async fn check(
 /// gateway, applies it. The reply: `saved` (where), `applied` (true: the
 /// gateway serves it now; false: it does not; null: no gateway serves this
 /// file here) and `message`, what the page shows.
-pub(super) async fn save(State(editor): State<Arc<Editor>>, Json(body): Json<DocBody>) -> Response {
+pub(super) async fn save(OnFloor(editor): OnFloor, Json(body): Json<DocBody>) -> Response {
     let (toml, result) = editor.check(&body.doc);
     if let Err(problems) = result {
         let message = format!("not saved: {}", problems.join("; "));
@@ -406,10 +484,7 @@ pub(super) struct ImageQuery {
 }
 
 /// `GET /api/editor/image?name=…`: one of the images the editor knows.
-pub(super) async fn image(
-    State(editor): State<Arc<Editor>>,
-    Query(q): Query<ImageQuery>,
-) -> Response {
+pub(super) async fn image(OnFloor(editor): OnFloor, Query(q): Query<ImageQuery>) -> Response {
     if !editor.lock().images.contains(&q.name) {
         return error(
             StatusCode::NOT_FOUND,
@@ -442,7 +517,7 @@ pub(super) fn image_file(path: &Path) -> Response {
 /// `PUT /api/editor/image?name=…`: stores an uploaded plan image beside the
 /// site file under that (plain) name.
 pub(super) async fn upload(
-    State(editor): State<Arc<Editor>>,
+    OnFloor(editor): OnFloor,
     Query(q): Query<ImageQuery>,
     bytes: Bytes,
 ) -> Response {

@@ -37,7 +37,7 @@ use crate::plan::Destination;
 use crate::publish::Output;
 use crate::publish::stats::Stats;
 use crate::sink::Sink;
-use crate::site::{Building, Cell, Site};
+use crate::site::{Building, Cell};
 use crate::source::{Source, SourceContext};
 
 use crate::event::{FLOOR_NAME_RULE, Inbound, RouteRequest, valid_floor_name};
@@ -59,6 +59,8 @@ struct FixView {
     t: f64,
     /// None: an unknown location (shown as such).
     cell: Option<Cell>,
+    /// The floor's name; none when it is unknown.
+    floor: Option<String>,
     confidence: f32,
     place: Option<String>,
     /// The recent located cells, oldest first (snapshots only).
@@ -97,8 +99,8 @@ pub(super) struct Reloaded {
 
 /// What the pages stream from; shared by the sink, the source and the server.
 pub struct Live {
-    /// The site the map shows, replaced on reloads.
-    pub(super) site: super::SiteCell,
+    /// The building the map shows, replaced on reloads.
+    pub(super) building: super::BuildingCell,
     tables: Mutex<Tables>,
     events: broadcast::Sender<Arc<Frame>>,
     streams: AtomicUsize,
@@ -120,14 +122,14 @@ impl Live {
     /// The live state, the sink that feeds it and the source that carries
     /// the pages' requests.
     pub(crate) fn new(
-        site: Arc<Site>,
+        building: Arc<Building>,
         max_devices: usize,
         latency: Arc<crate::latency::Latency>,
     ) -> (Arc<Live>, WebSink, WebSource) {
         let (events, _) = broadcast::channel(STREAM_QUEUE);
         let (requests, rx) = mpsc::channel(REQUEST_QUEUE);
         let live = Arc::new(Live {
-            site: Arc::new(std::sync::RwLock::new(site)),
+            building: Arc::new(std::sync::RwLock::new(building)),
             tables: Mutex::new(Tables::default()),
             events,
             streams: AtomicUsize::new(0),
@@ -175,6 +177,7 @@ impl Live {
                         device: device.clone(),
                         t: l.t,
                         cell: l.cell,
+                        floor: l.floor.as_ref().map(|f| f.name.clone()),
                         confidence: l.confidence,
                         place: l.place.clone(),
                         trail: None,
@@ -332,8 +335,11 @@ impl Sink for WebSink {
     }
 
     fn reload(&mut self, building: &Building) {
-        let site = building.floors()[0].site.clone();
-        *self.live.site.write().unwrap_or_else(|e| e.into_inner()) = site;
+        *self
+            .live
+            .building
+            .write()
+            .unwrap_or_else(|e| e.into_inner()) = Arc::new(building.clone());
         self.live.broadcast("site", String::from("{}"));
         self.live.reloaded.send_modify(|r| {
             r.count += 1;

@@ -15,6 +15,7 @@
 mod assets;
 pub(crate) mod config;
 mod editor;
+mod floor;
 mod live;
 mod metrics;
 mod security;
@@ -26,24 +27,25 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 
 use axum::Router;
-use axum::extract::{DefaultBodyLimit, State};
+use axum::extract::{DefaultBodyLimit, Query, State};
 use axum::response::{IntoResponse, Redirect, Response};
 use axum::routing::get;
 use tokio::net::TcpListener;
 use tokio::sync::mpsc;
 
 pub use config::WebConfig;
-pub use editor::Editor;
+pub use editor::{Editor, Editors};
 pub(crate) use live::{Live, WebSink, WebSource};
 pub use security::CONTENT_SECURITY_POLICY;
 
 use crate::latency::Latency;
 use crate::sink::Sink;
-use crate::site::Site;
+use crate::site::Building;
 use crate::source::Source;
 
-/// The site the map shows, replaced on reloads.
-pub(crate) type SiteCell = Arc<std::sync::RwLock<Arc<Site>>>;
+/// The building the map shows (a one-floor site: a building of that one
+/// floor), replaced on reloads.
+pub(crate) type BuildingCell = Arc<std::sync::RwLock<Arc<Building>>>;
 
 /// Largest JSON body taken (an edited site document).
 const MAX_JSON_BYTES: usize = 4 << 20;
@@ -53,7 +55,7 @@ pub struct Ui {
     /// The gateway's live state (and the site it maps); none in an
     /// editor-only server.
     pub live: Option<Arc<Live>>,
-    pub editor: Option<Editor>,
+    pub editor: Option<Editors>,
     survey: Option<Arc<survey::Survey>>,
 }
 
@@ -62,7 +64,7 @@ impl Ui {
     pub fn editor(editor: Editor) -> Ui {
         Ui {
             live: None,
-            editor: Some(editor),
+            editor: Some(Editors::one(editor)),
             survey: None,
         }
     }
@@ -71,9 +73,9 @@ impl Ui {
 #[derive(Clone)]
 struct App {
     guard: Arc<security::Guard>,
-    site: Option<SiteCell>,
+    building: Option<BuildingCell>,
     live: Option<Arc<Live>>,
-    editor: Option<Arc<Editor>>,
+    editor: Option<Arc<Editors>>,
     survey: Option<Arc<survey::Survey>>,
 }
 
@@ -106,9 +108,10 @@ impl Web {
 }
 
 /// Starts the web UI of a running gateway (`[web]`): serves the live map of
-/// `site`, the editor of its file `site_file`, and survey mode (its windows
-/// cut as `window` says) for as
-/// long as the runtime lives. With `reload` (the runtime's reloads), a site
+/// `building` (floor by floor), the editor of its file `site_file` (of each
+/// floor's site file on a building of several), and survey mode (its
+/// windows cut as `window` says, on the lowest floor) for as long as the
+/// runtime lives. With `reload` (the runtime's reloads), a site
 /// saved in the editor is applied as SIGHUP applies it. A UI that cannot
 /// start never stops the gateway: why is logged and added to `fallbacks`,
 /// and the gateway serves without it.
@@ -117,7 +120,7 @@ pub async fn start(
     site_file: &std::path::Path,
     window: &crate::locate::window::WindowConfig,
     max_devices: usize,
-    site: Arc<Site>,
+    building: Arc<Building>,
     fallbacks: &mut Vec<String>,
     reload: Option<mpsc::Sender<()>>,
 ) -> Option<Web> {
@@ -133,15 +136,9 @@ pub async fn start(
             return None;
         }
     };
-    let editor = match Editor::open(site_file, None) {
-        Ok(editor) => Some(editor),
-        Err(e) => {
-            tracing::warn!("[web] no site editor: {e:#}");
-            None
-        }
-    };
+    let site = building.floors()[0].site.clone();
     let survey = config.survey_file.as_ref().and_then(|file| {
-        match survey::Survey::open(file, site.clone(), window) {
+        match survey::Survey::open(file, site, window) {
             Ok(survey) => Some(Arc::new(survey)),
             Err(e) => {
                 let why = format!("[web] survey mode is off: {e:#}");
@@ -152,10 +149,14 @@ pub async fn start(
         }
     });
     let latency = Arc::new(Latency::default());
-    let (live, sink, source) = Live::new(site, max_devices, latency.clone());
-    let editor = match (editor, reload) {
-        (Some(editor), Some(reload)) => Some(editor.served_by(reload, live.reloaded.subscribe())),
-        (editor, _) => editor,
+    let (live, sink, source) = Live::new(building.clone(), max_devices, latency.clone());
+    let gateway = reload.map(|reload| (reload, live.reloaded.subscribe()));
+    let editor = match Editors::open(site_file, &building, gateway) {
+        Ok(editors) => Some(editors),
+        Err(e) => {
+            tracing::warn!("[web] no site editor: {e:#}");
+            None
+        }
     };
     tracing::info!(addr = %server.addr(), "web UI at http://{}/", server.addr());
     let ui = Ui {
@@ -222,7 +223,7 @@ impl Server {
     ) -> anyhow::Result<()> {
         let app = App {
             guard: self.guard.clone(),
-            site: ui.live.as_ref().map(|live| live.site.clone()),
+            building: ui.live.as_ref().map(|live| live.building.clone()),
             live: ui.live,
             editor: ui.editor.map(Arc::new),
             survey: ui.survey,
@@ -240,6 +241,7 @@ fn router(app: App) -> Router {
         .route("/assets/{name}", get(assets::asset))
         .route("/healthz", get(healthz))
         .route("/api/site", get(site))
+        .route("/api/floors", get(floors))
         .route("/api/floorplan", get(floorplan))
         .route("/api/access", get(access));
     if let Some(live) = &app.live {
@@ -286,7 +288,7 @@ fn router(app: App) -> Router {
 
 /// The map, or the editor when there is no site to map.
 async fn index(State(app): State<App>) -> Response {
-    match app.site {
+    match app.building {
         Some(_) => assets::map_page().await.into_response(),
         None => Redirect::temporary("/edit").into_response(),
     }
@@ -299,31 +301,60 @@ async fn healthz() -> impl IntoResponse {
 async fn access(State(app): State<App>) -> impl IntoResponse {
     let mut access = app.guard.access();
     access["editor"] = app.editor.is_some().into();
-    access["map"] = app.site.is_some().into();
+    access["map"] = app.building.is_some().into();
     access["live"] = app.live.is_some().into();
     access["survey"] = app.survey.is_some().into();
     axum::Json(access)
 }
 
-/// `GET /api/site`: the map's site; an editor-only server sends the editor.
-async fn site(State(app): State<App>) -> Response {
-    match current(&app) {
-        Some(site) => {
-            let url = site.floorplan().map(|_| "/api/floorplan");
-            axum::Json(view::SiteView::new(&site, url)).into_response()
-        }
-        None => security::error(
-            axum::http::StatusCode::NOT_FOUND,
-            "not_found",
-            "this server edits a site file and maps none; see /edit",
-        ),
+/// `GET /api/site?floor=NAME`: the map's site, that floor's (the lowest
+/// when none is named), with which floor it is and the building's floors;
+/// an editor-only server sends the editor.
+async fn site(State(app): State<App>, Query(q): Query<floor::FloorQuery>) -> Response {
+    let (building, i) = match current(&app, q.floor.as_deref()) {
+        Ok(found) => found,
+        Err(response) => return response.into_response(),
+    };
+    let floor = &building.floors()[i];
+    let named = building.is_multi_floor().then_some(floor.name.as_str());
+    let url = floor
+        .site
+        .floorplan()
+        .map(|_| floor::url("/api/floorplan", named));
+    let mut view = serde_json::to_value(view::SiteView::new(&floor.site, url.as_deref()))
+        .expect("plain data serializes");
+    view["floor"] = serde_json::json!({ "name": floor.name, "level": floor.level });
+    view["floors"] = serde_json::to_value(floor::floors(&building)).expect("plain data");
+    if building.is_multi_floor() {
+        view["connectors"] = floor::connectors(&building, i).into();
+    }
+    axum::Json(view).into_response()
+}
+
+/// `GET /api/floors`: the building's name and its floors, lowest first.
+async fn floors(State(app): State<App>) -> Response {
+    match current(&app, None) {
+        Ok((building, _)) => axum::Json(serde_json::json!({
+            "building": building.name,
+            "floors": floor::floors(&building),
+        }))
+        .into_response(),
+        Err(response) => response.into_response(),
     }
 }
 
-/// The site the map shows now.
-fn current(app: &App) -> Option<Arc<Site>> {
-    let cell = app.site.as_ref()?;
-    Some(cell.read().unwrap_or_else(|e| e.into_inner()).clone())
+/// The building the map shows now and the index of the floor `asked`
+/// names (the lowest when none), or the 404 saying why not.
+fn current(app: &App, asked: Option<&str>) -> Result<(Arc<Building>, usize), floor::NotFound> {
+    let Some(cell) = app.building.as_ref() else {
+        return Err(floor::NotFound {
+            code: "not_found",
+            message: "this server edits a site file and maps none; see /edit".into(),
+        });
+    };
+    let building = cell.read().unwrap_or_else(|e| e.into_inner()).clone();
+    let i = floor::pick(&floor::floors(&building), asked)?;
+    Ok((building, i))
 }
 
 async fn metrics(State(live): State<Arc<Live>>) -> Response {
@@ -337,9 +368,13 @@ async fn metrics(State(live): State<Arc<Live>>) -> Response {
         .into_response()
 }
 
-async fn floorplan(State(app): State<App>) -> Response {
-    let site = current(&app);
-    match site.as_ref().and_then(|s| s.floorplan()) {
+/// `GET /api/floorplan?floor=NAME`: that floor's plan image.
+async fn floorplan(State(app): State<App>, Query(q): Query<floor::FloorQuery>) -> Response {
+    let (building, i) = match current(&app, q.floor.as_deref()) {
+        Ok(found) => found,
+        Err(response) => return response.into_response(),
+    };
+    match building.floors()[i].site.floorplan() {
         Some(plan) => editor::image_file(&plan.image),
         None => security::error(
             axum::http::StatusCode::NOT_FOUND,

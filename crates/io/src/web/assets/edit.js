@@ -80,12 +80,37 @@ function imageMatrix() {
 
 // ---- loading ----
 
+// On a building of several floors, the floor whose site file is edited
+// (`/edit?floor=NAME`; the lowest when absent): every editor request names it.
+let floor = new URLSearchParams(location.search).get("floor");
+function onFloor(path) {
+  return floor === null ? path : `${path}${path.includes("?") ? "&" : "?"}floor=${encodeURIComponent(floor)}`;
+}
+
+/** The floor selector of a building: choosing a floor opens its site file. */
+function showFloors(opened) {
+  floor = opened.floor;
+  const floors = opened.floors || [];
+  $("floor-box").hidden = floors.length < 2;
+  if (floors.length < 2) return;
+  fill(
+    $("floor"),
+    [...floors].reverse().map((f) => h("option", { value: f.name }, `${f.name} (level ${f.level})`)),
+  );
+  $("floor").value = floor;
+  document.title = `gangway site editor · floor ${floor}`;
+}
+$("floor").addEventListener("change", () => {
+  location.href = `/edit?floor=${encodeURIComponent($("floor").value)}`;
+});
+
 async function load() {
   access = await api("/api/access");
   $("token-box").hidden = !access.needs_token;
   $("token").value = token();
   $("save").disabled = access.read_only;
-  const opened = await api("/api/editor");
+  const opened = await api(onFloor("/api/editor"));
+  showFloors(opened);
   served = opened.served_by_gateway;
   fill($("file"), opened.exists ? `editing ${opened.path}` : `new file ${opened.path}`, served ? " (the site this gateway serves: saving applies it)" : "");
   $("download").download = opened.path.split("/").pop();
@@ -244,7 +269,7 @@ $("image-file").addEventListener("change", async () => {
   if (!file) return;
   const name = file.name.replace(/[^A-Za-z0-9._-]/g, "_").replace(/^\.+/, "");
   try {
-    const uploaded = await api("/api/editor/image?name=" + encodeURIComponent(name), { method: "PUT", bytes: await file.arrayBuffer() });
+    const uploaded = await api(onFloor("/api/editor/image?name=" + encodeURIComponent(name)), { method: "PUT", bytes: await file.arrayBuffer() });
     image = uploaded;
     if (doc.floorplan) doc.floorplan.image = uploaded.name;
     measure = [];
@@ -813,7 +838,7 @@ function scheduleCheck() {
 async function check() {
   const seq = ++checkSeq;
   try {
-    const result = await api("/api/editor/check", { method: "POST", json: { doc } });
+    const result = await api(onFloor("/api/editor/check"), { method: "POST", json: { doc } });
     if (seq !== checkSeq) return;
     showToml(result.toml);
     if (result.ok) {
@@ -852,7 +877,7 @@ $("save").addEventListener("click", async () => {
   $("save").disabled = true;
   showSaveStatus(served ? "saving, then reloading the gateway…" : "saving…");
   try {
-    const result = await api("/api/editor/site", { method: "PUT", json: { doc } });
+    const result = await api(onFloor("/api/editor/site"), { method: "PUT", json: { doc } });
     showToml(result.toml);
     // `applied`: true, the gateway serves it now; false, it does not
     // (refused, or saved elsewhere); null, no gateway serves this file here.

@@ -14,6 +14,11 @@
 // pointer finds devices in the device table (devicesAt), not the DOM. The
 // plan changes only on a reload; its labels are laid out around each other
 // (site.js).
+//
+// A building of several floors shows one floor at a time (the switcher over
+// the plan, `?floor=` in the address): its plan, places and beacons, and the
+// devices whose latest fix is on it. A device on another floor, or whose
+// floor is unknown, is listed but not drawn, and the list says so.
 
 import { api, h, s, fill, Frame, PlanView, drawSite, drawFloorplan, token, setToken } from "/assets/site.js";
 
@@ -30,12 +35,15 @@ const LIST_MAX = 200;
 
 let site = null;
 let access = {};
+let floors = []; // the building's floors, lowest first ({ name, level })
+let floor = null; // the floor shown, on a building of several; null on one floor
+let buildingName = "";
 // Dragging pans, except on a device or a place, which take clicks.
 const view = new PlanView($("plan"), {
   panWithLeft: (e) => !(e.target.closest && e.target.closest(".device, .place")),
-  overlays: [document.querySelector(".legend"), $("cursor")],
+  overlays: [document.querySelector(".legend"), $("cursor"), $("floor-switch")],
 });
-const devices = new Map(); // id -> { id, cell, t, confidence, place, unknown, trail: [[gx, gy]], shown, dirty }
+const devices = new Map(); // id -> { id, cell, floor, t, confidence, place, unknown, trail: [[gx, gy]], shown, dirty }
 const layer = $("devices-layer");
 let redraw = true; // the canvas is out of date
 view.onChange(() => {
@@ -85,21 +93,94 @@ async function load() {
   $("token-box").hidden = !access.needs_token;
   $("token").value = token();
   $("edit-link").hidden = !access.editor;
-  $("survey").hidden = !access.survey;
-  await loadSite(true);
+  await loadSite(true, new URLSearchParams(location.search).get("floor"));
   connect();
   refreshSurvey();
 }
 
-/** Draws the site the gateway serves (again after a reload). */
-async function loadSite(first) {
-  site = await api("/api/site");
-  fill($("site-name"), site.name);
-  document.title = `gangway · ${site.name}`;
+/** Whether the device is drawn on the floor shown (on one floor, all are). */
+function onFloor(d) {
+  return floor === null || d.floor === floor;
+}
+
+/** `path` asking for the floor shown, if there are several. */
+function floorUrl(path) {
+  return floor === null ? path : `${path}?floor=${encodeURIComponent(floor)}`;
+}
+
+/** The floors of the building (again after a reload) and the one to show:
+ * the one asked for (the switcher, the address), else the lowest. */
+async function loadFloors(asked) {
+  const building = await api("/api/floors");
+  floors = building.floors;
+  buildingName = building.building;
+  const several = floors.length > 1;
+  floor = several ? (floors.find((f) => f.name === asked) || floors[0]).name : null;
+  $("floor-switch").hidden = !several;
+  $("floor-name").hidden = !several;
+  if (!several) return;
+  fill(
+    $("floor-switch"),
+    h("span", { class: "title", "aria-hidden": "true" }, "floor"),
+    [...floors].reverse().map((f) =>
+      h(
+        "button",
+        { type: "button", "data-floor": f.name, "aria-pressed": String(f.name === floor), title: `show floor ${f.name} (level ${f.level})`, onclick: () => showFloor(f.name) },
+        h("span", {}, f.name),
+        h("span", { class: "count" }),
+      ),
+    ),
+  );
+  countFloors();
+  const url = new URL(location.href);
+  url.searchParams.set("floor", floor);
+  history.replaceState(null, "", url);
+}
+
+/** Shows floor `name`: its plan, places and beacons, and its devices. */
+async function showFloor(name) {
+  if (name !== floor) await loadSite(false, name);
+}
+
+/** The devices on each floor, on the switcher's buttons. */
+function countFloors() {
+  if (floor === null) return;
+  const counts = new Map();
+  for (const d of devices.values()) counts.set(d.floor, (counts.get(d.floor) || 0) + 1);
+  for (const button of $("floor-switch").querySelectorAll("button")) {
+    const n = counts.get(button.dataset.floor) || 0;
+    const text = n ? String(n) : "";
+    const count = button.querySelector(".count");
+    if (count.textContent !== text) count.textContent = text;
+    button.setAttribute("aria-label", `floor ${button.dataset.floor}, ${n} device${n === 1 ? "" : "s"}`);
+  }
+}
+
+/** Draws the site the gateway serves (again after a reload): floor `asked`'s
+ * on a building of several. */
+async function loadSite(first, asked) {
+  const before = { site, floor };
+  await loadFloors(asked);
+  site = await api(floorUrl("/api/site"));
+  fill($("site-name"), floor === null ? site.name : buildingName);
+  fill($("floor-name"), floor === null ? "" : `floor ${floor}`);
+  $("plan").dataset.site = site.name;
+  $("edit-link").href = floorUrl("/edit");
+  $("edit-link").textContent = floor === null ? "Edit site" : `Edit floor ${floor}`;
+  document.title = floor === null ? `gangway · ${site.name}` : `gangway · ${site.name} · floor ${floor}`;
+  // Survey mode records fingerprints on the lowest floor only.
+  $("survey").hidden = !access.survey || (floor !== null && floor !== floors[0].name);
   const plan = site.floorplan;
   drawFloorplan(view.layers.floorplan, plan && plan.url, plan && plan.matrix, plan && plan.width, plan && plan.height);
   drawSite(view, site, { withPlan: !!plan });
-  if (first) view.fit(0, 0, site.width, site.height);
+  const resized = before.site && (before.site.width !== site.width || before.site.height !== site.height);
+  if (first || (before.floor !== floor && resized)) view.fit(0, 0, site.width, site.height);
+  redraw = true;
+  listDirty = true;
+  renderList(true); // where each device is, said for this floor at once
+  schedule();
+  showRoute();
+  drawHeat();
   fill(
     $("places"),
     site.places.map((p) => h("li", {}, h("button", { type: "button", class: "link", onclick: () => pickPlace(p) }, `${p.name}  [${p.cell.join(", ")}]`))),
@@ -113,6 +194,7 @@ async function loadSite(first) {
     });
   }
   $("plan").dataset.siteHash = site.map_hash;
+  $("plan").dataset.floor = floor ?? "";
 }
 
 $("token").addEventListener("change", () => setToken($("token").value.trim()));
@@ -133,7 +215,7 @@ function devicesAt(e) {
   const reach = Math.max(0.5, 8 * view.unitsPerPixel());
   const near = [];
   for (const d of devices.values()) {
-    if (!d.cell) continue;
+    if (!d.cell || !onFloor(d)) continue;
     const dd = Math.hypot(d.cell[0] + 0.5 - gx, d.cell[1] + 0.5 - gy);
     if (dd <= reach) near.push([dd - (d.id === selected ? 1e-6 : 0), d]);
   }
@@ -211,7 +293,7 @@ function connect() {
   });
   source.addEventListener("status", (e) => showStatus(JSON.parse(e.data)));
   // The gateway reloaded its site (SIGHUP, or a save in the editor).
-  source.addEventListener("site", () => loadSite(false).catch((e) => fill($("connection"), h("span", { class: "bad" }, e.message))));
+  source.addEventListener("site", () => loadSite(false, floor).catch((e) => fill($("connection"), h("span", { class: "bad" }, e.message))));
 }
 
 function schedule() {
@@ -251,6 +333,9 @@ function applyFix(fix, sentMs, live) {
   noteConfidence(fix);
   d.place = fix.place;
   d.unknown = !fix.cell;
+  const on = fix.floor ?? null;
+  if (d.floor !== undefined && on !== d.floor) d.trail = []; // its trail was on another floor
+  d.floor = on;
   if (fix.cell) {
     d.cell = fix.cell;
     const at = [fix.cell[0] + 0.5, fix.cell[1] + 0.5];
@@ -299,7 +384,7 @@ function paint() {
   const unknown = [];
   let chosen = null;
   for (const d of devices.values()) {
-    if (!d.cell) continue;
+    if (!d.cell || !onFloor(d)) continue;
     if (d.id === selected) chosen = d;
     else (d.unknown ? unknown : located).push(d);
   }
@@ -346,6 +431,7 @@ function paint() {
   g.fill();
   g.strokeStyle = "#fff";
   g.stroke();
+  layer.dataset.drawn = String(located.length + unknown.length + (chosen ? 1 : 0));
   if (chosen) {
     trails([chosen], "rgba(11, 70, 140, 0.6)"); // not red: routes are
     if (!chosen.unknown) {
@@ -392,11 +478,13 @@ $("device-filter").addEventListener("input", () => {
 
 let listTimer = 0;
 let listed = { ids: [], rows: new Map(), more: 0 }; // what the list shows
-function renderList() {
-  // The list is text; at most once a second however fast fixes come, and
-  // rebuilt only when its devices change (otherwise its texts are updated).
-  if (listTimer) return;
-  listTimer = setTimeout(() => {
+function renderList(now = false) {
+  // The list is text; at most once a second however fast fixes come (at
+  // once when the floor shown changes), and rebuilt only when its devices
+  // change (otherwise its texts are updated).
+  if (listTimer && !now) return;
+  clearTimeout(listTimer);
+  const render = () => {
     listTimer = 0;
     const filter = $("device-filter").value.trim().toLowerCase();
     const all = [...devices.keys()].filter((id) => !filter || id.toLowerCase().includes(filter)).sort();
@@ -416,14 +504,20 @@ function renderList() {
     }
     for (const [id, row] of listed.rows) {
       const d = devices.get(id);
-      const where = d.unknown ? "unknown" : d.place || (d.cell ? `[${d.cell.join(", ")}]` : "unknown");
+      let where = d.unknown ? "unknown" : d.place || (d.cell ? `[${d.cell.join(", ")}]` : "unknown");
+      if (floor !== null && d.floor === null) where = "floor unknown: not drawn";
+      else if (floor !== null && d.floor !== floor) where = `on floor ${d.floor}: ${where}`;
       const cell = d.cell ? d.cell.join(",") : "";
       if (row.where.textContent !== where) row.where.textContent = where;
-      row.where.classList.toggle("muted", !!d.unknown);
+      row.where.classList.toggle("muted", !!d.unknown || !onFloor(d));
+      if (row.li.dataset.floor !== (d.floor ?? "")) row.li.dataset.floor = d.floor ?? "";
       row.li.classList.toggle("selected", id === selected);
       if (row.li.dataset.cell !== cell) row.li.dataset.cell = cell;
     }
-  }, 1000);
+    countFloors();
+  };
+  if (now) render();
+  else listTimer = setTimeout(render, 1000);
 }
 
 // ---- routes ----
@@ -434,6 +528,8 @@ function selectDevice(id) {
   if (before) before.dirty = true;
   const d = devices.get(id);
   if (d) d.dirty = true;
+  // Picked in the list on another floor: show its floor.
+  if (d && floor !== null && d.floor && d.floor !== floor) showFloor(d.floor).catch((e) => fill($("connection"), h("span", { class: "bad" }, e.message)));
   listDirty = true;
   fill($("route-pick"), "device ", h("b", {}, id), ": now click a place");
   showRoute();
@@ -457,6 +553,7 @@ function pickPlace(place) {
 async function requestRoute(to, shown) {
   const device = selected;
   const body = { device, to };
+  if (floor !== null) body.floor = floor; // a place or cell of the floor shown
   if ($("profile").value) body.profile = $("profile").value;
   fill($("route-pick"), "asking a route for ", h("b", {}, device), " to ", h("b", {}, shown), "…");
   try {
@@ -480,15 +577,21 @@ function showRoute() {
     fill(box, h("p", { class: "bad" }, `${path.error.code}: ${path.error.message}`));
     return;
   }
-  // The line the walker was given (metres), in grid units.
+  // The line the walker was given (metres), in grid units: on a building,
+  // the leg on the floor shown (if the route crosses it).
   const frame = new Frame(site.cell_m, site.origin_m, site.y_axis);
-  const points = path.line.map((p) => frame.grid([p.x_m, p.y_m]).join(",")).join(" ");
-  const end = path.waypoints[path.waypoints.length - 1].cell;
-  fill(
-    view.layers.route,
-    s("polyline", { class: "route", points }),
-    s("circle", { class: "route-end", cx: end[0] + 0.5, cy: end[1] + 0.5, r: 0.45 }),
-  );
+  const leg = path.legs ? path.legs.find((l) => l.floor === floor) : path;
+  if (leg) {
+    const points = leg.line.map((p) => frame.grid([p.x_m, p.y_m]).join(",")).join(" ");
+    const end = leg.waypoints[leg.waypoints.length - 1].cell;
+    fill(
+      view.layers.route,
+      s("polyline", { class: "route", points }),
+      s("circle", { class: "route-end", cx: end[0] + 0.5, cy: end[1] + 0.5, r: 0.45 }),
+    );
+  } else fill(view.layers.route);
+  const planner = path.legs ? path.legs.map((l) => l.planner).filter((p, i, all) => all.indexOf(p) === i).join(", ") : path.planner;
+  const floorsCrossed = path.legs && path.legs.length > 1 ? `, floors ${path.legs.map((l) => l.floor).join(" → ")}` : "";
   const g = guidance.get(selected);
   const progress = [];
   if (g && g.request_id === path.request_id) {
@@ -501,9 +604,9 @@ function showRoute() {
   }
   fill(
     box,
-    h("p", {}, `${path.length_m.toFixed(1)} m by ${path.planner}, planned in ${(path.latency_us / 1000).toFixed(2)} ms`),
+    h("p", {}, `${path.length_m.toFixed(1)} m by ${planner}${floorsCrossed}, planned in ${(path.latency_us / 1000).toFixed(2)} ms`),
     progress,
-    h("ol", { class: "instructions" }, path.instructions.map((i) => h("li", {}, i.text))),
+    h("ol", { class: "instructions" }, path.instructions.map((i) => h("li", {}, floorsCrossed && i.floor ? `${i.floor}: ${i.text}` : i.text))),
   );
 }
 
@@ -572,7 +675,7 @@ function ramp(v) {
 const confidence = new Map(); // "x,y" -> [sum, count] of published confidences
 function noteConfidence(fix) {
   if (!fix.cell) return;
-  const key = fix.cell.join(",");
+  const key = `${fix.floor ?? ""}|${fix.cell.join(",")}`;
   const c = confidence.get(key) || [0, 0];
   c[0] += fix.confidence;
   c[1] += 1;
@@ -595,7 +698,10 @@ function drawHeat() {
     }
     legend = `mean RSSI of ${survey.anchors[i]} where surveyed: blue -100 dBm, red -40 dBm; no colour: not heard`;
   } else if (mode === "confidence") {
-    for (const [key, [sum, n]] of confidence) cells.push([key.split(",").map(Number), sum / n, `mean confidence ${(sum / n).toFixed(2)} over ${n} fixes`]);
+    for (const [key, [sum, n]] of confidence) {
+      const [on, cell] = key.split("|");
+      if (floor === null || on === floor) cells.push([cell.split(",").map(Number), sum / n, `mean confidence ${(sum / n).toFixed(2)} over ${n} fixes`]);
+    }
     legend = "mean published confidence of the fixes in each cell since this page opened: blue 0, red 1";
   }
   fill($("heat-legend"), legend);

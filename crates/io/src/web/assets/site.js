@@ -286,8 +286,25 @@ export function placeMarker(name, cell, attrs = {}, ...children) {
   return { node, label: { node: label, at, r: PLACE_HALF, px: 13, weight: 600, rank: 0 } };
 }
 
+/** A connector's stop (stairs, a lift…) on `cell`: its kind and the floors
+ * it goes to as a label. */
+export function connectorMarker(c) {
+  const at = [c.cell[0] + 0.5, c.cell[1] + 0.5];
+  const name = c.id === c.kind ? c.kind : `${c.kind} ${c.id}`;
+  const label = s("text", { class: "connector-name label" }, `${name} → ${c.to.join(", ")}`);
+  const r = PLACE_HALF;
+  const node = s(
+    "g",
+    { class: "connector " + c.kind, transform: `translate(${at[0]} ${at[1]})` },
+    s("path", { d: `M0 ${-r * 1.3} L${r * 1.3} 0 L0 ${r * 1.3} L${-r * 1.3} 0 Z` }),
+    label,
+    s("title", {}, `${name}, to floor ${c.to.join(", ")}`),
+  );
+  return { node, label: { node: label, at, r: r * 1.3, px: 12, weight: 600, rank: 0 } };
+}
+
 /** Draws a site view (`/api/site`, `/api/editor/check`): tiles, grid lines,
- * beacons, gateways and places. `withPlan` tints the tiles so the plan
+ * beacons, gateways, places and, on a building's floor, its connectors. `withPlan` tints the tiles so the plan
  * shows through. */
 export function drawSite(view, site, { withPlan = false } = {}) {
   view.svg.classList.toggle("with-plan", withPlan);
@@ -305,8 +322,9 @@ export function drawSite(view, site, { withPlan = false } = {}) {
   }
   const places = site.places.map((p) => placeMarker(p.name, p.cell, { "data-place": p.name }, s("title", {}, p.label ? `${p.name} (${p.label})` : p.name)));
   fill(view.layers.anchors, anchors.map((a) => a.node));
-  fill(view.layers.places, places.map((p) => p.node));
-  view.labels.set([...places, ...anchors].map((m) => m.label));
+  const connectors = (site.connectors || []).map(connectorMarker);
+  fill(view.layers.places, places.map((p) => p.node), connectors.map((c) => c.node));
+  view.labels.set([...places, ...connectors, ...anchors].map((m) => m.label));
 }
 
 /** Where a label may go around its marker, as unit offsets (x, y) of the
