@@ -112,14 +112,17 @@ pub fn path_loss(
     let calibration = calibration.or(loaded.as_ref());
     let model = PathLoss::calibrated(site, windows.orientation, config, calibration)?;
     let doubt = doubts(site, windows.orientation, calibration);
-    Ok(rehearsed(
-        model.clone(),
+    // The model is both the localizer and its world: scored through a
+    // borrow, never cloned.
+    let fixes = rehearse(
+        &mut model.borrowed(),
         &model,
         &doubt,
         site,
         tracker,
         windows.stride_s,
-    ))
+    );
+    Ok(Box::new(Mapped::new(model, ConfidenceMap::fit(&fixes))))
 }
 
 /// The strongest-beacon baseline, its confidence rehearsed in the worlds of
@@ -212,7 +215,6 @@ fn rehearse(
     stride_s: f64,
 ) -> Vec<KnownFix> {
     let cells = site.open_cells();
-    let (expected, detection) = world.tables();
     let anchors = &doubt.anchors;
     let n_anchors = anchors.len();
     if cells.is_empty() || n_anchors == 0 {
@@ -272,16 +274,15 @@ fn rehearse(
                 owed -= 1.0;
             }
             for a in 0..n_anchors {
-                let i = displaced(site, cells[here], moved[a]).unwrap_or(here) * n_anchors + a;
-                let mu = expected[i];
-                if mu.is_nan() {
+                let cell = displaced(site, cells[here], moved[a]).unwrap_or(here);
+                let Some((mu, detection)) = world.heard_at(cell, a) else {
                     heard[a] = false;
                     continue;
-                }
-                let p = shifted(detection[i], odds[a]);
+                };
+                let p = shifted(detection, odds[a]);
                 heard[a] = rng.random::<f64>() < p;
                 let shadow = anchors[a].shadow_db * shadow(world_seed, here, a);
-                rssi[a] = (mu + offset[a] + shadow + noise[a].sample(&mut rng)) as f32;
+                rssi[a] = (f64::from(mu) + offset[a] + shadow + noise[a].sample(&mut rng)) as f32;
             }
             if !heard.contains(&true) {
                 continue;

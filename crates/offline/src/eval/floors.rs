@@ -28,11 +28,13 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::sync::Arc;
+use std::time::Instant;
 
 use anyhow::Context;
 use serde::Serialize;
 
 use super::localization::{Surveyed, surveyed_localizer};
+use super::planning::percentile;
 use crate::locate::floors::{FloorEvidence, FloorFilter};
 use crate::locate::survey::Sample;
 use crate::locate::tracker::{Tracker, TrackerConfig};
@@ -89,6 +91,11 @@ pub struct FloorsReport {
     pub test_walks: usize,
     /// Held-out windows with no position (the import's refusals).
     pub refused_windows: usize,
+    /// Our time per fix, µs, single-threaded: the floor evidence and filter,
+    /// then that floor's localizer and tracker (as the daemon runs them per
+    /// window); the median and the mean.
+    pub us_per_fix_p50: f64,
+    pub us_per_fix_mean: f64,
 }
 
 /// One floor's walks, split.
@@ -196,20 +203,24 @@ pub fn evaluate(
     let mut theirs = Vec::new();
     let mut refused_windows = 0;
     let mut floor_evidence = vec![0.0; floors.len()];
+    let mut fix_us = Vec::new();
     for (truth_floor, walks) in split.iter().enumerate() {
         let truth_site = &floors[truth_floor].site;
         for (w, walk) in walks.test.iter().enumerate() {
             let entity: Arc<str> = Arc::from(format!("{truth_floor}-{w}"));
             let mut filter = FloorFilter::new(floors.len(), setup.floor_switch);
             for (t, heard) in survey::windows(walk, &keys, &all, &options) {
+                let truth = survey::labelled(truth_site, walk, t, &options);
+                let started = Instant::now();
                 let heard_f: Vec<(usize, f32)> =
                     heard.iter().map(|&(a, r)| (a, f32::from(r))).collect();
                 evidence.window(&heard_f, &mut floor_evidence);
                 let (floor, _) = filter.update(&floor_evidence);
-                let Ok(truth) = survey::labelled(truth_site, walk, t, &options) else {
+                let Ok(truth) = truth else {
                     refused_windows += 1;
                     continue;
                 };
+                let localize = Instant::now();
                 let (site, ids, localizer, tracker) = &mut localizers[floor];
                 let mut rssi = vec![setup.window.missing_dbm; ids.len()];
                 let mut heard_on_floor = vec![false; ids.len()];
@@ -222,6 +233,7 @@ pub fn evaluate(
                 let mut ll = vec![0.0f32; site.open_cells().len()];
                 localizer.log_likelihood(&rssi, &heard_on_floor, &mut ll);
                 let fix = tracker.update(&entity, t, &ll);
+                fix_us.push((localize - started + localize.elapsed()).as_secs_f64() * 1e6);
                 let at = site.world_of_cell(fix.cell);
                 ours.push(Outcome {
                     truth_floor,
@@ -245,6 +257,8 @@ pub fn evaluate(
         train_walks: split.iter().map(|f| f.train.len()).sum(),
         test_walks: split.iter().map(|f| f.test.len()).sum(),
         refused_windows,
+        us_per_fix_mean: fix_us.iter().sum::<f64>() / fix_us.len().max(1) as f64,
+        us_per_fix_p50: percentile(&mut fix_us, 0.5).unwrap_or(0.0),
     })
 }
 
