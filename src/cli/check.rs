@@ -99,9 +99,18 @@ fn check(building: &Building, settings: &Settings, problems: &mut Vec<String>) {
         // config names them per floor.
         let mut pipeline = settings.pipeline.clone();
         if building.is_multi_floor() {
-            match pipeline.localizer.for_floor(&floor.name) {
-                Ok(per_floor) => pipeline.localizer = per_floor,
-                Err(e) => {
+            let localizer = pipeline.localizer.for_floor(&floor.name);
+            let planner = pipeline.planner.for_floor(&floor.name);
+            match (localizer, planner) {
+                (Ok(localizer), Ok(planner)) => {
+                    pipeline.localizer = localizer;
+                    pipeline.planner = planner;
+                }
+                (Err(e), _) => {
+                    problems.push(format!("{on}: {e}"));
+                    continue;
+                }
+                (_, Err(e)) => {
                     problems.push(format!("{on}: {e}"));
                     continue;
                 }
@@ -122,7 +131,18 @@ fn check(building: &Building, settings: &Settings, problems: &mut Vec<String>) {
             }
             Err(e) => problems.push(format!("{on}: {e:#}")),
         }
-        let planner = planner_serving(&settings.pipeline.planner, site, &settings.named_models);
+        // A floor of a building without models of its own is planned on its
+        // geometry (docs/floors.md): not a problem.
+        let named: &[String] = if building.is_multi_floor() {
+            &[]
+        } else {
+            &settings.named_models
+        };
+        let planner = if pipeline.planner.mode == settings.pipeline.planner.mode {
+            planner_serving(&pipeline.planner, site, named)
+        } else {
+            one_floor_s_models(&settings.named_models)
+        };
         match planner {
             Err(problem) => problems.push(format!("{on}: {problem}")),
             Ok(serving) if problems.len() == found => {
@@ -248,6 +268,26 @@ fn planner_serving(
         "{} serves: {}",
         choice.serves.name(),
         choice.because
+    ))
+}
+
+/// A building's floor under `[planner] mode = "learned"` whose config names
+/// no model per floor (no `{floor}` in a path): planned by A*, which is a
+/// problem only when the config names models, one floor's then.
+fn one_floor_s_models(named: &[String]) -> Result<String, String> {
+    if named.is_empty() {
+        return Ok(
+            "astar serves: no [planner.models] path names `{floor}`, so no floor has \
+                   models of its own (train each floor's with `gangway train --site FLOOR.toml \
+                   --out models/FLOOR` and name `models/{floor}/…`)"
+                .to_owned(),
+        );
+    }
+    Err(format!(
+        "[planner.models] names {} for every floor of a building of several: a model is trained \
+         on one floor; put `{{floor}}` in each path where the floor's name goes \
+         (`models/{{floor}}/desire_lines.onnx`)",
+        named.join(", ")
     ))
 }
 

@@ -9,7 +9,7 @@ use std::time::Instant;
 use anyhow::Context;
 
 use crate::plan::floors::BuildingPlanner;
-use crate::plan::{self, Destination, PlannerConfig, PlannerMode, Profile};
+use crate::plan::{self, Destination, PlannerConfig, Profile};
 use crate::publish::RouteBody;
 use crate::publish::floors::FloorsRouteBody;
 use crate::site::{Building, Site};
@@ -122,9 +122,9 @@ fn on_one_floor(
     Ok(ExitCode::SUCCESS)
 }
 
-/// A building of several floors: legs planned by A* on each floor (trained
-/// models are a floor's own, and a config names one floor's), joined by the
-/// connectors the profile may use.
+/// A building of several floors: each floor's legs planned by the models
+/// the config names for it (`{floor}` in their paths), else by A*, joined by
+/// the connectors the profile may use.
 fn across_floors(
     args: &Args,
     config: &PlannerConfig,
@@ -134,8 +134,12 @@ fn across_floors(
     let floors = building
         .floors()
         .iter()
-        .map(|floor| plan::build_mode(config, PlannerMode::Astar, floor.site.clone()))
-        .collect::<Result<Vec<_>, _>>()?;
+        .map(|floor| {
+            let planning = config.for_floor(&floor.name)?;
+            plan::build_mode(&planning, planning.mode, floor.site.clone())
+                .with_context(|| format!("floor `{}`", floor.name))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
     let planner = BuildingPlanner::new(building.clone(), config.connectivity, floors);
     let end = |text: &str, flag: &str| {
         let (floor, rest) = on_floor(&building, text);

@@ -443,3 +443,107 @@ fn every_pair_of_places_on_different_floors_of_the_mall() {
     );
     assert_eq!((invalid, violations, no_step_free), (0, 0, 0));
 }
+
+/// A building whose two floors have the same grid (the sample site's), the
+/// sample's trained models copied under `models/G/` only, and a config
+/// naming models per floor: G's legs come from its learned planner, L1's
+/// from A* (it has none), and `gangway check` says so floor by floor. A
+/// mode that reads one model for every floor is refused, naming the key.
+#[test]
+fn each_floor_is_planned_by_its_own_models_where_the_config_names_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let sample = std::fs::read_to_string(common::root().join("config/sites/waldo.toml")).unwrap();
+    common::write(dir.path(), "G.toml", &sample);
+    common::write(dir.path(), "L1.toml", &sample);
+    common::write(
+        dir.path(),
+        "library.toml",
+        "name = \"library\"\n\
+         [[floors]]\nname = \"G\"\nlevel = 0\nsite = \"G.toml\"\n\
+         [[floors]]\nname = \"L1\"\nlevel = 1\nsite = \"L1.toml\"\n\
+         [[connectors]]\nid = \"lift\"\nkind = \"lift\"\n\
+         stops = [{ floor = \"G\", cell = [9, 9] }, { floor = \"L1\", cell = [9, 9] }]\n",
+    );
+    let models = dir.path().join("models/G");
+    std::fs::create_dir_all(&models).unwrap();
+    for model in ["generator", "path_classifier", "conditional_generator"] {
+        let file = format!("{model}.onnx");
+        std::fs::copy(
+            common::root().join("models").join(&file),
+            models.join(&file),
+        )
+        .unwrap();
+    }
+    let config = common::write(
+        dir.path(),
+        "gangway.toml",
+        "gateway_id = \"gw\"\nsite = \"library.toml\"\n[planner.models]\n\
+         generator = \"models/{floor}/generator.onnx\"\n\
+         path_classifier = \"models/{floor}/path_classifier.onnx\"\n\
+         conditional_generator = \"models/{floor}/conditional_generator.onnx\"\n",
+    );
+    let config = config.to_str().unwrap();
+    let reply = common::gangway_ok(&[
+        "plan",
+        "--config",
+        config,
+        "--from",
+        "G:west entrance",
+        "--to",
+        "L1:east entrance",
+        "--json",
+    ]);
+    let reply: serde_json::Value = serde_json::from_str(&reply).unwrap();
+    let planners: Vec<(&str, &str)> = reply["legs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|leg| {
+            (
+                leg["floor"].as_str().unwrap(),
+                leg["planner"].as_str().unwrap(),
+            )
+        })
+        .collect();
+    // The sample's models serve its conditional generator (README).
+    assert_eq!(planners, [("G", "conditional"), ("L1", "astar")], "{reply}");
+
+    let stdout = common::gangway_ok(&["check", "--config", config]);
+    let planner_lines: Vec<&str> = stdout
+        .lines()
+        .filter(|l| l.starts_with("planner:"))
+        .collect();
+    assert_eq!(planner_lines.len(), 2, "{stdout}");
+    assert!(
+        planner_lines[0].starts_with("planner: conditional serves"),
+        "{stdout}"
+    );
+    assert!(
+        planner_lines[1].starts_with("planner: astar serves"),
+        "{stdout}"
+    );
+
+    // The desire lines named once for both floors: one floor's lines would
+    // be served on the other.
+    let one_file = common::write(
+        dir.path(),
+        "one.toml",
+        "gateway_id = \"gw\"\nsite = \"library.toml\"\n[planner]\nmode = \"desire\"\n\
+         [planner.models]\ndesire_lines = \"models/desire_lines.onnx\"\n",
+    );
+    let one_file = one_file.to_str().unwrap();
+    let route = ["--from", "G:west entrance", "--to", "L1:east entrance"];
+    for command in [
+        vec!["check", "--config", one_file],
+        [&["plan", "--config", one_file][..], &route].concat(),
+    ] {
+        let out = common::gangway(&command);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{command:?}: {stderr}");
+        assert!(
+            stderr.contains("[planner.models] desire_lines = \"")
+                && stderr.contains("put `{floor}` in its path"),
+            "{command:?}: {stderr}"
+        );
+    }
+}

@@ -306,23 +306,33 @@ impl Pipeline {
                 fall_back,
                 &mut fallbacks,
             )?);
-            // A config names one floor's trained models: the floors of a
-            // building are planned on their geometry.
-            let mode = if multi_floor {
-                plan::PlannerMode::Astar
+            // Each floor's own trained models where the config names them
+            // per floor (`{floor}`), else its geometry.
+            let planning = if multi_floor {
+                config.planner.for_floor(&floor.name)?
             } else {
-                config.planner.mode
+                config.planner.clone()
             };
-            let planner = match plan::build_mode(&config.planner, mode, floor.site.clone()) {
+            let mode = planning.mode;
+            let _floor =
+                multi_floor.then(|| tracing::info_span!("floor", floor = %floor.name).entered());
+            if mode != config.planner.mode {
+                tracing::info!(
+                    "[planner.models] names no floor's models (no `{{floor}}` in their paths): \
+                     this floor is planned by A*"
+                );
+            }
+            let on = if multi_floor {
+                format!("floor `{}`: ", floor.name)
+            } else {
+                String::new()
+            };
+            let planner = match plan::build_mode(&planning, mode, floor.site.clone()) {
                 Err(e @ plan::BuildError::Model { .. })
                     if fall_back && mode != plan::PlannerMode::Astar =>
                 {
-                    fallbacks.push(format!("{e} (planning with astar instead)"));
-                    plan::build_mode(
-                        &config.planner,
-                        plan::PlannerMode::Astar,
-                        floor.site.clone(),
-                    )?
+                    fallbacks.push(format!("{on}{e} (planning with astar instead)"));
+                    plan::build_mode(&planning, plan::PlannerMode::Astar, floor.site.clone())?
                 }
                 built => built?,
             };

@@ -242,6 +242,61 @@ impl Default for ModelPaths {
 }
 
 impl PlannerConfig {
+    /// This config for the floor called `floor` of a building of several:
+    /// `{floor}` in its model paths becomes the floor's name, so each floor
+    /// serves the models trained on it (`gangway train --site F1.toml --out
+    /// models/F1`), and a floor whose models are missing or failed their
+    /// checks is planned on its geometry, as a one-floor site would be.
+    /// A model the mode reads without `{floor}` in its path would be one
+    /// floor's served on every floor: refused, except that the default
+    /// mode with none of its paths naming floors (the shipped sample's
+    /// models) plans every floor by A*.
+    pub fn for_floor(&self, floor: &str) -> Result<PlannerConfig, BuildError> {
+        let mut config = self.clone();
+        let mode = config.mode;
+        // Which models the mode loads: (the paper's pair, conditional, desire).
+        let (paper, conditional, desire) = match mode {
+            PlannerMode::Learned => (true, true, true),
+            PlannerMode::Astar => (false, false, false),
+            PlannerMode::Rejection => (true, false, false),
+            PlannerMode::Conditional => (false, true, false),
+            PlannerMode::Desire => (false, false, true),
+        };
+        let m = &mut config.models;
+        let files = [
+            ("[planner.models] generator", &mut m.generator, paper),
+            (
+                "[planner.models] path_classifier",
+                &mut m.path_classifier,
+                paper,
+            ),
+            (
+                "[planner.models] conditional_generator",
+                &mut m.conditional_generator,
+                conditional,
+            ),
+            ("[planner.models] desire_lines", &mut m.desire_lines, desire),
+        ];
+        let (mut named, mut one_floor) = (0, None);
+        for (key, path, read) in files {
+            let text = path.to_string_lossy();
+            if text.contains("{floor}") {
+                *path = text.replace("{floor}", floor).into();
+                named += 1;
+            } else if read {
+                one_floor.get_or_insert((key, path.clone()));
+            }
+        }
+        match one_floor {
+            None => Ok(config),
+            Some(_) if mode == PlannerMode::Learned && named == 0 => {
+                config.mode = PlannerMode::Astar;
+                Ok(config)
+            }
+            Some((key, path)) => Err(BuildError::OneFileForAllFloors { key, path }),
+        }
+    }
+
     /// Makes the model paths relative to `base` (the config file's directory).
     pub fn resolve_paths(&mut self, base: &Path) {
         let m = &mut self.models;
@@ -393,6 +448,19 @@ pub enum BuildError {
     /// The models loaded, but the settings do not fit them.
     #[error("{0}")]
     Settings(String),
+    /// A building of several floors with a model file that names one
+    /// floor's.
+    #[error(
+        "{key} = \"{}\" names one model for every floor of a building of several: a model is \
+         trained on one floor's grid and walks; put `{{floor}}` in its path where each floor's \
+         name goes (`models/{{floor}}/desire_lines.onnx`), or set [planner] mode = \"learned\" \
+         or \"astar\"",
+        path.display()
+    )]
+    OneFileForAllFloors {
+        key: &'static str,
+        path: std::path::PathBuf,
+    },
 }
 
 impl BuildError {
@@ -402,6 +470,7 @@ impl BuildError {
         match self {
             BuildError::Model { error, .. } => error.to_string(),
             BuildError::Settings(why) => why.clone(),
+            e @ BuildError::OneFileForAllFloors { .. } => e.to_string(),
         }
     }
 }
