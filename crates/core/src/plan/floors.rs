@@ -17,9 +17,11 @@
 //! **How it is searched.** The connectors' stops are the nodes of a small
 //! graph. When the planner is built, one Dijkstra flood per stop and profile
 //! gives the walk from every cell of the stop's floor to it (metres, the
-//! profile's cell costs, each step costing its length times the mean factor
-//! of its two cells, so the walk to a stop and from it cost the same and one
-//! flood serves both). A request then costs no flood: the walks from its
+//! profile's cell costs, each step costing its length times the lower
+//! factor of its two cells, so the walk to a stop and from it cost the same
+//! and one flood serves both, and A* never finds a walk cheaper: the flood
+//! is also the heuristic that guides the search of a leg to or from the
+//! stop). A request then costs no flood: the walks from its
 //! start to the stops of its floor and from the stops of the destination's
 //! floor to it are read off the floods, Dijkstra runs over the stops
 //! (tens of nodes, microseconds), and only the legs of the chosen way are
@@ -49,7 +51,7 @@ use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 use std::sync::Arc;
 
-use super::astar::NEIGHBOURS;
+use super::astar::{self, NEIGHBOURS};
 use super::instructions::{
     Instruction, Maneuver, arrived_sentence, connector_noun, instructions_towards, leave_sentence,
     ride_sentence,
@@ -172,6 +174,16 @@ pub struct BuildingPlanner {
 struct StopNode {
     connector: usize,
     stop: Stop,
+}
+
+/// The stop at one end of a leg, whose flood can guide its search.
+#[derive(Clone, Copy)]
+enum Guide {
+    None,
+    /// The leg ends at this stop.
+    To(usize),
+    /// The leg starts at this stop.
+    From(usize),
 }
 
 /// How the search reached a stop.
@@ -327,9 +339,11 @@ impl BuildingPlanner {
         let mut legs = Vec::new();
         let mut rides = Vec::new();
         let mut here = from;
+        let mut left_stop = None;
         for (boarded, left) in way {
             let (a, b) = (self.stops[boarded].stop, self.stops[left].stop);
-            legs.push(self.leg(here.floor, here.cell, a.cell, profile)?);
+            let guide = Guide::To(boarded);
+            legs.push(self.guided_leg(here.floor, here.cell, a.cell, profile, guide)?);
             let connector = self.stops[boarded].connector;
             rides.push(Ride {
                 connector,
@@ -341,8 +355,10 @@ impl BuildingPlanner {
                 floor: b.floor,
                 cell: b.cell,
             };
+            left_stop = Some(left);
         }
-        legs.push(self.leg(here.floor, here.cell, to.cell, profile)?);
+        let guide = left_stop.map_or(Guide::None, Guide::From);
+        legs.push(self.guided_leg(here.floor, here.cell, to.cell, profile, guide)?);
         Ok(self.route(legs, rides, profile))
     }
 
@@ -358,8 +374,39 @@ impl BuildingPlanner {
 
     /// Floor `floor`'s planner's route from `a` to `b`, validated.
     fn leg(&self, floor: usize, a: Cell, b: Cell, profile: Profile) -> Result<Leg, PlanError> {
+        self.guided_leg(floor, a, b, profile, Guide::None)
+    }
+
+    /// [`BuildingPlanner::leg`] where one end is a stop: a floor planned by
+    /// A* is searched with the stop's flood as its heuristic (exact for a
+    /// walker without cell or turn costs), from the other end towards the
+    /// stop (a leg leaving a stop is searched back from its end and
+    /// reversed, equally cheap for such a walker). Searched plainly, the
+    /// leg from a shop to a lift on a mall floor of 40,000 cells expands most
+    /// of the floor; guided, little more than the route.
+    fn guided_leg(
+        &self,
+        floor: usize,
+        a: Cell,
+        b: Cell,
+        profile: Profile,
+        guide: Guide,
+    ) -> Result<Leg, PlanError> {
         let site = &self.building.floors()[floor].site;
-        let planned = self.floors[floor].plan(a, b, profile)?;
+        let planner = &self.floors[floor];
+        let flood = |stop: usize| self.walks[profile as usize][stop].as_deref();
+        let searched = planner.mode() == super::PlannerMode::Astar.name();
+        let planned = match guide {
+            Guide::To(stop) if searched && let Some(m) = flood(stop) => Planned::searched(
+                astar::guided_search(site, self.connectivity, [a, b], profile, m)?,
+            ),
+            Guide::From(stop) if searched && let Some(m) = flood(stop) => {
+                let mut back = astar::guided_search(site, self.connectivity, [b, a], profile, m)?;
+                back.cells.reverse();
+                Planned::searched(back)
+            }
+            _ => planner.plan(a, b, profile)?,
+        };
         planned
             .route
             .validate_for(site, a, b, self.connectivity, profile)
@@ -509,8 +556,10 @@ impl BuildingPlanner {
 
 /// Metres of `profile`'s cheapest walk between `from` and every open cell
 /// of `site` (by [`Site::open_index`]; infinite where none): Dijkstra, each
-/// step costing its length times the mean cost factor of its two cells, so
-/// the walk is as dear either way.
+/// step costing its length times the lower cost factor of its two cells,
+/// so the walk is as dear either way, and never dearer than A* finds it
+/// (A* pays the factor of the cell entered, and for turns): a lower bound
+/// that guides A* to the stop ([`astar::guided_search`]).
 fn flood(site: &Site, connectivity: Connectivity, profile: Profile, from: Cell) -> Vec<f32> {
     let cells = site.open_cells();
     let mut metres = vec![f64::INFINITY; cells.len()];
@@ -541,7 +590,7 @@ fn flood(site: &Site, connectivity: Connectivity, profile: Profile, from: Cell) 
                 1.0
             };
             let j = site.open_index(next).expect("step_ok checks walkable");
-            let cand = d + step * site.cell_m * (cost_here + profile.cell_cost(site, next)) / 2.0;
+            let cand = d + step * site.cell_m * cost_here.min(profile.cell_cost(site, next));
             if cand < metres[j] {
                 metres[j] = cand;
                 heap.push(Reverse((cand.to_bits(), j)));
@@ -549,4 +598,88 @@ fn flood(site: &Site, connectivity: Connectivity, profile: Profile, from: Cell) 
         }
     }
     metres.into_iter().map(|m| m as f32).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// What A* pays for `cells` as `profile`: each step's length times the
+    /// factor of the cell entered, and the turns.
+    fn cost(site: &Site, profile: Profile, cells: &[Cell]) -> f64 {
+        let heading = |a: Cell, b: Cell| {
+            (
+                i32::from(b.x) - i32::from(a.x),
+                i32::from(b.y) - i32::from(a.y),
+            )
+        };
+        let mut total = 0.0;
+        for (i, pair) in cells.windows(2).enumerate() {
+            let (dx, dy) = heading(pair[0], pair[1]);
+            let step = if dx != 0 && dy != 0 {
+                std::f64::consts::SQRT_2
+            } else {
+                1.0
+            };
+            total += step * profile.cell_cost(site, pair[1]);
+            if i > 0 && heading(cells[i - 1], pair[0]) != (dx, dy) {
+                total += profile.turn_cost();
+            }
+        }
+        total
+    }
+
+    /// Guided by a stop's flood, A* finds routes to and from the stop as
+    /// cheap as the plain search does, for every profile (the flood is a
+    /// lower bound of what A* pays, doors, narrow passages and turns
+    /// included), and none where the profile has none.
+    #[test]
+    fn a_search_guided_by_a_stop_s_flood_is_as_cheap_as_a_plain_one() {
+        let site = Site::of_map(
+            "##########\n\
+             #..d....n#\n\
+             #.###.##n#\n\
+             #...#..#s#\n\
+             ###.#.##.#\n\
+             #nnn#....#\n\
+             ##########",
+        );
+        let stop = Cell::new(0, 0);
+        for profile in Profile::ALL {
+            let flood = flood(&site, Connectivity::Eight, profile, stop);
+            for &a in site.open_cells() {
+                if !profile.passable(&site, a) {
+                    continue;
+                }
+                let plain =
+                    astar::profile_search(&site, Connectivity::Eight, a, stop, profile, |_| 1.0);
+                let guided =
+                    astar::guided_search(&site, Connectivity::Eight, [a, stop], profile, &flood);
+                match (plain, guided) {
+                    (Ok(plain), Ok(guided)) => {
+                        guided
+                            .validate_for(&site, a, stop, Connectivity::Eight, profile)
+                            .unwrap();
+                        let (p, g) = (
+                            cost(&site, profile, &plain.cells),
+                            cost(&site, profile, &guided.cells),
+                        );
+                        assert!(
+                            (p - g).abs() < 1e-6,
+                            "{profile:?} from {a}: {p} plain, {g} guided"
+                        );
+                        let bound = f64::from(flood[site.open_index(a).unwrap()]) / site.cell_m;
+                        assert!(
+                            bound <= p + 1e-6,
+                            "{profile:?} from {a}: bound {bound} over {p}"
+                        );
+                    }
+                    (Err(_), Err(_)) => {}
+                    (plain, guided) => {
+                        panic!("{profile:?} from {a}: {plain:?} plain, {guided:?} guided")
+                    }
+                }
+            }
+        }
+    }
 }
