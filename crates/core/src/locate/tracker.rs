@@ -561,6 +561,11 @@ struct FilterScratch {
     likelihood: Vec<f32>,
     /// The belief of the track being filtered, over every open cell.
     belief: Vec<f32>,
+    /// The cells that may hold mass, before and after a motion step
+    /// ([`Inflows::step_from`]), and which are listed in the latter.
+    support: Vec<u32>,
+    next_support: Vec<u32>,
+    listed: Vec<bool>,
     pack: PackScratch,
     median: MedianScratch,
 }
@@ -630,13 +635,58 @@ impl MotionModel<'_> {
         likelihood: &[f32],
         scratch: &mut FilterScratch,
     ) -> f64 {
+        self.filter_from(belief, None, steps, likelihood, scratch)
+    }
+
+    /// [`MotionModel::filter`] of a belief whose mass lies on the cells of
+    /// `support` alone, when given: its motion steps visit those cells and
+    /// the ones they reach, not the whole floor (the same sums, in the same
+    /// order, so the same belief to the bit).
+    fn filter_from(
+        &self,
+        belief: &mut Vec<f32>,
+        support: Option<&[u32]>,
+        steps: Option<usize>,
+        likelihood: &[f32],
+        scratch: &mut FilterScratch,
+    ) -> f64 {
+        let n = self.neighbours.len();
         if let Some(steps) = steps
-            && belief.len() == self.neighbours.len()
+            && belief.len() == n
         {
-            for _ in 0..steps {
-                self.inflows
-                    .step(belief, &mut scratch.outflow, &mut scratch.next);
-                std::mem::swap(belief, &mut scratch.next);
+            // Reaching a cell costs its neighbours' visits: worth listing
+            // while the cells reached stay a small part of the floor.
+            match support.filter(|cells| cells.len() * SPARSE_STEP_SHARE < n) {
+                Some(cells) => {
+                    scratch.support.clear();
+                    scratch.support.extend_from_slice(cells);
+                    scratch.next.clear();
+                    scratch.next.resize(n, 0.0);
+                    scratch.outflow.clear();
+                    scratch.outflow.resize(2 * n + 1, 0.0);
+                    scratch.listed.clear();
+                    scratch.listed.resize(n, false);
+                    for _ in 0..steps {
+                        self.inflows.step_from(
+                            self.neighbours,
+                            belief,
+                            &scratch.support,
+                            &mut scratch.next_support,
+                            &mut scratch.listed,
+                            &mut scratch.outflow,
+                            &mut scratch.next,
+                        );
+                        std::mem::swap(belief, &mut scratch.next);
+                        std::mem::swap(&mut scratch.support, &mut scratch.next_support);
+                    }
+                }
+                None => {
+                    for _ in 0..steps {
+                        self.inflows
+                            .step(belief, &mut scratch.outflow, &mut scratch.next);
+                        std::mem::swap(belief, &mut scratch.next);
+                    }
+                }
             }
             let recovery = self.config.recovery;
             let floor = recovery / belief.len() as f32;
@@ -667,7 +717,8 @@ impl MotionModel<'_> {
     ) -> Fix {
         let mut dense = std::mem::take(&mut scratch.belief);
         belief.unpack(self.neighbours.len(), &mut dense);
-        self.filter(&mut dense, steps, likelihood, scratch);
+        let support = (!belief.cells.is_empty()).then_some(&belief.cells[..]);
+        self.filter_from(&mut dense, support, steps, likelihood, scratch);
         let fix = estimate(self.config.estimate, site, &dense, &mut scratch.median);
         belief.pack_heaviest(&dense, &mut scratch.pack);
         scratch.belief = dense;
@@ -1299,6 +1350,60 @@ impl Inflows {
     }
 }
 
+impl Inflows {
+    /// [`Inflows::step`] of a belief whose mass lies on the cells of
+    /// `support` alone: computes the cells they reach (into
+    /// `next_support`) and nothing else. `outflow`, `to` and `listed` are
+    /// all zero (false) on entry and are left so; `from` is zeroed on the
+    /// support, so that it can be the next step's `to`.
+    #[allow(clippy::too_many_arguments)]
+    fn step_from(
+        &self,
+        neighbours: &[Vec<u32>],
+        from: &mut [f32],
+        support: &[u32],
+        next_support: &mut Vec<u32>,
+        listed: &mut [bool],
+        outflow: &mut [f32],
+        to: &mut [f32],
+    ) {
+        let n = from.len();
+        next_support.clear();
+        for &j in support.iter() {
+            let j = j as usize;
+            let mass = from[j];
+            // As `step` works them out, operation for operation.
+            outflow[j] = mass * self.pass / self.moves[j];
+            outflow[n + j] = mass * self.keep[j];
+            for &k in &neighbours[j] {
+                if !std::mem::replace(&mut listed[k as usize], true) {
+                    next_support.push(k);
+                }
+            }
+        }
+        for &c in next_support.iter() {
+            to[c as usize] = self.sources[c as usize]
+                .iter()
+                .fold(0.0f32, |sum, &s| sum + outflow[s as usize]);
+        }
+        for &j in support.iter() {
+            let j = j as usize;
+            outflow[j] = 0.0;
+            outflow[n + j] = 0.0;
+            from[j] = 0.0;
+        }
+        for &c in next_support.iter() {
+            listed[c as usize] = false;
+        }
+    }
+}
+
+/// A listed motion step ([`Inflows::step_from`]) visits each cell reached
+/// and its up to 8 neighbours, against one pass over every cell for the
+/// whole floor's: worth it while the belief's cells are fewer than this
+/// part of the floor.
+const SPARSE_STEP_SHARE: usize = 4;
+
 /// One step of the lazy random walk for one cell: of `mass` in the cell
 /// whose neighbours are `n` (the cell itself first), `stay` stays, the rest
 /// goes to the allowed moves equally.
@@ -1366,6 +1471,48 @@ mod tests {
             inflows.step(&belief, &mut outflow, &mut gathered);
             let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             assert_eq!(bits(&gathered), bits(&scattered));
+        }
+    }
+
+    /// Steps over a belief's listed cells only give what steps over the
+    /// whole floor give, to the bit, and leave their buffers zeroed.
+    #[test]
+    fn steps_over_the_listed_cells_are_the_whole_floor_s_bit_for_bit() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let site = Site::load(&root.join("config/sites/waldo.toml")).unwrap();
+        let neighbours = open_neighbours(&site);
+        let inflows = Inflows::new(&neighbours, TrackerConfig::default().stay_probability);
+        let n = neighbours.len();
+        // Mass on a few cells apart, the rest zero.
+        let mut dense = vec![0.0f32; n];
+        let mut support: Vec<u32> = vec![3, 40, 41, 90];
+        for (k, &c) in support.iter().enumerate() {
+            dense[c as usize] = 0.1 + k as f32 * 0.2;
+        }
+        let mut listed_belief = dense.clone();
+        let (mut outflow, mut next) = (Vec::new(), Vec::new());
+        let (mut listed_outflow, mut listed_next) = (vec![0.0; 2 * n + 1], vec![0.0; n]);
+        let (mut next_support, mut listed) = (Vec::new(), vec![false; n]);
+        for _ in 0..4 {
+            inflows.step(&dense, &mut outflow, &mut next);
+            std::mem::swap(&mut dense, &mut next);
+            inflows.step_from(
+                &neighbours,
+                &mut listed_belief,
+                &support,
+                &mut next_support,
+                &mut listed,
+                &mut listed_outflow,
+                &mut listed_next,
+            );
+            std::mem::swap(&mut listed_belief, &mut listed_next);
+            std::mem::swap(&mut support, &mut next_support);
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&listed_belief), bits(&dense));
+            assert!(listed_next.iter().chain(&listed_outflow).all(|&x| x == 0.0));
+            assert!(!listed.contains(&true));
+            // Every cell holding mass is listed.
+            assert!((0..n).all(|c| dense[c] == 0.0 || support.contains(&(c as u32))));
         }
     }
 
