@@ -102,6 +102,18 @@ pub struct Knn {
     /// Floats per anchor in `columns`: the fingerprints padded with zeros
     /// to whole blocks.
     stride: usize,
+    /// Per anchor, the fingerprints that heard it and how loud: a window
+    /// of a building hears ~10 of a floor's ~200 beacons, and a distance
+    /// differs from the one to the window that heard nothing only on the
+    /// anchors heard ([`Knn::measure_heard`]).
+    postings: Vec<Vec<(u32, f32)>>,
+    /// The survey's "not heard" value, and whether every value of the
+    /// survey is a whole number of dB (then sums in any order are exact).
+    not_heard: f32,
+    whole_db: bool,
+    /// Per fingerprint, its distance to a window hearing nothing (every
+    /// anchor at `silence.0`, as bits); rebuilt when that value changes.
+    silence: (u32, Vec<f32>),
     /// Survey rows per fingerprint.
     rows_of: Vec<f32>,
     /// Survey rows in all (the sum of `rows_of`).
@@ -146,6 +158,10 @@ const LANES: usize = 8;
 /// Fingerprints measured at once, their sums held in registers.
 const BLOCK: usize = 16;
 
+/// Whole numbers of dB below this are exact in f32, and so is any sum of a
+/// floor's distances over them (2²⁴ ÷ 1,000 anchors ÷ 2).
+const WHOLE_DB_EXACT: f32 = 8192.0;
+
 impl Knn {
     /// Builds from survey rows (any subset, e.g. a training split).
     pub fn new(
@@ -184,21 +200,32 @@ impl Knn {
         let n_fingerprints = distinct.len();
         let stride = n_fingerprints.next_multiple_of(BLOCK);
         let mut columns = vec![0.0; n_anchors * stride];
+        let mut postings = vec![Vec::new(); n_anchors];
         let mut rows_of = Vec::with_capacity(n_fingerprints);
         let mut member_start = vec![0u32];
         let mut members = Vec::new();
         for (f, (key, cells)) in distinct.into_iter().enumerate() {
             for (a, bits) in key.into_iter().enumerate() {
-                columns[a * stride + f] = f32::from_bits(bits);
+                let value = f32::from_bits(bits);
+                columns[a * stride + f] = value;
+                if value != missing_dbm {
+                    postings[a].push((f as u32, value));
+                }
             }
             rows_of.push(cells.values().sum::<u32>() as f32);
             members.extend(cells.into_iter().map(|(c, n)| (c, n as f32)));
             member_start.push(members.len() as u32);
         }
+        let whole = |v: f32| v.fract() == 0.0 && v.abs() < WHOLE_DB_EXACT;
+        let whole_db = whole(missing_dbm) && postings.iter().flatten().all(|&(_, v)| whole(v));
         Ok(Knn {
             n_anchors,
             columns,
             stride,
+            postings,
+            not_heard: missing_dbm,
+            whole_db,
+            silence: (f32::NAN.to_bits(), Vec::new()),
             rows: rows_of.iter().sum(),
             distance: vec![0.0; stride],
             ranked: Vec::with_capacity(n_fingerprints),
@@ -266,6 +293,67 @@ impl Knn {
         self.nearest_db * self.inv_bandwidth <= FAMILIAR_BANDWIDTHS
     }
 
+    /// The L1 distance from `rssi` (the anchors flagged in `heard` heard)
+    /// to every fingerprint, into `distance`: over the heard anchors'
+    /// postings where that is exact and cheaper, else over every anchor.
+    fn measure_any(&mut self, rssi: &[f32], heard: &[bool]) {
+        if !self.measure_heard(rssi, heard) {
+            self.measure(rssi);
+        }
+    }
+
+    /// The distances as the distance to silence plus, for each heard
+    /// anchor, what hearing it changes for the fingerprints that heard it
+    /// too; the rest change by the same amount. Only where that gives the
+    /// very numbers [`Knn::measure`] does (every value a whole number of dB:
+    /// integer sums are exact in any order, so the same rows tie), and
+    /// where the heard anchors' postings are fewer than the full pass's
+    /// work; false otherwise, nothing measured.
+    fn measure_heard(&mut self, rssi: &[f32], heard: &[bool]) -> bool {
+        let n = self.rows_of.len();
+        let whole = |v: f32| v.fract() == 0.0 && v.abs() < WHOLE_DB_EXACT;
+        let mut silent = None;
+        let mut work = n;
+        for (a, (&r, &h)) in rssi.iter().zip(heard).enumerate() {
+            if h {
+                work += self.postings[a].len();
+            } else if *silent.get_or_insert(r) != r {
+                return false;
+            }
+        }
+        // The full pass: an anchor of [`BLOCK`] fingerprints a vector step.
+        let full = n * self.n_anchors / BLOCK;
+        let silent = silent.unwrap_or(self.not_heard);
+        let heard_whole = rssi.iter().zip(heard).all(|(&r, &h)| !h || whole(r));
+        if !(self.whole_db && whole(silent) && heard_whole) || work >= full {
+            return false;
+        }
+        if self.silence.0 != silent.to_bits() {
+            // Every anchor at `silent`: the unheard ones of a fingerprint
+            // are all `not_heard`, the heard ones in its postings.
+            let unheard = (silent - self.not_heard).abs();
+            let mut base = vec![self.n_anchors as f32 * unheard; n];
+            for &(f, v) in self.postings.iter().flatten() {
+                base[f as usize] += (silent - v).abs() - unheard;
+            }
+            self.silence = (silent.to_bits(), base);
+        }
+        let distance = &mut self.distance[..n];
+        // What hearing the anchors adds to every fingerprint that did not
+        // hear them, summed, and what differs for those that did.
+        let mut everyone = 0.0;
+        distance.copy_from_slice(&self.silence.1);
+        for (a, (&x, _)) in rssi.iter().zip(heard).enumerate().filter(|(_, (_, h))| **h) {
+            let unheard = (x - self.not_heard).abs() - (silent - self.not_heard).abs();
+            everyone += unheard;
+            for &(f, v) in &self.postings[a] {
+                distance[f as usize] += (x - v).abs() - (silent - v).abs() - unheard;
+            }
+        }
+        distance.iter_mut().for_each(|d| *d += everyone);
+        true
+    }
+
     /// The L1 distance from `rssi` to every fingerprint, into `distance`.
     fn measure(&mut self, rssi: &[f32]) {
         let stride = self.stride;
@@ -295,9 +383,9 @@ impl Localizer for Knn {
         "knn"
     }
 
-    fn log_likelihood(&mut self, rssi: &[f32], _heard: &[bool], out: &mut [f32]) {
+    fn log_likelihood(&mut self, rssi: &[f32], heard: &[bool], out: &mut [f32]) {
         debug_assert_eq!(rssi.len(), self.n_anchors);
-        self.measure(rssi);
+        self.measure_any(rssi, heard);
         let n = self.rows_of.len();
         // The k nearest rows lie among the k nearest fingerprints (each
         // holds at least one row): those are ranked, the rest only checked
@@ -382,5 +470,65 @@ impl Localizer for Knn {
                 (v / best).max(self.floor).ln()
             };
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A floor of 40 anchors and 300 fingerprints, each hearing a few.
+    fn many_anchors() -> (Arc<Site>, Knn) {
+        let site = Arc::new(Site::of_map(&"##########\n".repeat(10)));
+        let cells = site.open_cells();
+        let samples: Vec<Sample> = (0..300usize)
+            .map(|i| Sample {
+                cell: cells[i % cells.len()],
+                at: [0.0, 0.0],
+                t: None,
+                rssi: (0..40usize)
+                    .map(|a| ((i * 7 + a * 13) % 9 == 0).then(|| -50 - ((i + a) % 40) as i16))
+                    .collect(),
+            })
+            .collect();
+        let rows: Vec<&Sample> = samples.iter().collect();
+        let knn = Knn::new(&KnnConfig::default(), &site, &rows, -105.0).unwrap();
+        (site, knn)
+    }
+
+    /// Over the heard anchors' postings, the distances are the full pass's
+    /// to the bit, for windows hearing one anchor, a few and many, and
+    /// with "not heard" other than the survey's; a window the postings
+    /// cannot measure exactly (half a dB) is left to the full pass.
+    #[test]
+    fn distances_over_the_heard_anchors_are_the_full_pass_s() {
+        let (_, mut knn) = many_anchors();
+        let n = knn.rows_of.len();
+        // (not heard, every how many anchors heard, measured over postings:
+        // hearing every anchor costs more than the full pass).
+        for (silent, heard_every, cheaper) in [
+            (-105.0, 40, true),
+            (-105.0, 7, true),
+            (-105.0, 4, true),
+            (-110.0, 5, true),
+            (-105.0, 1, false),
+        ] {
+            let heard: Vec<bool> = (0..40).map(|a| a % heard_every == 0).collect();
+            let rssi: Vec<f32> = (0..40)
+                .map(|a| if heard[a] { -60.0 - a as f32 } else { silent })
+                .collect();
+            knn.measure(&rssi);
+            let full = knn.distance[..n].to_vec();
+            let listed = knn.measure_heard(&rssi, &heard);
+            assert_eq!(listed, cheaper, "every {heard_every}");
+            if listed {
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&knn.distance[..n]), bits(&full), "every {heard_every}");
+            }
+        }
+        let heard: Vec<bool> = (0..40).map(|a| a == 5).collect();
+        let mut rssi = vec![-105.0; 40];
+        rssi[5] = -60.5;
+        assert!(!knn.measure_heard(&rssi, &heard));
     }
 }
