@@ -105,8 +105,8 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         "--speed must be 0 (as fast as possible) or a positive factor"
     );
     let (config, building) = super::load(&args.config.path)?;
-    // The capture's CSV columns, the score's truth cells and the map are
-    // one floor's: the lowest (the only one of a one-floor site).
+    // A CSV capture's columns are one floor's beacons: the lowest (the only
+    // one of a one-floor site), as are its truths and those without a floor.
     let site = building.floors()[0].site.clone();
     if std::fs::metadata(&args.log).is_ok_and(|m| m.len() == 0) {
         tracing::warn!(
@@ -133,7 +133,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
             sinks.push(Box::new(JsonLines::create(topics.clone(), out)?));
         }
         let score = args.score.then(|| {
-            let (sink, score) = Scorer::new(tolerance_s).sink(site.clone());
+            let (sink, score) = Scorer::new(tolerance_s).sink(building.clone());
             sinks.push(Box::new(sink));
             score
         });

@@ -39,8 +39,8 @@ impl Event {
 /// floor names are short ("B1", "Ground"), and the name is echoed in errors.
 pub const FLOOR_NAME_RULE: &str = "`floor` must be a floor's name, 1 to 64 bytes";
 
-/// Whether `floor`, from a request (the broker, the web API), may be a
-/// floor's name ([`FLOOR_NAME_RULE`]).
+/// Whether `floor`, from a request (the broker, the web API) or a log's
+/// truth, may be a floor's name ([`FLOOR_NAME_RULE`]).
 pub fn valid_floor_name(floor: &str) -> bool {
     (1..=64).contains(&floor.len())
 }
@@ -67,6 +67,10 @@ pub struct Truth {
     pub t: f64,
     pub device: String,
     pub cell: Cell,
+    /// The floor `cell` is on, by name, on a building of several floors;
+    /// none: the lowest (the only floor of a one-floor site).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub floor: Option<String>,
 }
 
 /// A message from someone else (a phone, a client, another gateway), read:

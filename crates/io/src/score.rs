@@ -27,21 +27,26 @@ use tokio::sync::oneshot;
 use crate::event::Truth;
 use crate::publish::{Location, Output};
 use crate::sink::Sink;
-use crate::site::{Cell, Site};
+use crate::site::{Building, Cell};
 
 /// Collects truths and fixes during a replay.
 #[derive(Debug)]
 pub struct Scorer {
     tolerance_s: f64,
-    /// Per device: (t, cell) in arrival order.
-    truths: HashMap<String, Vec<(f64, Cell)>>,
+    /// Per device: (t, floor, cell) in arrival order.
+    truths: HashMap<String, Vec<(f64, Option<String>, Cell)>>,
     truth_count: u64,
-    fixes: Vec<(String, f64, Cell)>,
+    /// (device, t, floor, cell).
+    fixes: Vec<(String, f64, Option<String>, Cell)>,
 }
 
 /// How well the fixes of a replay match its truth.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Score {
+    /// On a building of several floors, the share of matched fixes on the
+    /// true floor; the figures below count only those.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub floor_accuracy: Option<f64>,
     /// Share of matched fixes in exactly the true cell.
     pub exact: Option<f64>,
     /// Share of matched fixes within 1 cell (Euclidean) of the truth.
@@ -72,52 +77,89 @@ impl Scorer {
 
     pub(crate) fn truth(&mut self, truth: &Truth) {
         self.truth_count += 1;
-        self.truths
-            .entry(truth.device.clone())
-            .or_default()
-            .push((truth.t, truth.cell));
+        self.truths.entry(truth.device.clone()).or_default().push((
+            truth.t,
+            truth.floor.clone(),
+            truth.cell,
+        ));
     }
 
     /// Takes a fix; an unknown location names no cell to score.
     pub(crate) fn location(&mut self, location: &Location) {
         if let Some(cell) = location.cell {
-            self.fixes.push((location.device.clone(), location.t, cell));
+            let floor = location.floor.as_ref().map(|f| f.name.clone());
+            self.fixes
+                .push((location.device.clone(), location.t, floor, cell));
         }
     }
 
     /// The scorer as a sink of the runtime: it takes the locations and the
     /// truths that pass through, and sends the score on the channel when
     /// the runtime shuts it down.
-    pub fn sink(self, site: Arc<Site>) -> (ScoreSink, oneshot::Receiver<Score>) {
+    pub fn sink(self, building: Arc<Building>) -> (ScoreSink, oneshot::Receiver<Score>) {
         let (done, score) = oneshot::channel();
         (
             ScoreSink {
                 scorer: self,
-                site,
+                building,
                 done,
             },
             score,
         )
     }
 
-    pub(crate) fn score(mut self, site: &Site) -> Score {
+    /// The score on `building`: a truth or fix without a floor is on its
+    /// lowest (the only floor of a one-floor site), and a fix on another
+    /// floor than its truth's counts against `floor_accuracy` and has no
+    /// error in cells.
+    pub(crate) fn score(mut self, building: &Building) -> Score {
         for truths in self.truths.values_mut() {
             truths.sort_by(|a, b| a.0.total_cmp(&b.0));
         }
-        let errors: Vec<f64> = self
-            .fixes
+        let floors = building.floors();
+        let (mut matched, mut on_floor) = (0u64, Vec::new());
+        for (device, t, floor, cell) in &self.fixes {
+            let Some((_, truth_floor, truth)) = self
+                .truths
+                .get(device)
+                .and_then(|truths| nearest(truths, *t))
+                .filter(|(truth_t, ..)| (truth_t - t).abs() <= self.tolerance_s)
+            else {
+                continue;
+            };
+            matched += 1;
+            let floor_of = |name: &Option<String>| match name {
+                Some(name) => building.floor_named(name),
+                None => Some(0),
+            };
+            if let Some(f) = floor_of(truth_floor)
+                && floor_of(floor) == Some(f)
+            {
+                on_floor.push((f, cell.distance(*truth)));
+            }
+        }
+        let cells: Vec<f64> = on_floor.iter().map(|&(_, e)| e).collect();
+        // Metres per cell of the floors the errors are on, when they agree
+        // (always on one floor); else each error in its floor's metres.
+        let cell_m = floors[on_floor.first().map_or(0, |e| e.0)].site.cell_m;
+        let summary = if on_floor
             .iter()
-            .filter_map(|(device, t, cell)| {
-                self.truths
-                    .get(device)
-                    .and_then(|truths| nearest(truths, *t))
-                    .filter(|(truth_t, _)| (truth_t - t).abs() <= self.tolerance_s)
-                    .map(|(_, truth)| cell.distance(truth))
+            .all(|&(f, _)| floors[f].site.cell_m == cell_m)
+        {
+            ErrorSummary::of(&cells, cell_m)
+        } else {
+            ErrorSummary::of(&cells, 1.0).map(|s| ErrorSummary {
+                mean_error_m: on_floor
+                    .iter()
+                    .map(|&(f, e)| e * floors[f].site.cell_m)
+                    .sum::<f64>()
+                    / cells.len() as f64,
+                ..s
             })
-            .collect();
-        let summary = ErrorSummary::of(&errors, site.cell_m);
-        let matched = errors.len() as u64;
+        };
         Score {
+            floor_accuracy: (building.is_multi_floor() && matched > 0)
+                .then(|| on_floor.len() as f64 / matched as f64),
             exact: summary.as_ref().map(|s| s.exact),
             within_1: summary.as_ref().map(|s| s.within_1),
             within_2: summary.as_ref().map(|s| s.within_2),
@@ -134,7 +176,7 @@ impl Scorer {
 /// A [`Scorer`] fed by the runtime.
 pub struct ScoreSink {
     scorer: Scorer,
-    site: Arc<Site>,
+    building: Arc<Building>,
     done: oneshot::Sender<Score>,
 }
 
@@ -155,9 +197,13 @@ impl Sink for ScoreSink {
     }
 
     fn shutdown(self: Box<Self>) -> BoxFuture<'static, anyhow::Result<()>> {
-        let ScoreSink { scorer, site, done } = *self;
+        let ScoreSink {
+            scorer,
+            building,
+            done,
+        } = *self;
         // Nobody waiting for the score is no failure of the sink's.
-        let _ = done.send(scorer.score(&site));
+        let _ = done.send(scorer.score(&building));
         Box::pin(std::future::ready(Ok(())))
     }
 }
@@ -214,10 +260,10 @@ impl ErrorSummary {
 }
 
 /// The truth nearest to `t` in a time-sorted list (the earlier one on a tie).
-fn nearest(truths: &[(f64, Cell)], t: f64) -> Option<(f64, Cell)> {
-    let after = truths.partition_point(|(truth_t, _)| *truth_t < t);
-    let before = after.checked_sub(1).map(|i| truths[i]);
-    let after = truths.get(after).copied();
+fn nearest<T>(truths: &[(f64, T, Cell)], t: f64) -> Option<&(f64, T, Cell)> {
+    let after = truths.partition_point(|(truth_t, ..)| *truth_t < t);
+    let before = after.checked_sub(1).map(|i| &truths[i]);
+    let after = truths.get(after);
     match (before, after) {
         (Some(b), Some(a)) => Some(if t - b.0 <= a.0 - t { b } else { a }),
         (b, a) => b.or(a),
@@ -234,6 +280,12 @@ impl std::fmt::Display for Score {
             self.matched, self.tolerance_s
         )?;
         writeln!(f, "truths           {}", self.truths)?;
+        if let Some(share) = self.floor_accuracy {
+            writeln!(
+                f,
+                "floor_accuracy   {share:.3} (the figures below: on the true floor)"
+            )?;
+        }
         writeln!(f, "exact            {}", show(self.exact))?;
         writeln!(f, "within_1         {}", show(self.within_1))?;
         writeln!(f, "within_2         {}", show(self.within_2))?;
@@ -245,11 +297,13 @@ impl std::fmt::Display for Score {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::publish::FloorName;
+    use crate::site::Site;
     use std::path::Path;
 
-    fn site() -> Site {
+    fn site() -> Building {
         let text = "name = \"t\"\ncell_m = 0.5\nmap = '''\n#####\n#####\n#####\n'''\n";
-        Site::parse(text, Path::new("t.toml")).unwrap()
+        Building::of_site(Arc::new(Site::parse(text, Path::new("t.toml")).unwrap()))
     }
 
     fn fix(device: &str, t: f64, cell: Cell) -> Location {
@@ -261,6 +315,7 @@ mod tests {
             t,
             device: device.into(),
             cell,
+            floor: None,
         }
     }
 
@@ -301,11 +356,60 @@ mod tests {
 
     #[test]
     fn ties_go_to_the_earlier_truth() {
-        let truths = [(0.0, Cell::new(0, 0)), (2.0, Cell::new(1, 0))];
-        assert_eq!(nearest(&truths, 1.0), Some(truths[0]));
-        assert_eq!(nearest(&truths, 1.5), Some(truths[1]));
-        assert_eq!(nearest(&truths, -3.0), Some(truths[0]));
-        assert_eq!(nearest(&truths, 9.0), Some(truths[1]));
-        assert_eq!(nearest(&[], 9.0), None);
+        let truths = [(0.0, (), Cell::new(0, 0)), (2.0, (), Cell::new(1, 0))];
+        assert_eq!(nearest(&truths, 1.0), Some(&truths[0]));
+        assert_eq!(nearest(&truths, 1.5), Some(&truths[1]));
+        assert_eq!(nearest(&truths, -3.0), Some(&truths[0]));
+        assert_eq!(nearest(&truths, 9.0), Some(&truths[1]));
+        assert_eq!(nearest::<()>(&[], 9.0), None);
+    }
+
+    /// On a building, a fix on its truth's floor is scored in that floor's
+    /// cells and metres, one on another floor only counts against the
+    /// floor accuracy, and a truth without a floor is on the lowest.
+    #[test]
+    fn a_building_s_fixes_are_scored_on_their_truth_s_floor() {
+        let building = Building::parse(
+            "name = \"b\"\n[[floors]]\nname = \"G\"\nlevel = 0\nsite = \"g.toml\"\n\
+             [[floors]]\nname = \"L1\"\nlevel = 1\nsite = \"l1.toml\"\n",
+            Path::new("b.toml"),
+            |path| {
+                let cell_m = if path.ends_with("g.toml") {
+                    "0.5"
+                } else {
+                    "2.0"
+                };
+                let text =
+                    format!("name = \"x\"\ncell_m = {cell_m}\nmap = '''\n#####\n#####\n'''\n");
+                Site::parse(&text, path)
+            },
+        )
+        .unwrap();
+        let on = |device: &str, cell: Cell, floor: &str, level: i32| Location {
+            floor: Some(FloorName {
+                level,
+                name: floor.into(),
+            }),
+            ..fix(device, 0.0, cell)
+        };
+        let on_l1 = |device: &str, cell: Cell| Truth {
+            floor: Some("L1".into()),
+            ..truth(device, 0.0, cell)
+        };
+        let mut s = Scorer::new(1.0);
+        s.truth(&truth("a", 0.0, Cell::new(0, 0))); // no floor: the lowest, G
+        s.truth(&on_l1("b", Cell::new(4, 1)));
+        s.truth(&on_l1("c", Cell::new(0, 0)));
+        s.location(&on("a", Cell::new(1, 0), "G", 0)); // 1 cell, 0.5 m
+        s.location(&on("b", Cell::new(4, 0), "L1", 1)); // 1 cell, 2 m
+        s.location(&on("c", Cell::new(0, 0), "G", 0)); // the wrong floor
+        let score = s.score(&building);
+        assert_eq!(score.matched, 3);
+        assert_eq!(score.floor_accuracy, Some(2.0 / 3.0));
+        assert_eq!(score.mean_error_cells, Some(1.0));
+        assert_eq!(score.exact, Some(0.0));
+        assert!((score.mean_error_m.unwrap() - 1.25).abs() < 1e-12);
+        // A one-floor site has no floor accuracy to report.
+        assert_eq!(Scorer::new(1.0).score(&site()).floor_accuracy, None);
     }
 }

@@ -491,6 +491,7 @@ mod tests {
             t: 1.0,
             device: "d".into(),
             cell: Cell::new(0, 0),
+            floor: None,
         });
         assert!(w.write(&truth).is_err());
     }

@@ -122,6 +122,7 @@ impl CsvLog {
                     t,
                     device: options.device.to_string(),
                     cell,
+                    floor: None,
                 }));
             }
             for (beacon, rssi) in site.beacons.iter().zip(&row.rssi) {
@@ -278,7 +279,8 @@ tx_power = -61
                 Event::Truth(Truth {
                     t: t0,
                     device: "survey".into(),
-                    cell: Cell::new(0, 0)
+                    cell: Cell::new(0, 0),
+                    floor: None,
                 }),
                 Event::Advert(Sighting {
                     advertiser_mac: None,
@@ -291,7 +293,8 @@ tx_power = -61
                 Event::Truth(Truth {
                     t: t0 + 3.0,
                     device: "survey".into(),
-                    cell: Cell::new(1, 1)
+                    cell: Cell::new(1, 1),
+                    floor: None,
                 }),
                 Event::Advert(Sighting {
                     advertiser_mac: None,

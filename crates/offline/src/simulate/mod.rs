@@ -159,6 +159,7 @@ pub fn simulate(site: &Arc<Site>, config: &SimConfig, survey: Option<&Survey>) -
                 t: config.start_t + s as f64,
                 device: name.to_string(),
                 cell,
+                floor: None,
             }));
         }
         for r in 0..config.requests_per_walker {

@@ -26,7 +26,7 @@ use std::sync::Arc;
 use serde::{Deserialize, Serialize};
 use uuid::Uuid;
 
-use crate::event::{Event, RouteRequest, Truth};
+use crate::event::{Event, FLOOR_NAME_RULE, RouteRequest, Truth, valid_floor_name};
 use crate::plan::Destination;
 use crate::sighting::valid_device_id;
 use crate::sighting::{BeaconId, Mac, Sighting};
@@ -123,7 +123,7 @@ impl Line<'_> {
             ("mac", self.mac.is_some(), &[Advert]),
             ("device", self.device.is_some(), &[Request, Truth]),
             ("to", self.to.is_some(), &[Request]),
-            ("floor", self.floor.is_some(), &[Request]),
+            ("floor", self.floor.is_some(), &[Request, Truth]),
             ("profile", self.profile.is_some(), &[Request]),
             ("request_id", self.request_id.is_some(), &[Request]),
             ("cell", self.cell.is_some(), &[Truth]),
@@ -296,6 +296,10 @@ impl<R: BufRead> LogReader<R> {
                 t,
                 device: topic_id(required(line.device, "device")?, "device")?,
                 cell: required(line.cell, "cell")?,
+                floor: match line.floor {
+                    Some(floor) if !valid_floor_name(&floor) => return Err(FLOOR_NAME_RULE.into()),
+                    floor => floor,
+                },
             }),
         };
         if !event.t().is_finite() {
@@ -412,6 +416,7 @@ impl<W: Write> LogWriter<W> {
             Event::Truth(g) => Line {
                 device: Some(g.device.clone()),
                 cell: Some(g.cell),
+                floor: g.floor.clone(),
                 ..Line::new(Kind::Truth, g.t)
             },
         };
