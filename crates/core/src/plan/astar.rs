@@ -209,95 +209,6 @@ pub(crate) fn search_with(
             return Err(PlanError::Blocked(c));
         }
     }
-    SCRATCH.with(|scratch| match scratch.try_borrow_mut() {
-        Ok(mut scratch) => search_in(site, connectivity, [from, to], costs, guide, &mut scratch),
-        // A search from within a search's costs: its own scratch.
-        Err(_) => search_in(
-            site,
-            connectivity,
-            [from, to],
-            costs,
-            guide,
-            &mut Scratch::default(),
-        ),
-    })
-}
-
-/// The states a search has reached: their cost so far and predecessor,
-/// valid only where stamped with the search's generation. Reused by every
-/// search on the thread: a mall floor at 1 m with turn costs has 360,000
-/// states, and allocating and clearing their arrays per request took most
-/// of a guided search's time. They stay allocated for the thread's largest
-/// floor (20 bytes a state: 7 MB for such a floor).
-#[derive(Default)]
-struct States {
-    g: Vec<f64>,
-    came_from: Vec<u32>,
-    /// The generation that reached the state, and that closed it.
-    reached: Vec<u32>,
-    closed: Vec<u32>,
-    generation: u32,
-}
-
-impl States {
-    /// A new search over `n` states: every state unreached.
-    fn begin(&mut self, n: usize) {
-        if self.reached.len() < n {
-            self.g.resize(n, f64::INFINITY);
-            self.came_from.resize(n, u32::MAX);
-            self.reached.resize(n, 0);
-            self.closed.resize(n, 0);
-        }
-        self.generation = match self.generation.checked_add(1) {
-            Some(next) => next,
-            None => {
-                // Every stamp could now look current: start them afresh.
-                self.reached.fill(0);
-                self.closed.fill(0);
-                1
-            }
-        };
-    }
-
-    fn g(&self, s: usize) -> f64 {
-        if self.reached[s] == self.generation {
-            self.g[s]
-        } else {
-            f64::INFINITY
-        }
-    }
-
-    fn reach(&mut self, s: usize, g: f64, from: u32) {
-        self.reached[s] = self.generation;
-        self.g[s] = g;
-        self.came_from[s] = from;
-    }
-
-    /// Closes the state; whether it was closed already.
-    fn close(&mut self, s: usize) -> bool {
-        std::mem::replace(&mut self.closed[s], self.generation) == self.generation
-    }
-}
-
-#[derive(Default)]
-struct Scratch {
-    states: States,
-    heap: BinaryHeap<Entry>,
-}
-
-thread_local! {
-    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::default();
-}
-
-/// The body of [`search_with`], in the thread's scratch.
-fn search_in(
-    site: &Site,
-    connectivity: Connectivity,
-    [from, to]: [Cell; 2],
-    costs: &Costs<impl Fn(Cell) -> bool, impl Fn(Cell) -> f64>,
-    guide: Option<&[f32]>,
-    Scratch { states, heap }: &mut Scratch,
-) -> Result<Route, PlanError> {
     let cells = site.open_cells();
     // Headings 0..8 index NEIGHBOURS; 8 is "not moved yet". Without a turn
     // cost one heading per cell is enough.
@@ -307,9 +218,11 @@ fn search_in(
     let start_open = site.open_index(from).expect("walkable");
     let goal_open = site.open_index(to).expect("walkable");
     let start = state(start_open, 8) as u32;
-    states.begin(n);
-    heap.clear();
-    states.reach(start as usize, 0.0, u32::MAX);
+    let mut g = vec![f64::INFINITY; n];
+    let mut came_from = vec![u32::MAX; n];
+    let mut closed = vec![false; n];
+    let mut heap = BinaryHeap::new();
+    g[start as usize] = 0.0;
     let line = |c: Cell| costs.hug_line.then(|| off_line(from, to, c));
     // With hug_line, a route only float rounding makes cheaper is a tie: the
     // first found, nearer the line, keeps the cell.
@@ -327,13 +240,13 @@ fn search_in(
             let mut path = vec![to];
             let mut at = s;
             while at != start {
-                at = states.came_from[at as usize];
+                at = came_from[at as usize];
                 path.push(cells[at as usize / headings]);
             }
             path.reverse();
             return Ok(Route { cells: path });
         }
-        if states.close(s as usize) {
+        if std::mem::replace(&mut closed[s as usize], true) {
             continue;
         }
         let here = cells[open];
@@ -358,10 +271,11 @@ fn search_in(
                 0.0
             };
             let t = state(j, k);
-            let cand = states.g(s as usize) + step * (costs.cell_cost)(next) + turn;
+            let cand = g[s as usize] + step * (costs.cell_cost)(next) + turn;
             // A cell the guide says cannot reach the target is not queued.
-            if cand < states.g(t) - slack && guide.is_none_or(|m| m[j].is_finite()) {
-                states.reach(t, cand, s);
+            if cand < g[t] - slack && guide.is_none_or(|m| m[j].is_finite()) {
+                g[t] = cand;
+                came_from[t] = s;
                 heap.push(Entry::new(cand + estimate(next, j), line(next), t as u32));
             }
         }
