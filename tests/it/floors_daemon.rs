@@ -97,17 +97,22 @@ fn request_to_l1(request_id: &str) -> Value {
     })
 }
 
+/// The made-up building in `dir` and a config replaying on it. Five
+/// beacons over three floors of 0.5 m cells: a fix is rarely within one
+/// cell, so every fix is published (and guided).
+fn replay_config(dir: &Path) -> PathBuf {
+    floors_support::write_building(dir);
+    write(
+        dir,
+        "gangway.toml",
+        "gateway_id = \"gw\"\nsite = \"building.toml\"\n[localizer]\nmin_confidence = 0.0\n",
+    )
+}
+
 #[test]
 fn a_walk_from_b1_to_l1_by_lift_is_located_routed_and_guided_floor_by_floor() {
     let dir = tempfile::tempdir().unwrap();
-    floors_support::write_building(dir.path());
-    // Five beacons over three floors of 0.5 m cells: a fix is rarely
-    // within one cell, so every fix is published (and guided) here.
-    let config = write(
-        dir.path(),
-        "gangway.toml",
-        "gateway_id = \"gw\"\nsite = \"building.toml\"\n[localizer]\nmin_confidence = 0.0\n",
-    );
+    let config = replay_config(dir.path());
     let mut request = request_to_l1("r1");
     request["type"] = "request".into();
     request["device"] = "phone".into();
@@ -266,12 +271,7 @@ async fn route_requests_across_floors_arrive_over_mqtt() {
 #[test]
 fn a_replay_of_a_building_is_scored_floor_by_floor() {
     let dir = tempfile::tempdir().unwrap();
-    floors_support::write_building(dir.path());
-    let config = write(
-        dir.path(),
-        "gangway.toml",
-        "gateway_id = \"gw\"\nsite = \"building.toml\"\n[localizer]\nmin_confidence = 0.0\n",
-    );
+    let config = replay_config(dir.path());
     let truths: Vec<(f64, Value)> = (0..=END_S as u32)
         .filter_map(|k| {
             let s = f64::from(k);
