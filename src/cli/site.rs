@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use crate::survey::building;
-use crate::web::{Editor, Server, Ui, WebConfig};
+use crate::web::{Editors, Server, Ui, WebConfig};
 
 #[derive(clap::Args)]
 pub(super) struct Args {
@@ -127,8 +127,8 @@ fn import(args: &ImportArgs) -> anyhow::Result<ExitCode> {
              elevator, escalator or ramp on two floors. Until the building file has some, no \
              route or walker can change floor: add a [[connectors]] entry per stair, lift, \
              escalator or ramp to {} (id, kind, stops = [{{ floor = \"B1\", cell = [x, y] }}, …]; \
-             see docs/floors.md), finding each stop's cell with `gangway site edit --site \
-             <floor>/site.toml`",
+             see docs/floors.md), or place them on the plans with `gangway site edit --site {}`",
+            args.out.display(),
             args.out.display()
         );
     }
@@ -145,7 +145,7 @@ fn import(args: &ImportArgs) -> anyhow::Result<ExitCode> {
 }
 
 fn edit(args: EditArgs) -> anyhow::Result<ExitCode> {
-    let editor = Editor::open(&args.site, args.image.as_deref())?;
+    let editor = Editors::open(&args.site, args.image.as_deref())?;
     let config = WebConfig {
         bind: args.bind,
         token_file: args.token_file,

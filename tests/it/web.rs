@@ -691,6 +691,101 @@ fn every_reply_carries_the_content_security_policy() {
 /// Bound off loopback, a write without the token is refused; with it, it
 /// is taken. On loopback, another site's page cannot write (cross-origin)
 /// and a rebound host name is not answered.
+/// `gangway site edit` on a building file: the floors' site files one at a
+/// time and the building's connectors. A building whose connectors have
+/// problems (a stop written by hand into a wall) opens, listing them, so
+/// they can be fixed there; saving the connectors rewrites them alone. A
+/// one-floor site's editor has no connectors.
+#[test]
+fn site_edit_opens_a_building_with_its_connectors_problems_and_all() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = crate::floors_support::write_building(dir.path());
+    let shaft = crate::floors_support::cell_of([17.0, 8.0]);
+    let stairs = crate::floors_support::cell_of([9.0, 8.25]);
+    let g_stop = format!(
+        "{{ floor = \"G\", cell = [{}, {}] }}]",
+        stairs[0], stairs[1]
+    );
+    let text = std::fs::read_to_string(&file).unwrap();
+    assert!(text.contains(&g_stop), "{text}");
+    // The stairs get a stop on L1, in the lift shaft.
+    let broken = text.replace(
+        &g_stop,
+        &format!(
+            "{}, {{ floor = \"L1\", cell = [{}, {}] }}]",
+            g_stop.trim_end_matches(']'),
+            shaft[0],
+            shaft[1]
+        ),
+    );
+    std::fs::write(&file, &broken).unwrap();
+    let (_editor, url) = editor(&file, &["--bind", "127.0.0.1:0"]);
+    let get = |path: &str| -> (u16, Value) {
+        let mut reply = ureq::get(&format!("{url}{path}"))
+            .config()
+            .http_status_as_error(false)
+            .build()
+            .call()
+            .unwrap();
+        let status = reply.status().as_u16();
+        (status, reply.body_mut().read_json().unwrap())
+    };
+    let (_, opened) = get("/api/editor?floor=G");
+    assert_eq!(opened["floor"], "G");
+    assert!(
+        opened["path"].as_str().unwrap().ends_with("G.toml"),
+        "{opened}"
+    );
+    assert_eq!(opened["floors"].as_array().unwrap().len(), 3);
+    let (_, got) = get("/api/editor/connectors");
+    let problems = got["problems"].to_string();
+    assert!(
+        problems.contains("connector `stairs` stop on floor `L1`")
+            && problems.contains("is a blocked cell"),
+        "{got}"
+    );
+    // The stairs' stop moved off the shaft: saved, the floors untouched.
+    let mut connectors = got["connectors"].clone();
+    for stop in connectors[1]["stops"].as_array_mut().unwrap() {
+        if stop["floor"] == "L1" {
+            stop["cell"] = json!(stairs);
+        }
+    }
+    let mut saved = ureq::put(&format!("{url}/api/editor/connectors"))
+        .config()
+        .http_status_as_error(false)
+        .build()
+        .send_json(json!({ "connectors": connectors }))
+        .unwrap();
+    let status = saved.status().as_u16();
+    let saved: Value = saved.body_mut().read_json().unwrap();
+    assert_eq!(status, 200, "{saved}");
+    assert_eq!(saved["applied"], Value::Null);
+    let (_, after) = get("/api/editor/connectors");
+    assert_eq!(after["problems"], json!([]), "{after}");
+    assert_eq!(after["connectors"], connectors);
+    let written = std::fs::read_to_string(&file).unwrap();
+    let floors_part = |text: &str| text[..text.find("[[connectors]]").unwrap()].to_owned();
+    assert_eq!(floors_part(&written), floors_part(&broken));
+    let check = common::gangway(&["check", "--site", file.to_str().unwrap()]);
+    assert!(
+        check.status.success(),
+        "{}",
+        String::from_utf8_lossy(&check.stdout)
+    );
+
+    let (_one, one_url) = editor(&dir.path().join("G.toml"), &["--bind", "127.0.0.1:0"]);
+    let mut reply = ureq::get(&format!("{one_url}/api/editor/connectors"))
+        .config()
+        .http_status_as_error(false)
+        .build()
+        .call()
+        .unwrap();
+    assert_eq!(reply.status().as_u16(), 404);
+    let body: Value = reply.body_mut().read_json().unwrap();
+    assert_eq!(body["error"]["code"], "not_a_building");
+}
+
 #[test]
 fn writes_off_loopback_need_the_token() {
     let dir = tempfile::tempdir().unwrap();
@@ -1100,5 +1195,120 @@ async fn the_map_of_a_building_switches_floors() {
     );
     let (_, l1) = get("/api/site?floor=L1");
     assert!(l1["places"].to_string().contains("reading room"), "{l1}");
+    the_editor_places_a_building_s_connectors(browser, dir.path(), &url).await;
     browser.client.clone().close().await.unwrap();
+}
+
+/// The editor's connectors, on L1 of the building the gateway serves: the
+/// building file's connectors and problems are listed; a stop on a blocked
+/// cell is refused with the reason and nothing is written; the stairs,
+/// chosen in the list, get a stop on L1 with the Connector tool, and saving
+/// rewrites only the building file's `[[connectors]]`, reloads the gateway,
+/// and the map of L1 draws the stairs.
+async fn the_editor_places_a_building_s_connectors(browser: &Browser, dir: &Path, url: &str) {
+    let file = dir.join("building.toml");
+    let before = std::fs::read_to_string(&file).unwrap();
+    let mut reply = ureq::get(&format!("{url}/api/editor/connectors"))
+        .call()
+        .unwrap();
+    let got: Value = reply.body_mut().read_json().unwrap();
+    assert_eq!(got["problems"], json!([]), "{got}");
+    let stairs = crate::floors_support::cell_of([9.0, 8.25]);
+    assert_eq!(
+        got["connectors"][1],
+        json!({ "id": "stairs", "kind": "stairs", "stops": [
+            { "floor": "B1", "cell": stairs }, { "floor": "G", "cell": stairs }] }),
+        "{got}"
+    );
+    // Into L1's lift shaft: refused, saying where and why; nothing written.
+    let mut connectors = got["connectors"].clone();
+    let shaft = crate::floors_support::cell_of([17.0, 8.0]);
+    connectors[1]["stops"]
+        .as_array_mut()
+        .unwrap()
+        .push(json!({ "floor": "L1", "cell": shaft }));
+    let mut refused = ureq::put(&format!("{url}/api/editor/connectors"))
+        .config()
+        .http_status_as_error(false)
+        .build()
+        .send_json(json!({ "connectors": connectors }))
+        .unwrap();
+    assert_eq!(refused.status().as_u16(), 422);
+    let refused: Value = refused.body_mut().read_json().unwrap();
+    let message = refused["error"]["message"].as_str().unwrap();
+    assert!(
+        message.starts_with("not saved: ")
+            && message.contains(&format!(
+                "connector `stairs` stop on floor `L1` at [{}, {}] is a blocked cell",
+                shaft[0], shaft[1]
+            )),
+        "{message}"
+    );
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), before);
+
+    // In the page: the stairs chosen, then their cell on L1 clicked.
+    browser
+        .until(
+            "the connectors listed",
+            "return document.querySelectorAll('#connectors li').length === 2",
+            "return document.getElementById('connectors-box').outerHTML",
+        )
+        .await;
+    browser
+        .js("document.querySelector('#connectors li[data-connector=stairs] button.link').click(); return true")
+        .await;
+    browser.tool("stop").await;
+    let at = browser
+        .grid_points(&[[f64::from(stairs[0]) + 0.5, f64::from(stairs[1]) + 0.5]])
+        .await[0];
+    browser.click_at(at).await;
+    let listed =
+        "return document.querySelector('#connectors li[data-connector=stairs]').textContent";
+    assert_eq!(
+        browser.js(listed).await,
+        json!("stairs · stairs · B1, G, L1✕")
+    );
+    let drawn = browser
+        .js("return [...document.querySelectorAll('#plan .connector-name')].map(l => l.textContent)")
+        .await;
+    assert_eq!(drawn, json!(["lift → B1, G", "stairs → B1, G"]));
+    browser.screenshot("editor-connectors.png").await;
+    browser.click_id("connectors-save").await;
+    browser
+        .until(
+            "the connectors saved",
+            "return document.getElementById('connectors-status').textContent.startsWith('saved')",
+            "return document.getElementById('connectors-status').textContent",
+        )
+        .await;
+    let status = browser.text("connectors-status").await;
+    assert!(
+        status.contains("building.toml") && status.contains("the gateway reloaded it"),
+        "{status}"
+    );
+    // Only the connectors were rewritten; the gateway serves them.
+    let after = std::fs::read_to_string(&file).unwrap();
+    let floors_part = |text: &str| {
+        text[..text.find("[[connectors]]").unwrap()]
+            .trim_end()
+            .to_owned()
+    };
+    assert_eq!(floors_part(&after), floors_part(&before));
+    assert!(
+        after.contains(&format!(
+            "stops = [{{ floor = \"B1\", cell = [{0}, {1}] }}, {{ floor = \"G\", cell = [{0}, \
+             {1}] }}, {{ floor = \"L1\", cell = [{0}, {1}] }}]",
+            stairs[0], stairs[1]
+        )),
+        "{after}"
+    );
+    let mut reply = ureq::get(&format!("{url}/api/site?floor=L1"))
+        .call()
+        .unwrap();
+    let l1: Value = reply.body_mut().read_json().unwrap();
+    assert_eq!(
+        l1["connectors"][1],
+        json!({ "id": "stairs", "kind": "stairs", "cell": stairs, "to": ["B1", "G"] }),
+        "{l1}"
+    );
 }

@@ -155,12 +155,14 @@ struct BuildingFile {
 }
 
 /// A building file as data, for the tools that write one (`gangway site
-/// import`); [`BuildingDoc::to_toml`] writes it, [`Building::parse`] checks it.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+/// import`, the editor); [`BuildingDoc::to_toml`] writes it,
+/// [`Building::parse`] checks it.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct BuildingDoc {
     pub name: String,
     pub floors: Vec<FloorDoc>,
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub connectors: Vec<ConnectorDoc>,
 }
 
@@ -196,27 +198,62 @@ pub struct StopDoc {
 }
 
 impl BuildingDoc {
+    /// Reads a building file as data, unchecked: the editor opens a file
+    /// whose connectors have problems, to fix them.
+    pub fn parse(text: &str) -> Result<BuildingDoc, toml::de::Error> {
+        toml::from_str(text)
+    }
+
     /// The building file's TOML, each connector's `stops` on one line as in
     /// the hand-written example above.
     pub fn to_toml(&self) -> String {
-        let text = toml::to_string(self).expect("a building document is plain TOML data");
-        let mut doc: DocumentMut = text.parse().expect("the TOML the toml crate wrote parses");
-        if let Some(connectors) = doc
-            .get_mut("connectors")
-            .and_then(Item::as_array_of_tables_mut)
-        {
-            for connector in connectors.iter_mut() {
-                if let Some(Item::ArrayOfTables(stops)) = connector.get_mut("stops") {
-                    let inline: Array = std::mem::take(stops)
-                        .into_iter()
-                        .map(|stop| Value::InlineTable(stop.into_inline_table()))
-                        .collect();
-                    connector.insert("stops", Item::Value(Value::Array(inline)));
-                }
+        written_with_inline_stops(self)
+    }
+}
+
+/// `text`, a building file, with its `[[connectors]]` replaced by
+/// `connectors` (after everything else); every other line is kept as
+/// written, comments included, so the editor placing a lift leaves the
+/// floors as the user wrote them.
+pub fn replace_connectors(
+    text: &str,
+    connectors: &[ConnectorDoc],
+) -> Result<String, toml_edit::TomlError> {
+    let mut doc: DocumentMut = text.parse()?;
+    doc.remove("connectors");
+    let mut out = doc.to_string();
+    if !connectors.is_empty() {
+        #[derive(Serialize)]
+        struct Connectors<'a> {
+            connectors: &'a [ConnectorDoc],
+        }
+        if !out.is_empty() && !out.ends_with("\n\n") {
+            out.push_str(if out.ends_with('\n') { "\n" } else { "\n\n" });
+        }
+        out.push_str(&written_with_inline_stops(&Connectors { connectors }));
+    }
+    Ok(out)
+}
+
+/// `data` as TOML, each `[[connectors]]`' `stops` an inline array.
+fn written_with_inline_stops(data: &impl Serialize) -> String {
+    let text = toml::to_string(data).expect("a building document is plain TOML data");
+    let mut doc: DocumentMut = text.parse().expect("the TOML the toml crate wrote parses");
+    if let Some(connectors) = doc
+        .get_mut("connectors")
+        .and_then(Item::as_array_of_tables_mut)
+    {
+        for connector in connectors.iter_mut() {
+            if let Some(Item::ArrayOfTables(stops)) = connector.get_mut("stops") {
+                let inline: Array = std::mem::take(stops)
+                    .into_iter()
+                    .map(|stop| Value::InlineTable(stop.into_inline_table()))
+                    .collect();
+                connector.insert("stops", Item::Value(Value::Array(inline)));
             }
         }
-        doc.to_string()
     }
+    doc.to_string()
 }
 
 impl Building {
@@ -684,5 +721,48 @@ site = "F2.toml"
             err.contains("has 1 stop(s); it must join at least two floors"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn replacing_the_connectors_keeps_the_rest_of_the_file() {
+        let text = format!(
+            "# the test building\n{FLOORS}\n[[connectors]]\nid = \"old\"\nkind = \"stairs\"\n\
+             stops = [{{ floor = \"F1\", cell = [0, 0] }}, {{ floor = \"B1\", cell = [0, 0] }}]\n"
+        );
+        let lift = ConnectorDoc {
+            id: "lift".into(),
+            kind: ConnectorKind::Lift,
+            s_per_level: None,
+            wait_s: Some(20.0),
+            stops: vec![
+                StopDoc {
+                    floor: "B1".into(),
+                    cell: Cell::new(2, 2),
+                },
+                StopDoc {
+                    floor: "F2".into(),
+                    cell: Cell::new(0, 1),
+                },
+            ],
+        };
+        let replaced = replace_connectors(&text, std::slice::from_ref(&lift)).unwrap();
+        assert!(
+            replaced.starts_with(&format!("# the test building\n{FLOORS}")),
+            "{replaced}"
+        );
+        assert!(!replaced.contains("old"), "{replaced}");
+        assert!(
+            replaced.contains(
+                "stops = [{ floor = \"B1\", cell = [2, 2] }, { floor = \"F2\", cell = [0, 1] }]"
+            ),
+            "{replaced}"
+        );
+        assert_eq!(BuildingDoc::parse(&replaced).unwrap().connectors, [lift]);
+        let b = parse(&replaced).unwrap();
+        assert_eq!(b.connectors()[0].wait_s, 20.0);
+        // No connectors: none written, the floors unchanged.
+        let none = replace_connectors(&text, &[]).unwrap();
+        assert!(none.starts_with(&format!("# the test building\n{FLOORS}")));
+        assert!(BuildingDoc::parse(&none).unwrap().connectors.is_empty());
     }
 }

@@ -5,7 +5,10 @@
 //! The editor edits one file, named when the server starts (`gangway site
 //! edit --site S`, or the gateway's own site); in a gateway serving a
 //! building, one per floor ([`Editors`]), each floor's site file, the
-//! requests naming it with `?floor=NAME`. What the page sends is data;
+//! requests naming it with `?floor=NAME`, and the building file's
+//! connectors (`/api/editor/connectors`: only its `[[connectors]]` are
+//! rewritten, checked with the floors as `gangway check` checks the
+//! building). What the page sends is data;
 //! the server writes the TOML (keeping the opened file's text where nothing
 //! changed) and loads it with the same [`Site::parse`] the gateway uses, so
 //! there is one validation and its messages are the CLI's. A save is refused
@@ -36,7 +39,8 @@ use super::live::Reloaded;
 use super::security::error;
 use super::view::SiteView;
 use crate::site::{
-    Building, MAX_IMAGE_BYTES, Site, SiteDoc, mime_of_bytes, probe_image, write_doc,
+    Building, BuildingDoc, ConnectorDoc, ConnectorKind, MAX_IMAGE_BYTES, Site, SiteDoc,
+    mime_of_bytes, probe_image, replace_connectors, write_doc,
 };
 
 /// URL the editor fetches a floor-plan image from (`?name=` relative to the
@@ -45,7 +49,7 @@ const IMAGE_URL: &str = "/api/editor/image";
 /// How long a save waits for the gateway to apply it (models may load).
 const APPLY_WAIT: std::time::Duration = std::time::Duration::from_secs(20);
 
-pub struct Editor {
+pub(super) struct Editor {
     /// The site file, absolute.
     path: PathBuf,
     /// Its directory, where floor-plan names resolve.
@@ -80,7 +84,7 @@ struct Opened {
 impl Editor {
     /// The editor of the site file at `path` (which need not exist yet),
     /// offering `image` as the floor plan of a site that names none.
-    pub fn open(path: &Path, image: Option<&Path>) -> anyhow::Result<Editor> {
+    fn open(path: &Path, image: Option<&Path>) -> anyhow::Result<Editor> {
         let path = std::path::absolute(path)?;
         let dir = path.parent().map_or_else(PathBuf::new, Path::to_owned);
         anyhow::ensure!(
@@ -138,7 +142,7 @@ impl Editor {
         self
     }
 
-    pub fn path(&self) -> &Path {
+    fn path(&self) -> &Path {
         &self.path
     }
 
@@ -212,50 +216,80 @@ fn relative(dir: &Path, target: &Path) -> anyhow::Result<String> {
 }
 
 /// The editors a server serves: one site file, or each floor's of a
-/// building (`?floor=NAME`, the lowest floor when absent).
+/// building (`?floor=NAME`, the lowest floor when absent) and the building
+/// file's connectors.
 pub struct Editors {
     floors: Vec<FloorView>,
     /// `editors[i]` edits `floors[i]`'s file.
     editors: Vec<Arc<Editor>>,
+    /// The building file, whose `[[connectors]]` the editor rewrites; none
+    /// for a one-floor site.
+    building: Option<Arc<Editor>>,
 }
 
 impl Editors {
-    /// The editor of one site file.
-    pub fn one(editor: Editor) -> Editors {
-        Editors {
-            floors: Vec::new(),
-            editors: vec![Arc::new(editor)],
-        }
+    /// The editors of the file at `path` (which need not exist yet): a
+    /// one-floor site file's, offering `image` as the floor plan of a site
+    /// that names none; or a building file's floors and connectors. The
+    /// building file is read as data, unchecked, so that a building whose
+    /// connectors have problems opens to fix them.
+    pub fn open(path: &Path, image: Option<&Path>) -> anyhow::Result<Editors> {
+        Editors::served(path, image, None)
     }
 
-    /// The editors of what a gateway serves: `site_file` when `building`
-    /// has one floor, else each floor's site file; with `gateway` (its
-    /// reloads and what became of them), saves apply as SIGHUP does.
-    pub(super) fn open(
-        site_file: &Path,
-        building: &Building,
+    /// [`Editors::open`] within a gateway: with `gateway` (its reloads and
+    /// what became of them), saves apply as SIGHUP does.
+    pub(super) fn served(
+        path: &Path,
+        image: Option<&Path>,
         gateway: Option<(mpsc::Sender<()>, watch::Receiver<Reloaded>)>,
     ) -> anyhow::Result<Editors> {
         let serve = |editor: Editor| match &gateway {
             Some((reload, reloaded)) => editor.served_by(reload.clone(), reloaded.clone()),
             None => editor,
         };
-        if !building.is_multi_floor() {
-            return Ok(Editors::one(serve(Editor::open(site_file, None)?)));
-        }
+        let building_text = std::fs::read_to_string(path)
+            .ok()
+            .filter(|text| Building::is_building_file(text));
+        let Some(text) = building_text else {
+            return Ok(Editors {
+                floors: Vec::new(),
+                editors: vec![Arc::new(serve(Editor::open(path, image)?))],
+                building: None,
+            });
+        };
+        anyhow::ensure!(
+            image.is_none(),
+            "{}: a building file names no plan image; give --image with one floor's site file",
+            path.display()
+        );
+        let doc = BuildingDoc::parse(&text)
+            .map_err(|e| anyhow::anyhow!("{}: not a building file: {e}", path.display()))?;
+        let dir = path.parent().unwrap_or(Path::new("."));
+        let mut floors = doc.floors;
+        floors.sort_by_key(|f| f.level);
         let mut editors = Vec::new();
-        for floor in building.floors() {
-            let file = floor.file.as_deref().ok_or_else(|| {
-                anyhow::anyhow!("floor {} was not loaded from a file", floor.name)
-            })?;
-            let mut editor = serve(Editor::open(file, None)?);
+        for floor in &floors {
+            let mut editor = serve(Editor::open(&dir.join(&floor.site), None)?);
             editor.floor = Some(floor.name.clone());
             editors.push(Arc::new(editor));
         }
         Ok(Editors {
-            floors: super::floor::floors(building),
+            floors: floors
+                .into_iter()
+                .map(|f| FloorView {
+                    name: f.name,
+                    level: f.level,
+                })
+                .collect(),
             editors,
+            building: Some(Arc::new(serve(Editor::open(path, None)?))),
         })
+    }
+
+    /// The file opened: the building file, or the one site file.
+    pub fn path(&self) -> &Path {
+        self.building.as_ref().unwrap_or(&self.editors[0]).path()
     }
 }
 
@@ -333,65 +367,182 @@ pub(super) async fn check(OnFloor(editor): OnFloor, Json(body): Json<DocBody>) -
 }
 
 /// `PUT /api/editor/site`: saves a document without problems and, in a
-/// gateway, applies it. The reply: `saved` (where), `applied` (true: the
-/// gateway serves it now; false: it does not; null: no gateway serves this
-/// file here) and `message`, what the page shows.
+/// gateway, applies it ([`Editor::store`]).
 pub(super) async fn save(OnFloor(editor): OnFloor, Json(body): Json<DocBody>) -> Response {
     let (toml, result) = editor.check(&body.doc);
     if let Err(problems) = result {
         let message = format!("not saved: {}", problems.join("; "));
         return error(StatusCode::UNPROCESSABLE_ENTITY, "invalid_site", message);
     }
-    let path = editor.path.display().to_string();
-    let written = {
-        let mut opened = editor.lock();
-        let on_disk = std::fs::read_to_string(&editor.path).ok();
-        if on_disk != opened.text {
+    editor.store(toml).await
+}
+
+/// The building file's editor, for the connectors' routes; a 404 on a
+/// one-floor site.
+pub(super) struct OfBuilding(Arc<Editor>);
+
+impl axum::extract::FromRequestParts<Arc<Editors>> for OfBuilding {
+    type Rejection = Response;
+
+    async fn from_request_parts(
+        _: &mut axum::http::request::Parts,
+        editors: &Arc<Editors>,
+    ) -> Result<OfBuilding, Response> {
+        editors.building.clone().map(OfBuilding).ok_or_else(|| {
+            error(
+                StatusCode::NOT_FOUND,
+                "not_a_building",
+                "this editor edits one site file; connectors join the floors of a building file \
+                 (see docs/floors.md)",
+            )
+        })
+    }
+}
+
+/// Every problem of the building file `text` at `path`, as `gangway check`
+/// words them; loads each floor's site file, off the event loop.
+async fn building_problems(text: String, path: PathBuf) -> Vec<String> {
+    tokio::task::spawn_blocking(move || {
+        Building::parse(&text, &path, Site::load).map_or_else(|e| e.problems(), |_| Vec::new())
+    })
+    .await
+    .unwrap_or_else(|e| vec![format!("checking the building failed: {e}")])
+}
+
+/// `GET /api/editor/connectors`: the building file's connectors, its
+/// problems, and each kind's defaults and whether it is step-free.
+pub(super) async fn connectors(OfBuilding(building): OfBuilding) -> Response {
+    let text = building.lock().text.clone().unwrap_or_default();
+    let connectors = match BuildingDoc::parse(&text) {
+        Ok(doc) => doc.connectors,
+        Err(e) => {
+            let message = format!("{}: {e}", building.path.display());
             return error(
-                StatusCode::CONFLICT,
-                "changed_on_disk",
-                format!(
-                    "{path} changed on disk since the editor opened it; reload the editor to see \
-                     it (nothing was saved)"
-                ),
+                StatusCode::UNPROCESSABLE_ENTITY,
+                "invalid_building",
+                message,
             );
         }
-        let written = write_atomically(&editor.path, toml.as_bytes());
-        if written.is_ok() {
-            opened.text = Some(toml.clone());
-        }
-        written
     };
-    if let Err(e) = written {
-        return editor.save_elsewhere(&toml, &e);
-    }
-    tracing::info!(path, "site saved from the editor");
-    let (applied, message) = match &editor.gateway {
-        None => (
-            serde_json::Value::Null,
-            format!(
-                "saved {path}; a gateway serving this file applies it when it reloads \
-                 (`systemctl reload gangway`)"
-            ),
-        ),
-        Some(gateway) => match gateway.apply().await {
-            Ok(()) => (
-                true.into(),
-                format!("saved {path}; the gateway reloaded it and serves it now"),
-            ),
-            Err(why) => (false.into(), format!("saved {path}, but {why}")),
-        },
-    };
+    let problems = building_problems(text, building.path.clone()).await;
+    let kinds: Vec<_> = [
+        ConnectorKind::Stairs,
+        ConnectorKind::Lift,
+        ConnectorKind::Escalator,
+        ConnectorKind::Ramp,
+    ]
+    .into_iter()
+    .map(|kind| {
+        serde_json::json!({
+            "kind": kind,
+            "step_free": kind.step_free(),
+            "s_per_level": kind.default_s_per_level(),
+            "wait_s": kind.default_wait_s(),
+        })
+    })
+    .collect();
     Json(serde_json::json!({
-        "saved": path,
-        "toml": toml,
-        "applied": applied,
-        "message": message,
+        "path": building.path.display().to_string(),
+        "connectors": connectors,
+        "problems": problems,
+        "kinds": kinds,
     }))
     .into_response()
 }
 
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct ConnectorsBody {
+    connectors: Vec<ConnectorDoc>,
+}
+
+/// `PUT /api/editor/connectors`: replaces the building file's
+/// `[[connectors]]` (nothing else in it changes) when the building, floors
+/// and all, then passes `gangway check`; applies it as a site save does.
+pub(super) async fn save_connectors(
+    OfBuilding(building): OfBuilding,
+    Json(body): Json<ConnectorsBody>,
+) -> Response {
+    let text = building.lock().text.clone().unwrap_or_default();
+    let toml = match replace_connectors(&text, &body.connectors) {
+        Ok(toml) => toml,
+        Err(e) => {
+            let message = format!("{}: {e}", building.path.display());
+            return error(
+                StatusCode::UNPROCESSABLE_ENTITY,
+                "invalid_building",
+                message,
+            );
+        }
+    };
+    let problems = building_problems(toml.clone(), building.path.clone()).await;
+    if !problems.is_empty() {
+        let message = format!("not saved: {}", problems.join("; "));
+        return error(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "invalid_building",
+            message,
+        );
+    }
+    building.store(toml).await
+}
+
 impl Editor {
+    /// Writes `toml`, checked, over the file, unless it changed on disk
+    /// since it was opened or saved; applies it where a gateway serves it.
+    /// The reply: `saved` (where), `applied` (true: the gateway serves it
+    /// now; false: it does not; null: no gateway serves this file here) and
+    /// `message`, what the page shows.
+    async fn store(&self, toml: String) -> Response {
+        let path = self.path.display().to_string();
+        let written = {
+            let mut opened = self.lock();
+            let on_disk = std::fs::read_to_string(&self.path).ok();
+            if on_disk != opened.text {
+                return error(
+                    StatusCode::CONFLICT,
+                    "changed_on_disk",
+                    format!(
+                        "{path} changed on disk since the editor opened it; reload the editor to see \
+                         it (nothing was saved)"
+                    ),
+                );
+            }
+            let written = write_atomically(&self.path, toml.as_bytes());
+            if written.is_ok() {
+                opened.text = Some(toml.clone());
+            }
+            written
+        };
+        if let Err(e) = written {
+            return self.save_elsewhere(&toml, &e);
+        }
+        tracing::info!(path, "saved from the editor");
+        let (applied, message) = match &self.gateway {
+            None => (
+                serde_json::Value::Null,
+                format!(
+                    "saved {path}; a gateway serving this file applies it when it reloads \
+                     (`systemctl reload gangway`)"
+                ),
+            ),
+            Some(gateway) => match gateway.apply().await {
+                Ok(()) => (
+                    true.into(),
+                    format!("saved {path}; the gateway reloaded it and serves it now"),
+                ),
+                Err(why) => (false.into(), format!("saved {path}, but {why}")),
+            },
+        };
+        Json(serde_json::json!({
+            "saved": path,
+            "toml": toml,
+            "applied": applied,
+            "message": message,
+        }))
+        .into_response()
+    }
+
     /// The site file cannot be written (`why`): saves the site in the state
     /// directory instead, or, without one, says where it must go.
     fn save_elsewhere(&self, toml: &str, why: &std::io::Error) -> Response {

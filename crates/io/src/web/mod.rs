@@ -34,7 +34,7 @@ use tokio::net::TcpListener;
 use tokio::sync::mpsc;
 
 pub use config::WebConfig;
-pub use editor::{Editor, Editors};
+pub use editor::Editors;
 pub(crate) use live::{Live, WebSink, WebSource};
 pub use security::CONTENT_SECURITY_POLICY;
 
@@ -60,11 +60,11 @@ pub struct Ui {
 }
 
 impl Ui {
-    /// The editor of one site file, alone.
-    pub fn editor(editor: Editor) -> Ui {
+    /// The editor of a site or building file, alone.
+    pub fn editor(editors: Editors) -> Ui {
         Ui {
             live: None,
-            editor: Some(Editors::one(editor)),
+            editor: Some(editors),
             survey: None,
         }
     }
@@ -151,7 +151,7 @@ pub async fn start(
     let latency = Arc::new(Latency::default());
     let (live, sink, source) = Live::new(building.clone(), max_devices, latency.clone());
     let gateway = reload.map(|reload| (reload, live.reloaded.subscribe()));
-    let editor = match Editors::open(site_file, &building, gateway) {
+    let editor = match Editors::served(site_file, None, gateway) {
         Ok(editors) => Some(editors),
         Err(e) => {
             tracing::warn!("[web] no site editor: {e:#}");
@@ -268,6 +268,10 @@ fn router(app: App) -> Router {
                 .route("/api/editor", get(editor::get))
                 .route("/api/editor/check", axum::routing::post(editor::check))
                 .route("/api/editor/site", axum::routing::put(editor::save))
+                .route(
+                    "/api/editor/connectors",
+                    get(editor::connectors).put(editor::save_connectors),
+                )
                 .route(
                     "/api/editor/image",
                     get(editor::image)

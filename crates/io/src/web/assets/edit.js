@@ -4,7 +4,7 @@
 // does; its problems are shown as they are. Nothing here writes TOML.
 
 import {
-  api, h, s, fill, Frame, similarity, applyMatrix, invertMatrix, tilePaths, gridLines, PlanView, drawFloorplan, token, setToken, anchorMarker, placeMarker,
+  api, h, s, fill, Frame, similarity, applyMatrix, invertMatrix, tilePaths, gridLines, PlanView, drawFloorplan, token, setToken, anchorMarker, placeMarker, connectorMarker,
 } from "/assets/site.js";
 
 const $ = (id) => document.getElementById(id);
@@ -111,6 +111,7 @@ async function load() {
   $("save").disabled = access.read_only;
   const opened = await api(onFloor("/api/editor"));
   showFloors(opened);
+  loadConnectors(opened).catch((e) => showConnectorsStatus(e.message, true));
   served = opened.served_by_gateway;
   fill($("file"), opened.exists ? `editing ${opened.path}` : `new file ${opened.path}`, served ? " (the site this gateway serves: saving applies it)" : "");
   $("download").download = opened.path.split("/").pop();
@@ -454,8 +455,11 @@ svg.addEventListener("click", (e) => {
     addBeacon(worldAt(g));
   } else if (t === "place") {
     addPlace(cellAt(g));
+  } else if (t === "stop") {
+    placeStop(cellAt(g));
   } else if (t === "select") {
-    if (target) select(target.dataset.kind, target.dataset.key);
+    if (target && target.dataset.kind === "connector") chooseConnector(Number(target.dataset.key));
+    else if (target) select(target.dataset.kind, target.dataset.key);
     else select(null);
   }
 });
@@ -779,9 +783,10 @@ function render() {
     if (selected && selected.kind === "place" && selected.key === name) marker.node.classList.add("selected");
     return marker;
   });
+  const stops = stopMarkers();
   fill(view.layers.anchors, anchors.map((a) => a.node));
-  fill(view.layers.places, places.map((p) => p.node));
-  view.labels.set([...places, ...anchors].map((m) => m.label));
+  fill(view.layers.places, places.map((p) => p.node), stops.map((c) => c.node));
+  view.labels.set([...places, ...stops, ...anchors].map((m) => m.label));
   const draftParts = [];
   if (measure.length) {
     const pts = measure.map((p) => applyMatrix(m, p));
@@ -826,6 +831,168 @@ function renderLists() {
   fill($("shapes"), shapes);
   fill($("shape-count"), String(shapes.length));
 }
+
+// ---- connectors: a building's, in the building file ----
+//
+// Each floor's page edits that floor's stops; the building's connectors are
+// kept in this tab (sessionStorage) until saved, so a connector's stops
+// can be placed floor after floor. The gateway rewrites only the building
+// file's [[connectors]] and checks the building as `gangway check` does.
+
+const CONNECTORS_DRAFT = "gangway-connectors-draft";
+let building = null; // { path, connectors, kinds, floors } on a building
+let chosen = null; // index of the chosen connector
+
+async function loadConnectors(opened) {
+  if (!opened.floors || opened.floors.length < 2) return;
+  const got = await api("/api/editor/connectors");
+  building = { path: got.path, connectors: got.connectors, kinds: got.kinds, floors: opened.floors.map((f) => f.name) };
+  const draft = JSON.parse(sessionStorage.getItem(CONNECTORS_DRAFT) || "null");
+  if (draft && draft.path === got.path) {
+    building.connectors = draft.connectors;
+    chosen = draft.chosen;
+    showConnectorsStatus("changed in this tab, not saved yet", true);
+  }
+  $("connectors-box").hidden = false;
+  $("stop-tool").hidden = false;
+  $("connectors-save").disabled = access.read_only;
+  showConnectorProblems(got.problems);
+  renderConnectors();
+  render();
+}
+
+function connectorsChanged() {
+  sessionStorage.setItem(CONNECTORS_DRAFT, JSON.stringify({ path: building.path, connectors: building.connectors, chosen }));
+  showConnectorsStatus("changed, not saved yet", true);
+  renderConnectors();
+  render();
+}
+
+function stopHere(c) {
+  return c.stops.find((stop) => stop.floor === floor);
+}
+
+function chooseConnector(i) {
+  chosen = i;
+  renderConnectors();
+  render();
+}
+
+function addConnector() {
+  let n = building.connectors.length + 1;
+  while (building.connectors.some((c) => c.id === "connector " + n)) n++;
+  building.connectors.push({ id: "connector " + n, kind: "lift", stops: [] });
+  chosen = building.connectors.length - 1;
+}
+
+/** The chosen connector (a new one when none is) stops on `cell` of this floor. */
+function placeStop(cell) {
+  if (!building) return;
+  if (chosen === null || !building.connectors[chosen]) addConnector();
+  const c = building.connectors[chosen];
+  const here = stopHere(c);
+  if (here) here.cell = cell;
+  else c.stops.push({ floor, cell });
+  c.stops.sort((a, b) => building.floors.indexOf(a.floor) - building.floors.indexOf(b.floor));
+  connectorsChanged();
+}
+
+function removeConnector(i) {
+  building.connectors.splice(i, 1);
+  chosen = null;
+  connectorsChanged();
+}
+
+function stopMarkers() {
+  if (!building) return [];
+  return building.connectors.flatMap((c, i) => {
+    const here = stopHere(c);
+    if (!here) return [];
+    const to = c.stops.filter((stop) => stop.floor !== floor).map((stop) => stop.floor);
+    const marker = connectorMarker({ id: c.id, kind: c.kind, cell: here.cell, to }, { "data-kind": "connector", "data-key": i });
+    if (i === chosen) marker.node.classList.add("selected");
+    return [marker];
+  });
+}
+
+function renderConnectors() {
+  const list = building.connectors.map((c, i) =>
+    h(
+      "li",
+      { class: i === chosen ? "selected" : "", "data-connector": c.id },
+      h("button", { type: "button", class: "link", onclick: () => chooseConnector(i) }, `${c.id} · ${c.kind} · ${c.stops.map((stop) => stop.floor).join(", ") || "no stops"}`),
+      h("button", { type: "button", class: "remove", title: "delete", onclick: () => removeConnector(i) }, "✕"),
+    ),
+  );
+  fill($("connectors"), list);
+  fill($("connector-count"), String(building.connectors.length));
+  const c = building.connectors[chosen];
+  if (!c) return fill($("connector-form"));
+  const kind = building.kinds.find((k) => k.kind === c.kind) || building.kinds[0];
+  const kinds = h(
+    "select",
+    { id: "connector-kind", onchange: (e) => ((c.kind = e.target.value), connectorsChanged()) },
+    building.kinds.map((k) => h("option", { value: k.kind, selected: k.kind === c.kind }, k.step_free ? `${k.kind} (step-free)` : k.kind)),
+  );
+  const seconds = (key, label, fallback) => {
+    const field = numberInput(label, c[key], (v) => {
+      if (v === undefined) delete c[key];
+      else c[key] = v;
+      connectorsChanged();
+    }, 1);
+    field.querySelector("input").placeholder = String(fallback);
+    return field;
+  };
+  const stops = c.stops.map((stop) =>
+    h(
+      "li",
+      { class: stop.floor === floor ? "selected" : "" },
+      `${stop.floor} [${stop.cell.join(", ")}]`,
+      h("button", { type: "button", class: "remove", title: "remove this stop", onclick: () => ((c.stops = c.stops.filter((other) => other !== stop)), connectorsChanged()) }, "✕"),
+    ),
+  );
+  fill(
+    $("connector-form"),
+    h(
+      "div",
+      { class: "grid-form" },
+      textInput("id", c.id, (v) => ((c.id = v.trim()), connectorsChanged())),
+      h("label", {}, "kind ", kinds),
+      seconds("s_per_level", "s per level", kind.s_per_level),
+      seconds("wait_s", "wait s", kind.wait_s),
+    ),
+    h("ul", { class: "items" }, stops),
+    stopHere(c) ? null : h("p", { class: "hint" }, `No stop on ${floor}: pick the Connector tool and click its cell.`),
+  );
+}
+
+function showConnectorsStatus(message, bad = false) {
+  fill($("connectors-status"), h("span", { class: bad ? "bad" : "ok" }, message));
+}
+
+function showConnectorProblems(problems) {
+  fill($("connector-problems"), problems.map((p) => h("li", {}, p)));
+}
+
+$("connector-add").addEventListener("click", () => {
+  addConnector();
+  connectorsChanged();
+});
+
+$("connectors-save").addEventListener("click", async () => {
+  $("connectors-save").disabled = true;
+  showConnectorsStatus(served ? "saving, then reloading the gateway…" : "saving…");
+  try {
+    const result = await api("/api/editor/connectors", { method: "PUT", json: { connectors: building.connectors } });
+    sessionStorage.removeItem(CONNECTORS_DRAFT);
+    showConnectorProblems([]);
+    showConnectorsStatus(result.message, result.applied === false);
+  } catch (e) {
+    showConnectorsStatus(e.message, true);
+  } finally {
+    $("connectors-save").disabled = access.read_only;
+  }
+});
 
 // ---- checking and saving ----
 

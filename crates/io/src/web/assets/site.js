@@ -287,18 +287,19 @@ export function placeMarker(name, cell, attrs = {}, ...children) {
 }
 
 /** A connector's stop (stairs, a lift…) on `cell`: its kind and the floors
- * it goes to as a label. */
-export function connectorMarker(c) {
+ * it goes to as a label. `attrs` are the marker's own (the editor's). */
+export function connectorMarker(c, attrs = {}) {
   const at = [c.cell[0] + 0.5, c.cell[1] + 0.5];
   const name = c.id === c.kind ? c.kind : `${c.kind} ${c.id}`;
-  const label = s("text", { class: "connector-name label" }, `${name} → ${c.to.join(", ")}`);
+  const to = c.to.length ? ` → ${c.to.join(", ")}` : "";
+  const label = s("text", { class: "connector-name label" }, name + to);
   const r = PLACE_HALF;
   const node = s(
     "g",
-    { class: "connector " + c.kind, transform: `translate(${at[0]} ${at[1]})` },
+    { class: "connector " + c.kind, transform: `translate(${at[0]} ${at[1]})`, ...attrs },
     s("path", { d: `M0 ${-r * 1.3} L${r * 1.3} 0 L0 ${r * 1.3} L${-r * 1.3} 0 Z` }),
     label,
-    s("title", {}, `${name}, to floor ${c.to.join(", ")}`),
+    s("title", {}, c.to.length ? `${name}, to floor ${c.to.join(", ")}` : `${name}, on no other floor yet`),
   );
   return { node, label: { node: label, at, r: r * 1.3, px: 12, weight: 600, rank: 0 } };
 }
