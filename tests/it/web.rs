@@ -43,6 +43,34 @@ fn editor(site: &Path, extra: &[&str]) -> (Proc, String) {
     (Proc(child), url)
 }
 
+/// `PUT url` with a JSON body: the status and the JSON reply.
+fn put_json(url: &str, body: &Value) -> (u16, Value) {
+    let mut reply = ureq::put(url)
+        .config()
+        .http_status_as_error(false)
+        .build()
+        .send_json(body)
+        .unwrap();
+    (
+        reply.status().as_u16(),
+        reply.body_mut().read_json().unwrap(),
+    )
+}
+
+/// `GET url`: the status and the JSON reply.
+fn get_json(url: &str) -> (u16, Value) {
+    let mut reply = ureq::get(url)
+        .config()
+        .http_status_as_error(false)
+        .build()
+        .call()
+        .unwrap();
+    (
+        reply.status().as_u16(),
+        reply.body_mut().read_json().unwrap(),
+    )
+}
+
 /// `gangway run --replay LOG --speed SPEED` in `dir` with the web UI on a
 /// free port, the embedded broker and stats every second; `config` is the
 /// rest of the config file (`gateway_id`, `site`, other tables). Returns it
@@ -720,16 +748,7 @@ fn site_edit_opens_a_building_with_its_connectors_problems_and_all() {
     );
     std::fs::write(&file, &broken).unwrap();
     let (_editor, url) = editor(&file, &["--bind", "127.0.0.1:0"]);
-    let get = |path: &str| -> (u16, Value) {
-        let mut reply = ureq::get(&format!("{url}{path}"))
-            .config()
-            .http_status_as_error(false)
-            .build()
-            .call()
-            .unwrap();
-        let status = reply.status().as_u16();
-        (status, reply.body_mut().read_json().unwrap())
-    };
+    let get = |path: &str| get_json(&format!("{url}{path}"));
     let (_, opened) = get("/api/editor?floor=G");
     assert_eq!(opened["floor"], "G");
     assert!(
@@ -751,14 +770,10 @@ fn site_edit_opens_a_building_with_its_connectors_problems_and_all() {
             stop["cell"] = json!(stairs);
         }
     }
-    let mut saved = ureq::put(&format!("{url}/api/editor/connectors"))
-        .config()
-        .http_status_as_error(false)
-        .build()
-        .send_json(json!({ "connectors": connectors }))
-        .unwrap();
-    let status = saved.status().as_u16();
-    let saved: Value = saved.body_mut().read_json().unwrap();
+    let (status, saved) = put_json(
+        &format!("{url}/api/editor/connectors"),
+        &json!({ "connectors": connectors }),
+    );
     assert_eq!(status, 200, "{saved}");
     assert_eq!(saved["applied"], Value::Null);
     let (_, after) = get("/api/editor/connectors");
@@ -775,14 +790,8 @@ fn site_edit_opens_a_building_with_its_connectors_problems_and_all() {
     );
 
     let (_one, one_url) = editor(&dir.path().join("G.toml"), &["--bind", "127.0.0.1:0"]);
-    let mut reply = ureq::get(&format!("{one_url}/api/editor/connectors"))
-        .config()
-        .http_status_as_error(false)
-        .build()
-        .call()
-        .unwrap();
-    assert_eq!(reply.status().as_u16(), 404);
-    let body: Value = reply.body_mut().read_json().unwrap();
+    let (status, body) = get_json(&format!("{one_url}/api/editor/connectors"));
+    assert_eq!(status, 404, "{body}");
     assert_eq!(body["error"]["code"], "not_a_building");
 }
 
@@ -965,14 +974,8 @@ fn a_site_that_cannot_be_written_is_saved_in_the_state_directory() {
     assert_eq!(opened["served_by_gateway"], true, "{opened}");
     let mut doc = opened["doc"].clone();
     doc["places"]["new desk"] = json!([12, 3]);
-    let mut reply = ureq::put(&format!("{url}/api/editor/site"))
-        .config()
-        .http_status_as_error(false)
-        .build()
-        .send_json(json!({ "doc": doc }))
-        .unwrap();
-    assert_eq!(reply.status().as_u16(), 200);
-    let reply: Value = reply.body_mut().read_json().unwrap();
+    let (status, reply) = put_json(&format!("{url}/api/editor/site"), &json!({ "doc": doc }));
+    assert_eq!(status, 200, "{reply}");
     let instead = state.join("waldo.toml");
     assert_eq!(reply["saved"], instead.display().to_string(), "{reply}");
     assert_eq!(reply["instead_of"], site.display().to_string(), "{reply}");
@@ -1024,16 +1027,7 @@ async fn the_map_of_a_building_switches_floors() {
 
     // The API: the floors, lowest first; `?floor=` names one, an unknown
     // one is a 404 that lists them.
-    let get = |path: &str| {
-        let mut reply = ureq::get(&format!("{url}{path}"))
-            .config()
-            .http_status_as_error(false)
-            .build()
-            .call()
-            .unwrap();
-        let json: Value = reply.body_mut().read_json().unwrap();
-        (reply.status().as_u16(), json)
-    };
+    let get = |path: &str| get_json(&format!("{url}{path}"));
     let (_, floors) = get("/api/floors");
     assert_eq!(
         floors["floors"],
@@ -1227,14 +1221,11 @@ async fn the_editor_places_a_building_s_connectors(browser: &Browser, dir: &Path
         .as_array_mut()
         .unwrap()
         .push(json!({ "floor": "L1", "cell": shaft }));
-    let mut refused = ureq::put(&format!("{url}/api/editor/connectors"))
-        .config()
-        .http_status_as_error(false)
-        .build()
-        .send_json(json!({ "connectors": connectors }))
-        .unwrap();
-    assert_eq!(refused.status().as_u16(), 422);
-    let refused: Value = refused.body_mut().read_json().unwrap();
+    let (status, refused) = put_json(
+        &format!("{url}/api/editor/connectors"),
+        &json!({ "connectors": connectors }),
+    );
+    assert_eq!(status, 422, "{refused}");
     let message = refused["error"]["message"].as_str().unwrap();
     assert!(
         message.starts_with("not saved: ")

@@ -415,14 +415,7 @@ pub(super) async fn connectors(OfBuilding(building): OfBuilding) -> Response {
     let text = building.lock().text.clone().unwrap_or_default();
     let connectors = match BuildingDoc::parse(&text) {
         Ok(doc) => doc.connectors,
-        Err(e) => {
-            let message = format!("{}: {e}", building.path.display());
-            return error(
-                StatusCode::UNPROCESSABLE_ENTITY,
-                "invalid_building",
-                message,
-            );
-        }
+        Err(e) => return invalid_building(format!("{}: {e}", building.path.display())),
     };
     let problems = building_problems(text, building.path.clone()).await;
     let kinds: Vec<_> = [
@@ -450,6 +443,15 @@ pub(super) async fn connectors(OfBuilding(building): OfBuilding) -> Response {
     .into_response()
 }
 
+/// The 422 of a building file that does not parse or check.
+fn invalid_building(message: String) -> Response {
+    error(
+        StatusCode::UNPROCESSABLE_ENTITY,
+        "invalid_building",
+        message,
+    )
+}
+
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct ConnectorsBody {
@@ -466,23 +468,11 @@ pub(super) async fn save_connectors(
     let text = building.lock().text.clone().unwrap_or_default();
     let toml = match replace_connectors(&text, &body.connectors) {
         Ok(toml) => toml,
-        Err(e) => {
-            let message = format!("{}: {e}", building.path.display());
-            return error(
-                StatusCode::UNPROCESSABLE_ENTITY,
-                "invalid_building",
-                message,
-            );
-        }
+        Err(e) => return invalid_building(format!("{}: {e}", building.path.display())),
     };
     let problems = building_problems(toml.clone(), building.path.clone()).await;
     if !problems.is_empty() {
-        let message = format!("not saved: {}", problems.join("; "));
-        return error(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            "invalid_building",
-            message,
-        );
+        return invalid_building(format!("not saved: {}", problems.join("; ")));
     }
     building.store(toml).await
 }
