@@ -119,8 +119,8 @@ struct LocalizationArgs {
     #[arg(long, conflicts_with_all = ["train", "test"])]
     walks: Option<PathBuf>,
     /// With `--walks`: the floor filter's probability of changing floor
-    /// between two windows.
-    #[arg(long, default_value_t = 0.001)]
+    /// between two windows (the gateway's own by default).
+    #[arg(long, default_value_t = crate::locate::floor_track::SWITCH)]
     floor_switch: f64,
     /// A fixed split instead: the labelled rows to build from (CSV)...
     #[arg(long, requires = "test")]
@@ -331,9 +331,10 @@ fn floors(args: &LocalizationArgs, walks: &Path) -> anyhow::Result<ExitCode> {
     }
     let line = |name: &str, m: &crate::eval::floors::FloorMetrics| {
         println!(
-            "{name:>10}: floor right {:.1}%, on the right floor mean {:.2} m, median {:.2} m, \
-             p90 {:.2} m ({} fixes)",
+            "{name:>10}: floor right {:.1}% (unknown {:.1}%), on the right floor mean {:.2} m, \
+             median {:.2} m, p90 {:.2} m ({} fixes)",
             100.0 * m.floor_accuracy,
+            100.0 * m.floor_unknown,
             m.mean_error_m,
             m.median_error_m,
             m.p90_error_m,

@@ -1004,8 +1004,9 @@ async fn the_daemon_recalibrates_from_what_it_heard_and_serves_it() {
 /// The five-floor mall: its plans imported as a building, its walks split by
 /// time (the later 30% of each floor's held out), located floor by floor
 /// with the surveyed k-NN beside the plain k-NN regressor baseline on the
-/// same split (BENCHMARKS.md, "Floors"). Guards what is reached: the floor
-/// told apart at least as often as the baseline does. The targets
+/// same split (BENCHMARKS.md, "Floors"), each window's floor decided by
+/// the gateway's own floor tracks. Guards what is reached: the floor told
+/// apart at least as often as the baseline does. The targets
 /// (floor ≥ 97%, error on the right floor 15% below the baseline's) are not
 /// met; the figures are printed, not gated.
 #[test]
@@ -1033,5 +1034,7 @@ fn the_mall_s_floors_are_told_apart_at_least_as_well_as_the_baseline() {
         figure(&v, "floor_accuracy") >= figure(baseline, "floor_accuracy"),
         "{v}"
     );
-    assert!(figure(&v, "floor_accuracy") >= 0.78, "reached 0.795: {v}");
+    // Measured with the gateway's own floor rules since 2026-12-05 (a
+    // floor published as unknown counts as wrong): 0.771.
+    assert!(figure(&v, "floor_accuracy") >= 0.76, "reached 0.771: {v}");
 }

@@ -166,6 +166,12 @@ pub struct Beacon {
     /// The beacon's address, when several transmitters share its
     /// UUID/major/minor: it then stands only for sightings from this MAC.
     pub mac: Option<Mac>,
+    /// How loudly the beacon is heard over this floor: 10·log10 of its
+    /// readings' power (mW) per second walked in the survey
+    /// (`gangway survey import` writes it). On a building, which floor a
+    /// device is on is judged by how each beacon it hears is heard from
+    /// each floor; without it, equally from every floor listing it.
+    pub heard_dbm: Option<f64>,
 }
 
 /// A fixed gateway: an anchor when gateways localize the tags they hear.
@@ -387,6 +393,7 @@ struct BeaconEntry {
     height_m: Option<Spanned<f64>>,
     tx_power: Option<i8>,
     mac: Option<Spanned<String>>,
+    heard_dbm: Option<f64>,
 }
 
 #[derive(Deserialize)]
@@ -708,6 +715,14 @@ impl Site {
                 b.height_m.as_ref(),
                 &mut problems,
             );
+            if let Some(dbm) = b.heard_dbm.filter(|d| !(-150.0..=30.0).contains(d)) {
+                problems.push(format!(
+                    "line {line}: beacon `{}` `heard_dbm` is {dbm}; it is how loudly the beacon \
+                     is heard over the floor, in dBm between -150 and 30 (`gangway survey \
+                     import` writes it; delete it to judge floors by the beacon lists alone)",
+                    b.id
+                ));
+            }
             beacons.push(Beacon {
                 id: b.id.clone(),
                 beacon,
@@ -715,6 +730,7 @@ impl Site {
                 mount,
                 tx_power: b.tx_power,
                 mac,
+                heard_dbm: b.heard_dbm,
             });
         }
 

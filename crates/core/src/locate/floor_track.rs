@@ -11,6 +11,13 @@
 //! the new floor starts the device at that floor's stops of the connectors
 //! it may have come by, never at a cell a staircase does not reach.
 //!
+//! A device's first floor is a guess, not somewhere it walked from: until the
+//! evidence makes one floor [`SETTLED`] likely, the device follows it from
+//! floor to floor (each time starting afresh there), and only from then on
+//! does the connector rule hold. Without that, the first window's guess on
+//! weak evidence would hold a device on the wrong floor for as long as it
+//! is heard (in a building whose plans name no connectors, for ever).
+//!
 //! A device unheard for longer than the tracker's reset time may have gone
 //! anywhere: its floor is taken afresh from what it hears.
 //!
@@ -25,12 +32,28 @@ use super::bounds::Bounds;
 use super::floors::{FloorEvidence, FloorFilter};
 use crate::site::{Building, Cell};
 
+/// The probability of its floor from which a device is taken to be on it:
+/// from then on it leaves the floor only through a connector. A fixed
+/// odds of 99 to 1, not fitted to any building.
+pub const SETTLED: f64 = 0.99;
+
+/// The probability per window that a device changes floor, for the floor
+/// filter: people change floor a few times in an hour of 2 s windows, and
+/// the connectors' times keep one odd window from moving a device anyway.
+pub const SWITCH: f64 = 0.01;
+
+/// The probability of its floor from which a device's floor is published;
+/// below it, `floor` is unknown (no floor is likelier than all the others
+/// together).
+pub const KNOWN: f64 = 0.5;
+
 /// How a device's floor came about at a fix.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) enum FloorChange {
+pub enum FloorChange {
     /// On the floor it was on.
     Stays,
-    /// First heard (or heard again after a long gap): its floor is new.
+    /// First heard (or heard again after a long gap), or its first guess
+    /// corrected before it settled: its floor is new.
     Starts,
     /// Came from this floor through a connector.
     From(usize),
@@ -38,7 +61,7 @@ pub(crate) enum FloorChange {
 
 /// A device's floor at one fix.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) struct FloorStep {
+pub struct FloorStep {
     /// Index into [`Building::floors`].
     pub floor: usize,
     /// The filter's probability that the device is on `floor`.
@@ -49,13 +72,15 @@ pub(crate) struct FloorStep {
 struct DeviceFloor {
     filter: FloorFilter,
     floor: usize,
+    /// Whether `floor` has been [`SETTLED`] likely since it started.
+    settled: bool,
     /// When it came onto `floor`.
     since: f64,
     last_t: f64,
 }
 
 /// The floors of every device of one building.
-pub(crate) struct FloorTracks {
+pub struct FloorTracks {
     evidence: FloorEvidence,
     switch: f64,
     /// `ride_s[a][b]`: the least moving time from floor `a` to floor `b`
@@ -75,7 +100,7 @@ impl FloorTracks {
     /// The floor tracks of `building`, judging windows by `evidence` and
     /// changing floor between two windows with probability `switch` at most;
     /// a device unheard for `reset_after_s` starts afresh.
-    pub(crate) fn new(
+    pub fn new(
         building: &Building,
         evidence: FloorEvidence,
         switch: f64,
@@ -153,7 +178,7 @@ impl FloorTracks {
 
     /// The cells of floor `to` where a device coming from floor `from`
     /// arrives.
-    pub(crate) fn entries(&self, from: usize, to: usize) -> &[Cell] {
+    pub fn entries(&self, from: usize, to: usize) -> &[Cell] {
         &self.entries[from][to]
     }
 
@@ -169,12 +194,7 @@ impl FloorTracks {
 
     /// Takes the window of `device` at `t`, which heard `heard` (building
     /// anchor, RSSI dBm); returns its floor.
-    pub(crate) fn update(
-        &mut self,
-        device: &Arc<str>,
-        t: f64,
-        heard: &[(usize, f32)],
-    ) -> FloorStep {
+    pub fn update(&mut self, device: &Arc<str>, t: f64, heard: &[(usize, f32)]) -> FloorStep {
         self.evidence.window(heard, &mut self.scratch);
         let full = self.devices.len() >= self.bounds.max() && !self.devices.contains_key(device);
         self.bounds
@@ -184,6 +204,7 @@ impl FloorTracks {
         let fresh = || DeviceFloor {
             filter: FloorFilter::new(floors, switch),
             floor: 0,
+            settled: false,
             since: t,
             last_t: f64::NEG_INFINITY,
         };
@@ -194,7 +215,7 @@ impl FloorTracks {
         }
         device.last_t = t;
         let (best, _) = device.filter.update(&self.scratch);
-        let change = if starts {
+        let change = if starts || (!device.settled && best != device.floor) {
             device.floor = best;
             device.since = t;
             FloorChange::Starts
@@ -206,9 +227,11 @@ impl FloorTracks {
         } else {
             FloorChange::Stays
         };
+        let probability = device.filter.probability(device.floor);
+        device.settled |= probability >= SETTLED;
         FloorStep {
             floor: device.floor,
-            probability: device.filter.probability(device.floor),
+            probability,
             change,
         }
     }
@@ -263,9 +286,12 @@ mod tests {
         let device: Arc<str> = Arc::from("phone");
         let step = tracks.update(&device, 0.0, &[(0, -60.0)]);
         assert_eq!((step.floor, step.change), (0, FloorChange::Starts));
+        let step = tracks.update(&device, 1.0, &[(0, -60.0)]);
+        assert_eq!((step.floor, step.change), (0, FloorChange::Stays));
+        assert!(step.probability >= SETTLED, "{step:?}");
         // Heard on G two seconds later: the stairs take 15 s, so it stays
         // on B, which the evidence now doubts.
-        let mut t = 2.0;
+        let mut t = 3.0;
         let mut step = tracks.update(&device, t, &[(1, -60.0)]);
         while step.change == FloorChange::Stays {
             assert_eq!(step.floor, 0);
@@ -279,6 +305,35 @@ mod tests {
         // From B to L1 takes the stairs then the lift: 15 s + 5 s moving.
         assert_eq!(tracks.ride_s[0][2], 20.0);
         assert_eq!(tracks.entries(0, 2), [Cell::new(3, 0)]);
+    }
+
+    #[test]
+    fn a_first_guess_is_corrected_before_the_floor_settles() {
+        let mut tracks = tracks();
+        let device: Arc<str> = Arc::from("phone");
+        // A faint beacon of B heard beside G's: B first, but not settled.
+        let step = tracks.update(&device, 0.0, &[(0, -60.0), (1, -61.0)]);
+        assert_eq!((step.floor, step.change), (0, FloorChange::Starts));
+        assert!(step.probability < SETTLED, "{step:?}");
+        // Then L1 alone: the guess is corrected sooner than the 20 s any
+        // connector takes from B to L1, so not by a ride.
+        let mut t = 2.0;
+        let mut step = tracks.update(&device, t, &[(2, -60.0)]);
+        while step.floor != 2 {
+            assert_eq!(step.floor, 0);
+            t += 2.0;
+            step = tracks.update(&device, t, &[(2, -60.0)]);
+        }
+        assert!(t < tracks.ride_s[0][2], "{t}");
+        assert_eq!(step.change, FloorChange::Starts);
+        while step.probability < SETTLED {
+            t += 2.0;
+            step = tracks.update(&device, t, &[(2, -60.0)]);
+            assert_eq!((step.floor, step.change), (2, FloorChange::Stays));
+        }
+        // Settled on L1: B heard now does not move it before a ride could.
+        let step = tracks.update(&device, t + 2.0, &[(0, -60.0)]);
+        assert_eq!((step.floor, step.change), (2, FloorChange::Stays));
     }
 
     #[test]

@@ -56,6 +56,47 @@ impl FloorEvidence {
         FloorEvidence { floors, ln_share }
     }
 
+    /// The evidence of a building's site files: `listed[f]` holds each
+    /// anchor floor `f`'s site file lists (the building's index of it) and
+    /// how loudly it is heard over that floor ([`Beacon::heard_dbm`], from
+    /// the survey). An anchor every listing floor gives a loudness for is
+    /// heard from each in proportion to it; any other is heard equally
+    /// from every floor listing it (listed on one floor, it says that
+    /// floor; on two, either).
+    ///
+    /// [`Beacon::heard_dbm`]: crate::site::Beacon::heard_dbm
+    pub fn of_floors(listed: &[Vec<(usize, Option<f64>)>]) -> FloorEvidence {
+        let anchors = listed
+            .iter()
+            .flatten()
+            .map(|&(a, _)| a + 1)
+            .max()
+            .unwrap_or(0);
+        let mut loudness = vec![vec![None; listed.len()]; anchors];
+        let mut measured = vec![true; anchors];
+        for (floor, on_floor) in listed.iter().enumerate() {
+            for &(anchor, dbm) in on_floor {
+                loudness[anchor][floor] = Some(dbm);
+                measured[anchor] &= dbm.is_some();
+            }
+        }
+        let heard_on: Vec<Vec<f64>> = loudness
+            .iter()
+            .zip(&measured)
+            .map(|(per_floor, &measured)| {
+                per_floor
+                    .iter()
+                    .map(|listing| match listing {
+                        None => 0.0,
+                        Some(Some(dbm)) if measured => 10f64.powf(dbm / 10.0),
+                        Some(_) => 1.0,
+                    })
+                    .collect()
+            })
+            .collect();
+        FloorEvidence::new(listed.len(), &heard_on)
+    }
+
     pub fn floors(&self) -> usize {
         self.floors
     }
@@ -183,6 +224,35 @@ mod tests {
         let mut out = [0.0; 2];
         evidence.window(heard, &mut out);
         usize::from(out[1] > out[0])
+    }
+
+    #[test]
+    fn site_files_weigh_a_beacon_by_how_loudly_each_floor_hears_it() {
+        // Anchor 0 on floor 0 only; anchor 1 listed on both floors, heard
+        // 6 dB louder over floor 1 (a quarter of its power on floor 0);
+        // anchor 2 on both, floor 0 giving no loudness.
+        let e = FloorEvidence::of_floors(&[
+            vec![(0, Some(-70.0)), (1, Some(-86.0)), (2, None)],
+            vec![(1, Some(-80.0)), (2, Some(-75.0))],
+        ]);
+        let share = |anchor: usize| {
+            let mut out = [0.0; 2];
+            e.window(&[(anchor, -60.0)], &mut out);
+            out.map(f64::exp)
+        };
+        let [a0, b0] = share(0);
+        assert!(a0 > 0.9 && b0 < 0.05, "{a0} {b0}");
+        let [a1, b1] = share(1);
+        assert!((b1 / a1 - 3.0).abs() < 0.6, "{a1} {b1}");
+        let [a2, b2] = share(2);
+        assert!(
+            (a2 - b2).abs() < 1e-12,
+            "unmeasured somewhere: equal, {a2} {b2}"
+        );
+        assert_eq!(
+            FloorEvidence::of_floors(&[vec![(0, None)], vec![]]),
+            FloorEvidence::new(2, &[vec![1.0, 0.0]])
+        );
     }
 
     #[test]

@@ -11,7 +11,7 @@ pub mod bounds;
 pub mod calibrate;
 pub mod calibration;
 pub(crate) mod crossval;
-pub(crate) mod floor_track;
+pub mod floor_track;
 pub mod floors;
 pub mod knn;
 pub mod onnx;

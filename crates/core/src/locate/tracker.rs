@@ -333,7 +333,7 @@ impl Tracker {
     /// a new track), weighed by one window's log-likelihoods as
     /// [`Tracker::update`] weighs its prior. Counts towards the bounds as a
     /// new track does.
-    pub(crate) fn enter(
+    pub fn enter(
         &mut self,
         entity: &Arc<str>,
         t: f64,
@@ -379,7 +379,7 @@ impl Tracker {
 
     /// Drops the entity's track without reporting it evicted (it moved to
     /// another floor's tracker); whether it had one.
-    pub(crate) fn forget(&mut self, entity: &str) -> bool {
+    pub fn forget(&mut self, entity: &str) -> bool {
         self.tracks.remove(entity).is_some()
     }
 

@@ -30,7 +30,7 @@ use crate::event::{Event, RouteRequest};
 use crate::guide::{Guidance, GuidanceConfig, GuidanceEvent};
 use crate::locate;
 use crate::locate::bounds::Bounds;
-use crate::locate::floor_track::{FloorChange, FloorTracks};
+use crate::locate::floor_track::{self, FloorChange, FloorTracks};
 use crate::locate::floors::FloorEvidence;
 use crate::locate::tracker::TrackerConfig;
 use crate::locate::window::{Fingerprint, Orientation, WindowConfig, Windows};
@@ -218,10 +218,6 @@ struct Journey {
     t: f64,
 }
 
-/// The probability a floor needs to be published: more likely than all
-/// the others together. Under it the device is on an unknown floor.
-const FLOOR_KNOWN: f64 = 0.5;
-
 /// How many beacons a pipeline heard ([`Pipeline::heard_counts`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct HeardCounts {
@@ -345,8 +341,8 @@ impl Pipeline {
         let floor_tracks = multi_floor.then(|| {
             FloorTracks::new(
                 &building,
-                FloorEvidence::new(building.floors().len(), &anchors.heard_on),
-                FLOOR_SWITCH,
+                FloorEvidence::of_floors(&anchors.loudness(&building, config.window.orientation)),
+                floor_track::SWITCH,
                 config.tracker.reset_after_s,
             )
             .bound(limits.max_devices, limits.device_idle_s)
@@ -611,7 +607,7 @@ impl Pipeline {
         let floor = &mut self.floors[index];
         let located = floor.locate(fp, entered.as_deref());
         self.stats.fixes += 1;
-        let floor_known = floor_probability >= FLOOR_KNOWN;
+        let floor_known = floor_probability >= floor_track::KNOWN;
         let confidence = located.confidence * floor_probability as f32;
         let known = floor_known && confidence >= self.min_confidence;
         let cell = known.then_some(located.fix.cell);
@@ -997,12 +993,6 @@ impl Pipeline {
     }
 }
 
-/// The probability per window that a device changes floor, for the floor
-/// filter: people change floor a few times in an hour of 2 s windows, and
-/// the connectors' times ([`FloorTracks`]) keep one odd window from moving
-/// a device anyway.
-const FLOOR_SWITCH: f64 = 0.01;
-
 /// Every floor's anchors listed once, in the order of the building's
 /// fingerprints.
 struct BuildingAnchors {
@@ -1011,8 +1001,6 @@ struct BuildingAnchors {
     /// Per floor, for each of its anchors (its site's order): the
     /// building's index of it.
     of_floor: Vec<Vec<usize>>,
-    /// Per building anchor, per floor: 1 where the floor lists it.
-    heard_on: Vec<Vec<f64>>,
 }
 
 impl BuildingAnchors {
@@ -1021,10 +1009,8 @@ impl BuildingAnchors {
             beacons: Vec::new(),
             gateways: Vec::new(),
             of_floor: Vec::new(),
-            heard_on: Vec::new(),
         };
-        let floors = building.floors().len();
-        for (index, floor) in building.floors().iter().enumerate() {
+        for floor in building.floors() {
             let site = &floor.site;
             let of_floor = match orientation {
                 Orientation::Observer => site
@@ -1038,18 +1024,40 @@ impl BuildingAnchors {
                     .map(|g| position_or_push(&mut anchors.gateways, g.id.clone()))
                     .collect(),
             };
-            for &anchor in &of_floor {
-                if anchors.heard_on.len() <= anchor {
-                    anchors.heard_on.resize(anchor + 1, vec![0.0; floors]);
-                }
-                anchors.heard_on[anchor][index] = 1.0;
-            }
             anchors.of_floor.push(of_floor);
         }
-        if anchors.heard_on.len() > usize::from(u16::MAX) {
-            return Err(PipelineError::TooManyAnchors(anchors.heard_on.len()));
+        let count = anchors.beacons.len() + anchors.gateways.len();
+        if count > usize::from(u16::MAX) {
+            return Err(PipelineError::TooManyAnchors(count));
         }
         Ok(anchors)
+    }
+
+    /// Per floor, each anchor it lists and how loudly it is heard over the
+    /// floor (a beacon's `heard_dbm`; gateways have none), as
+    /// [`FloorEvidence::of_floors`] takes them.
+    fn loudness(
+        &self,
+        building: &Building,
+        orientation: Orientation,
+    ) -> Vec<Vec<(usize, Option<f64>)>> {
+        self.of_floor
+            .iter()
+            .zip(building.floors())
+            .map(|(anchors, floor)| {
+                anchors
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &anchor)| {
+                        let dbm = match orientation {
+                            Orientation::Observer => floor.site.beacons[i].heard_dbm,
+                            Orientation::Advertiser => None,
+                        };
+                        (anchor, dbm)
+                    })
+                    .collect()
+            })
+            .collect()
     }
 
     fn gateways(&self) -> Vec<&str> {

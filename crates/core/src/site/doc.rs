@@ -97,6 +97,9 @@ pub struct BeaconDoc {
     /// Where several transmitters share the UUID/major/minor, the one this is.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mac: Option<Mac>,
+    /// How loudly it is heard over the floor ([`crate::site::Beacon::heard_dbm`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub heard_dbm: Option<f64>,
 }
 
 /// One `[[gateway]]`.
@@ -403,6 +406,7 @@ mod tests {
             height_m: Some(2.5),
             tx_power: None,
             mac: Some("e0:78:a3:3d:b5:d6".parse().unwrap()),
+            heard_dbm: Some(-81.25),
         });
         let written = write_doc(&doc, Some(&text));
         assert_eq!(SiteDoc::parse(&written).unwrap(), doc);

@@ -12,11 +12,16 @@
 //!   import estimates from that floor's readings), each floor's survey (the
 //!   import's windows, positions interpolated between waypoints, its
 //!   refusals), and the localizer `[localizer] method` builds from them.
-//! - **Floor.** How strongly each beacon is heard from each floor (received
-//!   power summed per floor over the training readings) is the evidence of
-//!   [`locate::floors`](crate::locate::floors); each held-out walk's windows
-//!   go through its floor filter in order, and each window is located on
-//!   the floor it decides, by that floor's localizer and tracker.
+//! - **Floor, as the gateway decides it.** The floors' beacons and how
+//!   loudly each is heard over each floor (the `heard_dbm` the import
+//!   writes) are the evidence ([`FloorEvidence::of_floors`], as the gateway
+//!   builds it from the floors' site files); each held-out walk's windows go through the
+//!   gateway's own floor tracks in order ([`FloorTracks`]: the filter, a
+//!   first guess corrected until it settles, then changes only through the
+//!   building's connectors), and each window is located on that floor by
+//!   its localizer and tracker, entering it at the connectors' stops as the
+//!   gateway does. A window whose floor the gateway would publish as
+//!   unknown counts as a wrong floor.
 //! - **Baseline**, same windows: a k-NN regressor (k = 5, uniform weights,
 //!   Euclidean over RSSI vectors of every beacon of the building with "not
 //!   heard" = −100 dBm, as scikit-learn's `KNeighborsRegressor` defaults):
@@ -35,7 +40,8 @@ use serde::Serialize;
 
 use super::localization::{Surveyed, surveyed_localizer};
 use super::planning::percentile;
-use crate::locate::floors::{FloorEvidence, FloorFilter};
+use crate::locate::floor_track::{self, FloorChange, FloorTracks};
+use crate::locate::floors::FloorEvidence;
 use crate::locate::survey::Sample;
 use crate::locate::tracker::{Tracker, TrackerConfig};
 use crate::locate::window::WindowConfig;
@@ -66,6 +72,9 @@ pub struct FloorsSetup {
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct FloorMetrics {
     pub floor_accuracy: f64,
+    /// Share of the fixes whose floor the gateway would publish as unknown
+    /// (counted as wrong in `floor_accuracy`).
+    pub floor_unknown: f64,
     pub mean_error_m: f64,
     pub median_error_m: f64,
     pub p90_error_m: f64,
@@ -104,11 +113,12 @@ struct FloorWalks {
     test: Vec<Walk>,
 }
 
-/// One fix or guess: its floor, and its error in metres when the floor is right.
+/// One fix or guess: its floor (none: unknown), and its error in metres
+/// when the floor is right.
 #[derive(Clone, Copy)]
 struct Outcome {
     truth_floor: usize,
-    floor: usize,
+    floor: Option<usize>,
     error_m: f64,
 }
 
@@ -163,7 +173,26 @@ pub fn evaluate(
         .into_iter()
         .collect();
 
-    let evidence = floor_evidence(&split, &keys, &all, floors.len());
+    let listed: Vec<Vec<(usize, Option<f64>)>> = per_floor
+        .iter()
+        .map(|estimates| {
+            estimates
+                .iter()
+                .map(|(key, estimate)| {
+                    let anchor = all
+                        .binary_search(key)
+                        .expect("every floor's keys are in `all`");
+                    (anchor, Some(estimate.heard_dbm))
+                })
+                .collect()
+        })
+        .collect();
+    let mut floor_tracks = FloorTracks::new(
+        building,
+        FloorEvidence::of_floors(&listed),
+        setup.floor_switch,
+        setup.tracker.reset_after_s,
+    );
     let mut localizers = Vec::with_capacity(floors.len());
     let mut baseline_train = Vec::new();
     for (f, (floor, walks)) in floors.iter().zip(&split).enumerate() {
@@ -202,20 +231,23 @@ pub fn evaluate(
     let mut ours = Vec::new();
     let mut theirs = Vec::new();
     let mut refused_windows = 0;
-    let mut floor_evidence = vec![0.0; floors.len()];
     let mut fix_us = Vec::new();
     for (truth_floor, walks) in split.iter().enumerate() {
         let truth_site = &floors[truth_floor].site;
         for (w, walk) in walks.test.iter().enumerate() {
             let entity: Arc<str> = Arc::from(format!("{truth_floor}-{w}"));
-            let mut filter = FloorFilter::new(floors.len(), setup.floor_switch);
+            let mut on_floor: Option<usize> = None;
             for (t, heard) in survey::windows(walk, &keys, &all, &options) {
                 let truth = survey::labelled(truth_site, walk, t, &options);
                 let started = Instant::now();
                 let heard_f: Vec<(usize, f32)> =
                     heard.iter().map(|&(a, r)| (a, f32::from(r))).collect();
-                evidence.window(&heard_f, &mut floor_evidence);
-                let (floor, _) = filter.update(&floor_evidence);
+                let step = floor_tracks.update(&entity, t, &heard_f);
+                let floor = step.floor;
+                if let Some(left) = on_floor.filter(|&f| f != floor) {
+                    localizers[left].3.forget(&entity);
+                }
+                on_floor = Some(floor);
                 let Ok(truth) = truth else {
                     refused_windows += 1;
                     continue;
@@ -232,18 +264,23 @@ pub fn evaluate(
                 }
                 let mut ll = vec![0.0f32; site.open_cells().len()];
                 localizer.log_likelihood(&rssi, &heard_on_floor, &mut ll);
-                let fix = tracker.update(&entity, t, &ll);
+                let fix = match step.change {
+                    FloorChange::From(from) => {
+                        tracker.enter(&entity, t, floor_tracks.entries(from, floor), &ll)
+                    }
+                    FloorChange::Starts | FloorChange::Stays => tracker.update(&entity, t, &ll),
+                };
                 fix_us.push((localize - started + localize.elapsed()).as_secs_f64() * 1e6);
                 let at = site.world_of_cell(fix.cell);
                 ours.push(Outcome {
                     truth_floor,
-                    floor,
+                    floor: (step.probability >= floor_track::KNOWN).then_some(floor),
                     error_m: (at[0] - truth[0]).hypot(at[1] - truth[1]),
                 });
                 let (floor, at) = baseline.predict(&heard);
                 theirs.push(Outcome {
                     truth_floor,
-                    floor,
+                    floor: Some(floor),
                     error_m: (at[0] - truth[0]).hypot(at[1] - truth[1]),
                 });
             }
@@ -268,28 +305,6 @@ fn first_time(walk: &Walk) -> f64 {
     waypoint.min(reading)
 }
 
-/// How strongly each of `all` is heard from each floor in the training
-/// walks: its readings' power per second walked on that floor, mW/s. Per
-/// second, not summed: floors are walked for very different times (the
-/// mall's B1 has twice F2's readings), and a beacon heard as loudly from
-/// two floors must not point at the one surveyed longer.
-fn floor_evidence(split: &[FloorWalks], keys: &Keys, all: &[Key], floors: usize) -> FloorEvidence {
-    let mut heard_on = vec![vec![0.0; floors]; all.len()];
-    for (f, walks) in split.iter().enumerate() {
-        let walked_s: f64 = walks
-            .train
-            .iter()
-            .filter_map(|w| Some(w.waypoints.last()?.0 - w.waypoints.first()?.0))
-            .sum();
-        for r in walks.train.iter().flat_map(|w| &w.readings) {
-            if let Ok(a) = all.binary_search(&keys.key(r)) {
-                heard_on[a][f] += 10f64.powf(f64::from(r.rssi) / 10.0) / walked_s.max(1.0);
-            }
-        }
-    }
-    FloorEvidence::new(floors, &heard_on)
-}
-
 /// The floor's site with the beacons estimated for it (sorted by key, which
 /// is also the order of the returned keys).
 fn floor_site(site: &Site, estimates: &BTreeMap<Key, survey::Estimate>) -> (Site, Vec<Key>) {
@@ -308,6 +323,7 @@ fn floor_site(site: &Site, estimates: &BTreeMap<Key, survey::Estimate>) -> (Site
             }),
             tx_power: estimate.tx_power,
             mac: key.1,
+            heard_dbm: Some(estimate.heard_dbm),
         })
         .collect();
     (site, estimates.keys().copied().collect())
@@ -434,16 +450,20 @@ impl Baseline {
 fn metrics(outcomes: &[&Outcome]) -> FloorMetrics {
     let right: Vec<f64> = outcomes
         .iter()
-        .filter(|o| o.floor == o.truth_floor)
+        .filter(|o| o.floor == Some(o.truth_floor))
         .map(|o| o.error_m)
         .collect();
     let errors = ErrorSummary::of(&right, 1.0).unwrap_or_default();
-    FloorMetrics {
-        floor_accuracy: if outcomes.is_empty() {
+    let share = |n: usize| {
+        if outcomes.is_empty() {
             0.0
         } else {
-            right.len() as f64 / outcomes.len() as f64
-        },
+            n as f64 / outcomes.len() as f64
+        }
+    };
+    FloorMetrics {
+        floor_accuracy: share(right.len()),
+        floor_unknown: share(outcomes.iter().filter(|o| o.floor.is_none()).count()),
         mean_error_m: errors.mean_error_m,
         median_error_m: errors.median_error_m,
         p90_error_m: errors.p90_error_m,

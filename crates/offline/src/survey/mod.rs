@@ -406,12 +406,14 @@ pub fn import(floor_dir: &Path, out: &Path, options: &Options) -> anyhow::Result
     Ok(report)
 }
 
-/// A beacon estimated from the walks: where, and the transmit power its
-/// frames advertised most often.
+/// A beacon estimated from the walks: where, the transmit power its frames
+/// advertised most often, and how loudly it is heard over the floor
+/// ([`crate::site::Beacon::heard_dbm`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct Estimate {
     pub(crate) at: [f64; 2],
     pub(crate) tx_power: Option<i8>,
+    pub(crate) heard_dbm: f64,
 }
 
 /// Every beacon of `keys` heard in `walks` often enough at a labelled
@@ -427,10 +429,18 @@ pub(crate) fn estimate_beacons<'a>(
     let mut heard: BTreeMap<Key, Vec<(i16, [f64; 2])>> = BTreeMap::new();
     let mut tx_powers: BTreeMap<Key, BTreeMap<i8, usize>> = BTreeMap::new();
     let mut readings_of: BTreeMap<Key, usize> = BTreeMap::new();
+    let mut power_mw: BTreeMap<Key, f64> = BTreeMap::new();
+    let mut walked_s = 0.0;
     for walk in walks {
+        walked_s += walk
+            .waypoints
+            .first()
+            .zip(walk.waypoints.last())
+            .map_or(0.0, |(first, last)| last.0 - first.0);
         for r in &walk.readings {
             let key = keys.key(r);
             *readings_of.entry(key).or_default() += 1;
+            *power_mw.entry(key).or_default() += 10f64.powf(f64::from(r.rssi) / 10.0);
             if let Ok(at) = labelled(site, walk, r.t, options) {
                 heard.entry(key).or_default().push((r.rssi, at));
                 *tx_powers
@@ -452,7 +462,18 @@ pub(crate) fn estimate_beacons<'a>(
         let tx_power = tx_powers
             .get(key)
             .and_then(|p| p.iter().max_by_key(|(_, n)| **n).map(|(tx, _)| *tx));
-        kept.insert(*key, Estimate { at, tx_power });
+        // Per second walked, not summed: floors are walked for very
+        // different times, and a beacon heard as loudly from two floors
+        // must not point at the one surveyed longer.
+        let heard_dbm = 10.0 * (power_mw[key] / walked_s.max(1.0)).log10();
+        kept.insert(
+            *key,
+            Estimate {
+                at,
+                tx_power,
+                heard_dbm: (heard_dbm * 100.0).round() / 100.0,
+            },
+        );
     }
     kept
 }
@@ -556,6 +577,7 @@ pub(crate) fn beacon_docs(kept: &BTreeMap<Key, Estimate>) -> Vec<BeaconDoc> {
                 height_m: None,
                 tx_power: estimate.tx_power,
                 mac: *mac,
+                heard_dbm: Some(estimate.heard_dbm),
             }
         })
         .collect()
