@@ -229,4 +229,25 @@ fn a_floor_drawn_in_metres_imports_and_one_bad_line_is_skipped() {
     let beacon_a = site.split("minor = 1\npos = [").nth(1).unwrap();
     let x: f64 = beacon_a.split(',').next().unwrap().parse().unwrap();
     assert!((1.0..=3.0).contains(&x), "{site}");
+    // How loudly the floor hears `B`, the floor evidence of a building:
+    // its readings' power per second walked (the waypoints span 69 s).
+    let mw: f64 = (0..=32)
+        .map(|k| {
+            let x = 1.0 + f64::from(k) / 4.0;
+            10f64.powf((-50.0 - (3.0 * (x - 8.0).abs()).round()) / 10.0)
+        })
+        .sum();
+    let beacon_b = site.split("minor = 2\n").nth(1).unwrap();
+    let heard_dbm: f64 = beacon_b
+        .split("heard_dbm = ")
+        .nth(1)
+        .and_then(|rest| rest.lines().next())
+        .unwrap_or_else(|| panic!("no heard_dbm: {site}"))
+        .parse()
+        .unwrap();
+    let expected = 10.0 * (mw / 69.0).log10();
+    assert!(
+        (heard_dbm - expected).abs() < 0.006,
+        "{heard_dbm} {expected}"
+    );
 }

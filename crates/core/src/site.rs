@@ -1484,6 +1484,24 @@ door = [2, 1]
     }
 
     #[test]
+    fn a_beacon_s_loudness_over_the_floor_is_checked() {
+        let base = SMALL.replace("[places]\ndoor = [2, 1]\n", "");
+        let beacon = |heard: &str| {
+            format!(
+                "{base}[[beacon]]\nid = \"b2\"\nuuid = \"b9407f30-f5f8-466e-aff9-25556b57fe6d\"\n\
+                 major = 1\nminor = 2\ncell = [0, 0]\nheard_dbm = {heard}\n"
+            )
+        };
+        let site = parse(&beacon("-81.5")).unwrap();
+        assert_eq!(site.beacons.last().unwrap().heard_dbm, Some(-81.5));
+        let message = problems(&beacon("40.0"));
+        assert!(
+            message.contains("beacon `b2` `heard_dbm` is 40; it is how loudly"),
+            "{message}"
+        );
+    }
+
+    #[test]
     fn beacons_sharing_uuid_major_minor_are_told_apart_by_mac() {
         let twin = |id: &str, mac: &str| {
             format!(
