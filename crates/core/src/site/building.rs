@@ -385,7 +385,11 @@ impl Building {
         for entry in &file.connectors {
             let line = line_of(entry.span());
             let c = entry.get_ref();
-            if let Some(first) = ids.insert(c.id.clone(), line) {
+            if c.id.trim().is_empty() {
+                problems.push(format!(
+                    "line {line}: a connector's `id` is empty; name it (\"lift east\")"
+                ));
+            } else if let Some(first) = ids.insert(c.id.clone(), line) {
                 problems.push(format!(
                     "line {line}: connector `{}` is also on line {first}; ids must differ",
                     c.id
@@ -721,6 +725,12 @@ site = "F2.toml"
             err.contains("has 1 stop(s); it must join at least two floors"),
             "{err}"
         );
+        let text = format!(
+            "{FLOORS}[[connectors]]\nid = \" \"\nkind = \"lift\"\n\
+             stops = [{{ floor = \"F1\", cell = [0, 0] }}, {{ floor = \"B1\", cell = [0, 0] }}]\n"
+        );
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(err.contains("a connector's `id` is empty"), "{err}");
     }
 
     #[test]
