@@ -439,6 +439,7 @@ async fn store(rows: usize) {
             .map(|i| gangway::store::Record::Fix {
                 device: format!("old-{}", i % 100),
                 t: i as f64,
+                floor: None,
                 cell: gangway::site::Cell::new(1, 1),
                 confidence: 0.5,
             })

@@ -34,6 +34,11 @@ pub(super) struct Args {
     /// recorded walks and the routes it gave, weighted by their feedback.
     #[arg(long)]
     from_store: Option<PathBuf>,
+    /// With --from-store in a building: learn from the walks recorded on
+    /// this floor (its name in the building file), the floor whose site
+    /// file --site is. Needed once the store holds several floors' walks.
+    #[arg(long, requires = "from_store")]
+    floor: Option<String>,
     /// Directory for the ONNX files (created if missing).
     #[arg(long)]
     out: PathBuf,
@@ -171,7 +176,11 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
                     None => Vec::new(),
                 };
                 if let Some(db) = store {
-                    let recorded = recorded::walks_from_store(db, &site)?;
+                    let floor = match &args.floor {
+                        Some(name) => recorded::FloorChoice::Named(name),
+                        None => recorded::FloorChoice::Only,
+                    };
+                    let recorded = recorded::walks_from_store(db, &site, floor)?;
                     tracing::info!(walks = recorded.len(), store = %db.display(), "walks from the learning store");
                     all.extend(recorded);
                 }

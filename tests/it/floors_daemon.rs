@@ -326,3 +326,82 @@ fn a_replay_of_a_building_is_scored_floor_by_floor() {
         "{stderr}"
     );
 }
+
+/// The learning store of a gateway serving a building keeps each fix's
+/// floor: the phone's walk is recorded as a walk on B1 and one on L1 (each
+/// on its floor's grid), and `train --from-store` learns a floor's site from
+/// that floor's walks only, asking which floor when the store has several.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_learning_store_keeps_each_floor_s_walks_apart() {
+    let dir = tempfile::tempdir().unwrap();
+    let building = floors_support::write_building(dir.path());
+    let walk = capture(dir.path(), &[]);
+    let broker = Broker::start();
+    let config = gateway_config(
+        "gw-store",
+        &building,
+        &broker,
+        "[store]\nenabled = true\npath = \"learning.sqlite\"\n[localizer]\nmin_confidence = 0.0\n",
+    );
+    let prefix = "gangway/gw-store";
+    let mut client = Client::connect(&broker, "test-store", &[&format!("{prefix}/#")]).await;
+    let mut gateway = Gateway::start(
+        &config.path,
+        &["--replay", walk.to_str().unwrap(), "--speed", "0"],
+    );
+    let location = format!("{prefix}/devices/phone/location");
+    client
+        .wait_for("the phone's last location, on L1", |m| {
+            m.topic == location
+                && m.json()["floor"]["name"] == "L1"
+                && m.json()["t"]
+                    .as_f64()
+                    .is_some_and(|t| t >= T0 + END_S - 2.0)
+        })
+        .await;
+    assert!(gateway.terminate().success());
+
+    let db = config.dir.path().join("learning.sqlite");
+    let walks = gangway::store::Store::open_read_only(&db)
+        .unwrap()
+        .trajectories(30.0)
+        .unwrap();
+    let floors: Vec<Option<&str>> = walks.iter().map(|w| w.floor.as_deref()).collect();
+    assert_eq!(floors, [Some("B1"), Some("L1")], "{walks:?}");
+
+    let train = |floor: Option<&str>| {
+        let mut args = vec![
+            "train".to_owned(),
+            "--site".into(),
+            dir.path().join("B1.toml").display().to_string(),
+            "--from-store".into(),
+            db.display().to_string(),
+            "--out".into(),
+            config.dir.path().join("models").display().to_string(),
+            "--desire-only".into(),
+            "--json".into(),
+        ];
+        if let Some(floor) = floor {
+            args.extend(["--floor".into(), floor.into()]);
+        }
+        gangway(&args.iter().map(String::as_str).collect::<Vec<_>>())
+    };
+    let unsaid = train(None);
+    let stderr = String::from_utf8_lossy(&unsaid.stderr);
+    assert!(!unsaid.status.success());
+    assert!(
+        stderr.contains("walks on 2 floors (B1, L1)") && stderr.contains("--floor"),
+        "{stderr}"
+    );
+    let unknown = train(Some("L9"));
+    let stderr = String::from_utf8_lossy(&unknown.stderr);
+    assert!(
+        !unknown.status.success() && stderr.contains("no walks on floor `L9`"),
+        "{stderr}"
+    );
+    // B1's walk alone: too few walks for desire lines, which say how many
+    // they were given (L1's is not B1's).
+    let b1 = train(Some("B1"));
+    let stderr = String::from_utf8_lossy(&b1.stderr);
+    assert!(stderr.contains("got 1 of 1"), "{stderr}");
+}

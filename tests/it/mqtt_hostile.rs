@@ -399,6 +399,7 @@ async fn a_truncated_store_is_moved_aside_and_feedback_needs_a_route_given() {
             .map(|i| gangway::store::Record::Fix {
                 device: "old".into(),
                 t: f64::from(i),
+                floor: None,
                 cell: gangway::site::Cell::new(1, 1),
                 confidence: 0.5,
             })

@@ -25,8 +25,13 @@ use crate::guide::{Adherence, Ending};
 use crate::locate::recalibrate::Heard;
 use crate::site::Cell;
 
-/// Bumped when the tables change; a file of another version is refused.
-const SCHEMA_VERSION: i64 = 1;
+/// Bumped when the tables change; a file of another version is refused,
+/// but for [`FLOORLESS_VERSION`].
+const SCHEMA_VERSION: i64 = 2;
+
+/// The version before fixes named their floor: opened for writing it is
+/// upgraded in place (its fixes keep no floor), and read as it is.
+const FLOORLESS_VERSION: i64 = 1;
 
 /// `[store]` in the gateway config.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
@@ -120,6 +125,9 @@ pub enum Record {
     Fix {
         device: String,
         t: f64,
+        /// The floor's name (a one-floor site's is the site's); the cell is
+        /// on that floor's grid.
+        floor: Option<String>,
         cell: Cell,
         confidence: f32,
     },
@@ -146,10 +154,13 @@ pub enum Record {
     },
 }
 
-/// A device's walk: fixes in time order, without a gap longer than asked for.
+/// A device's walk: fixes in time order on one floor, without a gap longer
+/// than asked for.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Trajectory {
     pub device: String,
+    /// `None` for fixes recorded before the store kept floors.
+    pub floor: Option<String>,
     pub points: Vec<(f64, Cell)>,
 }
 
@@ -170,6 +181,9 @@ pub struct RecordedRoute {
 pub struct Store {
     conn: Connection,
     path: PathBuf,
+    /// The file's schema version: [`SCHEMA_VERSION`], or
+    /// [`FLOORLESS_VERSION`] for a file opened read-only.
+    version: i64,
 }
 
 /// The tables, each with its time column `t` and `device`.
@@ -181,9 +195,10 @@ impl Store {
     pub fn open(path: &Path) -> Result<Store, StoreError> {
         create_private(path)?;
         let conn = Connection::open(path).map_err(|e| sql(path, e))?;
-        let store = Store {
+        let mut store = Store {
             conn,
             path: path.to_owned(),
+            version: SCHEMA_VERSION,
         };
         store.init()?;
         let check: String = store
@@ -240,15 +255,16 @@ impl Store {
     pub fn open_read_only(path: &Path) -> Result<Store, StoreError> {
         let conn = Connection::open_with_flags(path, OpenFlags::SQLITE_OPEN_READ_ONLY)
             .map_err(|e| sql(path, e))?;
-        let store = Store {
+        let mut store = Store {
             conn,
             path: path.to_owned(),
+            version: SCHEMA_VERSION,
         };
-        store.check_version()?;
+        store.version = store.check_version(&[SCHEMA_VERSION, FLOORLESS_VERSION])?;
         Ok(store)
     }
 
-    fn init(&self) -> Result<(), StoreError> {
+    fn init(&mut self) -> Result<(), StoreError> {
         // WAL lets a trainer read while the daemon writes; NORMAL sync is
         // durable across process crashes, which is what a learning log needs.
         self.conn
@@ -257,7 +273,8 @@ impl Store {
                  PRAGMA synchronous = NORMAL;
                  CREATE TABLE IF NOT EXISTS fixes (
                      device TEXT NOT NULL, t REAL NOT NULL,
-                     x INTEGER NOT NULL, y INTEGER NOT NULL, confidence REAL NOT NULL);
+                     x INTEGER NOT NULL, y INTEGER NOT NULL, confidence REAL NOT NULL,
+                     floor TEXT);
                  CREATE INDEX IF NOT EXISTS fixes_by_device ON fixes (device, t);
                  CREATE INDEX IF NOT EXISTS fixes_by_time ON fixes (t);
                  CREATE TABLE IF NOT EXISTS routes (
@@ -282,26 +299,33 @@ impl Store {
             .conn
             .query_row("PRAGMA user_version", [], |r| r.get(0))
             .map_err(|e| sql(&self.path, e))?;
-        if version == 0 {
-            self.conn
-                .execute_batch(&format!("PRAGMA user_version = {SCHEMA_VERSION}"))
-                .map_err(|e| sql(&self.path, e))?;
-        }
-        self.check_version()
+        let upgrade = match version {
+            0 => "",
+            // What it recorded stays; its fixes keep no floor.
+            FLOORLESS_VERSION => "ALTER TABLE fixes ADD COLUMN floor TEXT;",
+            _ => return self.check_version(&[SCHEMA_VERSION]).map(drop),
+        };
+        self.conn
+            .execute_batch(&format!(
+                "BEGIN; {upgrade} PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
+            ))
+            .map_err(|e| sql(&self.path, e))?;
+        self.check_version(&[SCHEMA_VERSION]).map(drop)
     }
 
-    fn check_version(&self) -> Result<(), StoreError> {
+    /// The file's schema version, if it is one of `readable`.
+    fn check_version(&self, readable: &[i64]) -> Result<i64, StoreError> {
         let found: i64 = self
             .conn
             .query_row("PRAGMA user_version", [], |r| r.get(0))
             .map_err(|e| sql(&self.path, e))?;
-        if found != SCHEMA_VERSION {
+        if !readable.contains(&found) {
             return Err(StoreError::Version {
                 path: self.path.clone(),
                 found,
             });
         }
-        Ok(())
+        Ok(found)
     }
 
     /// Writes records in one transaction.
@@ -313,11 +337,13 @@ impl Store {
                 Record::Fix {
                     device,
                     t,
+                    floor,
                     cell,
                     confidence,
                 } => tx.execute(
-                    "INSERT INTO fixes (device, t, x, y, confidence) VALUES (?1, ?2, ?3, ?4, ?5)",
-                    params![device, t, cell.x, cell.y, confidence],
+                    "INSERT INTO fixes (device, t, x, y, confidence, floor) \
+                     VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+                    params![device, t, cell.x, cell.y, confidence, floor],
                 ),
                 Record::Route {
                     device,
@@ -486,11 +512,19 @@ impl Store {
     }
 
     /// Every device's walk, split wherever two fixes are more than `max_gap_s`
-    /// apart (a device that left and came back walks twice).
+    /// apart (a device that left and came back walks twice) and wherever
+    /// the floor changes (each floor's cells are on its own grid).
     pub fn trajectories(&self, max_gap_s: f64) -> Result<Vec<Trajectory>, StoreError> {
+        let floor = if self.version == FLOORLESS_VERSION {
+            "NULL"
+        } else {
+            "floor"
+        };
         let mut stmt = self
             .conn
-            .prepare("SELECT device, t, x, y FROM fixes ORDER BY device, t")
+            .prepare(&format!(
+                "SELECT device, t, x, y, {floor} FROM fixes ORDER BY device, t"
+            ))
             .map_err(|e| sql(&self.path, e))?;
         let rows = stmt
             .query_map([], |r| {
@@ -498,15 +532,17 @@ impl Store {
                     r.get::<_, String>(0)?,
                     r.get::<_, f64>(1)?,
                     Cell::new(r.get(2)?, r.get(3)?),
+                    r.get::<_, Option<String>>(4)?,
                 ))
             })
             .map_err(|e| sql(&self.path, e))?;
         let mut out: Vec<Trajectory> = Vec::new();
         for row in rows {
-            let (device, t, cell) = row.map_err(|e| sql(&self.path, e))?;
+            let (device, t, cell, floor) = row.map_err(|e| sql(&self.path, e))?;
             match out.last_mut() {
                 Some(last)
                     if last.device == device
+                        && last.floor == floor
                         && last
                             .points
                             .last()
@@ -516,6 +552,7 @@ impl Store {
                 }
                 _ => out.push(Trajectory {
                     device,
+                    floor,
                     points: vec![(t, cell)],
                 }),
             }
@@ -709,6 +746,7 @@ mod tests {
         Record::Fix {
             device: device.into(),
             t,
+            floor: Some("G".into()),
             cell: Cell::new(x, 1),
             confidence: 0.5,
         }
@@ -840,6 +878,68 @@ mod tests {
         // The greedy device's oldest went first; the newest devices stay.
         assert!(greedy.is_none_or(|w| w.points.len() <= 100));
         assert!(walks.iter().any(|w| w.device == "d49"));
+    }
+
+    #[test]
+    fn a_walk_is_split_where_its_floor_changes() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut store = Store::open(&dir.path().join("s.sqlite")).unwrap();
+        let on = |floor: &str, t: f64| Record::Fix {
+            device: "a".into(),
+            t,
+            floor: Some(floor.into()),
+            cell: Cell::new(1, 1),
+            confidence: 0.5,
+        };
+        store
+            .write(&[on("B1", 1.0), on("B1", 2.0), on("L1", 3.0), on("L1", 4.0)])
+            .unwrap();
+        let walks = store.trajectories(30.0).unwrap();
+        let shape: Vec<(Option<&str>, usize)> = walks
+            .iter()
+            .map(|w| (w.floor.as_deref(), w.points.len()))
+            .collect();
+        assert_eq!(shape, [(Some("B1"), 2), (Some("L1"), 2)]);
+    }
+
+    #[test]
+    fn a_store_from_before_floors_is_read_and_upgraded_with_nothing_lost() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.sqlite");
+        Connection::open(&path)
+            .unwrap()
+            .execute_batch(
+                "CREATE TABLE fixes (device TEXT NOT NULL, t REAL NOT NULL,
+                     x INTEGER NOT NULL, y INTEGER NOT NULL, confidence REAL NOT NULL);
+                 INSERT INTO fixes VALUES ('a', 1.0, 2, 3, 0.5);
+                 PRAGMA user_version = 1;",
+            )
+            .unwrap();
+        let old = Store::open_read_only(&path)
+            .unwrap()
+            .trajectories(30.0)
+            .unwrap();
+        assert_eq!(old.len(), 1);
+        assert_eq!(
+            (old[0].floor.as_deref(), old[0].points[0].1),
+            (None, Cell::new(2, 3))
+        );
+        let mut store = Store::open(&path).unwrap();
+        store
+            .write(&[Record::Fix {
+                device: "a".into(),
+                t: 2.0,
+                floor: Some("G".into()),
+                cell: Cell::new(2, 4),
+                confidence: 0.5,
+            }])
+            .unwrap();
+        let walks = Store::open_read_only(&path)
+            .unwrap()
+            .trajectories(30.0)
+            .unwrap();
+        let floors: Vec<Option<&str>> = walks.iter().map(|w| w.floor.as_deref()).collect();
+        assert_eq!(floors, [None, Some("G")]);
     }
 
     #[test]

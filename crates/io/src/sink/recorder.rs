@@ -81,6 +81,7 @@ impl Recorder {
             Output::Location(l) => Record::Fix {
                 device: l.device.clone(),
                 t: l.t,
+                floor: l.floor.as_ref().map(|f| f.name.clone()),
                 cell: l.cell?,
                 confidence: l.confidence,
             },

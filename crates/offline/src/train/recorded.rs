@@ -18,6 +18,11 @@
 //!
 //! [`weighted`] then turns feedback into sampling weight, so well-rated and
 //! well-followed routes are learned more and the others less.
+//!
+//! A building's store holds every floor's tracks, each cell on its floor's
+//! grid: a site is trained on its own floor's tracks only ([`FloorChoice`]).
+//! Routes are recorded on one-floor sites only (a route across floors is not
+//! one floor's walk), so they are the site's.
 
 use std::path::Path;
 
@@ -38,12 +43,62 @@ const MAX_GAP_S: f64 = 30.0;
 /// held-out split.
 const NEUTRAL_COPIES: usize = 1;
 
-/// Walks recorded in the store at `path`, as training trajectories for `site`.
-pub fn walks_from_store(path: &Path, site: &Site) -> anyhow::Result<Vec<Trajectory>> {
+/// Whose tracks of a store a site learns from.
+#[derive(Clone, Copy, Debug)]
+pub enum FloorChoice<'a> {
+    /// The tracks of the one floor the store has (a one-floor site's); a
+    /// store holding several floors' tracks is refused.
+    Only,
+    /// The tracks of this floor (its name in the building file).
+    Named(&'a str),
+}
+
+/// Walks recorded in the store at `path`, as training trajectories for `site`,
+/// the tracks of the floor `floor` picks.
+pub fn walks_from_store(
+    path: &Path,
+    site: &Site,
+    floor: FloorChoice,
+) -> anyhow::Result<Vec<Trajectory>> {
     let store = Store::open_read_only(path)?;
     let followed = store.adherence()?;
     let mut walks = Vec::new();
-    for track in store.trajectories(MAX_GAP_S)? {
+    let tracks = store.trajectories(MAX_GAP_S)?;
+    let mut floors: Vec<&str> = tracks.iter().filter_map(|t| t.floor.as_deref()).collect();
+    floors.sort_unstable();
+    floors.dedup();
+    let wanted = match floor {
+        FloorChoice::Only if floors.len() > 1 => anyhow::bail!(
+            "{}: the store holds walks on {} floors ({}): give --floor NAME, the floor of the \
+             building that the site `{}` maps",
+            path.display(),
+            floors.len(),
+            floors.join(", "),
+            site.name
+        ),
+        FloorChoice::Only => None,
+        FloorChoice::Named(name) if !floors.contains(&name) => anyhow::bail!(
+            "{}: no walks on floor `{name}`; the store holds walks on: {}",
+            path.display(),
+            if floors.is_empty() {
+                "no named floor (recorded before the store kept floors)".to_owned()
+            } else {
+                floors.join(", ")
+            }
+        ),
+        FloorChoice::Named(name) => Some(name),
+    };
+    let (tracks, others): (Vec<_>, Vec<_>) = tracks
+        .into_iter()
+        .partition(|t| wanted.is_none_or(|name| t.floor.as_deref() == Some(name)));
+    let floorless = others.iter().filter(|t| t.floor.is_none()).count();
+    if floorless > 0 {
+        tracing::warn!(
+            store = %path.display(),
+            "{floorless} walks recorded before the store kept floors left out: their floor is unknown"
+        );
+    }
+    for track in tracks {
         let feedback = track_adherence(&followed, &track.device, &track.points);
         let mut cells = Vec::new();
         let mut times = Vec::new();
@@ -209,13 +264,14 @@ mod tests {
                 records.push(Record::Fix {
                     device: device.into(),
                     t: f64::from(x),
+                    floor: Some("s".into()),
                     cell: Cell::new(x, 1),
                     confidence: 0.9,
                 });
             }
         }
         store.write(&records).unwrap();
-        let walks = walks_from_store(&path, &site).unwrap();
+        let walks = walks_from_store(&path, &site, FloorChoice::Only).unwrap();
         let feedback = |device: &str, route: bool| {
             walks
                 .iter()
@@ -239,6 +295,51 @@ mod tests {
         assert_eq!(
             (copies("kept"), copies("strayed"), copies("unguided")),
             (4, 0, 1)
+        );
+    }
+
+    #[test]
+    fn a_site_learns_from_its_own_floor_s_tracks() {
+        let site = Site::parse(
+            "name = \"g\"\ncell_m = 1.0\nmap = '''\n######\n######\n'''\n",
+            Path::new("g.toml"),
+        )
+        .unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.sqlite");
+        let mut store = Store::open(&path).unwrap();
+        // One device walks row 0 of B1, then row 1 of G.
+        let records: Vec<Record> = (0..12u16)
+            .map(|i| Record::Fix {
+                device: "d".into(),
+                t: f64::from(i),
+                floor: Some(if i < 6 { "B1" } else { "G" }.into()),
+                cell: Cell::new(i % 6, i / 6),
+                confidence: 0.9,
+            })
+            .collect();
+        store.write(&records).unwrap();
+        let asked = walks_from_store(&path, &site, FloorChoice::Only)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            asked.contains("2 floors (B1, G)") && asked.contains("--floor"),
+            "{asked}"
+        );
+        let walks = walks_from_store(&path, &site, FloorChoice::Named("G")).unwrap();
+        assert_eq!(walks.len(), 1);
+        assert!(
+            walks[0].cells.iter().all(|c| c.y == 1),
+            "{:?}",
+            walks[0].cells
+        );
+        assert_eq!(walks[0].cells.len(), 6);
+        let unknown = walks_from_store(&path, &site, FloorChoice::Named("L9"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            unknown.contains("no walks on floor `L9`") && unknown.contains("B1, G"),
+            "{unknown}"
         );
     }
 
