@@ -14,10 +14,9 @@ use std::path::{Path, PathBuf};
 use serde_json::Value;
 
 use crate::common::{gangway, gangway_ok, write};
-use crate::floors_support::{self, BEACONS, FLOORS};
+use crate::floors_support::{self, BEACONS, FLOORS, UUID};
 use crate::mqtt_support::*;
 
-const UUID: &str = "8b0c3f0e-6a51-4d27-9c1e-2f4a6b8d0e13";
 /// Where the walk starts on B1, the lift's stop (every floor) and where it
 /// ends on L1, metres.
 const START: [f64; 2] = [9.0, 2.0];

@@ -85,7 +85,7 @@ pub(crate) const BEACONS: [(&str, &str, [f64; 2], u16); 5] = [
     ("l1-east", "L1", [18.0, 2.0], 5),
 ];
 
-const UUID: &str = "8b0c3f0e-6a51-4d27-9c1e-2f4a6b8d0e13";
+pub(crate) const UUID: &str = "8b0c3f0e-6a51-4d27-9c1e-2f4a6b8d0e13";
 
 /// The cell whose centre is nearest `at` (metres).
 pub(crate) fn cell_of(at: [f64; 2]) -> [u16; 2] {

@@ -1303,3 +1303,124 @@ async fn the_editor_places_a_building_s_connectors(browser: &Browser, dir: &Path
         "{l1}"
     );
 }
+
+/// Survey mode on a floor above the lowest of a building (the made-up B1,
+/// G, L1): a phone standing on L1, shown on the map at `?floor=L1`, is
+/// surveyed where the operator clicks; its windows go to L1's own file
+/// (`survey-L1.csv` beside the config, L1's beacon as the only column, the
+/// spot in L1's metres), which L1's survey reader takes; G shows its own
+/// empty file, and the API names the floors for one the building lacks.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn survey_mode_records_each_floor_into_its_own_file() {
+    let browser =
+        match Browser::start_with(&common::root().join("target/web-screenshots"), &[]).await {
+            Ok(browser) => browser,
+            Err(missing) => return common::cannot_run(&missing),
+        };
+    let dir = tempfile::tempdir().unwrap();
+    crate::floors_support::write_building(dir.path());
+    // A minute of a phone by L1's beacon, hearing G's atrium through the
+    // floor, played in real time.
+    let advert = |t: u32, minor: u16, rssi: i32| {
+        json!({
+            "type": "advert", "t": 1_767_225_600.0 + f64::from(t), "observer": "phone",
+            "uuid": crate::floors_support::UUID, "major": 7, "minor": minor, "rssi": rssi,
+        })
+        .to_string()
+    };
+    let lines: Vec<String> = (0..60u32)
+        .flat_map(|t| [advert(t, 5, -70 - (t % 3) as i32), advert(t, 4, -92)])
+        .collect();
+    let walk = common::write(dir.path(), "standing.jsonl", &(lines.join("\n") + "\n"));
+    let (_gateway, url) = replay_with_web(
+        dir.path(),
+        "gateway_id = \"gw-survey\"\nsite = \"building.toml\"\n[localizer]\nmin_confidence = 0.0\n",
+        &walk,
+        1,
+    );
+    let (status, unknown) = get_json(&format!("{url}/api/survey?floor=L9"));
+    assert_eq!(status, 404, "{unknown}");
+    assert!(
+        unknown["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("B1, G, L1"),
+        "{unknown}"
+    );
+
+    browser
+        .client
+        .goto(&format!("{url}/?floor=L1"))
+        .await
+        .unwrap();
+    let describe = "return document.getElementById('survey-status').textContent + ' | ' + \
+                    document.getElementById('devices').textContent";
+    browser
+        .until(
+            "survey mode on L1 and the phone listed",
+            "return !document.getElementById('survey').hidden && \
+             !!document.querySelector('#devices li[data-device=phone] button')",
+            describe,
+        )
+        .await;
+    browser.click_id("survey-on").await;
+    browser.type_into("survey-samples", "2").await;
+    browser
+        .client
+        .find(Locator::Css("#devices li[data-device=phone] button"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+    let [x, y] = crate::floors_support::cell_of([16.0, 3.0]);
+    let spot = browser
+        .grid_points(&[[f64::from(x) + 0.5, f64::from(y) + 0.5]])
+        .await[0];
+    browser.click_at(spot).await;
+    browser
+        .until(
+            "two windows surveyed on L1",
+            "const s = document.getElementById('survey-status').textContent; \
+             return s.includes('2 of 2 windows (done)') && s.includes('survey-L1.csv')",
+            describe,
+        )
+        .await;
+    browser.screenshot("survey-building.png").await;
+
+    let file = dir.path().join("survey-L1.csv");
+    let text = std::fs::read_to_string(&file).unwrap();
+    assert!(text.starts_with("x_m,y_m,t,l1-east\n"), "{text}");
+    assert_eq!(text.lines().count(), 3, "{text}");
+    let l1 = gangway::site::Site::load(&dir.path().join("L1.toml")).unwrap();
+    let read =
+        gangway::locate::survey::Survey::load(&file, &l1, &["l1-east".into()], -200).unwrap();
+    assert_eq!(read.samples.len(), 2);
+    assert!(
+        read.samples
+            .iter()
+            .all(|s| s.cell == gangway::site::Cell::new(x, y) && s.rssi[0].is_some()),
+        "{text}"
+    );
+    for other in ["survey-B1.csv", "survey-G.csv", "survey.csv"] {
+        assert!(!dir.path().join(other).exists(), "{other} written");
+    }
+
+    // G: its own (empty) file, and the RSSI layers of its beacons.
+    browser
+        .js("document.querySelector('#floor-switch button[data-floor=G]').click(); return true")
+        .await;
+    browser
+        .until(
+            "G's survey",
+            "return document.getElementById('survey-status').textContent.includes('0 cells surveyed in') && \
+             document.getElementById('survey-status').textContent.includes('survey-G.csv')",
+            describe,
+        )
+        .await;
+    let layers = browser
+        .js("return [...document.querySelectorAll('#heat option')].map(o => o.textContent).filter(t => t.startsWith('RSSI'))")
+        .await;
+    assert_eq!(layers, json!(["RSSI of g-west", "RSSI of atrium"]));
+    browser.client.clone().close().await.unwrap();
+}

@@ -25,7 +25,9 @@ pub struct WebConfig {
     /// (default: the systemd credential `web-token`).
     pub token_file: Option<PathBuf>,
     /// Where survey mode appends its fingerprints (default: `survey.csv` in
-    /// `$STATE_DIRECTORY` under systemd, else beside the config file).
+    /// `$STATE_DIRECTORY` under systemd, else beside the config file); on a
+    /// building of several floors, a file per floor (`{floor}` in the path,
+    /// else `-NAME` before its extension).
     pub survey_file: Option<PathBuf>,
 }
 

@@ -56,7 +56,7 @@ pub struct Ui {
     /// editor-only server.
     pub live: Option<Arc<Live>>,
     pub editor: Option<Editors>,
-    survey: Option<Arc<survey::Survey>>,
+    survey: Option<Arc<survey::Surveys>>,
 }
 
 impl Ui {
@@ -76,14 +76,14 @@ struct App {
     building: Option<BuildingCell>,
     live: Option<Arc<Live>>,
     editor: Option<Arc<Editors>>,
-    survey: Option<Arc<survey::Survey>>,
+    survey: Option<Arc<survey::Surveys>>,
 }
 
 /// The web UI of a running gateway, ready to join its runtime.
 pub struct Web {
     sink: WebSink,
     source: WebSource,
-    survey: Option<Arc<survey::Survey>>,
+    survey: Option<Arc<survey::Surveys>>,
     latency: Arc<Latency>,
 }
 
@@ -110,7 +110,7 @@ impl Web {
 /// Starts the web UI of a running gateway (`[web]`): serves the live map of
 /// `building` (floor by floor), the editor of its file `site_file` (of each
 /// floor's site file on a building of several), and survey mode (its
-/// windows cut as `window` says, on the lowest floor) for as long as the
+/// windows cut as `window` says, on every floor) for as long as the
 /// runtime lives. With `reload` (the runtime's reloads), a site
 /// saved in the editor is applied as SIGHUP applies it. A UI that cannot
 /// start never stops the gateway: why is logged and added to `fallbacks`,
@@ -136,18 +136,10 @@ pub async fn start(
             return None;
         }
     };
-    let site = building.floors()[0].site.clone();
-    let survey = config.survey_file.as_ref().and_then(|file| {
-        match survey::Survey::open(file, site, window) {
-            Ok(survey) => Some(Arc::new(survey)),
-            Err(e) => {
-                let why = format!("[web] survey mode is off: {e:#}");
-                tracing::error!("{why}");
-                fallbacks.push(why);
-                None
-            }
-        }
-    });
+    let survey = config
+        .survey_file
+        .as_ref()
+        .and_then(|file| survey::Surveys::open(file, &building, window, fallbacks).map(Arc::new));
     let latency = Arc::new(Latency::default());
     let (live, sink, source) = Live::new(building.clone(), max_devices, latency.clone());
     let gateway = reload.map(|reload| (reload, live.reloaded.subscribe()));

@@ -8,7 +8,12 @@
 //! `[window]` settings), made from the same sightings: a [`Tap`] wraps each
 //! source and copies the sightings of the one device being surveyed, so
 //! nothing else is held and the pipeline is untouched. One spot is recorded
-//! at a time, for a bounded number of windows.
+//! at a time on each floor, for a bounded number of windows.
+//!
+//! On a building of several floors each floor is surveyed into a file of
+//! its own ([`floor_file`]): a floor's fingerprints have that floor's
+//! beacons as columns and its spots are in its own plan's metres, which is
+//! what that floor's localizer reads (`survey = "survey-{floor}.csv"`).
 
 use std::collections::HashMap;
 use std::io::Write;
@@ -16,17 +21,18 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
 use axum::Json;
-use axum::extract::State;
+use axum::extract::{Query, State};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use futures::future::BoxFuture;
 use serde::Deserialize;
 use tokio::sync::mpsc;
 
+use super::floor::{FloorQuery, FloorView};
 use super::security::error;
 use crate::locate::window::{Orientation, Windows, anchor_ids};
 use crate::sighting::Sighting;
-use crate::site::{Cell, Site};
+use crate::site::{Building, Cell, Site};
 use crate::source::{Input, Source, SourceContext};
 
 use crate::event::{Event, Inbound};
@@ -42,7 +48,108 @@ const MAX_SAMPLES: usize = 600;
 /// What the file writes for an anchor not heard in a window.
 const NOT_HEARD: i16 = -200;
 
-pub(super) struct Survey {
+/// Survey mode on every floor: each floor's [`Survey`], or why it is off
+/// there (its file cannot be appended to), lowest floor first.
+pub(super) struct Surveys {
+    floors: Vec<FloorView>,
+    surveys: Vec<Result<Survey, String>>,
+}
+
+/// The survey file of floor `floor` of a building: `{floor}` in `file`
+/// becomes its name; on a building of several floors, a path without it
+/// gets `-NAME` before its extension (`survey.csv` → `survey-B1.csv`), so
+/// no two floors ever append to one file.
+fn floor_file(file: &Path, floor: &str, several: bool) -> PathBuf {
+    let text = file.to_string_lossy();
+    if text.contains("{floor}") {
+        return text.replace("{floor}", floor).into();
+    }
+    if !several {
+        return file.to_owned();
+    }
+    let stem = file.file_stem().unwrap_or_default().to_string_lossy();
+    let name = match file.extension() {
+        Some(ext) => format!("{stem}-{floor}.{}", ext.to_string_lossy()),
+        None => format!("{stem}-{floor}"),
+    };
+    file.with_file_name(name)
+}
+
+impl Surveys {
+    /// Survey mode on each floor of `building`, writing to `file` as
+    /// [`floor_file`] names it per floor. A floor whose file cannot be
+    /// taken has survey mode off, why in `fallbacks`; none at all when no
+    /// floor can be surveyed.
+    pub(super) fn open(
+        file: &Path,
+        building: &Building,
+        window: &crate::locate::window::WindowConfig,
+        fallbacks: &mut Vec<String>,
+    ) -> Option<Surveys> {
+        let several = building.is_multi_floor();
+        let surveys: Vec<Result<Survey, String>> = building
+            .floors()
+            .iter()
+            .map(|floor| {
+                let file = floor_file(file, &floor.name, several);
+                Survey::open(&file, floor.site.clone(), window).map_err(|e| {
+                    let on = if several {
+                        format!(" on floor {}", floor.name)
+                    } else {
+                        String::new()
+                    };
+                    let why = format!("[web] survey mode is off{on}: {e:#}");
+                    tracing::error!("{why}");
+                    fallbacks.push(why.clone());
+                    why
+                })
+            })
+            .collect();
+        surveys.iter().any(Result::is_ok).then(|| Surveys {
+            floors: super::floor::floors(building),
+            surveys,
+        })
+    }
+
+    /// The survey of the floor `query` names (the lowest when none), or
+    /// why there is none.
+    fn of(&self, query: &FloorQuery) -> Result<&Survey, NoSurvey> {
+        let i = super::floor::pick(&self.floors, query.floor.as_deref()).map_err(|e| NoSurvey {
+            status: StatusCode::NOT_FOUND,
+            code: e.code,
+            message: e.message,
+        })?;
+        self.surveys[i].as_ref().map_err(|why| NoSurvey {
+            status: StatusCode::CONFLICT,
+            code: "survey_off",
+            message: why.clone(),
+        })
+    }
+
+    /// A source whose sightings every floor's survey sees too.
+    pub(super) fn tap(self: &Arc<Self>, inner: Box<dyn Source>) -> Box<dyn Source> {
+        Box::new(Tap {
+            inner,
+            surveys: self.clone(),
+        })
+    }
+}
+
+/// Why a request's floor has no survey: the building has no such floor
+/// (404), or survey mode is off on it (409).
+struct NoSurvey {
+    status: StatusCode,
+    code: &'static str,
+    message: String,
+}
+
+impl IntoResponse for NoSurvey {
+    fn into_response(self) -> Response {
+        error(self.status, self.code, self.message)
+    }
+}
+
+struct Survey {
     file: PathBuf,
     site: Arc<Site>,
     anchors: Vec<String>,
@@ -81,7 +188,7 @@ impl Survey {
     /// Survey mode writing to `file` (created with its header when missing;
     /// an existing file must be in the generic layout with this site's
     /// anchors, and is counted for coverage).
-    pub(super) fn open(
+    fn open(
         file: &Path,
         site: Arc<Site>,
         window: &crate::locate::window::WindowConfig,
@@ -229,14 +336,6 @@ impl Survey {
             }
         }
     }
-
-    /// A source whose sightings this survey sees too.
-    pub(super) fn tap(self: &Arc<Self>, inner: Box<dyn Source>) -> Box<dyn Source> {
-        Box::new(Tap {
-            inner,
-            survey: self.clone(),
-        })
-    }
 }
 
 impl SurveyState {
@@ -255,10 +354,10 @@ impl SurveyState {
     }
 }
 
-/// A source with the survey looking over its shoulder.
+/// A source with the surveys looking over its shoulder.
 struct Tap {
     inner: Box<dyn Source>,
-    survey: Arc<Survey>,
+    surveys: Arc<Surveys>,
 }
 
 impl Source for Tap {
@@ -267,7 +366,7 @@ impl Source for Tap {
     }
 
     fn run(self: Box<Self>, cx: SourceContext) -> BoxFuture<'static, anyhow::Result<()>> {
-        let Tap { inner, survey } = *self;
+        let Tap { inner, surveys } = *self;
         Box::pin(async move {
             let (events, mut events_rx) = mpsc::channel(cx.events.max_capacity());
             let (inbound, mut inbound_rx) = mpsc::channel(cx.inbound.max_capacity());
@@ -286,7 +385,9 @@ impl Source for Tap {
                             None => { inbound_open = false; continue }
                         },
                     };
-                    survey.observe(&input);
+                    for survey in surveys.surveys.iter().flatten() {
+                        survey.observe(&input);
+                    }
                     if to.send(input).await.is_err() {
                         return;
                     }
@@ -298,8 +399,16 @@ impl Source for Tap {
     }
 }
 
-/// `GET /api/survey`: the spot being recorded and what the file covers.
-pub(super) async fn status(State(survey): State<Arc<Survey>>) -> Response {
+/// `GET /api/survey?floor=NAME`: the spot being recorded on that floor
+/// (the lowest when none is named) and what its file covers.
+pub(super) async fn status(
+    State(surveys): State<Arc<Surveys>>,
+    Query(query): Query<FloorQuery>,
+) -> Response {
+    let survey = match surveys.of(&query) {
+        Ok(survey) => survey,
+        Err(why) => return why.into_response(),
+    };
     let state = survey.lock();
     let spot = state.spot.as_ref().map(|s| {
         serde_json::json!({
@@ -340,11 +449,17 @@ pub(super) struct SpotBody {
     samples: Option<usize>,
 }
 
-/// `POST /api/survey`: record `device` standing at (`x_m`, `y_m`).
+/// `POST /api/survey?floor=NAME`: record `device` standing at (`x_m`,
+/// `y_m`) of that floor (the lowest when none is named).
 pub(super) async fn start(
-    State(survey): State<Arc<Survey>>,
+    State(surveys): State<Arc<Surveys>>,
+    Query(query): Query<FloorQuery>,
     Json(body): Json<SpotBody>,
 ) -> Response {
+    let survey = match surveys.of(&query) {
+        Ok(survey) => survey,
+        Err(why) => return why.into_response(),
+    };
     if !crate::sighting::valid_device_id(&body.device) {
         return error(
             StatusCode::BAD_REQUEST,
@@ -387,8 +502,31 @@ pub(super) async fn start(
     Json(serde_json::json!({ "cell": cell, "wanted": wanted })).into_response()
 }
 
-/// `POST /api/survey/stop`: stop recording the current spot.
-pub(super) async fn stop(State(survey): State<Arc<Survey>>) -> Response {
+/// `POST /api/survey/stop?floor=NAME`: stop recording that floor's spot.
+pub(super) async fn stop(
+    State(surveys): State<Arc<Surveys>>,
+    Query(query): Query<FloorQuery>,
+) -> Response {
+    let survey = match surveys.of(&query) {
+        Ok(survey) => survey,
+        Err(why) => return why.into_response(),
+    };
     survey.lock().spot = None;
     Json(serde_json::json!({ "stopped": true })).into_response()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_floor_of_a_building_gets_a_file_of_its_own() {
+        let file = |path: &str, several| floor_file(Path::new(path), "B1", several);
+        assert_eq!(file("/s/survey.csv", false), Path::new("/s/survey.csv"));
+        assert_eq!(file("/s/survey.csv", true), Path::new("/s/survey-B1.csv"));
+        assert_eq!(file("/s/survey", true), Path::new("/s/survey-B1"));
+        assert_eq!(file("/s/{floor}/fp.csv", true), Path::new("/s/B1/fp.csv"));
+        // A one-floor site names its floor where the path asks for it.
+        assert_eq!(file("/s/fp-{floor}.csv", false), Path::new("/s/fp-B1.csv"));
+    }
 }

@@ -38,6 +38,7 @@ let access = {};
 let floors = []; // the building's floors, lowest first ({ name, level })
 let floor = null; // the floor shown, on a building of several; null on one floor
 let buildingName = "";
+let survey = null; // survey mode's state on the floor shown (GET /api/survey)
 // Dragging pans, except on a device or a place, which take clicks.
 const view = new PlanView($("plan"), {
   panWithLeft: (e) => !(e.target.closest && e.target.closest(".device, .place")),
@@ -168,8 +169,12 @@ async function loadSite(first, asked) {
   $("edit-link").href = floorUrl("/edit");
   $("edit-link").textContent = floor === null ? "Edit site" : `Edit floor ${floor}`;
   document.title = floor === null ? `gangway · ${site.name}` : `gangway · ${site.name} · floor ${floor}`;
-  // Survey mode records fingerprints on the lowest floor only.
-  $("survey").hidden = !access.survey || (floor !== null && floor !== floors[0].name);
+  // Survey mode records the floor shown, into that floor's file.
+  $("survey").hidden = !access.survey;
+  if (!first && before.floor !== floor) {
+    survey = null;
+    refreshSurvey();
+  }
   const plan = site.floorplan;
   drawFloorplan(view.layers.floorplan, plan && plan.url, plan && plan.matrix, plan && plan.width, plan && plan.height);
   drawSite(view, site, { withPlan: !!plan });
@@ -617,7 +622,7 @@ async function surveyAt(g) {
   const [x, y] = new Frame(site.cell_m, site.origin_m, site.y_axis).world(g).map((v) => Math.round(v * 100) / 100);
   const samples = Math.round(Number($("survey-samples").value)) || 10;
   try {
-    await api("/api/survey", { method: "POST", json: { device: selected, x_m: x, y_m: y, samples } });
+    await api(floorUrl("/api/survey"), { method: "POST", json: { device: selected, x_m: x, y_m: y, samples } });
     refreshSurvey();
   } catch (e) {
     fill($("survey-status"), h("span", { class: "bad" }, e.message));
@@ -626,7 +631,7 @@ async function surveyAt(g) {
 
 $("survey-stop").addEventListener("click", async () => {
   try {
-    await api("/api/survey/stop", { method: "POST", json: {} });
+    await api(floorUrl("/api/survey/stop"), { method: "POST", json: {} });
   } catch (e) {
     fill($("survey-status"), h("span", { class: "bad" }, e.message));
   }
@@ -639,24 +644,27 @@ $("survey-on").addEventListener("change", () => {
 });
 $("heat").addEventListener("change", () => refreshSurvey());
 
-let survey = null;
 async function refreshSurvey() {
   if (!access.survey) return;
   try {
-    survey = await api("/api/survey");
+    survey = await api(floorUrl("/api/survey"));
   } catch (e) {
     fill($("survey-status"), h("span", { class: "bad" }, e.message));
     return;
   }
+  // One RSSI layer per anchor of the floor shown: each floor has its own.
   const heat = $("heat");
-  const known = new Set([...heat.options].map((o) => o.value));
-  survey.anchors.forEach((id, i) => {
-    if (!known.has("rssi:" + i)) heat.append(h("option", { value: "rssi:" + i }, `RSSI of ${id}`));
-  });
+  const labels = survey.anchors.map((id) => `RSSI of ${id}`);
+  const listed = [...heat.options].filter((o) => o.value.startsWith("rssi:"));
+  if (listed.map((o) => o.textContent).join("\n") !== labels.join("\n")) {
+    if (heat.value.startsWith("rssi:")) heat.value = "";
+    listed.forEach((o) => o.remove());
+    labels.forEach((label, i) => heat.append(h("option", { value: "rssi:" + i }, label)));
+  }
   const spot = survey.spot;
   $("survey-stop").hidden = !spot || spot.taken >= spot.wanted;
   const covered = survey.cells.length;
-  const lines = [`${survey.recorded} windows recorded here; ${covered} cells surveyed in ${survey.file}`];
+  const lines = [`${survey.recorded} windows recorded here; ${covered} cell${covered === 1 ? "" : "s"} surveyed in ${survey.file}`];
   if (spot) lines.unshift(`${spot.device} at ${spot.x_m}, ${spot.y_m} m: ${spot.taken} of ${spot.wanted} windows${spot.taken >= spot.wanted ? " (done)" : "…"}`);
   if (survey.error) lines.push(survey.error);
   fill($("survey-status"), lines.map((l) => h("div", {}, l)));
