@@ -137,7 +137,7 @@ impl Surveys {
 
 /// Why a request's floor has no survey: the building has no such floor
 /// (404), or survey mode is off on it (409).
-struct NoSurvey {
+pub(super) struct NoSurvey {
     status: StatusCode,
     code: &'static str,
     message: String,
@@ -404,11 +404,8 @@ impl Source for Tap {
 pub(super) async fn status(
     State(surveys): State<Arc<Surveys>>,
     Query(query): Query<FloorQuery>,
-) -> Response {
-    let survey = match surveys.of(&query) {
-        Ok(survey) => survey,
-        Err(why) => return why.into_response(),
-    };
+) -> Result<Response, NoSurvey> {
+    let survey = surveys.of(&query)?;
     let state = survey.lock();
     let spot = state.spot.as_ref().map(|s| {
         serde_json::json!({
@@ -428,7 +425,7 @@ pub(super) async fn status(
             serde_json::json!({ "cell": cell, "samples": stats.samples, "rssi": rssi })
         })
         .collect();
-    Json(serde_json::json!({
+    Ok(Json(serde_json::json!({
         "file": survey.file.display().to_string(),
         "anchors": survey.anchors,
         "spot": spot,
@@ -436,7 +433,7 @@ pub(super) async fn status(
         "cells": cells,
         "error": state.write_error,
     }))
-    .into_response()
+    .into_response())
 }
 
 #[derive(Deserialize)]
@@ -455,17 +452,14 @@ pub(super) async fn start(
     State(surveys): State<Arc<Surveys>>,
     Query(query): Query<FloorQuery>,
     Json(body): Json<SpotBody>,
-) -> Response {
-    let survey = match surveys.of(&query) {
-        Ok(survey) => survey,
-        Err(why) => return why.into_response(),
-    };
+) -> Result<Response, NoSurvey> {
+    let survey = surveys.of(&query)?;
     if !crate::sighting::valid_device_id(&body.device) {
-        return error(
+        return Ok(error(
             StatusCode::BAD_REQUEST,
             "invalid_request",
             "not a device id",
-        );
+        ));
     }
     let at = [body.x_m, body.y_m];
     let Some(cell) = survey
@@ -473,11 +467,11 @@ pub(super) async fn start(
         .cell_of_world(at)
         .filter(|&c| survey.site.walkable(c))
     else {
-        return error(
+        return Ok(error(
             StatusCode::BAD_REQUEST,
             "not_walkable",
             "the spot is off the grid or on a blocked cell; a survey stands where people walk",
-        );
+        ));
     };
     let wanted = body
         .samples
@@ -499,20 +493,17 @@ pub(super) async fn start(
         y_m = at[1],
         "survey spot started"
     );
-    Json(serde_json::json!({ "cell": cell, "wanted": wanted })).into_response()
+    Ok(Json(serde_json::json!({ "cell": cell, "wanted": wanted })).into_response())
 }
 
 /// `POST /api/survey/stop?floor=NAME`: stop recording that floor's spot.
 pub(super) async fn stop(
     State(surveys): State<Arc<Surveys>>,
     Query(query): Query<FloorQuery>,
-) -> Response {
-    let survey = match surveys.of(&query) {
-        Ok(survey) => survey,
-        Err(why) => return why.into_response(),
-    };
+) -> Result<Response, NoSurvey> {
+    let survey = surveys.of(&query)?;
     survey.lock().spot = None;
-    Json(serde_json::json!({ "stopped": true })).into_response()
+    Ok(Json(serde_json::json!({ "stopped": true })).into_response())
 }
 
 #[cfg(test)]
