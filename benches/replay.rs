@@ -69,7 +69,7 @@ fn benches(c: &mut Criterion) {
             |pipeline| {
                 let reader = CaptureReader::open(
                     &log,
-                    &site,
+                    pipeline.building(),
                     &ReadOptions {
                         format: None,
                         skip_bad: false,

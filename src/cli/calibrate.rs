@@ -63,7 +63,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
     let ids = anchor_ids(&site, orientation);
     let mut trajectories = Vec::new();
     for path in &args.from {
-        trajectories.extend(read(&args, path, &site, &config.window)?);
+        trajectories.extend(read(&args, path, &building, &config.window)?);
     }
     let windows: usize = trajectories.iter().map(Vec::len).sum();
     anyhow::ensure!(
@@ -172,12 +172,13 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
 fn read(
     args: &Args,
     path: &std::path::Path,
-    site: &Arc<crate::site::Site>,
+    building: &crate::site::Building,
     window: &crate::locate::window::WindowConfig,
 ) -> anyhow::Result<Vec<Vec<Window>>> {
+    let site = &building.floors()[0].site;
     let reader = CaptureReader::open(
         path,
-        site,
+        building,
         &ReadOptions {
             format: args.format,
             skip_bad: false,

@@ -86,10 +86,10 @@ pub(super) struct Args {
 }
 
 /// Opens a capture of any format for `args`.
-fn open(args: &Args, site: &crate::site::Site) -> anyhow::Result<CaptureReader> {
+fn open(args: &Args, building: &crate::site::Building) -> anyhow::Result<CaptureReader> {
     Ok(CaptureReader::open(
         &args.log,
-        site,
+        building,
         &ReadOptions {
             format: args.format,
             skip_bad: args.skip_bad,
@@ -105,8 +105,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         "--speed must be 0 (as fast as possible) or a positive factor"
     );
     let (config, building) = super::load(&args.config.path)?;
-    // A CSV capture's columns are one floor's beacons: the lowest (the only
-    // one of a one-floor site), as are its truths and those without a floor.
+    // What the sinks map: the lowest floor, the only one of a one-floor site.
     let site = building.floors()[0].site.clone();
     if std::fs::metadata(&args.log).is_ok_and(|m| m.len() == 0) {
         tracing::warn!(
@@ -115,7 +114,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         );
         return Ok(ExitCode::FAILURE);
     }
-    let reader = open(&args, &site)?;
+    let reader = open(&args, &building)?;
     let tolerance_s = args.tolerance_s.unwrap_or(config.window.length_s);
     anyhow::ensure!(
         tolerance_s >= 0.0 && tolerance_s.is_finite(),

@@ -81,7 +81,7 @@ async fn serve(args: Args) -> anyhow::Result<()> {
                 device: None,
                 not_heard: -200,
             };
-            let reader = CaptureReader::open(log, &site, &options)?;
+            let reader = CaptureReader::open(log, &serving.building, &options)?;
             sources.push(Box::new(CaptureSource::new(
                 log.clone(),
                 reader,

@@ -326,6 +326,77 @@ fn a_replay_of_a_building_is_scored_floor_by_floor() {
     );
 }
 
+/// A CSV scan log of one floor (survey mode's layout, `x_m,y_m,t` and the
+/// floor's beacons) replays on the building it was taken in: its columns
+/// name G's beacons, so its truths are on G and so are the fixes. A log
+/// naming beacons of two floors is refused, saying which floor each is on.
+#[test]
+fn a_floor_s_scan_log_replays_on_that_floor() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = replay_config(dir.path());
+    // Standing at four spots along the south of G, 8 s each.
+    let (g_west, atrium) = (2, 3);
+    let mut csv = String::from("x_m,y_m,t,g-west,atrium\n");
+    for k in 0..32u32 {
+        let at = [4.0 + f64::from(k / 8) * 4.0, 2.0];
+        let heard = |b| rssi(b, 1, at, k).unwrap_or(-200);
+        csv += &format!(
+            "{},{},{},{},{}\n",
+            at[0],
+            at[1],
+            T0 + f64::from(k),
+            heard(g_west),
+            heard(atrium)
+        );
+    }
+    let log = write(dir.path(), "survey-G.csv", &csv);
+    let printed = gangway_ok(&[
+        "replay",
+        log.to_str().unwrap(),
+        "--config",
+        config.to_str().unwrap(),
+        "--score",
+        "--json",
+    ]);
+    let score: Value = serde_json::from_str(printed.lines().last().unwrap()).unwrap();
+    assert_eq!(score["truths"], 32, "{score}");
+    assert!(score["matched"].as_u64().unwrap() >= 10, "{score}");
+    assert_eq!(score["floor_accuracy"], 1.0, "{score}");
+
+    // Refused: one of B1's beacons among G's; as many of B1's as of L1's.
+    for (name, columns, says) in [
+        (
+            "mostly-g.csv",
+            "g-west,atrium,b1-west",
+            "is a beacon of floor B1",
+        ),
+        (
+            "halves.csv",
+            "b1-west,l1-east",
+            "b1-west on B1, l1-east on L1",
+        ),
+    ] {
+        let values = vec!["-80"; columns.split(',').count()].join(",");
+        let log = write(
+            dir.path(),
+            name,
+            &format!("x_m,y_m,t,{columns}\n4,2,{T0},{values}\n"),
+        );
+        let out = gangway(&[
+            "replay",
+            log.to_str().unwrap(),
+            "--config",
+            config.to_str().unwrap(),
+        ]);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{stderr}");
+        assert!(
+            stderr.contains(name) && stderr.contains(says) && stderr.contains("split it by floor"),
+            "{stderr}"
+        );
+    }
+}
+
 /// The learning store of a gateway serving a building keeps each fix's
 /// floor: the phone's walk is recorded as a walk on B1 and one on L1 (each
 /// on its floor's grid), and `train --from-store` learns a floor's site from

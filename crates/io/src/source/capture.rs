@@ -31,7 +31,7 @@ use super::log::{LogError, LogReader, LogWriter};
 use super::pcap::{self, PcapError, PcapReader};
 use crate::event::Event;
 use crate::locate::survey::SurveyError;
-use crate::site::Site;
+use crate::site::Building;
 
 /// A capture file format.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -190,10 +190,10 @@ pub enum CaptureReader {
 }
 
 impl CaptureReader {
-    /// Opens `path`; `site` matches CSV columns to beacons.
+    /// Opens `path`; `building`'s floors match CSV columns to beacons.
     pub fn open(
         path: &Path,
-        site: &Site,
+        building: &Building,
         options: &ReadOptions,
     ) -> Result<CaptureReader, CaptureError> {
         let format = match options.format {
@@ -209,7 +209,7 @@ impl CaptureReader {
             Format::Jsonl => CaptureReader::Jsonl(LogReader::open(path, options.skip_bad)?),
             Format::Csv => CaptureReader::Csv(CsvLog::open(
                 path,
-                site,
+                building,
                 &CsvOptions {
                     device: device(DEFAULT_CSV_DEVICE),
                     not_heard: options.not_heard,
@@ -339,11 +339,11 @@ mod tests {
     use super::*;
     use crate::event::Truth;
     use crate::sighting::{BeaconId, Sighting};
-    use crate::site::Cell;
+    use crate::site::{Cell, Site};
 
-    fn site() -> Site {
+    fn site() -> Building {
         let text = "name = \"t\"\ncell_m = 1.0\nmap = '''\n##\n'''\n";
-        Site::parse(text, Path::new("t.toml")).unwrap()
+        Building::of_site(Arc::new(Site::parse(text, Path::new("t.toml")).unwrap()))
     }
 
     fn options(format: Option<Format>, device: Option<&str>) -> ReadOptions {

@@ -4,7 +4,8 @@
 //! The layout is the survey layout ([`crate::locate::survey`], whose row reader
 //! this uses): a time column (`date` as `MM-DD-YYYY HH:MM[:SS]`, or `t` in
 //! seconds), one column per beacon named by its `id` in the site file, and
-//! optionally the cell the scan was taken in (`location` label, or `x` and `y`).
+//! optionally the cell the scan was taken in (`location` label, `x` and `y`, or
+//! `x_m` and `y_m` in metres).
 //! The UCI BLE RSSI survey is such a log as published.
 //!
 //! Every row becomes one advert per beacon heard (any value but the "not heard"
@@ -12,6 +13,11 @@
 //! for that device when the row names its cell. The beacon's identity comes from
 //! the site file (with its `mac`, where it has one); a scan log has no
 //! measured power, so adverts carry none.
+//!
+//! A scan log is one floor's: on a building of several floors, the floor is
+//! the one whose beacons its columns name (every beacon is written in one
+//! floor's site file), and its truths are on that floor. A log naming
+//! beacons of several floors is refused, saying which floor each is on.
 //!
 //! Rows are replayed in time order whatever their order in the file (the UCI
 //! survey lists its newest rows first). That needs the whole file before the
@@ -27,7 +33,7 @@ use std::sync::Arc;
 use crate::event::{Event, Truth};
 use crate::locate::survey::{Row, SurveyError, SurveyRows};
 use crate::sighting::Sighting;
-use crate::site::Site;
+use crate::site::{Building, Site};
 
 /// How to read a scan log.
 #[derive(Clone, Debug)]
@@ -53,17 +59,20 @@ pub struct CsvLog {
 }
 
 impl CsvLog {
-    /// Reads a scan log whose beacon columns are named after `site`'s beacons.
+    /// Reads a scan log whose beacon columns are named after the beacons of
+    /// one floor of `building`.
     pub(crate) fn open(
         path: &Path,
-        site: &Site,
+        building: &Building,
         options: &CsvOptions,
     ) -> Result<CsvLog, SurveyError> {
-        let beacon_ids: Vec<String> = site.beacons.iter().map(|b| b.id.clone()).collect();
         let header_error = |reason: String| SurveyError::Header {
             path: path.to_owned(),
             reason,
         };
+        let floor = floor_of_columns(path, building)?;
+        let site = &*building.floors()[floor].site;
+        let beacon_ids = ids(site);
         let mut reader = SurveyRows::open(path, site, &beacon_ids, options.not_heard)?;
         if !reader.has_clock() {
             return Err(header_error(
@@ -73,11 +82,24 @@ impl CsvLog {
         }
         let ignored_columns = reader.ignored_columns().to_vec();
         if let Some(column) = ignored_columns.first() {
-            let reason = format!(
-                "names no beacon of the site (beacons: {}); rename it after a beacon's `id`, \
-                 or pass --skip-bad to ignore such columns",
-                beacon_ids.join(", ")
-            );
+            let elsewhere = building
+                .floors()
+                .iter()
+                .find(|f| f.site.beacons.iter().any(|b| b.id == *column));
+            let reason = match elsewhere {
+                Some(other) => format!(
+                    "is a beacon of floor {}, and the log's other beacons are floor {}'s; a scan \
+                     log is one floor's: split it by floor, or pass --skip-bad to ignore such \
+                     columns",
+                    other.name,
+                    building.floors()[floor].name
+                ),
+                None => format!(
+                    "names no beacon of the site (beacons: {}); rename it after a beacon's `id`, \
+                     or pass --skip-bad to ignore such columns",
+                    beacon_ids.join(", ")
+                ),
+            };
             if !options.skip_bad {
                 return Err(SurveyError::Field {
                     path: path.to_owned(),
@@ -114,6 +136,10 @@ impl CsvLog {
             );
         }
 
+        // A one-floor site's truths name no floor, as they always have.
+        let floor_name = building
+            .is_multi_floor()
+            .then(|| building.floors()[floor].name.clone());
         let mut events = Vec::new();
         for row in &rows {
             let t = row.t.expect("checked: the log has a time column");
@@ -122,7 +148,7 @@ impl CsvLog {
                     t,
                     device: options.device.to_string(),
                     cell,
-                    floor: None,
+                    floor: floor_name.clone(),
                 }));
             }
             for (beacon, rssi) in site.beacons.iter().zip(&row.rssi) {
@@ -169,6 +195,74 @@ impl Iterator for CsvLog {
     fn next(&mut self) -> Option<Event> {
         self.events.next()
     }
+}
+
+fn ids(site: &Site) -> Vec<String> {
+    site.beacons.iter().map(|b| b.id.clone()).collect()
+}
+
+/// The floor of `building` whose beacons the log's columns name most of (a
+/// tie, or none named, is refused: the log does not say its floor).
+fn floor_of_columns(path: &Path, building: &Building) -> Result<usize, SurveyError> {
+    if !building.is_multi_floor() {
+        return Ok(0);
+    }
+    let read_error = |e: csv::Error| SurveyError::Read {
+        path: path.to_owned(),
+        reason: e.to_string(),
+    };
+    let mut reader = csv::Reader::from_path(path).map_err(read_error)?;
+    let columns: Vec<String> = reader
+        .headers()
+        .map_err(read_error)?
+        .iter()
+        .map(|c| c.trim().to_owned())
+        .collect();
+    let named: Vec<usize> = building
+        .floors()
+        .iter()
+        .map(|f| {
+            columns
+                .iter()
+                .filter(|c| f.site.beacons.iter().any(|b| b.id == **c))
+                .count()
+        })
+        .collect();
+    let most = *named.iter().max().expect("a building has floors");
+    let best: Vec<&str> = (0..named.len())
+        .filter(|&i| named[i] == most)
+        .map(|i| building.floors()[i].name.as_str())
+        .collect();
+    let header_error = |reason: String| SurveyError::Header {
+        path: path.to_owned(),
+        reason,
+    };
+    if most == 0 {
+        return Err(header_error(
+            "no column names a beacon of the building; name the RSSI columns after the `id`s \
+             of the beacons of the floor the log was taken on"
+                .into(),
+        ));
+    }
+    if best.len() > 1 {
+        let of: Vec<String> = columns
+            .iter()
+            .filter_map(|c| {
+                let floor = building
+                    .floors()
+                    .iter()
+                    .find(|f| f.site.beacons.iter().any(|b| b.id == *c))?;
+                Some(format!("{c} on {}", floor.name))
+            })
+            .collect();
+        return Err(header_error(format!(
+            "its columns name as many beacons of {} ({}); a scan log is one floor's: split it \
+             by floor",
+            best.join(" as of "),
+            of.join(", ")
+        )));
+    }
+    Ok(named.iter().position(|&n| n == most).expect("found"))
 }
 
 /// Sorts rows by time; returns whether they were out of order.
@@ -247,7 +341,8 @@ tx_power = -61
     fn open_with(csv: &str, options: &CsvOptions) -> Result<(CsvLog, Vec<Event>), SurveyError> {
         let mut f = tempfile::NamedTempFile::new().unwrap();
         f.write_all(csv.as_bytes()).unwrap();
-        let mut log = CsvLog::open(f.path(), &site(), options)?;
+        let building = Building::of_site(Arc::new(site()));
+        let mut log = CsvLog::open(f.path(), &building, options)?;
         let events = log.by_ref().collect();
         Ok((log, events))
     }
