@@ -1,6 +1,10 @@
 //! `gangway calibrate`: fits the survey-free radio model to what was heard,
 //! with no positions, and writes the calibration file `[localizer.pathloss]
 //! calibration` loads.
+//!
+//! One floor at a time: on a building of several floors, `--floor NAME` says
+//! which floor the captures were taken on, and that floor's beacons and grid
+//! are fitted (each floor's file is then named with `{floor}` in the config).
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -33,6 +37,10 @@ pub(super) struct Args {
     /// Where to write the calibration (TOML).
     #[arg(long)]
     out: PathBuf,
+    /// On a building of several floors: the floor the captures were taken
+    /// on, by its name in the building file.
+    #[arg(long, value_name = "NAME")]
+    floor: Option<String>,
     /// EM iterations.
     #[arg(long, default_value_t = crate::locate::calibrate::CALIBRATION_ITERATIONS)]
     iterations: usize,
@@ -51,19 +59,43 @@ pub(super) struct Args {
 
 pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
     let (config, building) = super::load(&args.config.path)?;
-    anyhow::ensure!(
-        !building.is_multi_floor(),
-        "{}: `calibrate` fits one floor's radio model; the config's site is a building of {} \
-         floors: give a config whose `site` is one floor's site file",
-        args.config.path.display(),
-        building.floors().len()
-    );
-    let site = building.floors()[0].site.clone();
+    let names = || {
+        let names: Vec<&str> = building.floors().iter().map(|f| f.name.as_str()).collect();
+        names.join(", ")
+    };
+    let floor = match &args.floor {
+        Some(name) => building.floor_named(name).with_context(|| {
+            format!(
+                "--floor {name}: {} has no such floor; its floors are {}",
+                args.config.path.display(),
+                names()
+            )
+        })?,
+        None if building.is_multi_floor() => anyhow::bail!(
+            "{}: the config's site is a building of {} floors ({}); `calibrate` fits one \
+             floor's radio model from captures taken on it: give --floor NAME",
+            args.config.path.display(),
+            building.floors().len(),
+            names()
+        ),
+        None => 0,
+    };
+    let site = building.floors()[floor].site.clone();
+    // The captures are read as that floor's alone: a CSV scan log's columns
+    // must be its beacons, and truths on other floors are not its cells.
+    let (name, lowest) = (&building.floors()[floor].name, &building.floors()[0].name);
+    let on_floor = |truth: Option<&str>| truth.unwrap_or(lowest) == name;
+    let on_floor: &dyn Fn(Option<&str>) -> bool = if building.is_multi_floor() {
+        &on_floor
+    } else {
+        &|_| true
+    };
+    let floor_site = crate::site::Building::of_site(site.clone());
     let orientation = config.window.orientation;
     let ids = anchor_ids(&site, orientation);
     let mut trajectories = Vec::new();
     for path in &args.from {
-        trajectories.extend(read(&args, path, &building, &config.window)?);
+        trajectories.extend(read(&args, path, &floor_site, on_floor, &config.window)?);
     }
     let windows: usize = trajectories.iter().map(Vec::len).sum();
     anyhow::ensure!(
@@ -89,9 +121,17 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
         &options,
     )?;
     let seconds = started.elapsed().as_secs_f64();
+    let (floor_arg, load_as) = match &args.floor {
+        Some(name) => (
+            format!(" --floor {name}"),
+            "<each floor's file, relative to the gateway config, with {floor} where the floor's \
+             name goes>",
+        ),
+        None => (String::new(), "<this file, relative to the gateway config>"),
+    };
     let text = format!(
-        "# Written by `gangway calibrate --from {} --out {}` ({} windows).\n# Load it with \
-         [localizer.pathloss] calibration = \"<this file, relative to the gateway config>\".\n{}",
+        "# Written by `gangway calibrate{floor_arg} --from {} --out {}` ({} windows).\n# Load it \
+         with [localizer.pathloss] calibration = \"{load_as}\".\n{}",
         args.from
             .iter()
             .map(|p| p.display().to_string())
@@ -168,11 +208,12 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
 
 /// The fingerprint windows of one capture, one trajectory per device, through
 /// the config's windows (what the daemon localizes), with the capture's
-/// truths as known positions.
+/// truths as known positions (those whose floor `on_floor` takes).
 fn read(
     args: &Args,
     path: &std::path::Path,
     building: &crate::site::Building,
+    on_floor: &dyn Fn(Option<&str>) -> bool,
     window: &crate::locate::window::WindowConfig,
 ) -> anyhow::Result<Vec<Vec<Window>>> {
     let site = &building.floors()[0].site;
@@ -209,10 +250,14 @@ fn read(
                     push(f);
                 }
             }
-            Event::Truth(truth) => truths
-                .entry(truth.device)
-                .or_default()
-                .push((truth.t, truth.cell)),
+            Event::Truth(truth) => {
+                if on_floor(truth.floor.as_deref()) {
+                    truths
+                        .entry(truth.device)
+                        .or_default()
+                        .push((truth.t, truth.cell));
+                }
+            }
             Event::Request(_) => {}
         }
     }

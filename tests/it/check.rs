@@ -360,10 +360,11 @@ fn a_building_s_problems_name_its_file_line_and_floor() {
     );
 }
 
-/// The daemon serves a building of several floors, but what learns one
-/// floor's radio model refuses it, naming the file and what to change.
+/// The daemon serves a building of several floors, but recalibration, which
+/// learns one floor's radio model, refuses it, naming the file and what to
+/// change; `calibrate` asks which floor the captures were taken on.
 #[test]
-fn what_learns_one_floor_s_radio_model_refuses_a_building_of_several() {
+fn what_learns_one_floor_s_radio_model_asks_for_the_floor_of_a_building() {
     let dir = tempfile::tempdir().unwrap();
     let building = floors_support::write_building(dir.path());
     let config = write(
@@ -402,7 +403,8 @@ fn what_learns_one_floor_s_radio_model_refuses_a_building_of_several() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(
-        stderr.contains("`calibrate` fits one floor's radio model"),
+        stderr.contains("a building of 3 floors (B1, G, L1)")
+            && stderr.contains("give --floor NAME"),
         "{stderr}"
     );
 }

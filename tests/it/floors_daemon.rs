@@ -397,6 +397,115 @@ fn a_floor_s_scan_log_replays_on_that_floor() {
     }
 }
 
+/// Five phones walking to and fro across the south of floor `floor` (an
+/// index into [`FLOORS`]) for five minutes, as a JSON Lines capture.
+fn walks_on(dir: &Path, floor: usize) -> PathBuf {
+    let mut lines = Vec::new();
+    for k in 0..300u32 {
+        for phone in 0..5u32 {
+            // 9 to 17 m east and back at 0.8 m/s, each phone 1.6 m apart.
+            let along = (f64::from(k) * 0.8 + f64::from(phone) * 1.6) % 16.0;
+            let x = 9.0 + if along < 8.0 { along } else { 16.0 - along };
+            let at = [x, 1.5 + f64::from(phone) * 0.5];
+            for (b, beacon) in BEACONS.iter().enumerate() {
+                if let Some(rssi) = rssi(b, floor, at, k + phone) {
+                    lines.push(
+                        serde_json::json!({
+                            "type": "advert", "t": T0 + f64::from(k), "observer": format!("phone-{phone}"),
+                            "uuid": UUID, "major": 7, "minor": beacon.3, "rssi": rssi,
+                        })
+                        .to_string(),
+                    );
+                }
+            }
+        }
+    }
+    write(
+        dir,
+        &format!("walks-{}.jsonl", FLOORS[floor].name),
+        &(lines.join("\n") + "\n"),
+    )
+}
+
+/// `calibrate` on a building fits the floor the captures were taken on:
+/// phones walking on each floor calibrate that floor's beacons with
+/// `--floor`, each file naming its floor's beacons only, and a config
+/// naming the files with `{floor}` loads them; an unknown floor is refused
+/// with the building's floors.
+#[test]
+fn calibrate_fits_each_floor_of_a_building_from_its_captures() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = replay_config(dir.path());
+    let calibrate = |floor: usize| {
+        let name = FLOORS[floor].name;
+        let out = dir.path().join(format!("calibration-{name}.toml"));
+        let printed = gangway_ok(&[
+            "calibrate",
+            "--config",
+            config.to_str().unwrap(),
+            "--floor",
+            name,
+            "--from",
+            walks_on(dir.path(), floor).to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--json",
+        ]);
+        let report: Value = serde_json::from_str(printed.trim()).unwrap();
+        let anchors: Vec<String> = report["anchors"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|a| a["id"].as_str().unwrap().to_owned())
+            .collect();
+        (report, anchors, std::fs::read_to_string(out).unwrap())
+    };
+    let (b1, b1_anchors, b1_file) = calibrate(0);
+    assert_eq!(b1_anchors, ["b1-west", "b1-east"], "{b1}");
+    assert!(b1["windows"].as_u64().unwrap() >= 600, "{b1}");
+    assert!(
+        b1_file.contains("--floor B1") && !b1_file.contains("l1-east"),
+        "{b1_file}"
+    );
+    assert_eq!(calibrate(1).1, ["g-west", "atrium"]);
+    let (l1, l1_anchors, _) = calibrate(2);
+    assert_eq!(l1_anchors, ["l1-east"], "{l1}");
+
+    let served = write(
+        dir.path(),
+        "calibrated.toml",
+        "gateway_id = \"gw\"\nsite = \"building.toml\"\n[localizer]\nmethod = \"pathloss\"\n\
+         [localizer.pathloss]\ncalibration = \"calibration-{floor}.toml\"\n",
+    );
+    gangway_ok(&["check", "--config", served.to_str().unwrap()]);
+    // What `check` read: a floor without its file is refused.
+    std::fs::remove_file(dir.path().join("calibration-G.toml")).unwrap();
+    let out = gangway(&["check", "--config", served.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("calibration-G.toml"),
+        "{stderr}"
+    );
+
+    let out = gangway(&[
+        "calibrate",
+        "--config",
+        config.to_str().unwrap(),
+        "--floor",
+        "L9",
+        "--from",
+        dir.path().join("walks-B1.jsonl").to_str().unwrap(),
+        "--out",
+        dir.path().join("x.toml").to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("--floor L9") && stderr.contains("B1, G, L1"),
+        "{stderr}"
+    );
+}
+
 /// The learning store of a gateway serving a building keeps each fix's
 /// floor: the phone's walk is recorded as a walk on B1 and one on L1 (each
 /// on its floor's grid), and `train --from-store` learns a floor's site from
