@@ -806,7 +806,8 @@ impl Runtime {
         }
         for output in &self.out {
             if let Output::Route(reply) = output
-                && let (RouteOutcome::Route(_), Some(id)) = (&reply.outcome, &reply.request_id)
+                && let (RouteOutcome::Route(_) | RouteOutcome::Floors(_), Some(id)) =
+                    (&reply.outcome, &reply.request_id)
             {
                 self.issued.insert(&reply.device, id);
             }

@@ -508,13 +508,18 @@ fn calibrate_fits_each_floor_of_a_building_from_its_captures() {
 
 /// The learning store of a gateway serving a building keeps each fix's
 /// floor: the phone's walk is recorded as a walk on B1 and one on L1 (each
-/// on its floor's grid), and `train --from-store` learns a floor's site from
-/// that floor's walks only, asking which floor when the store has several.
+/// on its floor's grid), its route to L1 as a leg on each floor (and the
+/// rest of the way from the lift), rated by the feedback on the route, and `train --from-store` learns a floor's
+/// site from that floor's walks and legs only, asking which floor when the
+/// store has several.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_learning_store_keeps_each_floor_s_walks_apart() {
     let dir = tempfile::tempdir().unwrap();
     let building = floors_support::write_building(dir.path());
-    let walk = capture(dir.path(), &[]);
+    let mut request = request_to_l1("r1");
+    request["type"] = "request".into();
+    request["device"] = "phone".into();
+    let walk = capture(dir.path(), &[(4.0, request)]);
     let broker = Broker::start();
     let config = gateway_config(
         "gw-store",
@@ -538,9 +543,45 @@ async fn the_learning_store_keeps_each_floor_s_walks_apart() {
                     .is_some_and(|t| t >= T0 + END_S - 2.0)
         })
         .await;
-    assert!(gateway.terminate().success());
-
     let db = config.dir.path().join("learning.sqlite");
+    client
+        .publish(
+            &format!("{prefix}/devices/phone/feedback"),
+            r#"{"request_id": "r1", "score": 5}"#,
+        )
+        .await;
+    let rated = || {
+        let store = gangway::store::Store::open_read_only(&db).ok()?;
+        let routes = store.routes().ok()?;
+        routes
+            .iter()
+            .all(|r| r.score == Some(5.0))
+            .then_some(routes)
+    };
+    let started = std::time::Instant::now();
+    let routes = loop {
+        match rated() {
+            Some(routes) if !routes.is_empty() => break routes,
+            _ if started.elapsed().as_secs() > 20 => panic!("the feedback was not recorded"),
+            _ => tokio::time::sleep(std::time::Duration::from_millis(200)).await,
+        }
+    };
+    assert!(gateway.terminate().success());
+    let legs: Vec<(Option<&str>, Option<&str>)> = routes
+        .iter()
+        .map(|r| (r.floor.as_deref(), r.request_id.as_deref()))
+        .collect();
+    // The reply's two legs, then the rest of the way planned when the phone
+    // came onto L1 (`next_floor`), all rated by the feedback on `r1`.
+    assert_eq!(
+        legs,
+        [
+            (Some("B1"), Some("r1")),
+            (Some("L1"), Some("r1")),
+            (Some("L1"), Some("r1"))
+        ]
+    );
+
     let walks = gangway::store::Store::open_read_only(&db)
         .unwrap()
         .trajectories(30.0)
@@ -578,9 +619,9 @@ async fn the_learning_store_keeps_each_floor_s_walks_apart() {
         !unknown.status.success() && stderr.contains("no walks on floor `L9`"),
         "{stderr}"
     );
-    // B1's walk alone: too few walks for desire lines, which say how many
-    // they were given (L1's is not B1's).
+    // B1's walk and B1's leg of the route: too few walks for desire lines,
+    // which say how many they were given (L1's walk and legs are not B1's).
     let b1 = train(Some("B1"));
     let stderr = String::from_utf8_lossy(&b1.stderr);
-    assert!(stderr.contains("got 1 of 1"), "{stderr}");
+    assert!(stderr.contains("got 2 of 2"), "{stderr}");
 }

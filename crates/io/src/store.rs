@@ -26,12 +26,20 @@ use crate::locate::recalibrate::Heard;
 use crate::site::Cell;
 
 /// Bumped when the tables change; a file of another version is refused,
-/// but for [`FLOORLESS_VERSION`].
-const SCHEMA_VERSION: i64 = 2;
+/// but for the versions before floors ([`FLOORLESS_VERSION`],
+/// [`FLOORLESS_ROUTES_VERSION`]).
+const SCHEMA_VERSION: i64 = 3;
 
 /// The version before fixes named their floor: opened for writing it is
-/// upgraded in place (its fixes keep no floor), and read as it is.
+/// upgraded in place (its fixes and routes keep no floor), and read as it is.
 const FLOORLESS_VERSION: i64 = 1;
+
+/// The version before routes named their floor (a route across floors is
+/// recorded as a route per floor since): upgraded and read as version 1 is.
+const FLOORLESS_ROUTES_VERSION: i64 = 2;
+
+/// Every version this one reads.
+const READABLE: [i64; 3] = [SCHEMA_VERSION, FLOORLESS_ROUTES_VERSION, FLOORLESS_VERSION];
 
 /// `[store]` in the gateway config.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
@@ -131,10 +139,13 @@ pub enum Record {
         cell: Cell,
         confidence: f32,
     },
+    /// A route given, or one floor's leg of a route across floors (its
+    /// floor named; the cells are on that floor's grid).
     Route {
         device: String,
         request_id: Option<String>,
         t: f64,
+        floor: Option<String>,
         planner: String,
         cells: Vec<Cell>,
     },
@@ -170,6 +181,9 @@ pub struct RecordedRoute {
     pub device: String,
     pub request_id: Option<String>,
     pub t: f64,
+    /// The floor of a leg of a route across floors; `None` for a one-floor
+    /// site's routes, and those recorded before routes kept floors.
+    pub floor: Option<String>,
     pub planner: String,
     pub cells: Vec<Cell>,
     pub score: Option<f64>,
@@ -181,8 +195,8 @@ pub struct RecordedRoute {
 pub struct Store {
     conn: Connection,
     path: PathBuf,
-    /// The file's schema version: [`SCHEMA_VERSION`], or
-    /// [`FLOORLESS_VERSION`] for a file opened read-only.
+    /// The file's schema version: [`SCHEMA_VERSION`], or one before it
+    /// ([`READABLE`]) for a file opened read-only.
     version: i64,
 }
 
@@ -260,7 +274,7 @@ impl Store {
             path: path.to_owned(),
             version: SCHEMA_VERSION,
         };
-        store.version = store.check_version(&[SCHEMA_VERSION, FLOORLESS_VERSION])?;
+        store.version = store.check_version(&READABLE)?;
         Ok(store)
     }
 
@@ -279,7 +293,7 @@ impl Store {
                  CREATE INDEX IF NOT EXISTS fixes_by_time ON fixes (t);
                  CREATE TABLE IF NOT EXISTS routes (
                      device TEXT NOT NULL, request_id TEXT, t REAL NOT NULL,
-                     planner TEXT NOT NULL, cells TEXT NOT NULL);
+                     planner TEXT NOT NULL, cells TEXT NOT NULL, floor TEXT);
                  CREATE INDEX IF NOT EXISTS routes_by_request ON routes (device, request_id);
                  CREATE TABLE IF NOT EXISTS feedback (
                      device TEXT NOT NULL, request_id TEXT NOT NULL, t REAL NOT NULL,
@@ -299,15 +313,29 @@ impl Store {
             .conn
             .query_row("PRAGMA user_version", [], |r| r.get(0))
             .map_err(|e| sql(&self.path, e))?;
-        let upgrade = match version {
-            0 => "",
-            // What it recorded stays; its fixes keep no floor.
-            FLOORLESS_VERSION => "ALTER TABLE fixes ADD COLUMN floor TEXT;",
-            _ => return self.check_version(&[SCHEMA_VERSION]).map(drop),
-        };
+        if ![0, FLOORLESS_VERSION, FLOORLESS_ROUTES_VERSION].contains(&version) {
+            return self.check_version(&[SCHEMA_VERSION]).map(drop);
+        }
+        // A file from before floors: what it recorded stays, its fixes and
+        // routes keep no floor. (A table the statements above just made has
+        // the column already.)
+        let mut upgrade = String::new();
+        for table in ["fixes", "routes"] {
+            let has_floor: bool = self
+                .conn
+                .query_row(
+                    "SELECT COUNT(*) > 0 FROM pragma_table_info(?1) WHERE name = 'floor'",
+                    [table],
+                    |r| r.get(0),
+                )
+                .map_err(|e| sql(&self.path, e))?;
+            if !has_floor {
+                upgrade += &format!("ALTER TABLE {table} ADD COLUMN floor TEXT; ");
+            }
+        }
         self.conn
             .execute_batch(&format!(
-                "BEGIN; {upgrade} PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
+                "BEGIN; {upgrade}PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
             ))
             .map_err(|e| sql(&self.path, e))?;
         self.check_version(&[SCHEMA_VERSION]).map(drop)
@@ -349,16 +377,19 @@ impl Store {
                     device,
                     request_id,
                     t,
+                    floor,
                     planner,
                     cells,
                 } => tx.execute(
-                    "INSERT INTO routes (device, request_id, t, planner, cells) VALUES (?1, ?2, ?3, ?4, ?5)",
+                    "INSERT INTO routes (device, request_id, t, planner, cells, floor) \
+                     VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
                     params![
                         device,
                         request_id,
                         t,
                         planner,
-                        serde_json::to_string(cells).expect("cells serialize")
+                        serde_json::to_string(cells).expect("cells serialize"),
+                        floor
                     ],
                 ),
                 Record::Feedback {
@@ -560,16 +591,23 @@ impl Store {
         Ok(out)
     }
 
-    /// Every route given, oldest first, with its mean feedback score.
+    /// Every route given (a route across floors as its legs), oldest
+    /// first, with its mean feedback score.
     pub fn routes(&self) -> Result<Vec<RecordedRoute>, StoreError> {
+        let floor = if self.version == SCHEMA_VERSION {
+            "r.floor"
+        } else {
+            "NULL"
+        };
         let mut stmt = self
             .conn
-            .prepare(
+            .prepare(&format!(
                 "SELECT r.device, r.request_id, r.t, r.planner, r.cells,
                         (SELECT AVG(f.score) FROM feedback f
-                          WHERE f.device = r.device AND f.request_id = r.request_id)
-                   FROM routes r ORDER BY r.t",
-            )
+                          WHERE f.device = r.device AND f.request_id = r.request_id),
+                        {floor}
+                   FROM routes r ORDER BY r.t"
+            ))
             .map_err(|e| sql(&self.path, e))?;
         let rows = stmt
             .query_map([], |r| {
@@ -580,6 +618,7 @@ impl Store {
                     r.get::<_, String>(3)?,
                     r.get::<_, String>(4)?,
                     r.get::<_, Option<f64>>(5)?,
+                    r.get::<_, Option<String>>(6)?,
                 ))
             })
             .map_err(|e| sql(&self.path, e))?;
@@ -593,7 +632,7 @@ impl Store {
         }
         let mut out = Vec::new();
         for row in rows {
-            let (device, request_id, t, planner, cells, score) =
+            let (device, request_id, t, planner, cells, score, floor) =
                 row.map_err(|e| sql(&self.path, e))?;
             let adherence = request_id
                 .as_ref()
@@ -609,6 +648,7 @@ impl Store {
                 device,
                 request_id,
                 t,
+                floor,
                 planner,
                 cells,
                 score,
@@ -767,6 +807,7 @@ mod tests {
                     device: "a".into(),
                     request_id: Some("r1".into()),
                     t: 3.5,
+                    floor: None,
                     planner: "astar".into(),
                     cells: vec![Cell::new(2, 1), Cell::new(3, 1)],
                 },
@@ -900,6 +941,51 @@ mod tests {
             .map(|w| (w.floor.as_deref(), w.points.len()))
             .collect();
         assert_eq!(shape, [(Some("B1"), 2), (Some("L1"), 2)]);
+    }
+
+    /// A version-2 file (fixes with floors, routes without) reads its routes
+    /// as floorless, and is upgraded in place when opened for writing.
+    #[test]
+    fn a_store_from_before_routes_kept_floors_is_read_and_upgraded() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.sqlite");
+        Connection::open(&path)
+            .unwrap()
+            .execute_batch(
+                "CREATE TABLE routes (device TEXT NOT NULL, request_id TEXT, t REAL NOT NULL,
+                     planner TEXT NOT NULL, cells TEXT NOT NULL);
+                 INSERT INTO routes VALUES ('a', 'r1', 1.0, 'astar', '[[1,2],[2,2]]');
+                 CREATE TABLE feedback (device TEXT NOT NULL, request_id TEXT NOT NULL,
+                     t REAL NOT NULL, score INTEGER NOT NULL);
+                 CREATE TABLE adherence (device TEXT NOT NULL, request_id TEXT,
+                     started_t REAL NOT NULL, t REAL NOT NULL, ending TEXT NOT NULL,
+                     in_corridor_share REAL NOT NULL, detours INTEGER NOT NULL,
+                     arrived INTEGER NOT NULL, expected_s REAL NOT NULL, taken_s REAL NOT NULL);
+                 PRAGMA user_version = 2;",
+            )
+            .unwrap();
+        let floors = |path: &Path| -> Vec<Option<String>> {
+            let store = Store::open_read_only(path).unwrap();
+            store
+                .routes()
+                .unwrap()
+                .into_iter()
+                .map(|r| r.floor)
+                .collect()
+        };
+        assert_eq!(floors(&path), [None]);
+        Store::open(&path)
+            .unwrap()
+            .write(&[Record::Route {
+                device: "a".into(),
+                request_id: Some("r2".into()),
+                t: 2.0,
+                floor: Some("L1".into()),
+                planner: "astar".into(),
+                cells: vec![Cell::new(0, 0), Cell::new(1, 0)],
+            }])
+            .unwrap();
+        assert_eq!(floors(&path), [None, Some("L1".to_owned())]);
     }
 
     #[test]

@@ -74,15 +74,19 @@ impl Recorder {
         self
     }
 
-    /// What an output teaches, if anything.
-    fn record(output: &Output) -> Option<Record> {
-        Some(match output {
+    /// What an output teaches, if anything, handed to `keep`: a record,
+    /// or a route across floors as a route per floor.
+    fn record(output: &Output, mut keep: impl FnMut(Record)) {
+        keep(match output {
             // An unknown location is no point of a walk.
             Output::Location(l) => Record::Fix {
                 device: l.device.clone(),
                 t: l.t,
                 floor: l.floor.as_ref().map(|f| f.name.clone()),
-                cell: l.cell?,
+                cell: match l.cell {
+                    Some(cell) => cell,
+                    None => return,
+                },
                 confidence: l.confidence,
             },
             // Error replies teach nothing.
@@ -91,12 +95,26 @@ impl Recorder {
                     device: reply.device.clone(),
                     request_id: reply.request_id.clone(),
                     t: reply.t,
+                    floor: None,
                     planner: body.planner.to_owned(),
                     cells: body.waypoints.iter().map(|w| w.cell).collect(),
                 },
-                // A route across floors is not one floor's walk: the store
-                // learns walks per floor, and feedback on it is refused.
-                RouteOutcome::Floors(_) | RouteOutcome::Error { .. } => return None,
+                // The store learns walks per floor: each leg is a route on
+                // its floor's grid, rated by the feedback on the whole.
+                RouteOutcome::Floors(body) => {
+                    for leg in &body.legs {
+                        keep(Record::Route {
+                            device: reply.device.clone(),
+                            request_id: reply.request_id.clone(),
+                            t: reply.t,
+                            floor: Some(leg.floor.clone()),
+                            planner: leg.route.planner.to_owned(),
+                            cells: leg.route.waypoints.iter().map(|w| w.cell).collect(),
+                        });
+                    }
+                    return;
+                }
+                RouteOutcome::Error { .. } => return,
             },
             Output::Feedback(f) => Record::Feedback {
                 device: f.device.clone(),
@@ -110,7 +128,7 @@ impl Recorder {
                 t: h.t,
                 readings: h.readings.clone(),
             },
-            _ => return None,
+            _ => return,
         })
     }
 
@@ -177,9 +195,7 @@ impl Sink for Recorder {
 
     fn send(&mut self, outputs: &[Output]) -> anyhow::Result<()> {
         for output in outputs {
-            if let Some(record) = Recorder::record(output) {
-                self.push(record);
-            }
+            Recorder::record(output, |record| self.push(record));
         }
         Ok(())
     }

@@ -19,10 +19,10 @@
 //! [`weighted`] then turns feedback into sampling weight, so well-rated and
 //! well-followed routes are learned more and the others less.
 //!
-//! A building's store holds every floor's tracks, each cell on its floor's
-//! grid: a site is trained on its own floor's tracks only ([`FloorChoice`]).
-//! Routes are recorded on one-floor sites only (a route across floors is not
-//! one floor's walk), so they are the site's.
+//! A building's store holds every floor's tracks and routes, each cell on
+//! its floor's grid (a route across floors as its legs): a site is trained
+//! on its own floor's only ([`FloorChoice`]). Routes of a one-floor site
+//! name no floor, and are the site's.
 
 use std::path::Path;
 
@@ -64,7 +64,7 @@ pub fn walks_from_store(
     let followed = store.adherence()?;
     let mut walks = Vec::new();
     let tracks = store.trajectories(MAX_GAP_S)?;
-    let mut floors: Vec<&str> = tracks.iter().filter_map(|t| t.floor.as_deref()).collect();
+    let mut floors: Vec<String> = tracks.iter().filter_map(|t| t.floor.clone()).collect();
     floors.sort_unstable();
     floors.dedup();
     let wanted = match floor {
@@ -77,7 +77,7 @@ pub fn walks_from_store(
             site.name
         ),
         FloorChoice::Only => None,
-        FloorChoice::Named(name) if !floors.contains(&name) => anyhow::bail!(
+        FloorChoice::Named(name) if !floors.iter().any(|f| f == name) => anyhow::bail!(
             "{}: no walks on floor `{name}`; the store holds walks on: {}",
             path.display(),
             if floors.is_empty() {
@@ -135,7 +135,17 @@ pub fn walks_from_store(
             });
         }
     }
-    for route in store.routes()? {
+    // A route naming no floor is a one-floor site's; a leg of a route
+    // across floors is its floor's.
+    let routes = store
+        .routes()?
+        .into_iter()
+        .filter(|r| match (wanted, r.floor.as_deref()) {
+            (_, None) => wanted.is_none(),
+            (Some(name), Some(floor)) => floor == name,
+            (None, Some(floor)) => floors.len() == 1 && floors[0] == floor,
+        });
+    for route in routes {
         let feedback = match (route.score, route.adherence) {
             (Some(score), _) => ((score - 1.0) / 4.0).clamp(0.0, 1.0),
             (None, Some(adherence)) => adherence,
@@ -241,6 +251,7 @@ mod tests {
             device: device.into(),
             request_id: Some(id.into()),
             t,
+            floor: None,
             planner: "astar".into(),
             cells: (0..6).map(|x| Cell::new(x, 0)).collect(),
         };
