@@ -33,7 +33,7 @@ use std::sync::Arc;
 use crate::event::{Event, Truth};
 use crate::locate::survey::{Row, SurveyError, SurveyRows};
 use crate::sighting::Sighting;
-use crate::site::{Building, Site};
+use crate::site::{Building, Floor};
 
 /// How to read a scan log.
 #[derive(Clone, Debug)]
@@ -72,7 +72,7 @@ impl CsvLog {
         };
         let floor = floor_of_columns(path, building)?;
         let site = &*building.floors()[floor].site;
-        let beacon_ids = ids(site);
+        let beacon_ids: Vec<String> = site.beacons.iter().map(|b| b.id.clone()).collect();
         let mut reader = SurveyRows::open(path, site, &beacon_ids, options.not_heard)?;
         if !reader.has_clock() {
             return Err(header_error(
@@ -82,11 +82,7 @@ impl CsvLog {
         }
         let ignored_columns = reader.ignored_columns().to_vec();
         if let Some(column) = ignored_columns.first() {
-            let elsewhere = building
-                .floors()
-                .iter()
-                .find(|f| f.site.beacons.iter().any(|b| b.id == *column));
-            let reason = match elsewhere {
+            let reason = match floor_of_beacon(building, column) {
                 Some(other) => format!(
                     "is a beacon of floor {}, and the log's other beacons are floor {}'s; a scan \
                      log is one floor's: split it by floor, or pass --skip-bad to ignore such \
@@ -95,8 +91,13 @@ impl CsvLog {
                     building.floors()[floor].name
                 ),
                 None => format!(
-                    "names no beacon of the site (beacons: {}); rename it after a beacon's `id`, \
+                    "names no beacon of the {} beacons: {}); rename it after a beacon's `id`, \
                      or pass --skip-bad to ignore such columns",
+                    if building.is_multi_floor() {
+                        format!("building (floor {}'s", building.floors()[floor].name)
+                    } else {
+                        "site (its".into()
+                    },
                     beacon_ids.join(", ")
                 ),
             };
@@ -197,8 +198,12 @@ impl Iterator for CsvLog {
     }
 }
 
-fn ids(site: &Site) -> Vec<String> {
-    site.beacons.iter().map(|b| b.id.clone()).collect()
+/// The floor of `building` whose site file has the beacon `id`.
+fn floor_of_beacon<'a>(building: &'a Building, id: &str) -> Option<&'a Floor> {
+    building
+        .floors()
+        .iter()
+        .find(|f| f.site.beacons.iter().any(|b| b.id == id))
 }
 
 /// The floor of `building` whose beacons the log's columns name most of (a
@@ -248,10 +253,7 @@ fn floor_of_columns(path: &Path, building: &Building) -> Result<usize, SurveyErr
         let of: Vec<String> = columns
             .iter()
             .filter_map(|c| {
-                let floor = building
-                    .floors()
-                    .iter()
-                    .find(|f| f.site.beacons.iter().any(|b| b.id == *c))?;
+                let floor = floor_of_beacon(building, c)?;
                 Some(format!("{c} on {}", floor.name))
             })
             .collect();
@@ -289,7 +291,7 @@ fn sort_by_time(rows: &mut [Row]) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::site::Cell;
+    use crate::site::{Cell, Site};
     use std::io::Write;
 
     impl CsvLog {
