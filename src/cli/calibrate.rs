@@ -84,18 +84,14 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
     // The captures are read as that floor's alone: a CSV scan log's columns
     // must be its beacons, and truths on other floors are not its cells.
     let (name, lowest) = (&building.floors()[floor].name, &building.floors()[0].name);
-    let on_floor = |truth: Option<&str>| truth.unwrap_or(lowest) == name;
-    let on_floor: &dyn Fn(Option<&str>) -> bool = if building.is_multi_floor() {
-        &on_floor
-    } else {
-        &|_| true
-    };
+    let multi_floor = building.is_multi_floor();
+    let on_floor = |truth: Option<&str>| !multi_floor || truth.unwrap_or(lowest) == name;
     let floor_site = crate::site::Building::of_site(site.clone());
     let orientation = config.window.orientation;
     let ids = anchor_ids(&site, orientation);
     let mut trajectories = Vec::new();
     for path in &args.from {
-        trajectories.extend(read(&args, path, &floor_site, on_floor, &config.window)?);
+        trajectories.extend(read(&args, path, &floor_site, &on_floor, &config.window)?);
     }
     let windows: usize = trajectories.iter().map(Vec::len).sum();
     anyhow::ensure!(

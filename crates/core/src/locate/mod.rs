@@ -144,9 +144,8 @@ impl LocalizerConfig {
         ];
         for (key, path, used) in files {
             let Some(path) = path else { continue };
-            let text = path.to_string_lossy();
-            if text.contains("{floor}") {
-                *path = text.replace("{floor}", floor).into();
+            if let Some(named_path) = crate::site::floor_path(path, floor) {
+                *path = named_path;
             } else if used {
                 return Err(LocalizerError::OneFileForAllFloors {
                     key,

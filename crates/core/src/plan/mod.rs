@@ -279,9 +279,8 @@ impl PlannerConfig {
         ];
         let (mut named, mut one_floor) = (0, None);
         for (key, path, read) in files {
-            let text = path.to_string_lossy();
-            if text.contains("{floor}") {
-                *path = text.replace("{floor}", floor).into();
+            if let Some(named_path) = crate::site::floor_path(path, floor) {
+                *path = named_path;
                 named += 1;
             } else if read {
                 one_floor.get_or_insert((key, path.clone()));

@@ -211,6 +211,15 @@ impl BuildingDoc {
     }
 }
 
+/// `path` for the floor called `floor`: `{floor}` in it becomes the floor's
+/// name, which is how a config names each floor's file of a building
+/// (`surveys/{floor}.csv`); `None` when the path names no floor.
+pub fn floor_path(path: &Path, floor: &str) -> Option<PathBuf> {
+    let text = path.to_string_lossy();
+    text.contains("{floor}")
+        .then(|| text.replace("{floor}", floor).into())
+}
+
 /// `text`, a building file, with its `[[connectors]]` replaced by
 /// `connectors` (after everything else); every other line is kept as
 /// written, comments included, so the editor placing a lift leaves the

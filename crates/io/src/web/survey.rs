@@ -60,9 +60,8 @@ pub(super) struct Surveys {
 /// gets `-NAME` before its extension (`survey.csv` → `survey-B1.csv`), so
 /// no two floors ever append to one file.
 fn floor_file(file: &Path, floor: &str, several: bool) -> PathBuf {
-    let text = file.to_string_lossy();
-    if text.contains("{floor}") {
-        return text.replace("{floor}", floor).into();
+    if let Some(named) = crate::site::floor_path(file, floor) {
+        return named;
     }
     if !several {
         return file.to_owned();
