@@ -128,7 +128,7 @@ fn load(
     config: &std::path::Path,
 ) -> anyhow::Result<(crate::config::Config, std::sync::Arc<crate::site::Building>)> {
     let config = crate::config::Config::load(config)?;
-    let building = crate::daemon::state::served_building(&config)?;
+    let building = std::sync::Arc::new(crate::site::Building::load(&config.site)?);
     Ok((config, building))
 }
 

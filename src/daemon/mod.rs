@@ -365,7 +365,7 @@ enum Step {
     Reloaded(Box<anyhow::Result<Loaded>>),
     Recalibrate,
     /// Boxed like `Reloaded`.
-    Recalibrated(Box<anyhow::Result<(Recalibrated, Loaded)>>),
+    Recalibrated(Box<RecalibrationDone>),
     SourceEnded(Result<(&'static str, anyhow::Result<()>), tokio::task::JoinError>),
 }
 
@@ -388,7 +388,7 @@ async fn requested(requests: &mut Option<mpsc::Receiver<()>>) -> Option<()> {
 /// The end of the running recalibration, if one runs.
 async fn recalibrated(
     recalibration: &mut Option<Recalibration>,
-) -> anyhow::Result<(Recalibrated, Loaded)> {
+) -> RecalibrationDone {
     match recalibration.as_mut().and_then(|r| r.task.as_mut()) {
         Some(task) => {
             let done = task
@@ -404,12 +404,16 @@ async fn recalibrated(
     }
 }
 
+/// A finished recalibration: each floor recalibrated, and the state that
+/// serves them.
+type RecalibrationDone = anyhow::Result<(Vec<Recalibrated>, Loaded)>;
+
 /// Recalibration of the survey-free model from what the store gathered.
 struct Recalibration {
     schedule: Schedule,
     /// Windows heard since start.
     heard: u64,
-    task: Option<JoinHandle<anyhow::Result<(Recalibrated, Loaded)>>>,
+    task: Option<JoinHandle<RecalibrationDone>>,
 }
 
 impl Recalibration {
@@ -977,9 +981,9 @@ impl Runtime {
             return;
         }
         r.schedule.started(now, r.heard);
-        let (config, site) = (self.state.config.clone(), self.state.site.clone());
-        let job = Job::new(
-            &site,
+        let (config, building) = (self.state.config.clone(), self.state.building.clone());
+        let jobs = Job::of_floors(
+            &building,
             config.window.orientation,
             &config.localizer,
             &config.tracker,
@@ -990,28 +994,31 @@ impl Runtime {
             "recalibrating the radio model from what was heard"
         );
         r.task = Some(tokio::task::spawn_blocking(move || {
-            let done = recalibration::run(&job)?;
-            let loaded = state::recalibrated(&config, &site, &done.path)?;
+            let done = recalibration::run_floors(&jobs)?;
+            let loaded = state::recalibrated(&config, &building, &done)?;
             Ok((done, loaded))
         }));
     }
 
     /// A recalibration ended: its pipeline is swapped in like a reload.
-    fn recalibrated(&mut self, done: anyhow::Result<(Recalibrated, Loaded)>) {
+    fn recalibrated(&mut self, done: RecalibrationDone) {
         match done {
             Ok((done, loaded)) => {
-                tracing::info!(
-                    windows = done.windows,
-                    trajectories = done.trajectories,
-                    anchors = done.changes.len(),
-                    anchors_kept = done.changes.iter().filter(|c| c.kept).count(),
-                    held_out_windows = done.held_out.as_ref().map_or(0, |h| h.windows),
-                    held_out_gain_per_window = done.held_out.as_ref().map_or(0.0, |h| h.gain_per_window),
-                    seconds = done.seconds,
-                    file = %done.path.display(),
-                    cells = done.cells.as_ref().map_or(0, |c| c.cells),
-                    "recalibrated the radio model; serving it"
-                );
+                for done in &done {
+                    tracing::info!(
+                        floor = done.floor.as_deref(),
+                        windows = done.windows,
+                        trajectories = done.trajectories,
+                        anchors = done.changes.len(),
+                        anchors_kept = done.changes.iter().filter(|c| c.kept).count(),
+                        held_out_windows = done.held_out.as_ref().map_or(0, |h| h.windows),
+                        held_out_gain_per_window = done.held_out.as_ref().map_or(0.0, |h| h.gain_per_window),
+                        seconds = done.seconds,
+                        file = %done.path.display(),
+                        cells = done.cells.as_ref().map_or(0, |c| c.cells),
+                        "recalibrated the radio model; serving it"
+                    );
+                }
                 self.swap(Ok(loaded));
             }
             Err(e) => tracing::error!("recalibration failed, serving the previous model: {e:#}"),

@@ -7,6 +7,12 @@
 //! thread; the daemon then builds its pipeline anew with the file and swaps
 //! it in only if that succeeds, as a reload does. Restarts and reloads serve
 //! the newest recalibrated file ([`serving`]).
+//!
+//! On a building of several floors each floor is a job of its own: its
+//! windows (those whose floor the tracks knew) are fitted to its site and
+//! written to its own file ([`RecalibrationConfig::out_path`]), which serves
+//! that floor only. A floor that has not heard enough yet keeps what it
+//! served, and the others are recalibrated without it ([`run_floors`]).
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -18,30 +24,42 @@ use gangway_core::locate::pathloss::PathLossConfig;
 use gangway_core::locate::recalibrate::{self, FitError, RecalibrationConfig};
 use gangway_core::locate::tracker::TrackerConfig;
 use gangway_core::locate::window::Orientation;
-use gangway_core::site::Site;
+use gangway_core::site::{Building, Site};
 use gangway_io::store::{Store, StoreConfig, StoreError};
 
-/// The localizer config a gateway serves with: with recalibration on and a
-/// recalibrated file that loads, that file; else `config` as it is.
+/// The localizer config a gateway serves with: with recalibration on, each
+/// floor's recalibrated file where one loads; else `config` as it is.
 pub(crate) fn serving(
     config: &LocalizerConfig,
     store: &StoreConfig,
-    site: &Site,
+    building: &Building,
 ) -> LocalizerConfig {
+    let mut serving = config.clone();
     if !(config.recalibration.enabled && recalibrate::applies(config)) {
-        return config.clone();
+        return serving;
     }
-    let path = config.recalibration.out_path(&store.resolved_path());
-    if !path.exists() {
-        return config.clone();
-    }
-    match Calibration::load(&path, site) {
-        Ok(_) => recalibrate::with_calibration(config, &path),
-        Err(e) => {
-            tracing::error!("{e}; serving the configured calibration instead");
-            config.clone()
+    let store = store.resolved_path();
+    for (floor, site) in floors(building) {
+        let path = config.recalibration.out_path(&store, floor);
+        if !path.exists() {
+            continue;
+        }
+        match Calibration::load(&path, site) {
+            Ok(_) => serving = recalibrate::with_calibration(&serving, floor, &path),
+            Err(e) => tracing::error!("{e}; serving the configured calibration instead"),
         }
     }
+    serving
+}
+
+/// Each floor of `building` with its name, which names its recalibration
+/// (`None`: the one floor of a site).
+fn floors(building: &Building) -> impl Iterator<Item = (Option<&str>, &Arc<Site>)> {
+    let several = building.is_multi_floor();
+    building
+        .floors()
+        .iter()
+        .map(move |floor| (several.then_some(floor.name.as_str()), &floor.site))
 }
 
 /// Everything a recalibration reads, owned, so the job can run on another
@@ -49,6 +67,9 @@ pub(crate) fn serving(
 #[derive(Clone, Debug)]
 pub(crate) struct Job {
     pub site: Arc<Site>,
+    /// The floor of a building of several that `site` is; its windows only
+    /// are read, its file written.
+    pub floor: Option<String>,
     pub orientation: Orientation,
     /// The configured model EM starts from (its calibration file unused).
     pub pathloss: PathLossConfig,
@@ -59,9 +80,23 @@ pub(crate) struct Job {
 }
 
 impl Job {
-    /// The job of a gateway config's parts.
-    pub(crate) fn new(
+    /// The jobs of a gateway config's parts: one per floor of `building`.
+    pub(crate) fn of_floors(
+        building: &Building,
+        orientation: Orientation,
+        localizer: &LocalizerConfig,
+        tracker: &TrackerConfig,
+        store: &Path,
+    ) -> Vec<Job> {
+        floors(building)
+            .map(|(floor, site)| Job::new(site, floor, orientation, localizer, tracker, store))
+            .collect()
+    }
+
+    /// The job of one floor (`None`: of a one-floor site).
+    fn new(
         site: &Arc<Site>,
+        floor: Option<&str>,
         orientation: Orientation,
         localizer: &LocalizerConfig,
         tracker: &TrackerConfig,
@@ -69,6 +104,7 @@ impl Job {
     ) -> Job {
         Job {
             site: site.clone(),
+            floor: floor.map(str::to_owned),
             orientation,
             pathloss: localizer.pathloss.clone(),
             tracker: tracker.clone(),
@@ -84,6 +120,8 @@ pub(crate) struct Recalibrated {
     /// What was written to `path` (the daemon reloads it from there).
     #[cfg(test)]
     pub calibration: Calibration,
+    /// The floor recalibrated, on a building of several.
+    pub floor: Option<String>,
     /// The file written.
     pub path: PathBuf,
     pub windows: usize,
@@ -99,8 +137,11 @@ pub(crate) struct Recalibrated {
 pub(crate) enum RecalibrationError {
     #[error(transparent)]
     Store(#[from] StoreError),
-    #[error(transparent)]
-    Fit(#[from] FitError),
+    #[error("{}{source}", on_floor(floor.as_deref()))]
+    Fit {
+        floor: Option<String>,
+        source: FitError,
+    },
     #[error("{}: cannot write the calibration: {source}", path.display())]
     Write {
         path: PathBuf,
@@ -108,11 +149,41 @@ pub(crate) enum RecalibrationError {
     },
 }
 
-/// Runs one recalibration (blocking; see the module doc).
+/// `floor `B1`: ` before what is said of one floor of a building.
+fn on_floor(floor: Option<&str>) -> String {
+    floor.map_or_else(String::new, |floor| format!("floor `{floor}`: "))
+}
+
+/// Runs each floor's job (blocking; see the module doc). A floor whose
+/// windows are too few to fit keeps what it served: said in the log, and
+/// the other floors' runs are returned; an error only when no floor was
+/// recalibrated, or a file could not be read or written.
+pub(crate) fn run_floors(jobs: &[Job]) -> Result<Vec<Recalibrated>, RecalibrationError> {
+    let mut done = Vec::with_capacity(jobs.len());
+    let mut unfitted = None;
+    for job in jobs {
+        match run(job) {
+            Ok(floor) => done.push(floor),
+            Err(e @ RecalibrationError::Fit { .. }) if jobs.len() > 1 => {
+                tracing::warn!(
+                    "{e}; this floor serves what it served, the others are recalibrated"
+                );
+                unfitted.get_or_insert(e);
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    match unfitted {
+        Some(e) if done.is_empty() => Err(e),
+        _ => Ok(done),
+    }
+}
+
+/// Runs one floor's recalibration (blocking; see the module doc).
 pub(crate) fn run(job: &Job) -> Result<Recalibrated, RecalibrationError> {
     let started = std::time::Instant::now();
     let store = Store::open_read_only(&job.store)?;
-    let rows = store.heard(job.config.max_windows)?;
+    let rows = store.heard(job.config.max_windows, job.floor.as_deref())?;
     drop(store);
     let done = recalibrate::fit_heard(
         &job.site,
@@ -121,13 +192,20 @@ pub(crate) fn run(job: &Job) -> Result<Recalibrated, RecalibrationError> {
         &job.tracker,
         &job.config,
         &rows,
-    )?;
-    let path = job.config.out_path(&job.store);
+    )
+    .map_err(|source| RecalibrationError::Fit {
+        floor: job.floor.clone(),
+        source,
+    })?;
+    let path = job.config.out_path(&job.store, job.floor.as_deref());
     let text = format!(
         "# Written by the gateway's recalibration from {} fingerprint windows it heard \
-         ({} trajectories) in {}.\n{}",
+         ({} trajectories){} in {}.\n{}",
         done.windows,
         done.trajectories,
+        job.floor
+            .as_ref()
+            .map_or_else(String::new, |floor| format!(" on floor {floor}")),
         job.store.display(),
         done.fitted.calibration.to_toml()
     );
@@ -138,6 +216,7 @@ pub(crate) fn run(job: &Job) -> Result<Recalibrated, RecalibrationError> {
     Ok(Recalibrated {
         #[cfg(test)]
         calibration: done.fitted.calibration,
+        floor: job.floor.clone(),
         path,
         windows: done.windows,
         trajectories: done.trajectories,
@@ -239,10 +318,11 @@ mod tests {
         let ids = anchor_ids(&site, Orientation::Observer);
         let records: Vec<Record> = walks(&site, &truth, 1)
             .iter()
-            .filter_map(|(window, _)| Heard::of(window, &ids))
+            .filter_map(|(w, _)| Heard::of(&w.entity, w.t, &w.rssi, &w.heard, &ids))
             .map(|h| Record::Heard {
                 device: h.device,
                 t: h.t,
+                floor: None,
                 readings: h.readings,
             })
             .collect();
@@ -261,6 +341,7 @@ mod tests {
         let tracker = TrackerConfig::default();
         let job = Job::new(
             &site,
+            None,
             Orientation::Observer,
             &localizer,
             &tracker,
@@ -314,7 +395,7 @@ mod tests {
         };
         let (before, after) = (
             error(&localizer),
-            error(&with_calibration(&localizer, &done.path)),
+            error(&with_calibration(&localizer, None, &done.path)),
         );
         assert!(
             after < 0.8 * before,
@@ -323,13 +404,14 @@ mod tests {
     }
 
     #[test]
-    fn too_few_windows_refuse_to_recalibrate() {
+    fn unfitted_windows_refuse_to_recalibrate() {
         let site = site();
         let dir = tempfile::tempdir().unwrap();
         let store_path = dir.path().join("learning.sqlite");
         Store::open(&store_path).unwrap();
         let job = Job::new(
             &site,
+            None,
             Orientation::Observer,
             &LocalizerConfig::default(),
             &TrackerConfig::default(),
@@ -342,7 +424,7 @@ mod tests {
 
     #[test]
     fn a_gateway_serves_the_recalibrated_file_only_when_on_and_loadable() {
-        let site = site();
+        let site = Building::of_site(site());
         let dir = tempfile::tempdir().unwrap();
         let store = StoreConfig {
             enabled: true,

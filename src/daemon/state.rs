@@ -10,6 +10,7 @@ use std::sync::Arc;
 
 use anyhow::Context;
 
+use super::recalibration::Recalibrated;
 use crate::config::Config;
 use crate::locate::recalibrate;
 use crate::pipeline::Pipeline;
@@ -45,10 +46,10 @@ pub fn load_at_start(config_path: &Path) -> anyhow::Result<Loaded> {
 
 fn load_with(config_path: &Path, fall_back: bool) -> anyhow::Result<Loaded> {
     let mut config = Config::load(config_path)?;
-    let building = served_building(&config)?;
+    let building = Arc::new(Building::load(&config.site)?);
     let site = building.floors()[0].site.clone();
     // What an earlier recalibration learned outlives restarts and reloads.
-    config.localizer = super::recalibration::serving(&config.localizer, &config.store, &site);
+    config.localizer = super::recalibration::serving(&config.localizer, &config.store, &building);
     let context = || format!("{}", config_path.display());
     let (pipeline, fallbacks) = if fall_back {
         Pipeline::with_fallbacks(&config.pipeline(), building.clone()).with_context(context)?
@@ -67,40 +68,24 @@ fn load_with(config_path: &Path, fall_back: bool) -> anyhow::Result<Loaded> {
     })
 }
 
-/// The building the daemon serves: the config's `site`, a site file or a
-/// building file. Recalibration learns one floor's radio model from what
-/// that floor's devices hear, so on a building of several floors it is
-/// refused, naming the file and the key.
-pub fn served_building(config: &Config) -> anyhow::Result<Arc<Building>> {
-    let path = &config.site;
-    let building = Building::load(path)?;
-    if building.is_multi_floor() && config.localizer.recalibration.enabled {
-        anyhow::bail!(
-            "{}: a building of {} floors, and [localizer.recalibration] enabled = true: \
-             recalibration learns one floor's radio model; turn it off for a building, or \
-             point `site` at one floor's site file",
-            path.display(),
-            building.floors().len()
-        );
-    }
-    Ok(Arc::new(building))
-}
-
-/// The state of `config` on `site` with the survey-free model's calibration
-/// read from `path` (a recalibration's file), built whole or refused whole
-/// like a reload.
+/// The state of `config` on `building` with the survey-free model's
+/// calibration of each floor recalibrated in `done` read from its file,
+/// built whole or refused whole like a reload.
 pub(crate) fn recalibrated(
     config: &Config,
-    site: &Arc<Site>,
-    path: &Path,
+    building: &Arc<Building>,
+    done: &[Recalibrated],
 ) -> anyhow::Result<Loaded> {
     let mut config = config.clone();
-    config.localizer = recalibrate::with_calibration(&config.localizer, path);
-    let pipeline = Pipeline::new(&config.pipeline(), site.clone())?;
+    for floor in done {
+        config.localizer =
+            recalibrate::with_calibration(&config.localizer, floor.floor.as_deref(), &floor.path);
+    }
+    let pipeline = Pipeline::for_building(&config.pipeline(), building.clone())?;
     Ok(Loaded {
         config,
-        building: pipeline.building().clone(),
-        site: site.clone(),
+        building: building.clone(),
+        site: building.floors()[0].site.clone(),
         pipeline,
         fallbacks: Vec::new(),
     })

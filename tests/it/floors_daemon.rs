@@ -397,32 +397,36 @@ fn a_floor_s_scan_log_replays_on_that_floor() {
     }
 }
 
-/// Five phones walking to and fro across the south of floor `floor` (an
-/// index into [`FLOORS`]) for five minutes, as a JSON Lines capture.
-fn walks_on(dir: &Path, floor: usize) -> PathBuf {
+/// Five phones on each of `floors` (indices into [`FLOORS`]) walking to
+/// and fro across its south for five minutes, as a JSON Lines capture.
+fn walks_on(dir: &Path, floors: &[usize]) -> PathBuf {
     let mut lines = Vec::new();
     for k in 0..300u32 {
-        for phone in 0..5u32 {
-            // 9 to 17 m east and back at 0.8 m/s, each phone 1.6 m apart.
-            let along = (f64::from(k) * 0.8 + f64::from(phone) * 1.6) % 16.0;
-            let x = 9.0 + if along < 8.0 { along } else { 16.0 - along };
-            let at = [x, 1.5 + f64::from(phone) * 0.5];
-            for (b, beacon) in BEACONS.iter().enumerate() {
-                if let Some(rssi) = rssi(b, floor, at, k + phone) {
-                    lines.push(
-                        serde_json::json!({
-                            "type": "advert", "t": T0 + f64::from(k), "observer": format!("phone-{phone}"),
-                            "uuid": UUID, "major": 7, "minor": beacon.3, "rssi": rssi,
-                        })
-                        .to_string(),
-                    );
+        for &floor in floors {
+            for phone in 0..5u32 {
+                // 9 to 17 m east and back at 0.8 m/s, each phone 1.6 m apart.
+                let along = (f64::from(k) * 0.8 + f64::from(phone) * 1.6) % 16.0;
+                let x = 9.0 + if along < 8.0 { along } else { 16.0 - along };
+                let at = [x, 1.5 + f64::from(phone) * 0.5];
+                let observer = format!("{}-phone-{phone}", FLOORS[floor].name);
+                for (b, beacon) in BEACONS.iter().enumerate() {
+                    if let Some(rssi) = rssi(b, floor, at, k + phone) {
+                        lines.push(
+                            serde_json::json!({
+                                "type": "advert", "t": T0 + f64::from(k), "observer": observer,
+                                "uuid": UUID, "major": 7, "minor": beacon.3, "rssi": rssi,
+                            })
+                            .to_string(),
+                        );
+                    }
                 }
             }
         }
     }
+    let names: Vec<&str> = floors.iter().map(|&f| FLOORS[f].name).collect();
     write(
         dir,
-        &format!("walks-{}.jsonl", FLOORS[floor].name),
+        &format!("walks-{}.jsonl", names.join("-")),
         &(lines.join("\n") + "\n"),
     )
 }
@@ -446,7 +450,7 @@ fn calibrate_fits_each_floor_of_a_building_from_its_captures() {
             "--floor",
             name,
             "--from",
-            walks_on(dir.path(), floor).to_str().unwrap(),
+            walks_on(dir.path(), &[floor]).to_str().unwrap(),
             "--out",
             out.to_str().unwrap(),
             "--json",
@@ -504,6 +508,96 @@ fn calibrate_fits_each_floor_of_a_building_from_its_captures() {
         stderr.contains("--floor L9") && stderr.contains("B1, G, L1"),
         "{stderr}"
     );
+}
+
+/// A gateway serving a building recalibrates each floor from what was
+/// heard on it. Phones walking on B1 and on L1 (nobody on G) fill the
+/// learning store with windows that name their floor; asked to (SIGUSR1),
+/// the gateway fits B1 and L1 each from its own windows, writes
+/// `calibration-B1.toml` and `calibration-L1.toml` with that floor's
+/// beacons only, and serves them (swapped in like a reload); G, which
+/// heard nothing, keeps serving what it served. A restart serves both.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_gateway_recalibrates_each_floor_from_what_was_heard_there() {
+    use gangway::locate::calibration::Calibration;
+    let dir = tempfile::tempdir().unwrap();
+    let building = floors_support::write_building(dir.path());
+    let walks = walks_on(dir.path(), &[0, 2]);
+    let broker = Broker::start();
+    let config = gateway_config(
+        "gw-recal",
+        &building,
+        &broker,
+        "[store]\nenabled = true\npath = \"learning.sqlite\"\n\
+         [localizer.recalibration]\nenabled = true\nevery_h = 0\nmin_windows = 300\n",
+    );
+    let prefix = "gangway/gw-recal";
+    let mut client = Client::connect(&broker, "test-recal", &[&format!("{prefix}/stats")]).await;
+    let mut gateway = Gateway::start(
+        &config.path,
+        &["--replay", walks.to_str().unwrap(), "--speed", "0"],
+    );
+    let db = config.dir.path().join("learning.sqlite");
+    let heard_on = |floor: &str| {
+        gangway::store::Store::open_read_only(&db)
+            .and_then(|store| store.heard(100_000, Some(floor)))
+            .map_or(0, |rows| rows.len())
+    };
+    let started = std::time::Instant::now();
+    while heard_on("B1") < 600 || heard_on("L1") < 600 {
+        assert!(
+            started.elapsed().as_secs() < 60,
+            "windows heard on B1: {}, on L1: {}",
+            heard_on("B1"),
+            heard_on("L1")
+        );
+        tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+    }
+    assert_eq!(heard_on("G"), 0, "nobody walked on G");
+
+    signal(&gateway.child, "USR1");
+    client
+        .wait_for("the recalibrated pipeline swapped in", |m| {
+            m.json()["reloads"] == 1
+        })
+        .await;
+    assert!(gateway.terminate().success());
+    let out = config.dir.path();
+    for (floor, beacons) in [
+        ("B1", ["b1-west", "b1-east"].as_slice()),
+        ("L1", &["l1-east"]),
+    ] {
+        let site = gangway::site::Site::load(&dir.path().join(format!("{floor}.toml"))).unwrap();
+        let file = out.join(format!("calibration-{floor}.toml"));
+        let calibration = Calibration::load(&file, &site).unwrap();
+        let ids: Vec<&str> = calibration.anchors.iter().map(|a| a.id.as_str()).collect();
+        assert_eq!(ids, beacons, "{}", file.display());
+        assert!(
+            calibration.windows >= 600,
+            "{floor}: {}",
+            calibration.windows
+        );
+    }
+    assert!(!out.join("calibration-G.toml").exists());
+    assert!(!out.join("calibration.toml").exists());
+
+    // A restart serves each floor's file, and G what it was configured with.
+    let restarted = gangway::daemon::state::load_at_start(&config.path).unwrap();
+    let served: Vec<(&str, PathBuf)> = restarted
+        .config
+        .localizer
+        .recalibrated
+        .iter()
+        .map(|(floor, path)| (floor.as_str(), path.clone()))
+        .collect();
+    assert_eq!(
+        served,
+        [
+            ("B1", out.join("calibration-B1.toml")),
+            ("L1", out.join("calibration-L1.toml"))
+        ]
+    );
+    assert!(restarted.fallbacks.is_empty(), "{:?}", restarted.fallbacks);
 }
 
 /// The learning store of a gateway serving a building keeps each fix's

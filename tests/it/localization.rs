@@ -972,7 +972,7 @@ async fn the_daemon_recalibrates_from_what_it_heard_and_serves_it() {
     }
     let heard = || {
         gangway::store::Store::open_read_only(&store)
-            .and_then(|s| s.heard(10_000))
+            .and_then(|s| s.heard(10_000, None))
             .map_or(0, |rows| rows.len())
     };
     // Enough that a quarter held out in blocks of 30 windows can judge

@@ -42,7 +42,7 @@ mod floorplan;
 
 pub use building::{
     Building, BuildingDoc, Connector, ConnectorDoc, ConnectorKind, Floor, FloorDoc, Stop, StopDoc,
-    floor_path, replace_connectors,
+    floor_file, floor_path, replace_connectors,
 };
 
 pub use doc::{BeaconDoc, FloorplanDoc, SiteDoc, write_doc};

@@ -27,8 +27,8 @@ use crate::site::Cell;
 
 /// Bumped when the tables change; a file of another version is refused,
 /// but for the versions before floors ([`FLOORLESS_VERSION`],
-/// [`FLOORLESS_ROUTES_VERSION`]).
-const SCHEMA_VERSION: i64 = 3;
+/// [`FLOORLESS_ROUTES_VERSION`], [`FLOORLESS_HEARD_VERSION`]).
+const SCHEMA_VERSION: i64 = 4;
 
 /// The version before fixes named their floor: opened for writing it is
 /// upgraded in place (its fixes and routes keep no floor), and read as it is.
@@ -38,8 +38,18 @@ const FLOORLESS_VERSION: i64 = 1;
 /// recorded as a route per floor since): upgraded and read as version 1 is.
 const FLOORLESS_ROUTES_VERSION: i64 = 2;
 
+/// The version before heard windows named their floor (a building's floors
+/// are recalibrated each from its own windows since): upgraded and read as
+/// version 1 is.
+const FLOORLESS_HEARD_VERSION: i64 = 3;
+
 /// Every version this one reads.
-const READABLE: [i64; 3] = [SCHEMA_VERSION, FLOORLESS_ROUTES_VERSION, FLOORLESS_VERSION];
+const READABLE: [i64; 4] = [
+    SCHEMA_VERSION,
+    FLOORLESS_HEARD_VERSION,
+    FLOORLESS_ROUTES_VERSION,
+    FLOORLESS_VERSION,
+];
 
 /// `[store]` in the gateway config.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
@@ -157,10 +167,12 @@ pub enum Record {
     },
     Adherence(Adherence),
     /// One fingerprint window: the anchors a device heard (by id) and how
-    /// loud, for recalibrating the radio model.
+    /// loud, for recalibrating the radio model; on a building, of the floor
+    /// named.
     Heard {
         device: String,
         t: f64,
+        floor: Option<String>,
         readings: Vec<(String, f32)>,
     },
 }
@@ -305,7 +317,8 @@ impl Store {
                      expected_s REAL NOT NULL, taken_s REAL NOT NULL);
                  CREATE INDEX IF NOT EXISTS adherence_by_device ON adherence (device, t);
                  CREATE TABLE IF NOT EXISTS heard (
-                     device TEXT NOT NULL, t REAL NOT NULL, readings TEXT NOT NULL);
+                     device TEXT NOT NULL, t REAL NOT NULL, readings TEXT NOT NULL,
+                     floor TEXT);
                  CREATE INDEX IF NOT EXISTS heard_by_time ON heard (t);",
             )
             .map_err(|e| sql(&self.path, e))?;
@@ -313,14 +326,21 @@ impl Store {
             .conn
             .query_row("PRAGMA user_version", [], |r| r.get(0))
             .map_err(|e| sql(&self.path, e))?;
-        if ![0, FLOORLESS_VERSION, FLOORLESS_ROUTES_VERSION].contains(&version) {
+        if ![
+            0,
+            FLOORLESS_VERSION,
+            FLOORLESS_ROUTES_VERSION,
+            FLOORLESS_HEARD_VERSION,
+        ]
+        .contains(&version)
+        {
             return self.check_version(&[SCHEMA_VERSION]).map(drop);
         }
-        // A file from before floors: what it recorded stays, its fixes and
-        // routes keep no floor. (A table the statements above just made has
-        // the column already.)
+        // A file from before floors: what it recorded stays, its fixes,
+        // routes and heard windows keep no floor. (A table the statements
+        // above just made has the column already.)
         let mut upgrade = String::new();
-        for table in ["fixes", "routes"] {
+        for table in ["fixes", "routes", "heard"] {
             let has_floor: bool = self
                 .conn
                 .query_row(
@@ -339,6 +359,17 @@ impl Store {
             ))
             .map_err(|e| sql(&self.path, e))?;
         self.check_version(&[SCHEMA_VERSION]).map(drop)
+    }
+
+    /// The name of a table's `floor` column in this file, or `NULL` for a
+    /// file (opened read-only) of `floorless`, the version before the table
+    /// had one, or older.
+    fn floor_column(&self, floorless: i64) -> &'static str {
+        if self.version > floorless {
+            "floor"
+        } else {
+            "NULL"
+        }
     }
 
     /// The file's schema version, if it is one of `readable`.
@@ -421,13 +452,15 @@ impl Store {
                 Record::Heard {
                     device,
                     t,
+                    floor,
                     readings,
                 } => tx.execute(
-                    "INSERT INTO heard (device, t, readings) VALUES (?1, ?2, ?3)",
+                    "INSERT INTO heard (device, t, readings, floor) VALUES (?1, ?2, ?3, ?4)",
                     params![
                         device,
                         t,
-                        serde_json::to_string(readings).expect("readings serialize")
+                        serde_json::to_string(readings).expect("readings serialize"),
+                        floor
                     ],
                 ),
             };
@@ -546,11 +579,7 @@ impl Store {
     /// apart (a device that left and came back walks twice) and wherever
     /// the floor changes (each floor's cells are on its own grid).
     pub fn trajectories(&self, max_gap_s: f64) -> Result<Vec<Trajectory>, StoreError> {
-        let floor = if self.version == FLOORLESS_VERSION {
-            "NULL"
-        } else {
-            "floor"
-        };
+        let floor = self.floor_column(FLOORLESS_VERSION);
         let mut stmt = self
             .conn
             .prepare(&format!(
@@ -594,11 +623,7 @@ impl Store {
     /// Every route given (a route across floors as its legs), oldest
     /// first, with its mean feedback score.
     pub fn routes(&self) -> Result<Vec<RecordedRoute>, StoreError> {
-        let floor = if self.version == SCHEMA_VERSION {
-            "r.floor"
-        } else {
-            "NULL"
-        };
+        let floor = self.floor_column(FLOORLESS_ROUTES_VERSION);
         let mut stmt = self
             .conn
             .prepare(&format!(
@@ -658,18 +683,22 @@ impl Store {
         Ok(out)
     }
 
-    /// The newest `max_rows` fingerprint windows, by device then time.
-    pub fn heard(&self, max_rows: usize) -> Result<Vec<Heard>, StoreError> {
+    /// The newest `max_rows` fingerprint windows heard on `floor` (`None`:
+    /// on a one-floor site), by device then time.
+    pub fn heard(&self, max_rows: usize, floor: Option<&str>) -> Result<Vec<Heard>, StoreError> {
+        let column = self.floor_column(FLOORLESS_HEARD_VERSION);
         let mut stmt = self
             .conn
-            .prepare(
+            .prepare(&format!(
                 "SELECT device, t, readings FROM \
-                 (SELECT device, t, readings FROM heard ORDER BY t DESC LIMIT ?1) \
-                 ORDER BY device, t",
-            )
+                 (SELECT device, t, readings FROM heard WHERE {column} IS ?2 \
+                  ORDER BY t DESC LIMIT ?1) \
+                 ORDER BY device, t"
+            ))
             .map_err(|e| sql(&self.path, e))?;
+        let limit = i64::try_from(max_rows).unwrap_or(i64::MAX);
         let rows = stmt
-            .query_map([i64::try_from(max_rows).unwrap_or(i64::MAX)], |r| {
+            .query_map(params![limit, floor], |r| {
                 Ok((
                     r.get::<_, String>(0)?,
                     r.get::<_, f64>(1)?,
@@ -689,6 +718,7 @@ impl Store {
                 device,
                 t,
                 readings,
+                floor: floor.map(str::to_owned),
             });
         }
         Ok(out)
@@ -988,6 +1018,48 @@ mod tests {
         assert_eq!(floors(&path), [None, Some("L1".to_owned())]);
     }
 
+    /// A version-3 file (heard windows without floors) reads them as a
+    /// one-floor site's, and is upgraded in place when opened for writing:
+    /// each floor's windows then read back apart.
+    #[test]
+    fn a_store_from_before_heard_windows_kept_floors_is_read_and_upgraded() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.sqlite");
+        Connection::open(&path)
+            .unwrap()
+            .execute_batch(
+                "CREATE TABLE heard (device TEXT NOT NULL, t REAL NOT NULL,
+                     readings TEXT NOT NULL);
+                 INSERT INTO heard VALUES ('a', 1.0, '[[\"b1\",-70.0]]');
+                 PRAGMA user_version = 3;",
+            )
+            .unwrap();
+        let heard = |floor: Option<&str>| -> Vec<(String, f64)> {
+            let store = Store::open_read_only(&path).unwrap();
+            let rows = store.heard(10, floor).unwrap();
+            assert!(rows.iter().all(|r| r.floor.as_deref() == floor));
+            rows.into_iter().map(|r| (r.device, r.t)).collect()
+        };
+        assert_eq!(heard(None), [("a".to_owned(), 1.0)]);
+        assert!(heard(Some("L1")).is_empty());
+        let on = |floor: &str, t: f64| Record::Heard {
+            device: "a".into(),
+            t,
+            floor: Some(floor.into()),
+            readings: vec![("b9".into(), -60.0)],
+        };
+        Store::open(&path)
+            .unwrap()
+            .write(&[on("L1", 2.0), on("B1", 3.0), on("L1", 4.0)])
+            .unwrap();
+        assert_eq!(heard(None), [("a".to_owned(), 1.0)]);
+        assert_eq!(
+            heard(Some("L1")),
+            [("a".to_owned(), 2.0), ("a".to_owned(), 4.0)]
+        );
+        assert_eq!(heard(Some("B1")), [("a".to_owned(), 3.0)]);
+    }
+
     #[test]
     fn a_store_from_before_floors_is_read_and_upgraded_with_nothing_lost() {
         let dir = tempfile::tempdir().unwrap();
@@ -1049,6 +1121,7 @@ mod tests {
         let heard = |device: &str, t: f64| Record::Heard {
             device: device.into(),
             t,
+            floor: None,
             readings: vec![("b1".into(), -70.5), ("b2".into(), -81.0)],
         };
         store
@@ -1060,7 +1133,10 @@ mod tests {
             ])
             .unwrap();
         // The newest three, by device then time.
-        let read = Store::open_read_only(&path).unwrap().heard(3).unwrap();
+        let read = Store::open_read_only(&path)
+            .unwrap()
+            .heard(3, None)
+            .unwrap();
         let keys: Vec<(&str, f64)> = read.iter().map(|r| (r.device.as_str(), r.t)).collect();
         assert_eq!(keys, [("a", 1.0), ("a", 2.0), ("b", 3.0)]);
         assert_eq!(
@@ -1068,9 +1144,9 @@ mod tests {
             [("b1".to_owned(), -70.5), ("b2".to_owned(), -81.0)]
         );
         assert_eq!(store.keep_newest_heard(2).unwrap(), 2);
-        assert_eq!(store.heard(10).unwrap().len(), 2);
+        assert_eq!(store.heard(10, None).unwrap().len(), 2);
         // Retention covers the table like the others.
         assert_eq!(store.prune(10.0, 6.5, u64::MAX).unwrap(), 2);
-        assert!(store.heard(10).unwrap().is_empty());
+        assert!(store.heard(10, None).unwrap().is_empty());
     }
 }

@@ -152,6 +152,7 @@ pub(crate) fn signal(child: &Child, name: &str) {
         "KILL" => Signal::KILL,
         "HUP" => Signal::HUP,
         "INT" => Signal::INT,
+        "USR1" => Signal::USR1,
         other => panic!("no signal {other} in the tests"),
     };
     let pid = Pid::from_raw(child.id() as i32).expect("a child has a pid");

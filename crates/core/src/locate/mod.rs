@@ -25,7 +25,7 @@ pub mod survey;
 pub mod tracker;
 pub mod window;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use serde::Deserialize;
@@ -63,6 +63,7 @@ impl Default for LocalizerConfig {
             radiomap: Default::default(),
             onnx: Default::default(),
             recalibration: Default::default(),
+            recalibrated: Default::default(),
         }
     }
 }
@@ -93,6 +94,13 @@ pub struct LocalizerConfig {
     /// the gateway hears.
     #[serde(default)]
     pub recalibration: recalibrate::RecalibrationConfig,
+    /// Per floor of a building of several, the file the gateway's own
+    /// recalibration wrote for it, which serves that floor instead of
+    /// `[localizer.pathloss] calibration` ([`recalibrate::with_calibration`]).
+    /// Set by the daemon, never read from the config file: a floor gets one
+    /// only once enough of its own windows were heard.
+    #[serde(skip)]
+    pub recalibrated: std::collections::BTreeMap<String, PathBuf>,
 }
 
 fn default_min_confidence() -> f32 {
@@ -123,6 +131,10 @@ impl LocalizerConfig {
     /// path would be one floor's read on every floor: refused.
     pub fn for_floor(&self, floor: &str) -> Result<LocalizerConfig, LocalizerError> {
         let mut config = self.clone();
+        let recalibrated = self.recalibrated.get(floor);
+        if recalibrated.is_some() {
+            config.pathloss.calibration = None;
+        }
         let uses_model = config.method == Method::Onnx;
         let files = [
             ("[localizer.knn] survey", config.knn.survey.as_mut(), true),
@@ -152,6 +164,9 @@ impl LocalizerConfig {
                     path: path.clone(),
                 });
             }
+        }
+        if let Some(path) = recalibrated {
+            config.pathloss.calibration = Some(path.clone());
         }
         Ok(config)
     }

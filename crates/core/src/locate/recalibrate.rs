@@ -26,7 +26,7 @@ use super::calibrate::{
 };
 use super::pathloss::{PathLossConfig, anchors};
 use super::tracker::TrackerConfig;
-use super::window::{Fingerprint, Orientation, anchor_ids};
+use super::window::{Orientation, anchor_ids};
 use super::{LocalizerConfig, LocalizerError, Method};
 use crate::site::Site;
 
@@ -81,11 +81,19 @@ impl RecalibrationConfig {
         Ok(())
     }
 
-    /// Where the calibration goes: `out`, else beside the store.
-    pub fn out_path(&self, store: &Path) -> PathBuf {
-        self.out
+    /// Where the calibration goes: `out`, else beside the store; on a
+    /// building of several floors, `floor`'s own file of it
+    /// ([`crate::site::floor_file`]: `calibration-B1.toml`), since each
+    /// floor's radio model is fitted to that floor's windows.
+    pub fn out_path(&self, store: &Path, floor: Option<&str>) -> PathBuf {
+        let path = self
+            .out
             .clone()
-            .unwrap_or_else(|| store.with_file_name("calibration.toml"))
+            .unwrap_or_else(|| store.with_file_name("calibration.toml"));
+        match floor {
+            Some(floor) => crate::site::floor_file(&path, floor, true),
+            None => path,
+        }
     }
 }
 
@@ -103,25 +111,38 @@ pub struct Heard {
     pub device: String,
     pub t: f64,
     pub readings: Vec<(String, f32)>,
+    /// On a building of several floors, the floor the device was on (only
+    /// windows whose floor was known are kept): each floor's radio model is
+    /// fitted to its own windows. `None` on a one-floor site.
+    pub floor: Option<String>,
 }
 
 impl Heard {
-    /// The window, if it heard any anchor; `ids` are the anchors in the
-    /// window's order ([`anchor_ids`]).
-    pub fn of(window: &Fingerprint, ids: &[String]) -> Option<Heard> {
-        let readings: Vec<(String, f32)> = window
-            .heard
+    /// A window of one floor, if it heard any of the floor's anchors:
+    /// `rssi` and `heard` hold one value per anchor in the order of `ids`
+    /// ([`anchor_ids`]).
+    pub fn of(device: &str, t: f64, rssi: &[f32], heard: &[bool], ids: &[String]) -> Option<Heard> {
+        let readings: Vec<(String, f32)> = heard
             .iter()
-            .zip(&window.rssi)
+            .zip(rssi)
             .zip(ids)
             .filter(|((heard, _), _)| **heard)
             .map(|((_, &rssi), id)| (id.clone(), rssi))
             .collect();
         (!readings.is_empty()).then(|| Heard {
-            device: window.entity.to_string(),
-            t: window.t,
+            device: device.to_owned(),
+            t,
             readings,
+            floor: None,
         })
+    }
+
+    /// This window as heard on floor `floor` of a building of several.
+    pub fn on_floor(self, floor: &str) -> Heard {
+        Heard {
+            floor: Some(floor.to_owned()),
+            ..self
+        }
     }
 }
 
@@ -245,10 +266,22 @@ pub fn fit_heard(
 }
 
 /// The localizer config that loads a recalibrated file: what the daemon
-/// builds anew and swaps in.
-pub fn with_calibration(config: &LocalizerConfig, path: &Path) -> LocalizerConfig {
+/// builds anew and swaps in. On a building of several floors the file is
+/// `floor`'s, and serves that floor only ([`LocalizerConfig::recalibrated`]).
+pub fn with_calibration(
+    config: &LocalizerConfig,
+    floor: Option<&str>,
+    path: &Path,
+) -> LocalizerConfig {
     let mut config = config.clone();
-    config.pathloss.calibration = Some(path.to_owned());
+    match floor {
+        Some(floor) => {
+            config
+                .recalibrated
+                .insert(floor.to_owned(), path.to_owned());
+        }
+        None => config.pathloss.calibration = Some(path.to_owned()),
+    }
     config
 }
 
@@ -295,6 +328,7 @@ fn trajectories(rows: &[Heard], ids: &[String], reset_after_s: f64) -> Vec<Vec<W
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::locate::window::Fingerprint;
 
     /// A corridor of 12 cells with a beacon at each end and one halfway.
     fn site() -> Arc<Site> {
@@ -315,18 +349,20 @@ mod tests {
             rssi: vec![-105.0; 3],
             heard: vec![false; 3],
         };
-        assert_eq!(Heard::of(&silent, &ids), None);
+        let of = |w: &Fingerprint| Heard::of(&w.entity, w.t, &w.rssi, &w.heard, &ids);
+        assert_eq!(of(&silent), None);
         let heard = Fingerprint {
             heard: vec![false, true, false],
             rssi: vec![-105.0, -71.0, -105.0],
             ..silent
         };
         assert_eq!(
-            Heard::of(&heard, &ids),
+            of(&heard),
             Some(Heard {
                 device: "p".into(),
                 t: 4.0,
-                readings: vec![("middle".into(), -71.0)]
+                readings: vec![("middle".into(), -71.0)],
+                floor: None,
             })
         );
     }

@@ -7,6 +7,7 @@
 use std::sync::Arc;
 
 use crate::guide::{Guide, Located};
+use crate::locate::recalibrate::Heard;
 use crate::locate::tracker::{Fix, Tracker};
 use crate::locate::window::Fingerprint;
 use crate::locate::{self, Localizer};
@@ -119,6 +120,13 @@ impl FloorStages {
             fix,
             walked_mean,
         }
+    }
+
+    /// The fingerprint [`FloorStages::locate`] last read, as this floor's
+    /// anchors heard it (`ids`: theirs, in the site's order), kept for
+    /// recalibrating this floor's radio model.
+    pub(super) fn heard(&self, device: &str, t: f64, ids: &[String]) -> Option<Heard> {
+        Heard::of(device, t, &self.rssi, &self.heard, ids)
     }
 
     /// Where the guide sees a device at a fix: `cell` when it is known,

@@ -195,8 +195,9 @@ pub struct Pipeline {
     journey_bounds: Bounds,
     /// Published confidence under which a fix is published as unknown.
     min_confidence: f32,
-    /// The anchors' ids when what is heard is kept for recalibration.
-    heard_ids: Option<Vec<String>>,
+    /// Per floor, its anchors' ids when what is heard is kept for
+    /// recalibration.
+    heard_ids: Option<Vec<Vec<String>>>,
     /// Times route replies (`latency_us`); `[planner]`'s, passed in.
     clock: Clock,
     stats: Stats,
@@ -347,7 +348,6 @@ impl Pipeline {
             )
             .bound(limits.max_devices, limits.device_idle_s)
         });
-        let first = &building.floors()[0].site;
         let pipeline = Pipeline {
             windows: Windows::of_anchors(
                 config.window.clone(),
@@ -355,8 +355,13 @@ impl Pipeline {
                 &anchors.gateways(),
             )
             .bound(limits.max_devices, limits.device_idle_s),
-            heard_ids: (config.localizer.recalibration.enabled && !multi_floor)
-                .then(|| locate::window::anchor_ids(first, config.window.orientation)),
+            heard_ids: config.localizer.recalibration.enabled.then(|| {
+                building
+                    .floors()
+                    .iter()
+                    .map(|floor| locate::window::anchor_ids(&floor.site, config.window.orientation))
+                    .collect()
+            }),
             planner: BuildingPlanner::new(building.clone(), config.planner.connectivity, planners),
             floors,
             floor_tracks,
@@ -632,12 +637,19 @@ impl Pipeline {
             anchors_heard: fp.heard_count(),
         };
         out.push(Output::Location(location));
+        // A window whose floor is not known would teach a floor's radio
+        // model what another floor hears.
         if let Some(heard) = self
             .heard_ids
             .as_ref()
-            .and_then(|ids| locate::recalibrate::Heard::of(fp, ids))
+            .filter(|_| floor_known)
+            .and_then(|ids| floor.heard(&fp.entity, fp.t, &ids[index]))
         {
-            out.push(Output::Heard(heard));
+            out.push(Output::Heard(if self.floor_tracks.is_some() {
+                heard.on_floor(&building_floor.name)
+            } else {
+                heard
+            }));
         }
         if entered.is_some() && self.journeys.contains_key(&fp.entity) {
             // Onto another floor on a route across floors: its leg there.

@@ -220,6 +220,25 @@ pub fn floor_path(path: &Path, floor: &str) -> Option<PathBuf> {
         .then(|| text.replace("{floor}", floor).into())
 }
 
+/// The file the gateway writes for floor `floor` (a survey, a
+/// recalibration): `{floor}` in `file` becomes its name; on a building of
+/// `several` floors, a path without it gets `-NAME` before its extension
+/// (`survey.csv` → `survey-B1.csv`), so no two floors ever write one file.
+pub fn floor_file(file: &Path, floor: &str, several: bool) -> PathBuf {
+    if let Some(named) = floor_path(file, floor) {
+        return named;
+    }
+    if !several {
+        return file.to_owned();
+    }
+    let stem = file.file_stem().unwrap_or_default().to_string_lossy();
+    let name = match file.extension() {
+        Some(ext) => format!("{stem}-{floor}.{}", ext.to_string_lossy()),
+        None => format!("{stem}-{floor}"),
+    };
+    file.with_file_name(name)
+}
+
 /// `text`, a building file, with its `[[connectors]]` replaced by
 /// `connectors` (after everything else); every other line is kept as
 /// written, comments included, so the editor placing a lift leaves the
@@ -565,6 +584,17 @@ impl Building {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn each_floor_of_a_building_gets_a_file_of_its_own_to_write() {
+        let file = |path: &str, several| floor_file(Path::new(path), "B1", several);
+        assert_eq!(file("/s/survey.csv", false), Path::new("/s/survey.csv"));
+        assert_eq!(file("/s/survey.csv", true), Path::new("/s/survey-B1.csv"));
+        assert_eq!(file("/s/survey", true), Path::new("/s/survey-B1"));
+        assert_eq!(file("/s/{floor}/fp.csv", true), Path::new("/s/B1/fp.csv"));
+        // A one-floor site names its floor where the path asks for it.
+        assert_eq!(file("/s/fp-{floor}.csv", false), Path::new("/s/fp-B1.csv"));
+    }
 
     fn floor_site(name: &str, map: &str) -> String {
         format!("name = \"{name}\"\ncell_m = 1.0\nmap = '''\n{map}\n'''\n")

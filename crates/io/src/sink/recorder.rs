@@ -126,6 +126,7 @@ impl Recorder {
             Output::Heard(h) => Record::Heard {
                 device: h.device.clone(),
                 t: h.t,
+                floor: h.floor.clone(),
                 readings: h.readings.clone(),
             },
             _ => return,

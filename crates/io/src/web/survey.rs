@@ -32,7 +32,7 @@ use super::floor::{FloorQuery, FloorView};
 use super::security::error;
 use crate::locate::window::{Orientation, Windows, anchor_ids};
 use crate::sighting::Sighting;
-use crate::site::{Building, Cell, Site};
+use crate::site::{Building, Cell, Site, floor_file};
 use crate::source::{Input, Source, SourceContext};
 
 use crate::event::{Event, Inbound};
@@ -53,25 +53,6 @@ const NOT_HEARD: i16 = -200;
 pub(super) struct Surveys {
     floors: Vec<FloorView>,
     surveys: Vec<Result<Survey, String>>,
-}
-
-/// The survey file of floor `floor` of a building: `{floor}` in `file`
-/// becomes its name; on a building of several floors, a path without it
-/// gets `-NAME` before its extension (`survey.csv` → `survey-B1.csv`), so
-/// no two floors ever append to one file.
-fn floor_file(file: &Path, floor: &str, several: bool) -> PathBuf {
-    if let Some(named) = crate::site::floor_path(file, floor) {
-        return named;
-    }
-    if !several {
-        return file.to_owned();
-    }
-    let stem = file.file_stem().unwrap_or_default().to_string_lossy();
-    let name = match file.extension() {
-        Some(ext) => format!("{stem}-{floor}.{}", ext.to_string_lossy()),
-        None => format!("{stem}-{floor}"),
-    };
-    file.with_file_name(name)
 }
 
 impl Surveys {
@@ -503,20 +484,4 @@ pub(super) async fn stop(
     let survey = surveys.of(&query)?;
     survey.lock().spot = None;
     Ok(Json(serde_json::json!({ "stopped": true })).into_response())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn each_floor_of_a_building_gets_a_file_of_its_own() {
-        let file = |path: &str, several| floor_file(Path::new(path), "B1", several);
-        assert_eq!(file("/s/survey.csv", false), Path::new("/s/survey.csv"));
-        assert_eq!(file("/s/survey.csv", true), Path::new("/s/survey-B1.csv"));
-        assert_eq!(file("/s/survey", true), Path::new("/s/survey-B1"));
-        assert_eq!(file("/s/{floor}/fp.csv", true), Path::new("/s/B1/fp.csv"));
-        // A one-floor site names its floor where the path asks for it.
-        assert_eq!(file("/s/fp-{floor}.csv", false), Path::new("/s/fp-B1.csv"));
-    }
 }
