@@ -122,6 +122,12 @@ struct LocalizationArgs {
     /// between two windows (the gateway's own by default).
     #[arg(long, default_value_t = crate::locate::floor_track::SWITCH)]
     floor_switch: f64,
+    /// With `--walks` and `--method pathloss`: first fit each floor's radio
+    /// model to what its training walks heard, their positions unused, as
+    /// the gateway's own recalibration fits what it hears (the config's
+    /// `[localizer.recalibration]` settings, its held-out check included).
+    #[arg(long, requires = "walks")]
+    recalibrate: bool,
     /// A fixed split instead: the labelled rows to build from (CSV)...
     #[arg(long, requires = "test")]
     train: Option<PathBuf>,
@@ -313,8 +319,15 @@ fn settings(
 fn floors(args: &LocalizationArgs, walks: &Path) -> anyhow::Result<ExitCode> {
     let building = Building::load(&args.site)?;
     let (window, localizer, tracker) = settings(args)?;
+    let method = args.method.unwrap_or(localizer.method);
+    anyhow::ensure!(
+        !args.recalibrate || method == Method::Pathloss,
+        "--recalibrate fits the survey-free model, and the method is `{}`: \
+         give --method pathloss",
+        method.name()
+    );
     let setup = FloorsSetup {
-        method: args.method.unwrap_or(localizer.method),
+        method,
         localizer,
         window,
         tracker: TrackerConfig {
@@ -322,6 +335,7 @@ fn floors(args: &LocalizationArgs, walks: &Path) -> anyhow::Result<ExitCode> {
             ..tracker
         },
         floor_switch: args.floor_switch,
+        recalibrate: args.recalibrate,
     };
     let started = Instant::now();
     let report = crate::eval::floors::evaluate(&building, walks, &setup)?;
@@ -348,6 +362,9 @@ fn floors(args: &LocalizationArgs, walks: &Path) -> anyhow::Result<ExitCode> {
         report.test_walks,
         report.method
     );
+    for (name, said) in &report.recalibrated {
+        println!("recalibrated {name}: {said}");
+    }
     line("ours", &report.ours.overall);
     line("k-NN", &report.baseline.overall);
     for (name, m) in &report.ours.floors {

@@ -386,9 +386,7 @@ async fn requested(requests: &mut Option<mpsc::Receiver<()>>) -> Option<()> {
 }
 
 /// The end of the running recalibration, if one runs.
-async fn recalibrated(
-    recalibration: &mut Option<Recalibration>,
-) -> RecalibrationDone {
+async fn recalibrated(recalibration: &mut Option<Recalibration>) -> RecalibrationDone {
     match recalibration.as_mut().and_then(|r| r.task.as_mut()) {
         Some(task) => {
             let done = task

@@ -22,6 +22,12 @@
 //!   its localizer and tracker, entering it at the connectors' stops as the
 //!   gateway does. A window whose floor the gateway would publish as
 //!   unknown counts as a wrong floor.
+//! - **Recalibrated** (`--recalibrate`, the survey-free model): before
+//!   measuring, each floor's radio model is fitted to what its training
+//!   walks heard, positions unused, as the gateway's own recalibration
+//!   fits what it hears ([`recalibrate::fit_heard`], with the config's
+//!   `[localizer.recalibration]` settings and its held-out check). A floor
+//!   whose walks heard too little keeps the defaults, and the report says so.
 //! - **Baseline**, same windows: a k-NN regressor (k = 5, uniform weights,
 //!   Euclidean over RSSI vectors of every beacon of the building with "not
 //!   heard" = −100 dBm, as scikit-learn's `KNeighborsRegressor` defaults):
@@ -40,8 +46,10 @@ use serde::Serialize;
 
 use super::localization::{Surveyed, surveyed_localizer};
 use super::planning::percentile;
+use crate::locate::calibration::Calibration;
 use crate::locate::floor_track::{self, FloorChange, FloorTracks};
 use crate::locate::floors::FloorEvidence;
+use crate::locate::recalibrate::{self, Heard as HeardWindow};
 use crate::locate::survey::Sample;
 use crate::locate::tracker::{Tracker, TrackerConfig};
 use crate::locate::window::WindowConfig;
@@ -66,6 +74,9 @@ pub struct FloorsSetup {
     pub tracker: TrackerConfig,
     /// The floor filter's probability of changing floor between windows.
     pub floor_switch: f64,
+    /// Fit each floor's survey-free model to its training walks' windows
+    /// first, as the gateway's recalibration would.
+    pub recalibrate: bool,
 }
 
 /// Floor accuracy and errors on the right floor.
@@ -105,6 +116,10 @@ pub struct FloorsReport {
     /// window); the median and the mean.
     pub us_per_fix_p50: f64,
     pub us_per_fix_mean: f64,
+    /// With `--recalibrate`, per floor: what its recalibration kept, or why
+    /// it kept the defaults.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub recalibrated: BTreeMap<String, String>,
 }
 
 /// One floor's walks, split.
@@ -193,11 +208,43 @@ pub fn evaluate(
         setup.floor_switch,
         setup.tracker.reset_after_s,
     );
+    let sites: Vec<(Arc<Site>, Vec<Key>)> = floors
+        .iter()
+        .zip(&per_floor)
+        .map(|(floor, estimates)| {
+            let (site, ids) = floor_site(&floor.site, estimates);
+            (Arc::new(site), ids)
+        })
+        .collect();
+    // Each floor's fit is its own (seconds to minutes on a large floor):
+    // one thread per floor.
+    let mut recalibrations: Vec<(Option<Calibration>, String)> = if setup.recalibrate {
+        std::thread::scope(|scope| {
+            let fits: Vec<_> = sites
+                .iter()
+                .zip(&split)
+                .map(|((site, ids), walks)| {
+                    let (keys, all, options) = (&keys, &all, &options);
+                    scope.spawn(move || {
+                        recalibration(setup, site, ids, &walks.train, keys, all, options)
+                    })
+                })
+                .collect();
+            fits.into_iter()
+                .map(|fit| fit.join().expect("a floor's recalibration panicked"))
+                .collect()
+        })
+    } else {
+        Vec::new()
+    };
+    let mut recalibrated = BTreeMap::new();
+    for (floor, (_, said)) in floors.iter().zip(&recalibrations) {
+        recalibrated.insert(floor.name.clone(), said.clone());
+    }
     let mut localizers = Vec::with_capacity(floors.len());
     let mut baseline_train = Vec::new();
-    for (f, (floor, walks)) in floors.iter().zip(&split).enumerate() {
-        let (site, ids) = floor_site(&floor.site, &per_floor[f]);
-        let site = Arc::new(site);
+    for (f, ((site, ids), walks)) in sites.into_iter().zip(&split).enumerate() {
+        let floor = &floors[f];
         let windows = labelled_windows(&site, &walks.train, &keys, &all, &options);
         let samples: Vec<Sample> = windows
             .iter()
@@ -221,7 +268,8 @@ pub fn evaluate(
             .collect();
         baseline_train.extend(windows.into_iter().map(|(_, at, heard)| (f, at, heard)));
         let refs: Vec<&Sample> = samples.iter().collect();
-        let localizer = localizer(setup, &site, &refs)
+        let calibration = recalibrations.get_mut(f).and_then(|(c, _)| c.take());
+        let localizer = localizer(setup, &site, &refs, calibration.as_ref())
             .with_context(|| format!("floor `{}`: its localizer", floor.name))?;
         let tracker = Tracker::new(setup.tracker.clone(), site.clone());
         localizers.push((site, ids, localizer, tracker));
@@ -296,7 +344,64 @@ pub fn evaluate(
         refused_windows,
         us_per_fix_mean: fix_us.iter().sum::<f64>() / fix_us.len().max(1) as f64,
         us_per_fix_p50: percentile(&mut fix_us, 0.5).unwrap_or(0.0),
+        recalibrated,
     })
+}
+
+/// One floor's survey-free model recalibrated from what its training walks
+/// heard (each walk a device; `ids`: the floor's beacons, sorted, as keys
+/// of `all`), and what was kept, or why nothing was.
+fn recalibration(
+    setup: &FloorsSetup,
+    site: &Arc<Site>,
+    ids: &[Key],
+    walks: &[Walk],
+    keys: &Keys,
+    all: &[Key],
+    options: &Options,
+) -> (Option<Calibration>, String) {
+    let names: Vec<&str> = site.beacons.iter().map(|b| b.id.as_str()).collect();
+    let mut rows = Vec::new();
+    for (w, walk) in walks.iter().enumerate() {
+        for (t, heard) in survey::windows(walk, keys, all, options) {
+            let readings: Vec<(String, f32)> = heard
+                .iter()
+                .filter_map(|&(a, r)| {
+                    let i = ids.binary_search(&all[a]).ok()?;
+                    Some((names[i].to_owned(), f32::from(r)))
+                })
+                .collect();
+            if !readings.is_empty() {
+                rows.push(HeardWindow {
+                    device: format!("walk-{w:05}"),
+                    t,
+                    readings,
+                    floor: None,
+                });
+            }
+        }
+    }
+    match recalibrate::fit_heard(
+        site,
+        setup.window.orientation,
+        &setup.localizer.pathloss,
+        &setup.tracker,
+        &setup.localizer.recalibration,
+        &rows,
+    ) {
+        Ok(done) => {
+            let kept = done.fitted.changes.iter().filter(|c| c.kept).count();
+            let cells = done.fitted.cells.as_ref().map_or(0, |c| c.cells);
+            let said = format!(
+                "{} windows of {} walks: {kept} of {} beacons' models and {cells} cells' kept",
+                done.windows,
+                done.trajectories,
+                done.fitted.changes.len()
+            );
+            (Some(done.fitted.calibration), said)
+        }
+        Err(e) => (None, format!("the defaults kept: {e}")),
+    }
 }
 
 fn first_time(walk: &Walk) -> f64 {
@@ -357,6 +462,7 @@ fn localizer(
     setup: &FloorsSetup,
     site: &Arc<Site>,
     samples: &[&Sample],
+    calibration: Option<&Calibration>,
 ) -> anyhow::Result<Box<dyn Localizer>> {
     let ids: Vec<String> = site.beacons.iter().map(|b| b.id.clone()).collect();
     let from = Surveyed {
@@ -366,7 +472,7 @@ fn localizer(
         site,
         ids: &ids,
         samples,
-        calibration: None,
+        calibration,
     };
     surveyed_localizer(setup.method, from, || {
         anyhow::bail!(
