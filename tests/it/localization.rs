@@ -1001,6 +1001,16 @@ async fn the_daemon_recalibrates_from_what_it_heard_and_serves_it() {
     );
 }
 
+/// The five-floor mall's walks (`../shared`), and its plans imported into
+/// `dir` as a building: `None` without the data.
+fn imported_mall(dir: &std::path::Path) -> Option<(String, String)> {
+    let site1 = common::shared_data("indoor-location-competition-20/site1")?;
+    let site1 = site1.to_str().unwrap().to_owned();
+    let building = dir.join("mall.toml").to_str().unwrap().to_owned();
+    gangway_ok(&["site", "import", "--geojson", &site1, "--out", &building]);
+    Some((site1, building))
+}
+
 /// The five-floor mall: its plans imported as a building, its walks split by
 /// time (the later 30% of each floor's held out), located floor by floor
 /// with the surveyed k-NN beside the plain k-NN regressor baseline on the
@@ -1011,13 +1021,11 @@ async fn the_daemon_recalibrates_from_what_it_heard_and_serves_it() {
 /// met; the figures are printed, not gated.
 #[test]
 fn the_mall_s_floors_are_told_apart_at_least_as_well_as_the_baseline() {
-    let Some(site1) = common::shared_data("indoor-location-competition-20/site1") else {
+    let dir = tempfile::tempdir().unwrap();
+    let Some((site1, building)) = imported_mall(dir.path()) else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let building = dir.path().join("mall.toml");
-    let (site1, building) = (site1.to_str().unwrap(), building.to_str().unwrap());
-    gangway_ok(&["site", "import", "--geojson", site1, "--out", building]);
+    let (site1, building) = (site1.as_str(), building.as_str());
     let v = eval(&["--site", building, "--walks", site1, "--method", "knn"]);
     let baseline = &v["baseline"];
     println!(
@@ -1048,13 +1056,11 @@ fn the_mall_s_floors_are_told_apart_at_least_as_well_as_the_baseline() {
 /// the baseline's.
 #[test]
 fn the_mall_served_survey_free_and_recalibrated_is_no_worse_than_the_baseline() {
-    let Some(site1) = common::shared_data("indoor-location-competition-20/site1") else {
+    let dir = tempfile::tempdir().unwrap();
+    let Some((site1, building)) = imported_mall(dir.path()) else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let building = dir.path().join("mall.toml");
-    let (site1, building) = (site1.to_str().unwrap(), building.to_str().unwrap());
-    gangway_ok(&["site", "import", "--geojson", site1, "--out", building]);
+    let (site1, building) = (site1.as_str(), building.as_str());
     let surveyed = gangway(&[
         "eval",
         "localization",
