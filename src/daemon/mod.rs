@@ -63,7 +63,7 @@ use crate::mqtt::cluster::Role;
 use crate::pipeline;
 use crate::plan::RouteErrorCode;
 use crate::publish::stats::{
-    BleStatus, HEARD_PUBLISHED, HEARD_SCHEMA, HeardReport, STATS_SCHEMA, Stats,
+    BleStatus, HEARD_PUBLISHED, HEARD_SCHEMA, HeardReport, RecalibrationStatus, STATS_SCHEMA, Stats,
 };
 use crate::publish::{FeedbackRefused, Output, RouteOutcome};
 use crate::sighting::Sighting;
@@ -71,7 +71,7 @@ use crate::sighting::heard::HeardBeacon;
 use crate::sink::Sink;
 use crate::source::unix_now;
 use crate::source::{Input, Shutdown, Source, SourceContext};
-use recalibration::{Job, Recalibrated};
+use recalibration::Job;
 
 use crate::event::{Event, Feedback, Inbound, RouteRequest};
 use crate::throttle::Throttle;
@@ -404,7 +404,7 @@ async fn recalibrated(recalibration: &mut Option<Recalibration>) -> Recalibratio
 
 /// A finished recalibration: each floor recalibrated, and the state that
 /// serves them.
-type RecalibrationDone = anyhow::Result<(Vec<Recalibrated>, Loaded)>;
+type RecalibrationDone = anyhow::Result<(recalibration::Ran, Loaded)>;
 
 /// Recalibration of the survey-free model from what the store gathered.
 struct Recalibration {
@@ -412,6 +412,8 @@ struct Recalibration {
     /// Windows heard since start.
     heard: u64,
     task: Option<JoinHandle<RecalibrationDone>>,
+    /// What the stats say of the runs.
+    status: RecalibrationStatus,
 }
 
 impl Recalibration {
@@ -433,6 +435,7 @@ impl Recalibration {
             schedule: Schedule::new(&localizer.recalibration, unix_now()),
             heard: 0,
             task: None,
+            status: RecalibrationStatus::default(),
         })
     }
 }
@@ -918,6 +921,7 @@ impl Runtime {
             site: self.state.building.name.clone(),
             site_hash: self.state.building.map_hash(),
             fallbacks,
+            recalibration: self.recalibration.as_ref().map(|r| r.status.clone()),
             ..Stats::default()
         };
         for sink in &self.sinks {
@@ -992,17 +996,24 @@ impl Runtime {
             "recalibrating the radio model from what was heard"
         );
         r.task = Some(tokio::task::spawn_blocking(move || {
-            let done = recalibration::run_floors(&jobs)?;
-            let loaded = state::recalibrated(&config, &building, &done)?;
-            Ok((done, loaded))
+            let ran = recalibration::run_floors(&jobs)?;
+            let loaded = state::recalibrated(&config, &building, &ran.done)?;
+            Ok((ran, loaded))
         }));
     }
 
     /// A recalibration ended: its pipeline is swapped in like a reload.
     fn recalibrated(&mut self, done: RecalibrationDone) {
+        if let Some(r) = &mut self.recalibration {
+            let ran = done
+                .as_ref()
+                .map(|(ran, _)| ran)
+                .map_err(|e| format!("{e:#}"));
+            recalibration::record(&mut r.status, ran, unix_now());
+        }
         match done {
-            Ok((done, loaded)) => {
-                for done in &done {
+            Ok((ran, loaded)) => {
+                for done in &ran.done {
                     tracing::info!(
                         floor = done.floor.as_deref(),
                         windows = done.windows,
@@ -1019,7 +1030,10 @@ impl Runtime {
                 }
                 self.swap(Ok(loaded));
             }
-            Err(e) => tracing::error!("recalibration failed, serving the previous model: {e:#}"),
+            Err(e) => {
+                tracing::error!("recalibration failed, serving the previous model: {e:#}");
+                self.publish_stats();
+            }
         }
     }
 

@@ -24,6 +24,7 @@ use gangway_core::locate::pathloss::PathLossConfig;
 use gangway_core::locate::recalibrate::{self, FitError, RecalibrationConfig};
 use gangway_core::locate::tracker::TrackerConfig;
 use gangway_core::locate::window::Orientation;
+use gangway_core::publish::stats::{FloorRecalibrated, FloorSkipped, RecalibrationStatus};
 use gangway_core::site::{Building, Site};
 use gangway_io::store::{Store, StoreConfig, StoreError};
 
@@ -154,28 +155,82 @@ fn on_floor(floor: Option<&str>) -> String {
     floor.map_or_else(String::new, |floor| format!("floor `{floor}`: "))
 }
 
+/// A run over every floor: those recalibrated, and those that kept what
+/// they served, with why.
+#[derive(Debug)]
+pub(crate) struct Ran {
+    pub done: Vec<Recalibrated>,
+    pub skipped: Vec<FloorSkipped>,
+}
+
 /// Runs each floor's job (blocking; see the module doc). A floor whose
-/// windows are too few to fit keeps what it served: said in the log, and
-/// the other floors' runs are returned; an error only when no floor was
-/// recalibrated, or a file could not be read or written.
-pub(crate) fn run_floors(jobs: &[Job]) -> Result<Vec<Recalibrated>, RecalibrationError> {
-    let mut done = Vec::with_capacity(jobs.len());
+/// windows are too few to fit keeps what it served: said in the log and in
+/// [`Ran::skipped`], and the other floors are recalibrated; an error only
+/// when no floor was, or a file could not be read or written.
+pub(crate) fn run_floors(jobs: &[Job]) -> Result<Ran, RecalibrationError> {
+    let mut ran = Ran {
+        done: Vec::with_capacity(jobs.len()),
+        skipped: Vec::new(),
+    };
     let mut unfitted = None;
     for job in jobs {
         match run(job) {
-            Ok(floor) => done.push(floor),
-            Err(e @ RecalibrationError::Fit { .. }) if jobs.len() > 1 => {
+            Ok(floor) => ran.done.push(floor),
+            Err(RecalibrationError::Fit {
+                floor: Some(floor),
+                source,
+            }) => {
                 tracing::warn!(
-                    "{e}; this floor serves what it served, the others are recalibrated"
+                    "floor `{floor}`: {source}; this floor serves what it served, the others \
+                     are recalibrated"
                 );
-                unfitted.get_or_insert(e);
+                ran.skipped.push(FloorSkipped {
+                    why: source.to_string(),
+                    floor: floor.clone(),
+                });
+                unfitted.get_or_insert(RecalibrationError::Fit {
+                    floor: Some(floor),
+                    source,
+                });
             }
             Err(e) => return Err(e),
         }
     }
     match unfitted {
-        Some(e) if done.is_empty() => Err(e),
-        _ => Ok(done),
+        Some(e) if ran.done.is_empty() => Err(e),
+        _ => Ok(ran),
+    }
+}
+
+/// Counts a finished run in `status` (`ran`, or why it failed; `now`: when
+/// it ended), keeping what the last run that served did on each floor.
+pub(crate) fn record(status: &mut RecalibrationStatus, ran: Result<&Ran, String>, now: f64) {
+    status.last_t = Some(now);
+    match ran {
+        Ok(ran) => {
+            status.runs += 1;
+            status.last_error = None;
+            status.floors = ran.done.iter().map(Recalibrated::status).collect();
+            status.skipped = ran.skipped.clone();
+        }
+        Err(why) => {
+            status.failures += 1;
+            status.last_error = Some(why);
+        }
+    }
+}
+
+impl Recalibrated {
+    /// What the stats say of it.
+    fn status(&self) -> FloorRecalibrated {
+        FloorRecalibrated {
+            floor: self.floor.clone(),
+            windows: self.windows,
+            anchors: self.changes.len(),
+            anchors_kept: self.changes.iter().filter(|c| c.kept).count(),
+            cells_kept: self.cells.as_ref().map_or(0, |c| c.cells),
+            held_out_gain_per_window: self.held_out.as_ref().map(|h| h.gain_per_window),
+        }
     }
 }
 
@@ -403,8 +458,90 @@ mod tests {
         );
     }
 
+    /// Two floors of a building (the corridor twice), walked on `A` only:
+    /// `A` is recalibrated, `B` kept as it was and said so, and the stats
+    /// count the run; with nothing heard anywhere the run fails, and the
+    /// stats keep what the last run that served did.
     #[test]
-    fn unfitted_windows_refuse_to_recalibrate() {
+    fn a_floor_that_heard_too_little_is_skipped_and_the_stats_say_so() {
+        let site = site();
+        let dir = tempfile::tempdir().unwrap();
+        let store_path = dir.path().join("learning.sqlite");
+        Store::open(&store_path).unwrap();
+        let localizer = LocalizerConfig {
+            recalibration: RecalibrationConfig {
+                enabled: true,
+                min_windows: 500,
+                cells: false,
+                ..RecalibrationConfig::default()
+            },
+            ..LocalizerConfig::default()
+        };
+        let jobs: Vec<Job> = ["A", "B"]
+            .iter()
+            .map(|floor| {
+                Job::new(
+                    &site,
+                    Some(floor),
+                    Orientation::Observer,
+                    &localizer,
+                    &TrackerConfig::default(),
+                    &store_path,
+                )
+            })
+            .collect();
+        let mut status = RecalibrationStatus::default();
+        let e = run_floors(&jobs).unwrap_err();
+        assert!(e.to_string().starts_with("floor `A`: only 0"), "{e}");
+        record(&mut status, Err(e.to_string()), 1.0);
+        assert_eq!((status.runs, status.failures), (0, 1));
+
+        let ids = anchor_ids(&site, Orientation::Observer);
+        let truth = Radio {
+            tx_dbm: -70.0,
+            exponent: 2.2,
+            shadowing_db: 3.0,
+            range_m: 4.0,
+            range_slope: 3.0,
+            max_detection: 0.9,
+        };
+        let records: Vec<Record> = walks(&site, &truth, 3)
+            .iter()
+            .filter_map(|(w, _)| Heard::of(&w.entity, w.t, &w.rssi, &w.heard, &ids))
+            .map(|h| Record::Heard {
+                device: h.device,
+                t: h.t,
+                floor: Some("A".into()),
+                readings: h.readings,
+            })
+            .collect();
+        Store::open(&store_path).unwrap().write(&records).unwrap();
+        let ran = run_floors(&jobs).unwrap();
+        let done: Vec<Option<&str>> = ran.done.iter().map(|d| d.floor.as_deref()).collect();
+        assert_eq!(done, [Some("A")]);
+        assert_eq!(ran.done[0].path, dir.path().join("calibration-A.toml"));
+        assert!(!dir.path().join("calibration-B.toml").exists());
+        assert_eq!(ran.skipped.len(), 1);
+        assert_eq!(ran.skipped[0].floor, "B");
+        assert!(
+            ran.skipped[0].why.contains("min_windows"),
+            "{:?}",
+            ran.skipped
+        );
+        record(&mut status, Ok(&ran), 2.0);
+        assert_eq!((status.runs, status.failures), (1, 1));
+        assert_eq!(status.last_error, None);
+        assert_eq!(status.floors[0].floor.as_deref(), Some("A"));
+        assert_eq!(status.floors[0].anchors, 3);
+        record(&mut status, Err("the store is gone".into()), 3.0);
+        assert_eq!((status.runs, status.failures), (1, 2));
+        assert_eq!(status.last_error.as_deref(), Some("the store is gone"));
+        assert_eq!(status.floors.len(), 1, "what serves is still A's file");
+        assert_eq!(status.last_t, Some(3.0));
+    }
+
+    #[test]
+    fn too_few_windows_refuse_to_recalibrate() {
         let site = site();
         let dir = tempfile::tempdir().unwrap();
         let store_path = dir.path().join("learning.sqlite");

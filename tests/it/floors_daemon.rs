@@ -516,7 +516,8 @@ fn calibrate_fits_each_floor_of_a_building_from_its_captures() {
 /// the gateway fits B1 and L1 each from its own windows, writes
 /// `calibration-B1.toml` and `calibration-L1.toml` with that floor's
 /// beacons only, and serves them (swapped in like a reload); G, which
-/// heard nothing, keeps serving what it served. A restart serves both.
+/// heard nothing, keeps serving what it served. The stats say so, floor by
+/// floor. A restart serves both files.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_gateway_recalibrates_each_floor_from_what_was_heard_there() {
     use gangway::locate::calibration::Calibration;
@@ -556,11 +557,34 @@ async fn the_gateway_recalibrates_each_floor_from_what_was_heard_there() {
     assert_eq!(heard_on("G"), 0, "nobody walked on G");
 
     signal(&gateway.child, "USR1");
-    client
+    let stats = client
         .wait_for("the recalibrated pipeline swapped in", |m| {
             m.json()["reloads"] == 1
         })
-        .await;
+        .await
+        .json();
+    // The stats say what the run did on each floor.
+    check_schema("stats", &stats).unwrap();
+    let status = &stats["recalibration"];
+    assert_eq!(status["runs"], 1, "{status}");
+    assert_eq!(status["failures"], 0, "{status}");
+    let floors: Vec<&str> = status["floors"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["floor"].as_str().unwrap())
+        .collect();
+    assert_eq!(floors, ["B1", "L1"], "{status}");
+    assert_eq!(status["floors"][0]["anchors"], 2, "{status}");
+    assert_eq!(status["floors"][1]["anchors"], 1, "{status}");
+    assert_eq!(status["skipped"][0]["floor"], "G", "{status}");
+    assert!(
+        status["skipped"][0]["why"]
+            .as_str()
+            .unwrap()
+            .contains("min_windows"),
+        "{status}"
+    );
     assert!(gateway.terminate().success());
     let out = config.dir.path();
     for (floor, beacons) in [

@@ -143,6 +143,56 @@ pub struct Stats {
     /// instead (empty: everything configured is serving).
     pub fallbacks: Vec<String>,
     pub ble: BleStatus,
+    /// With `[localizer.recalibration]` on: what its runs did.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub recalibration: Option<RecalibrationStatus>,
+}
+
+/// The recalibration of the survey-free radio model, visible to operators:
+/// how many runs served a new model, how many failed, and what the last
+/// one that served did on each floor.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct RecalibrationStatus {
+    /// Runs that fitted and wrote a model (swapped in like a reload), and
+    /// runs that failed (nothing changed).
+    pub runs: u64,
+    pub failures: u64,
+    /// When the last run ended, seconds since the epoch.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub last_t: Option<f64>,
+    /// Why the last run failed, when it did.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub last_error: Option<String>,
+    /// The last run that served: each floor it recalibrated (one entry
+    /// without `floor` on a one-floor site)...
+    pub floors: Vec<FloorRecalibrated>,
+    /// ...and each floor it left serving what it served, with why.
+    pub skipped: Vec<FloorSkipped>,
+}
+
+/// What one floor's recalibration fitted and kept.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FloorRecalibrated {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub floor: Option<String>,
+    /// Fingerprint windows fitted.
+    pub windows: usize,
+    /// Beacons (or receivers) whose model was refitted, and of them those
+    /// kept because the held-out windows are likelier with it.
+    pub anchors: usize,
+    pub anchors_kept: usize,
+    /// Cells whose refined radio map was kept.
+    pub cells_kept: usize,
+    /// Log-likelihood gained per held-out window over the starting model.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub held_out_gain_per_window: Option<f64>,
+}
+
+/// A floor a recalibration left as it was.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FloorSkipped {
+    pub floor: String,
+    pub why: String,
 }
 
 /// The radio's state, visible to operators.
