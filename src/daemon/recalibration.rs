@@ -352,6 +352,21 @@ mod tests {
         out
     }
 
+    /// [`walks`] as the learning store keeps them, heard on `floor`.
+    fn heard(site: &Site, radio: &Radio, seed: u64, floor: Option<&str>) -> Vec<Record> {
+        let ids = anchor_ids(site, Orientation::Observer);
+        walks(site, radio, seed)
+            .iter()
+            .filter_map(|(w, _)| Heard::of(&w.entity, w.t, &w.rssi, &w.heard, &ids))
+            .map(|h| Record::Heard {
+                device: h.device,
+                t: h.t,
+                floor: floor.map(str::to_owned),
+                readings: h.readings,
+            })
+            .collect()
+    }
+
     /// The whole loop on a made-up floor: windows heard through a radio the
     /// configured defaults know nothing of go through the store, and the
     /// recalibration finds that radio, writes a file the localizer loads,
@@ -370,17 +385,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let store_path = dir.path().join("learning.sqlite");
         let mut store = Store::open(&store_path).unwrap();
-        let ids = anchor_ids(&site, Orientation::Observer);
-        let records: Vec<Record> = walks(&site, &truth, 1)
-            .iter()
-            .filter_map(|(w, _)| Heard::of(&w.entity, w.t, &w.rssi, &w.heard, &ids))
-            .map(|h| Record::Heard {
-                device: h.device,
-                t: h.t,
-                floor: None,
-                readings: h.readings,
-            })
-            .collect();
+        let records = heard(&site, &truth, 1, None);
         store.write(&records).unwrap();
         drop(store);
         let gathered = records.len();
@@ -496,7 +501,6 @@ mod tests {
         record(&mut status, Err(e.to_string()), 1.0);
         assert_eq!((status.runs, status.failures), (0, 1));
 
-        let ids = anchor_ids(&site, Orientation::Observer);
         let truth = Radio {
             tx_dbm: -70.0,
             exponent: 2.2,
@@ -505,16 +509,7 @@ mod tests {
             range_slope: 3.0,
             max_detection: 0.9,
         };
-        let records: Vec<Record> = walks(&site, &truth, 3)
-            .iter()
-            .filter_map(|(w, _)| Heard::of(&w.entity, w.t, &w.rssi, &w.heard, &ids))
-            .map(|h| Record::Heard {
-                device: h.device,
-                t: h.t,
-                floor: Some("A".into()),
-                readings: h.readings,
-            })
-            .collect();
+        let records = heard(&site, &truth, 3, Some("A"));
         Store::open(&store_path).unwrap().write(&records).unwrap();
         let ran = run_floors(&jobs).unwrap();
         let done: Vec<Option<&str>> = ran.done.iter().map(|d| d.floor.as_deref()).collect();
