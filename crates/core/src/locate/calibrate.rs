@@ -33,6 +33,7 @@
 //! what they confirm. [`fit`] keeps everything: for windows of known
 //! position.
 
+use std::collections::HashMap;
 use std::sync::Arc;
 
 use serde::Serialize;
@@ -522,7 +523,10 @@ impl<'a> Check<'a> {
     }
 
     /// `lls` with anchor `a`'s term under `from` replaced by its term under
-    /// `to`.
+    /// `to`. The change depends on the anchor's reading alone, so it is
+    /// scored once per distinct reading (every window that did not hear the
+    /// anchor shares one): on a floor of hundreds of beacons this is what
+    /// the check of each anchor costs.
     fn swap_anchor(&self, lls: &mut [Vec<(f64, Vec<f32>)>], a: usize, from: &Anchor, to: &Anchor) {
         let n_cells = self.site.open_cells().len();
         let one = |anchor: &Anchor| {
@@ -531,13 +535,20 @@ impl<'a> Check<'a> {
         };
         let (mut from, mut to) = (one(from), one(to));
         let (mut old, mut new) = (vec![0.0f32; n_cells], vec![0.0f32; n_cells]);
+        let mut changes: HashMap<Option<u32>, Vec<f32>> = HashMap::new();
         for (trajectory, windows) in self.held_out.iter().zip(lls) {
             for (w, (_, ll)) in trajectory.iter().zip(windows) {
-                let (rssi, heard) = readings(&w.rssi[a..=a]);
-                from.log_likelihood(&rssi, &heard, &mut old);
-                to.log_likelihood(&rssi, &heard, &mut new);
-                for ((l, o), n) in ll.iter_mut().zip(&old).zip(&new) {
-                    *l += n - o;
+                let reading = &w.rssi[a..=a];
+                let change = changes
+                    .entry(reading[0].map(f32::to_bits))
+                    .or_insert_with(|| {
+                        let (rssi, heard) = readings(reading);
+                        from.log_likelihood(&rssi, &heard, &mut old);
+                        to.log_likelihood(&rssi, &heard, &mut new);
+                        new.iter().zip(&old).map(|(n, o)| n - o).collect()
+                    });
+                for (l, d) in ll.iter_mut().zip(change.iter()) {
+                    *l += d;
                 }
             }
         }
@@ -1056,6 +1067,7 @@ impl Stats {
         let slopes = [1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0];
         let maxima: Vec<f64> = (0..14).map(|i| 0.35 + 0.05 * f64::from(i)).collect();
         for _ in 0..3 {
+            let round_from = (radio.range_m, radio.range_slope, radio.max_detection);
             radio.range_m = best(&ranges, |v| {
                 ll(&Radio {
                     range_m: v,
@@ -1074,6 +1086,11 @@ impl Stats {
                     ..radio
                 })
             });
+            // A round that moved nothing is where the search rests: another
+            // would score the same candidates from the same point.
+            if (radio.range_m, radio.range_slope, radio.max_detection) == round_from {
+                break;
+            }
         }
         radio
     }
