@@ -1014,17 +1014,19 @@ impl Runtime {
         match done {
             Ok((ran, loaded)) => {
                 for done in &ran.done {
+                    // What the stats say of it, and what only the log does.
+                    let said = done.status();
                     tracing::info!(
-                        floor = done.floor.as_deref(),
-                        windows = done.windows,
+                        floor = said.floor.as_deref(),
+                        windows = said.windows,
                         trajectories = done.trajectories,
-                        anchors = done.changes.len(),
-                        anchors_kept = done.changes.iter().filter(|c| c.kept).count(),
+                        anchors = said.anchors,
+                        anchors_kept = said.anchors_kept,
                         held_out_windows = done.held_out.as_ref().map_or(0, |h| h.windows),
-                        held_out_gain_per_window = done.held_out.as_ref().map_or(0.0, |h| h.gain_per_window),
+                        held_out_gain_per_window = said.held_out_gain_per_window.unwrap_or(0.0),
                         seconds = done.seconds,
                         file = %done.path.display(),
-                        cells = done.cells.as_ref().map_or(0, |c| c.cells),
+                        cells = said.cells_kept,
                         "recalibrated the radio model; serving it"
                     );
                 }

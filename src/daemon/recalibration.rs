@@ -222,7 +222,7 @@ pub(crate) fn record(status: &mut RecalibrationStatus, ran: Result<&Ran, String>
 
 impl Recalibrated {
     /// What the stats say of it.
-    fn status(&self) -> FloorRecalibrated {
+    pub(crate) fn status(&self) -> FloorRecalibrated {
         FloorRecalibrated {
             floor: self.floor.clone(),
             windows: self.windows,

@@ -218,7 +218,7 @@ pub fn evaluate(
         .collect();
     // Each floor's fit is its own (seconds to minutes on a large floor):
     // one thread per floor.
-    let mut recalibrations: Vec<(Option<Calibration>, String)> = if setup.recalibrate {
+    let (mut calibrations, said): (Vec<Option<Calibration>>, Vec<String>) = if setup.recalibrate {
         std::thread::scope(|scope| {
             let fits: Vec<_> = sites
                 .iter()
@@ -232,15 +232,13 @@ pub fn evaluate(
                 .collect();
             fits.into_iter()
                 .map(|fit| fit.join().expect("a floor's recalibration panicked"))
-                .collect()
+                .unzip()
         })
     } else {
-        Vec::new()
+        (Vec::new(), Vec::new())
     };
-    let mut recalibrated = BTreeMap::new();
-    for (floor, (_, said)) in floors.iter().zip(&recalibrations) {
-        recalibrated.insert(floor.name.clone(), said.clone());
-    }
+    let recalibrated: BTreeMap<String, String> =
+        floors.iter().map(|f| f.name.clone()).zip(said).collect();
     let mut localizers = Vec::with_capacity(floors.len());
     let mut baseline_train = Vec::new();
     for (f, ((site, ids), walks)) in sites.into_iter().zip(&split).enumerate() {
@@ -268,7 +266,7 @@ pub fn evaluate(
             .collect();
         baseline_train.extend(windows.into_iter().map(|(_, at, heard)| (f, at, heard)));
         let refs: Vec<&Sample> = samples.iter().collect();
-        let calibration = recalibrations.get_mut(f).and_then(|(c, _)| c.take());
+        let calibration = calibrations.get_mut(f).and_then(Option::take);
         let localizer = localizer(setup, &site, &refs, calibration.as_ref())
             .with_context(|| format!("floor `{}`: its localizer", floor.name))?;
         let tracker = Tracker::new(setup.tracker.clone(), site.clone());
