@@ -312,17 +312,20 @@ impl Knn {
     fn measure_heard(&mut self, rssi: &[f32], heard: &[bool]) -> bool {
         let n = self.rows_of.len();
         let whole = |v: f32| v.fract() == 0.0 && v.abs() < WHOLE_DB_EXACT;
+        // Work counted in the full pass's lanes (one per fingerprint and
+        // anchor, vectorised): the postings' pass copies and adds once over
+        // the fingerprints, alike, and updates each posting on its own, a
+        // scattered update costing about a vector step of [`BLOCK`] lanes.
         let mut silent = None;
-        let mut work = n;
+        let mut work = 2 * n;
         for (a, (&r, &h)) in rssi.iter().zip(heard).enumerate() {
             if h {
-                work += self.postings[a].len();
+                work += self.postings[a].len() * BLOCK;
             } else if *silent.get_or_insert(r) != r {
                 return false;
             }
         }
-        // The full pass: an anchor of [`BLOCK`] fingerprints a vector step.
-        let full = n * self.n_anchors / BLOCK;
+        let full = n * self.n_anchors;
         let silent = silent.unwrap_or(self.not_heard);
         let heard_whole = rssi.iter().zip(heard).all(|(&r, &h)| !h || whole(r));
         if !(self.whole_db && whole(silent) && heard_whole) || work >= full {
