@@ -8,10 +8,12 @@ use std::process::ExitCode;
 use std::sync::Arc;
 
 use crate::config::Config;
+use crate::daemon::recalibration::{self, RecalibratedFile};
 use crate::locate::LocalizerError;
 use crate::pipeline::{Pipeline, PipelineConfig, PipelineError};
 use crate::plan::{PlannerConfig, PlannerMode};
 use crate::site::{Building, Site};
+use crate::store::StoreConfig;
 
 #[derive(clap::Args)]
 pub(super) struct Args {
@@ -34,6 +36,9 @@ struct Settings {
     pipeline: PipelineConfig,
     named_models: Vec<String>,
     configured: bool,
+    /// The config's store, beside which recalibrated files are kept (none
+    /// without a config).
+    store: Option<StoreConfig>,
 }
 
 pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
@@ -46,6 +51,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
                 pipeline: PipelineConfig::default(),
                 named_models: Vec::new(),
                 configured: false,
+                store: None,
             },
         )),
         (config, site) => {
@@ -58,6 +64,7 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
                         shown: path,
                         pipeline: config.pipeline(),
                         configured: true,
+                        store: Some(config.store.clone()),
                     },
                 )
             })
@@ -84,6 +91,15 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
 fn check(building: &Building, settings: &Settings, problems: &mut Vec<String>) {
     let shown = settings.shown.display();
     let mut lines = Vec::new();
+    // What the gateway would serve: an earlier recalibration's files in
+    // place of the configured calibration.
+    let mut configured = settings.pipeline.clone();
+    let mut recalibrated = Vec::new();
+    if let Some(store) = &settings.store {
+        let serving = recalibration::serving(&configured.localizer, store, building);
+        configured.localizer = serving.config;
+        recalibrated = serving.files;
+    }
     for floor in building.floors() {
         let site = &floor.site;
         // A building's problems say which floor they are on.
@@ -97,7 +113,7 @@ fn check(building: &Building, settings: &Settings, problems: &mut Vec<String>) {
         let mut localizer = None;
         // Each floor as the daemon builds it: its own files where the
         // config names them per floor.
-        let mut pipeline = settings.pipeline.clone();
+        let mut pipeline = configured.clone();
         if building.is_multi_floor() {
             let localizer = pipeline.localizer.for_floor(&floor.name);
             let planner = pipeline.planner.for_floor(&floor.name);
@@ -157,6 +173,9 @@ fn check(building: &Building, settings: &Settings, problems: &mut Vec<String>) {
                 });
                 lines.push(frame(site));
                 lines.extend(localizer.map(str::to_owned));
+                let name = building.is_multi_floor().then_some(floor.name.as_str());
+                let file = recalibrated.iter().find(|f| f.floor.as_deref() == name);
+                lines.extend(file.map(recalibrated_line));
                 lines.push(format!("planner: {serving}"));
             }
             Ok(_) => {}
@@ -178,6 +197,24 @@ fn check(building: &Building, settings: &Settings, problems: &mut Vec<String>) {
     }
     if building.is_multi_floor() {
         println!("{}", connectors(building));
+    }
+}
+
+/// What serves a floor that an earlier recalibration fitted, in one line.
+fn recalibrated_line(file: &RecalibratedFile) -> String {
+    let path = file.path.display();
+    match &file.loaded {
+        Ok(calibration) => format!(
+            "localizer: recalibrated on this gateway from {} windows ({} beacons, {} cells \
+             refined): {path}",
+            calibration.windows,
+            calibration.anchors.len(),
+            calibration.cells.len()
+        ),
+        Err(e) => format!(
+            "localizer: the recalibrated file does not load, the configured calibration \
+             serves until the next recalibration rewrites it: {e}"
+        ),
     }
 }
 

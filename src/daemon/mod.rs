@@ -42,7 +42,7 @@
 
 mod admission;
 mod cluster;
-mod recalibration;
+pub(crate) mod recalibration;
 pub mod state;
 
 use std::future::Future;

@@ -28,14 +28,34 @@ use gangway_core::publish::stats::{FloorRecalibrated, FloorSkipped, Recalibratio
 use gangway_core::site::{Building, Site};
 use gangway_io::store::{Store, StoreConfig, StoreError};
 
-/// The localizer config a gateway serves with: with recalibration on, each
-/// floor's recalibrated file where one loads; else `config` as it is.
+/// What a gateway serves with: with recalibration on, each floor's
+/// recalibrated file where one loads; else the config as it is.
+pub(crate) struct Serving {
+    pub config: LocalizerConfig,
+    /// Each recalibrated file present, loaded or not: what `gangway check`
+    /// reports, and the daemon logs when one does not load.
+    pub files: Vec<RecalibratedFile>,
+}
+
+/// A file an earlier recalibration wrote for one floor.
+pub(crate) struct RecalibratedFile {
+    /// The floor of a building it serves (`None`: the one floor of a site).
+    pub floor: Option<String>,
+    pub path: PathBuf,
+    /// What it holds, or why it does not load (then the configured
+    /// calibration serves that floor until the next recalibration).
+    pub loaded: Result<Calibration, String>,
+}
+
 pub(crate) fn serving(
     config: &LocalizerConfig,
     store: &StoreConfig,
     building: &Building,
-) -> LocalizerConfig {
-    let mut serving = config.clone();
+) -> Serving {
+    let mut serving = Serving {
+        config: config.clone(),
+        files: Vec::new(),
+    };
     if !(config.recalibration.enabled && recalibrate::applies(config)) {
         return serving;
     }
@@ -45,10 +65,15 @@ pub(crate) fn serving(
         if !path.exists() {
             continue;
         }
-        match Calibration::load(&path, site) {
-            Ok(_) => serving = recalibrate::with_calibration(&serving, floor, &path),
-            Err(e) => tracing::error!("{e}; serving the configured calibration instead"),
+        let loaded = Calibration::load(&path, site).map_err(|e| e.to_string());
+        if loaded.is_ok() {
+            serving.config = recalibrate::with_calibration(&serving.config, floor, &path);
         }
+        serving.files.push(RecalibratedFile {
+            floor: floor.map(str::to_owned),
+            path,
+            loaded,
+        });
     }
     serving
 }
@@ -572,7 +597,10 @@ mod tests {
         };
         let file = dir.path().join("calibration.toml");
         // No file yet: the configured calibration.
-        assert_eq!(serving(&on, &store, &site).pathloss.calibration, None);
+        assert_eq!(
+            serving(&on, &store, &site).config.pathloss.calibration,
+            None
+        );
         let calibration = Calibration {
             site: "corridor".into(),
             windows: 1,
@@ -582,17 +610,38 @@ mod tests {
         };
         std::fs::write(&file, calibration.to_toml()).unwrap();
         assert_eq!(
-            serving(&on, &store, &site).pathloss.calibration.as_deref(),
+            serving(&on, &store, &site)
+                .config
+                .pathloss
+                .calibration
+                .as_deref(),
             Some(file.as_path())
         );
         // Off, or surveyed: the file is not what serves.
         let off = LocalizerConfig::default();
-        assert_eq!(serving(&off, &store, &site).pathloss.calibration, None);
+        assert_eq!(
+            serving(&off, &store, &site).config.pathloss.calibration,
+            None
+        );
         let mut surveyed = on.clone();
         surveyed.method = Method::Knn;
-        assert_eq!(serving(&surveyed, &store, &site).pathloss.calibration, None);
-        // A broken file: the configured calibration, not a failure.
+        assert_eq!(
+            serving(&surveyed, &store, &site)
+                .config
+                .pathloss
+                .calibration,
+            None
+        );
+        // A broken file: the configured calibration, not a failure, and
+        // the file reported with why.
         std::fs::write(&file, "anchor = 3").unwrap();
-        assert_eq!(serving(&on, &store, &site).pathloss.calibration, None);
+        let broken = serving(&on, &store, &site);
+        assert_eq!(broken.config.pathloss.calibration, None);
+        let [reported] = &broken.files[..] else {
+            panic!("one file, reported")
+        };
+        assert_eq!(reported.path, file);
+        let why = reported.loaded.as_ref().unwrap_err();
+        assert!(why.contains("calibration.toml"), "{why}");
     }
 }

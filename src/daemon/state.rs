@@ -49,7 +49,13 @@ fn load_with(config_path: &Path, fall_back: bool) -> anyhow::Result<Loaded> {
     let building = Arc::new(Building::load(&config.site)?);
     let site = building.floors()[0].site.clone();
     // What an earlier recalibration learned outlives restarts and reloads.
-    config.localizer = super::recalibration::serving(&config.localizer, &config.store, &building);
+    let serving = super::recalibration::serving(&config.localizer, &config.store, &building);
+    for file in &serving.files {
+        if let Err(e) = &file.loaded {
+            tracing::error!("{e}; serving the configured calibration instead");
+        }
+    }
+    config.localizer = serving.config;
     let context = || format!("{}", config_path.display());
     let (pipeline, fallbacks) = if fall_back {
         Pipeline::with_fallbacks(&config.pipeline(), building.clone()).with_context(context)?

@@ -622,6 +622,33 @@ async fn the_gateway_recalibrates_each_floor_from_what_was_heard_there() {
         ]
     );
     assert!(restarted.fallbacks.is_empty(), "{:?}", restarted.fallbacks);
+
+    // `gangway check` says which floors serve what was heard, and a file
+    // that no longer loads, with what serves instead.
+    let checked = gangway_ok(&["check", "--config", config.path.to_str().unwrap()]);
+    let recalibrated: Vec<&str> = checked
+        .lines()
+        .filter(|l| l.starts_with("localizer: recalibrated on this gateway"))
+        .collect();
+    assert_eq!(recalibrated.len(), 2, "{checked}");
+    for (line, floor) in recalibrated.iter().zip(["B1", "L1"]) {
+        assert!(
+            line.ends_with(&format!("calibration-{floor}.toml")),
+            "{line}"
+        );
+    }
+    assert!(recalibrated[0].contains("(2 beacons"), "{checked}");
+    std::fs::write(out.join("calibration-L1.toml"), "anchor = 3\n").unwrap();
+    let checked = gangway_ok(&["check", "--config", config.path.to_str().unwrap()]);
+    let l1 = checked
+        .split("ok: floor")
+        .find(|floor| floor.starts_with(" L1"))
+        .unwrap_or_else(|| panic!("{checked}"));
+    assert!(
+        l1.contains("localizer: the recalibrated file does not load")
+            && l1.contains("calibration-L1.toml"),
+        "{checked}"
+    );
 }
 
 /// The learning store of a gateway serving a building keeps each fix's
