@@ -98,38 +98,72 @@ pub fn shape(a: &Polyline, b: &Polyline, step_m: f64) -> Option<Shape> {
     }
     let m = q.len();
     // Row by row: DTW's total and pair count along its cheapest path, and the
-    // Fréchet coupling, each from the three cells before.
-    let mut prev: Vec<(f64, u32, f64)> = Vec::with_capacity(m);
-    let mut row: Vec<(f64, u32, f64)> = Vec::with_capacity(m);
-    for (i, &pi) in p.iter().enumerate() {
-        row.clear();
-        for (j, &qj) in q.iter().enumerate() {
-            let d = dist(pi, qj);
-            let before = [
-                (i > 0).then(|| prev[j]),
-                (j > 0).then(|| row[j - 1]),
-                (i > 0 && j > 0).then(|| prev[j - 1]),
-            ];
-            let cheapest = before
-                .iter()
-                .flatten()
-                .min_by(|x, y| x.0.total_cmp(&y.0))
-                .map_or((0.0, 0), |&(sum, n, _)| (sum, n));
-            let leash = before
-                .iter()
-                .flatten()
-                .map(|x| x.2)
-                .reduce(f64::min)
-                .unwrap_or(0.0);
-            row.push((cheapest.0 + d, cheapest.1 + 1, leash.max(d)));
+    // Fréchet leash, each from the cells above, to the left and diagonally
+    // before (of equal totals, the first in that order).
+    let mut prev = vec![Coupling::default(); m];
+    let mut row = vec![Coupling::default(); m];
+    let mut distance = vec![0.0; m];
+    for (i, &[x, y]) in p.iter().enumerate() {
+        // A row's distances first, in a loop of their own that the compiler
+        // vectorises; a plain root, not `hypot`: training scores thousands
+        // of walks against each line, and `hypot`'s care for overflow (no
+        // line spans 1e150 m) was half of it.
+        for (d, &[qx, qy]) in distance.iter_mut().zip(&q) {
+            let (dx, dy) = (x - qx, y - qy);
+            *d = (dx * dx + dy * dy).sqrt();
+        }
+        let mut left: Option<Coupling> = None;
+        for (j, &d) in distance.iter().enumerate() {
+            let before = match (i, left) {
+                (0, None) => Coupling::default(),
+                (0, Some(left)) => left,
+                (_, None) => prev[j],
+                (_, Some(left)) => {
+                    let (up, diagonal) = (prev[j], prev[j - 1]);
+                    let mut cheapest = up;
+                    if left.total < cheapest.total {
+                        cheapest = left;
+                    }
+                    if diagonal.total < cheapest.total {
+                        cheapest = diagonal;
+                    }
+                    Coupling {
+                        leash: least(least(up.leash, left.leash), diagonal.leash),
+                        ..cheapest
+                    }
+                }
+            };
+            let here = Coupling {
+                total: before.total + d,
+                pairs: before.pairs + 1,
+                leash: if d > before.leash { d } else { before.leash },
+            };
+            row[j] = here;
+            left = Some(here);
         }
         std::mem::swap(&mut prev, &mut row);
     }
-    let (sum, pairs, frechet) = prev[m - 1];
+    let last = prev[m - 1];
     Some(Shape {
-        dtw_m: sum / f64::from(pairs),
-        frechet_m: frechet,
+        dtw_m: last.total / f64::from(last.pairs),
+        frechet_m: last.leash,
     })
+}
+
+/// The lesser of two distances. `f64::min` also orders NaNs, a few
+/// instructions more in the table's innermost loop, where none can occur
+/// (distances of finite points).
+fn least(a: f64, b: f64) -> f64 {
+    if b < a { b } else { a }
+}
+
+/// One cell of [`shape`]'s table: the cheapest DTW total reaching it and its
+/// pair count, and the shortest Fréchet leash.
+#[derive(Clone, Copy, Debug, Default)]
+struct Coupling {
+    total: f64,
+    pairs: u32,
+    leash: f64,
 }
 
 #[cfg(test)]
