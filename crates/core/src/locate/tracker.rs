@@ -991,14 +991,30 @@ impl Sparse<f32> {
         exponents.clear();
         exponents.resize(256, (0.0, 0));
         let mut total = 0.0f64;
+        // Neighbouring cells mostly share an exponent: a run of them is
+        // summed in registers and stored when the exponent changes (the
+        // same adds in the same order as a bucket update per cell, without
+        // a store and a reload between each).
+        let mut run: Option<(usize, (f64, u32))> = None;
         for &b in belief {
             // Positive finite masses only: the exponent is bits 23..31.
             if b > 0.0 && b.is_finite() {
-                let e = &mut exponents[(b.to_bits() >> 23) as usize];
-                e.0 += f64::from(b);
-                e.1 += 1;
+                let e = (b.to_bits() >> 23) as usize;
+                let (mass, n) = match run {
+                    Some((at, bucket)) if at == e => bucket,
+                    _ => {
+                        if let Some((at, bucket)) = run {
+                            exponents[at] = bucket;
+                        }
+                        exponents[e]
+                    }
+                };
+                run = Some((e, (mass + f64::from(b), n + 1)));
                 total += f64::from(b);
             }
+        }
+        if let Some((at, bucket)) = run {
+            exponents[at] = bucket;
         }
         self.cells.clear();
         self.mass.clear();
