@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use gangway::site::Site;
-use gangway::train::gan::{self, GanConfig, GanData};
+use gangway::train::gan::{self, GanConfig, GanData, Hidden};
 use gangway::train::paths::PathSet;
 use gangway::train::trajectory;
 
@@ -38,6 +38,7 @@ fn benches(c: &mut Criterion) {
                         batch: 32,
                         seed: 1,
                         threads,
+                        hidden: Hidden::PAPER,
                     },
                     |_, _| {},
                 )

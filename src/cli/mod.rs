@@ -149,15 +149,15 @@ struct PlannerSource {
     site: Option<PathBuf>,
     /// Serve the models in this directory (`generator.onnx`,
     /// `path_classifier.onnx`, `conditional_generator.onnx`,
-    /// `desire_lines.onnx`, as `gangway train --out` writes them) instead of
-    /// the config's `[planner.models]`.
+    /// `desire_lines.onnx`, `line_generator.onnx`, as `gangway train --out`
+    /// writes them) instead of the config's `[planner.models]`.
     #[arg(long)]
     models: Option<PathBuf>,
     /// The planner mode instead of the config's `[planner] mode`: learned
     /// (the default: desire lines when they passed their training check,
-    /// else the conditional generator, else rejection when its generator
-    /// passed its checks, else astar), astar, rejection, conditional or
-    /// desire.
+    /// else the line GAN when it passed its checks, else the conditional
+    /// generator, else rejection when its generator passed its checks, else
+    /// astar), astar, rejection, conditional, desire or line_gan.
     #[arg(long, value_parser = parse_mode)]
     mode: Option<crate::plan::PlannerMode>,
 }
@@ -220,6 +220,7 @@ fn serve_models_from(planner: &mut crate::plan::PlannerConfig, dir: &std::path::
     m.path_classifier = file(Kind::PathClassifier);
     m.conditional_generator = file(Kind::ConditionalGenerator);
     m.desire_lines = file(Kind::DesireLines);
+    m.line_generator = file(Kind::LineGenerator);
 }
 
 /// A tokio runtime for the long-running subcommands (`run`, `record`):

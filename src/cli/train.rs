@@ -57,6 +57,12 @@ pub(super) struct Args {
     /// the run then exits 0 only if it passes its checks.
     #[arg(long)]
     conditional: bool,
+    /// Also train the line GAN from walks in JSON Lines: a conditional GAN
+    /// whose samples are lines between the requested points, not frames, so
+    /// its size does not grow with the site (`line_generator.onnx`, planner
+    /// mode `line_gan`); the run then exits 0 only if it passes its checks.
+    #[arg(long, conflicts_with = "desire_only")]
+    line_gan: bool,
     /// Weight of the conditional generator's access penalty: a hinge that
     /// pushes back any non-walkable cell a generated frame lights (no walk
     /// lights one), ramped in linearly over the run. 0 trains the paper's plain
@@ -153,11 +159,16 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
     if args.trajectories.is_some() || args.from_store.is_some() {
         let set = match (&args.trajectories, &args.from_store) {
             (Some(dir), None) if dir.is_dir() => {
-                anyhow::ensure!(
-                    !args.desire_only,
-                    "--desire-only learns from walks in JSON Lines, not from a directory of \
-                     frame CSVs (they carry no walking order)"
-                );
+                for (asked, flag) in [
+                    (args.desire_only, "--desire-only"),
+                    (args.line_gan, "--line-gan"),
+                ] {
+                    anyhow::ensure!(
+                        !asked,
+                        "{flag} learns from walks in JSON Lines, not from a directory of \
+                         frame CSVs (they carry no walking order)"
+                    );
+                }
                 if !args.no_desire {
                     notes.push(
                         "desire lines not trained: frame CSVs carry no walking order (give \
@@ -195,6 +206,11 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
                         }
                         Err(e) => return Err(e),
                     }
+                }
+                if args.line_gan {
+                    written.extend(job::train_lines(
+                        &site, &all, &options, &args.out, &mut bars,
+                    )?);
                 }
                 PathSet::from_trajectories(&site, &all, args.min_class_walks)
             }
@@ -375,6 +391,9 @@ impl Verdict {
         if args.conditional {
             asked.push(Kind::ConditionalGenerator);
         }
+        if args.line_gan {
+            asked.push(Kind::LineGenerator);
+        }
         let mut unmet = Vec::new();
         let mut failed = Vec::new();
         for t in written
@@ -384,10 +403,10 @@ impl Verdict {
             unmet.push(format!(
                 "{} was asked for ({}) and failed its checks",
                 t.kind.name(),
-                if t.kind == Kind::DesireLines {
-                    "--desire-only"
-                } else {
-                    "--conditional"
+                match t.kind {
+                    Kind::DesireLines => "--desire-only",
+                    Kind::LineGenerator => "--line-gan",
+                    _ => "--conditional",
                 }
             ));
             failed.push(t.kind);
@@ -426,7 +445,14 @@ impl Verdict {
                 "give the desire lines more walks (recorded walks of real people: --from-store)",
             );
         }
-        if self.blames(Kind::Generator) || self.blames(Kind::ConditionalGenerator) {
+        if [
+            Kind::Generator,
+            Kind::ConditionalGenerator,
+            Kind::LineGenerator,
+        ]
+        .iter()
+        .any(|&k| self.blames(k))
+        {
             tries.push(
                 "train the generators longer or on more walks (more --iterations, more walks \
                  per source/destination pair, coarser cells, fewer rare pairs: --min-class-walks)",

@@ -1,5 +1,5 @@
-//! Runs every shipped model (`models/*.onnx`), and desire lines trained here
-//! on sample walks, through tract on fixed inputs,
+//! Runs every shipped model (`models/*.onnx`), and desire lines and a line
+//! GAN trained here on sample walks, through tract on fixed inputs,
 //! a batch and its first row alone, checks what it says, and writes the inputs
 //! and tract's outputs as JSON for `scripts/check_onnx.py`, which runs the
 //! same inputs through onnxruntime.
@@ -10,7 +10,8 @@
 use std::path::{Path, PathBuf};
 
 use gangway::model::runtime::{Model, Rows};
-use gangway::model::{Kind, condition};
+use gangway::model::{Kind, condition, line_gan};
+use gangway::plan::anyangle::centre;
 use gangway::site::Site;
 use gangway::train::trajectory;
 use ndarray::Array2;
@@ -24,13 +25,15 @@ fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// Fixed inputs for one graph input, by name.
+/// Fixed inputs for one graph input of a model of `kind`, by name.
 fn input_for(
+    kind: Kind,
     name: &str,
     width: usize,
     site: &Site,
     walks: &[trajectory::Trajectory],
 ) -> Array2<f32> {
+    let line_gan = matches!(kind, Kind::LineGenerator | Kind::LineDiscriminator);
     match name {
         "noise" => {
             let mut rng = Xoshiro256PlusPlus::seed_from_u64(42);
@@ -60,6 +63,24 @@ fn input_for(
             }
             out
         }
+        // The line GAN: each walk's ends as its planner asks.
+        "endpoints" if line_gan => {
+            let mut out = Array2::zeros((ROWS, width));
+            for (r, walk) in walks.iter().take(ROWS).enumerate() {
+                let ends = line_gan::endpoints(
+                    site.width(),
+                    site.height(),
+                    centre(walk.source()),
+                    centre(walk.destination()),
+                );
+                out.row_mut(r).assign(&ndarray::ArrayView1::from(&ends));
+            }
+            out
+        }
+        // Line shapes for its discriminator: offsets of up to half a chord.
+        "shape" => Array2::from_shape_fn((ROWS, width), |(i, j)| {
+            ((i * 7 + j * 3) % 11) as f32 / 11.0 - 0.5
+        }),
         // Desire lines: each walk's end cells' centres, as a request asks.
         "endpoints" => Array2::from_shape_fn((ROWS, width), |(r, j)| {
             let w = &walks[r];
@@ -103,6 +124,15 @@ fn desire_prior(site: &Site, walk: &trajectory::Trajectory) -> Vec<[f32; 2]> {
         .collect()
 }
 
+/// Training without progress bars.
+struct Silent;
+
+impl gangway::train::job::Progress for Silent {
+    fn stage(&mut self, _: &str, _: usize) {}
+    fn step(&mut self, _: usize, _: &[(&str, f32)]) {}
+    fn done(&mut self) {}
+}
+
 fn tensor_json(name: &str, a: &Array2<f32>) -> serde_json::Value {
     serde_json::json!({
         "name": name,
@@ -137,6 +167,24 @@ fn shipped_models_run_in_tract_and_write_reference_outputs() {
     let meta = gangway::model::Metadata::for_site(Kind::DesireLines, &site);
     gangway::train::write_proto(&desire, &trained.model.to_onnx(&meta)).unwrap();
     models.push(desire);
+    // A line GAN too, a few hundred iterations (seconds).
+    let options = gangway::train::job::Options {
+        iterations: 300,
+        batch: 32,
+        seed: 1,
+        conditional: false,
+        classifier_iterations: 0,
+        heldout_share: 0.2,
+        checkpoint_every: None,
+        accept_failed: true,
+        threads: 1,
+    };
+    gangway::train::job::train_lines(&site, &walks[..300], &options, &out_dir, &mut Silent)
+        .unwrap();
+    models.extend(
+        [Kind::LineGenerator, Kind::LineDiscriminator]
+            .map(|k| out_dir.join(format!("{}.onnx", k.name()))),
+    );
     let all = [
         Kind::Generator,
         Kind::ConditionalGenerator,
@@ -145,6 +193,8 @@ fn shipped_models_run_in_tract_and_write_reference_outputs() {
         Kind::PathClassifier,
         Kind::CellClassifier,
         Kind::DesireLines,
+        Kind::LineGenerator,
+        Kind::LineDiscriminator,
     ];
     for path in &models {
         let model = Model::load(path, &site, &all, Rows::AlsoSingle).unwrap();
@@ -152,7 +202,7 @@ fn shipped_models_run_in_tract_and_write_reference_outputs() {
         let mut inputs: Vec<(String, Array2<f32>)> = model
             .inputs()
             .iter()
-            .map(|(name, width)| (name.clone(), input_for(name, *width, &site, &walks)))
+            .map(|(name, width)| (name.clone(), input_for(kind, name, *width, &site, &walks)))
             .collect();
         if matches!(kind, Kind::Discriminator | Kind::ConditionalDiscriminator) {
             inputs[0].1.mapv_inplace(|v| 2.0 * v - 1.0);
@@ -163,10 +213,10 @@ fn shipped_models_run_in_tract_and_write_reference_outputs() {
         assert_eq!(output.dim(), (ROWS, out_width), "{}", path.display());
         assert!(output.iter().all(|v| v.is_finite()), "{}", path.display());
         match kind {
-            Kind::Generator | Kind::ConditionalGenerator => {
+            Kind::Generator | Kind::ConditionalGenerator | Kind::LineGenerator => {
                 assert!(output.iter().all(|v| (-1.0..=1.0).contains(v)));
             }
-            Kind::Discriminator | Kind::ConditionalDiscriminator => {
+            Kind::Discriminator | Kind::ConditionalDiscriminator | Kind::LineDiscriminator => {
                 assert!(output.iter().all(|v| (0.0..=1.0).contains(v)));
             }
             Kind::PathClassifier => {
@@ -228,7 +278,10 @@ fn shipped_models_run_in_tract_and_write_reference_outputs() {
         if kind != Kind::DesireLines {
             assert_eq!(
                 model.has_single_row_plan(),
-                matches!(kind, Kind::Generator | Kind::ConditionalGenerator),
+                matches!(
+                    kind,
+                    Kind::Generator | Kind::ConditionalGenerator | Kind::LineGenerator
+                ),
                 "{}",
                 path.display()
             );

@@ -22,8 +22,15 @@ fn text(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
-/// Builds the scene's site and walks in `dir`; returns (site, train, heldout).
-fn scene(dir: &Path, name: &str, obsmat: &Path, site_args: &[&str]) -> [std::path::PathBuf; 3] {
+/// Builds the scene's site (cells of `cell_m`) and walks in `dir`; returns
+/// (site, train, heldout).
+fn scene(
+    dir: &Path,
+    name: &str,
+    cell_m: &str,
+    obsmat: &Path,
+    site_args: &[&str],
+) -> [std::path::PathBuf; 3] {
     let [site, train, heldout] = [
         format!("{name}.toml"),
         format!("{name}-train.jsonl"),
@@ -36,7 +43,7 @@ fn scene(dir: &Path, name: &str, obsmat: &Path, site_args: &[&str]) -> [std::pat
         "--name",
         name,
         "--cell-m",
-        "0.5",
+        cell_m,
         "--walks",
         text(obsmat),
         "--out",
@@ -104,7 +111,12 @@ fn check_judges(report: &Value, learned: &[&str]) {
     for mode in learned {
         let m = &report["modes"][mode];
         assert!(m.get("unavailable").is_none(), "{mode}: {m}");
-        assert_eq!(m["valid_rate"], 1.0, "{mode}");
+        // Every pair A* answers (on a fine grid a random pair may join two
+        // islands of floor no route joins), with a valid route.
+        assert_eq!(
+            m["valid_rate"], report["modes"]["astar"]["valid_rate"],
+            "{mode}"
+        );
         for (baseline, c) in m["heldout"]["closer_than"].as_object().unwrap() {
             let (w, l, t) = (
                 c["wins"].as_u64().unwrap(),
@@ -197,17 +209,14 @@ fn default_beats_the_baselines(report: &Value, scene: &str) {
     );
 }
 
-#[test]
-fn real_walks_are_imported_and_judged_and_a_trained_directory_is_served() {
-    let Some(data) = shared_data("pedestrians") else {
-        return;
-    };
-    let dir = tempfile::tempdir().unwrap();
-    // ETH: obstacles from the map (walls drawn light; H.txt takes rows first).
+/// ETH's `seq_eth` at cells of `cell_m`: obstacles from the map (walls
+/// drawn light; H.txt takes rows first).
+fn eth_scene(dir: &Path, data: &Path, cell_m: &str) -> [std::path::PathBuf; 3] {
     let eth = data.join("ETH/seq_eth");
-    let [site, train, heldout] = scene(
-        dir.path(),
+    scene(
+        dir,
         "seq_eth",
+        cell_m,
         &eth.join("obsmat.txt"),
         &[
             "--image",
@@ -219,7 +228,62 @@ fn real_walks_are_imported_and_judged_and_a_trained_directory_is_served() {
             "--obstacles",
             "light",
         ],
+    )
+}
+
+/// Issue 33: a GAN that scales with the site. On `seq_eth` at 0.15 m cells
+/// (156 × 124 = 19,344 cells, where the paper's generator would have 20 M
+/// weights in its last layer) the line GAN trains with its defaults, passes
+/// its checks, and the default planner serves it; its routes are judged on
+/// the held-out walks like every mode's (whether they beat any-angle there
+/// is BENCHMARKS.md's to say, not this test's).
+#[test]
+fn the_line_gan_passes_its_checks_on_a_scene_of_ten_thousand_cells_and_more() {
+    let Some(data) = shared_data("pedestrians") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let [site, train, heldout] = eth_scene(dir.path(), &data, "0.15");
+    let s = Site::load(&site).unwrap();
+    assert!(usize::from(s.width()) * usize::from(s.height()) >= 10_000);
+    let models = dir.path().join("models");
+    let summary: Value = serde_json::from_str(&gangway_ok(&[
+        "train",
+        "--site",
+        text(&site),
+        "--trajectories",
+        text(&train),
+        "--out",
+        text(&models),
+        "--line-gan",
+        "--no-desire",
+        "--json",
+    ]))
+    .unwrap();
+    let generator = summary["models"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|m| m["kind"] == "line_generator")
+        .unwrap();
+    assert_eq!(generator["passed"], true, "{generator}");
+    assert!(models.join("line_generator.onnx").is_file());
+    assert_eq!(
+        summary["default_planner"]["serves"], "line_gan",
+        "{summary}"
     );
+    let report = judged(&site, &models, &heldout);
+    check_judges(&report, &["learned", "line_gan"]);
+    assert_eq!(report["modes"]["learned"]["serves"], "line_gan");
+}
+
+#[test]
+fn real_walks_are_imported_and_judged_and_a_trained_directory_is_served() {
+    let Some(data) = shared_data("pedestrians") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let [site, train, heldout] = eth_scene(dir.path(), &data, "0.5");
     let s = Site::load(&site).unwrap();
     assert!(s.open_cells().len() < usize::from(s.width()) * usize::from(s.height()));
     let models = dir.path().join("eth-models");
@@ -240,7 +304,7 @@ fn real_walks_are_imported_and_judged_and_a_trained_directory_is_served() {
 
     // UCY: the walked cells, and a model trained briefly on them.
     let ucy = data.join("UCY/students03/obsmat.txt");
-    let [site, train, heldout] = scene(dir.path(), "students03", &ucy, &[]);
+    let [site, train, heldout] = scene(dir.path(), "students03", "0.5", &ucy, &[]);
     let models = dir.path().join("models");
     gangway_ok(&[
         "train",

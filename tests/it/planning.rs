@@ -215,6 +215,7 @@ fn shipped_models(mode: PlannerMode) -> PlannerConfig {
             path_classifier: models.join("path_classifier.onnx"),
             conditional_generator: models.join("conditional_generator.onnx"),
             desire_lines: models.join("desire_lines.onnx"),
+            line_generator: models.join("line_generator.onnx"),
         },
         ..PlannerConfig::default()
     }

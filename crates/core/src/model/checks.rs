@@ -63,6 +63,18 @@ const GENERATOR_CHECKS: [(&str, f64, bool); 3] = [
     ("confident_share", 0.5, false),
 ];
 
+/// The bounds the line GAN's generator is held to, on lines it generates
+/// for its training walks' ends (`train::job`): the share of the cells its
+/// lines cross that are walkable, before any repair (its frame generator's
+/// bound), the share of lines the planner must repair (a wall crossed), and
+/// distinct shapes among one per request against the walks' own (near
+/// 1/requests: it collapsed to one shape whatever it is asked).
+const LINE_CHECKS: [(&str, f64, bool); 3] = [
+    ("walkable_share", 0.95, false),
+    ("repaired_share", 0.5, true),
+    ("distinct_vs_walks", 0.5, false),
+];
+
 /// The bounds desire lines are held to, on what cross-validation over the
 /// training walks measured (`train::desire`): closer to later walkers than
 /// the any-angle route more often than not, and lines that mostly stand as
@@ -98,6 +110,7 @@ fn table(kind: Kind) -> &'static [(&'static str, f64, bool)] {
         Kind::ConditionalGenerator => &CONDITIONAL_CHECKS,
         Kind::Generator => &GENERATOR_CHECKS,
         Kind::DesireLines => &DESIRE_CHECKS,
+        Kind::LineGenerator => &LINE_CHECKS,
         _ => &[],
     }
 }

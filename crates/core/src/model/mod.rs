@@ -17,6 +17,7 @@ pub mod checks;
 pub mod condition;
 pub mod desire;
 pub mod export;
+pub mod line_gan;
 pub mod runtime;
 
 use std::collections::BTreeMap;
@@ -37,6 +38,8 @@ pub(crate) const FORMAT_VERSION: u32 = 1;
 /// | `path_classifier` | `frame` [N, W·H] 0/1 | `probs` [N, classes] softmax |
 /// | `cell_classifier` | `rssi` [N, anchors] dBm | `log_probs` [N, open cells] log-softmax |
 /// | `desire_lines` | `endpoints` [N, 4] cell units (`ax, ay, bx, by`) | `points` [N, 2·P]: the line's P x then P y ([`desire`]) |
+/// | `line_generator` | `noise`, `endpoints` [N, 4] in [−1, 1] ([`line_gan::endpoints`]) | `shape` [N, 2·(P − 2)]: the inner points' offsets from the straight line ([`line_gan`]) |
+/// | `line_discriminator` | `shape`, `endpoints` as above | `real` [N, 1] probability |
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kind {
     Generator,
@@ -46,6 +49,8 @@ pub enum Kind {
     PathClassifier,
     CellClassifier,
     DesireLines,
+    LineGenerator,
+    LineDiscriminator,
 }
 
 impl Kind {
@@ -58,6 +63,8 @@ impl Kind {
             Kind::PathClassifier => "path_classifier",
             Kind::CellClassifier => "cell_classifier",
             Kind::DesireLines => "desire_lines",
+            Kind::LineGenerator => "line_generator",
+            Kind::LineDiscriminator => "line_discriminator",
         }
     }
 
@@ -70,6 +77,8 @@ impl Kind {
             Kind::PathClassifier,
             Kind::CellClassifier,
             Kind::DesireLines,
+            Kind::LineGenerator,
+            Kind::LineDiscriminator,
         ]
         .into_iter()
         .find(|k| k.name() == s)

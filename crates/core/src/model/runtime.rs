@@ -361,6 +361,51 @@ impl PathGenerator {
     }
 }
 
+/// Generates walk-like lines between two points ([`super::line_gan`]).
+#[derive(Clone, Debug)]
+pub struct LineGenerator(Model);
+
+impl LineGenerator {
+    /// Loads a line generator planned for `rows` per call, checking its
+    /// input and output widths.
+    pub fn load(path: &Path, site: &Site, rows: Rows) -> Result<LineGenerator, ModelError> {
+        use super::line_gan::{ENDPOINTS_LEN, SHAPE_LEN};
+        let model = Model::load(path, site, &[Kind::LineGenerator], rows)?;
+        let widths: Vec<usize> = model.inputs.iter().map(|i| i.1).collect();
+        if widths != [model.meta.noise_dim, ENDPOINTS_LEN] || model.output.1 != SHAPE_LEN {
+            return Err(ModelError::Corrupt {
+                path: model.path.clone(),
+                reason: format!(
+                    "a line generator takes `noise` [N, {}] and `endpoints` [N, {ENDPOINTS_LEN}] \
+                     and gives `shape` [N, {SHAPE_LEN}]; a model from an older gangway must be \
+                     retrained (`gangway train --line-gan`)",
+                    model.meta.noise_dim
+                ),
+            });
+        }
+        Ok(LineGenerator(model))
+    }
+
+    pub fn model(&self) -> &Model {
+        &self.0
+    }
+
+    pub fn noise_dim(&self) -> usize {
+        self.0.meta.noise_dim
+    }
+
+    /// One sample ([`super::line_gan::SHAPE_LEN`] values) per noise row,
+    /// for the request of the same row of `endpoints`
+    /// ([`super::line_gan::endpoints`]).
+    pub fn generate(
+        &self,
+        noise: ArrayView2<f32>,
+        endpoints: ArrayView2<f32>,
+    ) -> Result<Array2<f32>, ModelError> {
+        self.0.run(&[noise, endpoints])
+    }
+}
+
 /// Says which source/destination pair a path frame belongs to.
 #[derive(Clone, Debug)]
 pub struct PathClassifier(Model);

@@ -8,16 +8,14 @@
 //! as is.
 
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
 
-use ndarray::{Array2, ArrayView2};
-use rand::SeedableRng;
-use rand::rngs::Xoshiro256PlusPlus;
-use rand_distr::{Distribution, StandardNormal};
+use ndarray::ArrayView2;
 use serde::Deserialize;
 
 use super::frame::{bright, route_from_frame};
-use super::{Connectivity, PlanError, Planned, Planner, Profile, Timings, model_error};
+use super::{
+    Connectivity, PlanError, Planned, Planner, Profile, RequestSeeds, Timings, model_error,
+};
 use crate::clock::Clock;
 use crate::model::condition;
 use crate::model::runtime::PathGenerator;
@@ -44,7 +42,7 @@ pub(crate) struct Conditional {
     config: ConditionalConfig,
     clock: Clock,
     version: String,
-    requests: AtomicU64,
+    seeds: RequestSeeds,
 }
 
 impl Conditional {
@@ -71,7 +69,7 @@ impl Conditional {
             config,
             clock,
             version,
-            requests: AtomicU64::new(0),
+            seeds: RequestSeeds::new(),
         })
     }
 }
@@ -89,11 +87,7 @@ impl Planner for Conditional {
         let site = &*self.site;
         let (w, h) = (site.width(), site.height());
         let rows = self.config.samples;
-        let mut rng =
-            Xoshiro256PlusPlus::seed_from_u64(self.requests.fetch_add(1, Ordering::Relaxed));
-        let noise = Array2::from_shape_fn((rows, self.generator.noise_dim()), |_| {
-            StandardNormal.sample(&mut rng)
-        });
+        let noise = self.seeds.noise(rows, self.generator.noise_dim());
         // Every sample has the same condition: encoded once, its row
         // repeated (the model's input is laid out from the view).
         let mut condition = vec![0.0; condition::len(w, h)];

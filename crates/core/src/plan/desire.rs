@@ -34,7 +34,9 @@ use super::anyangle::{GridPoint, centre, clear, polyline_cells, segment_cells, s
 use super::astar::profile_search;
 use super::frame::route_from_frame;
 use super::instructions::{ManeuverType, maneuvers};
-use super::{Connectivity, Origin, PlanError, Planned, Planner, Profile, Route, Timings};
+use super::{
+    Connectivity, Origin, PlanError, Planned, Planner, Profile, Route, Timings, passable_ends,
+};
 use crate::clock::Clock;
 use crate::model::desire::POINTS;
 use crate::model::runtime::DesireModel;
@@ -84,11 +86,7 @@ impl Planner for Desire {
 
     fn plan(&self, from: Cell, to: Cell, profile: Profile) -> Result<Planned, PlanError> {
         let site = &*self.site;
-        for c in [from, to] {
-            if !profile.passable(site, c) {
-                return Err(PlanError::Blocked(c));
-            }
-        }
+        passable_ends(site, profile, from, to)?;
         let prior = prior_line(site, profile, from, to)?;
         let started = self.clock.start();
         let f32s = |p: GridPoint| [p[0] as f32, p[1] as f32];
@@ -101,46 +99,69 @@ impl Planner for Desire {
             gen_us: started.elapsed_us(),
             classify_us: 0,
         };
-        let served = |origin| {
-            plan_along(
+        if share <= 0.0 {
+            let planned = plan_along(
                 site,
                 self.connectivity,
                 profile,
-                prior.clone(),
-                origin,
+                prior,
+                Origin::FewWalks,
                 from,
                 to,
-            )
-            .map(|mut p| {
-                p.timings = timings;
-                p
-            })
-        };
-        if share <= 0.0 {
-            return served(Origin::FewWalks);
+            )?;
+            return Ok(Planned { timings, ..planned });
         }
         let learned: Vec<GridPoint> = learned
             .iter()
             .map(|p| [f64::from(p[0]), f64::from(p[1])])
             .collect();
         let line = warped(&prior, &samples, &learned);
-        let (line, repaired) = walkable_line(site, profile, &line, from, to)?;
-        let origin = if repaired {
-            Origin::Repaired
-        } else {
-            Origin::Frame
-        };
-        let planned = plan_along(site, self.connectivity, profile, line, origin, from, to)?;
-        if profile.has_costs() {
-            let instead = served(Origin::ProfileCosts)?;
-            if profile_cost(site, profile, &planned.route)
-                > profile_cost(site, profile, &instead.route) + 1e-9
-            {
-                return Ok(instead);
-            }
-        }
+        let walkable = walkable_line(site, profile, &line, from, to)?;
+        let planned = serve_walkable(site, self.connectivity, profile, walkable, from, to, || {
+            Ok(prior)
+        })?;
         Ok(Planned { timings, ..planned })
     }
+}
+
+/// The route along a learned line made walkable ([`walkable_line`]: the
+/// line and whether it was repaired), `origin: frame` or `repaired`; for a
+/// profile with costs beyond passability, its `prior` line instead
+/// (`origin: profile_costs`) when the learned route costs it more in those
+/// than the prior's does. Shared by the learned-line planners (the desire
+/// lines, the line GAN).
+pub(crate) fn serve_walkable(
+    site: &Site,
+    connectivity: Connectivity,
+    profile: Profile,
+    (line, repaired): (Vec<GridPoint>, bool),
+    from: Cell,
+    to: Cell,
+    prior: impl FnOnce() -> Result<Vec<GridPoint>, PlanError>,
+) -> Result<Planned, PlanError> {
+    let origin = if repaired {
+        Origin::Repaired
+    } else {
+        Origin::Frame
+    };
+    let planned = plan_along(site, connectivity, profile, line, origin, from, to)?;
+    if profile.has_costs() {
+        let instead = plan_along(
+            site,
+            connectivity,
+            profile,
+            prior()?,
+            Origin::ProfileCosts,
+            from,
+            to,
+        )?;
+        if profile_cost(site, profile, &planned.route)
+            > profile_cost(site, profile, &instead.route) + 1e-9
+        {
+            return Ok(instead);
+        }
+    }
+    Ok(planned)
 }
 
 /// What `route` costs `profile` beyond its length: the extra of the cells

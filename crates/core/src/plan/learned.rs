@@ -9,10 +9,15 @@
 //!    folds, lines that mostly stand: [`crate::model::checks`]). That check
 //!    is the same comparison `gangway eval planning` makes on held-out walks,
 //!    so a model that fails it would serve routes worse than any-angle;
-//! 2. the conditional generator ([`super::conditional`]), when it loads:
+//! 2. the line GAN ([`super::line_gan`]), when `line_generator.onnx` loads
+//!    and its metadata says it passed its training checks (walkable lines,
+//!    few repaired, not collapsed): trained only when asked for (`gangway
+//!    train --line-gan`), it comes after the desire lines because its checks
+//!    do not compare it with the any-angle route;
+//! 3. the conditional generator ([`super::conditional`]), when it loads:
 //!    walks the lines did not learn from (simulated walks that come pair by
 //!    pair, where whole pairs are held out) are still the GAN's to learn;
-//! 3. the paper's GAN and path classifier (Algorithm 1, [`super::rejection`]),
+//! 4. the paper's GAN and path classifier (Algorithm 1, [`super::rejection`]),
 //!    when both load and the generator's metadata says it passed its
 //!    training checks (walkable frames, not collapsed, frames the classifier
 //!    recognises: what Algorithm 1 needs to accept them). It comes after the
@@ -21,12 +26,12 @@
 //!    those it serves what the walks taught rather than the shortest route.
 //!    `gangway train` trains it by default, so its defaults leave a learned
 //!    planner even on walks the desire lines cannot learn from;
-//! 4. A*, with a warning: nothing learned is servable for the site.
+//! 5. A*, with a warning: nothing learned is servable for the site.
 //!
 //! Which one answers, and why, is logged at start-up, written on the model
 //! card by `gangway train`, reported by `gangway eval planning` (`serves`,
 //! `serves_because`) and sent with every route (its `planner`). The explicit
-//! modes (`desire`, `conditional`, `rejection`: the paper's Algorithm 1,
+//! modes (`desire`, `line_gan`, `conditional`, `rejection`: the paper's Algorithm 1,
 //! `astar`) are unaffected: they serve their model or fail naming its file,
 //! whatever its checks said.
 
@@ -34,11 +39,11 @@ use std::path::Path;
 use std::sync::Arc;
 
 use super::{
-    BuildError, Planner, PlannerConfig, PlannerMode, build_mode, desire, rejection_generator,
-    rejection_with,
+    BuildError, Planner, PlannerConfig, PlannerMode, build_mode, desire, line_gan_with,
+    line_generator, rejection_generator, rejection_with,
 };
 use crate::model::checks::{Check, checks};
-use crate::model::runtime::{DesireModel, PathGenerator, Rows};
+use crate::model::runtime::{DesireModel, LineGenerator, PathGenerator, Rows};
 use crate::model::{Kind, Metadata, ModelError};
 use crate::site::Site;
 
@@ -112,6 +117,32 @@ pub fn build(
             DesireModel::load(path, &site).map(|m| m.model().metadata().clone())
         }),
     };
+    let lines = &config.models.line_generator;
+    let lines_said = match line_generator(config, &site) {
+        Ok(generator) => {
+            let meta = generator.model().metadata();
+            let failed = failed_checks(meta);
+            if failed.is_empty() {
+                let because = format!(
+                    "{desire_said}; the line generator ({}) passed its training checks ({})",
+                    lines.display(),
+                    described(&checks(Kind::LineGenerator, &meta.metrics))
+                );
+                let planner = line_gan_with(config, site, generator)?;
+                let serves = PlannerMode::LineGan;
+                return Ok((planner, Choice { serves, because }));
+            }
+            format!(
+                "the line generator ({}) failed its training checks: {}",
+                lines.display(),
+                described(&failed)
+            )
+        }
+        Err(e) => missing("line generator", lines, e, |path| {
+            LineGenerator::load(path, &site, Rows::Batches).map(|g| g.model().metadata().clone())
+        }),
+    };
+    let desire_said = format!("{desire_said}; {lines_said}");
     let conditional_said = match build_mode(config, PlannerMode::Conditional, site.clone()) {
         Ok(planner) => {
             let because = format!(

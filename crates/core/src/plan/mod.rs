@@ -7,15 +7,17 @@
 
 //!
 //! Modes (`[planner] mode`): `learned`, the default (the desire lines when
-//! they passed their training check on the site's walks, else the
-//! conditional GAN, else the paper's GAN and classifier when the GAN passed
-//! its checks, else A*: [`learned`]), `astar` (shortest walk, no models), `desire`
-//! (the line people walk between the two cells, learned from their walks:
-//! [`desire`]), `rejection` (the paper's Algorithm 1, bounded: [`rejection`])
-//! and `conditional` (the conditional GAN: [`conditional`]). The GAN modes
-//! turn frames into routes with [`frame::route_from_frame`], which repairs
-//! what a frame gets wrong; `desire` repairs its line with the any-angle
-//! search. Profiles ([`Profile`]) change which cells a walker may use and what
+//! they passed their training check on the site's walks, else the line GAN
+//! when it passed its checks, else the conditional GAN, else the paper's GAN
+//! and classifier when the GAN passed its checks, else A*: [`learned`]),
+//! `astar` (shortest walk, no models), `desire` (the line people walk
+//! between the two cells, learned from their walks: [`desire`]), `line_gan`
+//! (lines generated for the pair by a GAN whose size does not grow with the
+//! site: [`line_gan`]), `rejection` (the paper's Algorithm 1, bounded:
+//! [`rejection`]) and `conditional` (the conditional GAN: [`conditional`]).
+//! The frame GAN modes turn frames into routes with
+//! [`frame::route_from_frame`], which repairs what a frame gets wrong; the
+//! line modes repair their line with the any-angle search. Profiles ([`Profile`]) change which cells a walker may use and what
 //! they cost, in every mode. [`anyangle`] is the any-angle baseline the
 //! learned modes are judged against (`gangway eval planning`).
 
@@ -28,6 +30,7 @@ pub mod floors;
 pub mod frame;
 pub mod instructions;
 pub mod learned;
+pub(crate) mod line_gan;
 pub mod lines;
 mod profile;
 pub(crate) mod rejection;
@@ -44,7 +47,7 @@ pub use route::{LinePoint, LineSource, Route, ServedLine, Waypoint};
 
 use crate::clock::Clock;
 use crate::model::ModelError;
-use crate::model::runtime::{DesireModel, PathClassifier, PathGenerator, Rows};
+use crate::model::runtime::{DesireModel, LineGenerator, PathClassifier, PathGenerator, Rows};
 use crate::site::{Cell, Site};
 
 /// Where a request wants to go: a named place or a cell.
@@ -208,6 +211,8 @@ pub struct PlannerConfig {
     pub rejection: rejection::RejectionConfig,
     #[serde(default)]
     pub conditional: conditional::ConditionalConfig,
+    #[serde(default)]
+    pub line_gan: line_gan::LineGanConfig,
     /// How planners time their model calls and the pipeline its replies
     /// (`Timings`, `latency_us`): never read from the file, set by whoever
     /// loads it (`Clock::NONE`, all 0, until then).
@@ -228,6 +233,10 @@ pub struct ModelPaths {
     /// directory a config already serves are found without an edit.
     #[serde(default)]
     pub desire_lines: PathBuf,
+    /// Unset in a config file: beside the conditional generator, as the
+    /// desire lines.
+    #[serde(default)]
+    pub line_generator: PathBuf,
 }
 
 impl Default for ModelPaths {
@@ -237,6 +246,7 @@ impl Default for ModelPaths {
             path_classifier: "models/path_classifier.onnx".into(),
             conditional_generator: "models/conditional_generator.onnx".into(),
             desire_lines: "models/desire_lines.onnx".into(),
+            line_generator: "models/line_generator.onnx".into(),
         }
     }
 }
@@ -254,13 +264,15 @@ impl PlannerConfig {
     pub fn for_floor(&self, floor: &str) -> Result<PlannerConfig, BuildError> {
         let mut config = self.clone();
         let mode = config.mode;
-        // Which models the mode loads: (the paper's pair, conditional, desire).
-        let (paper, conditional, desire) = match mode {
-            PlannerMode::Learned => (true, true, true),
-            PlannerMode::Astar => (false, false, false),
-            PlannerMode::Rejection => (true, false, false),
-            PlannerMode::Conditional => (false, true, false),
-            PlannerMode::Desire => (false, false, true),
+        // Which models the mode loads: (the paper's pair, conditional,
+        // desire, line GAN).
+        let (paper, conditional, desire, lines) = match mode {
+            PlannerMode::Learned => (true, true, true, true),
+            PlannerMode::Astar => (false, false, false, false),
+            PlannerMode::Rejection => (true, false, false, false),
+            PlannerMode::Conditional => (false, true, false, false),
+            PlannerMode::Desire => (false, false, true, false),
+            PlannerMode::LineGan => (false, false, false, true),
         };
         let m = &mut config.models;
         let files = [
@@ -276,6 +288,11 @@ impl PlannerConfig {
                 conditional,
             ),
             ("[planner.models] desire_lines", &mut m.desire_lines, desire),
+            (
+                "[planner.models] line_generator",
+                &mut m.line_generator,
+                lines,
+            ),
         ];
         let (mut named, mut one_floor) = (0, None);
         for (key, path, read) in files {
@@ -306,11 +323,16 @@ impl PlannerConfig {
         ] {
             *p = base.join(&*p);
         }
-        m.desire_lines = if m.desire_lines.as_os_str().is_empty() {
-            m.conditional_generator.with_file_name("desire_lines.onnx")
-        } else {
-            base.join(&m.desire_lines)
-        };
+        for (path, beside) in [
+            (&mut m.desire_lines, "desire_lines.onnx"),
+            (&mut m.line_generator, "line_generator.onnx"),
+        ] {
+            *path = if path.as_os_str().is_empty() {
+                m.conditional_generator.with_file_name(beside)
+            } else {
+                base.join(&*path)
+            };
+        }
     }
 }
 
@@ -329,15 +351,19 @@ pub enum PlannerMode {
     Conditional,
     /// Learned desire lines, any pair of open cells.
     Desire,
+    /// Lines generated by the line GAN, any pair of open cells.
+    #[serde(rename = "line_gan")]
+    LineGan,
 }
 
 impl PlannerMode {
-    pub const ALL: [PlannerMode; 5] = [
+    pub const ALL: [PlannerMode; 6] = [
         PlannerMode::Learned,
         PlannerMode::Astar,
         PlannerMode::Rejection,
         PlannerMode::Conditional,
         PlannerMode::Desire,
+        PlannerMode::LineGan,
     ];
 
     pub fn name(self) -> &'static str {
@@ -347,6 +373,7 @@ impl PlannerMode {
             PlannerMode::Rejection => "rejection",
             PlannerMode::Conditional => "conditional",
             PlannerMode::Desire => "desire",
+            PlannerMode::LineGan => "line_gan",
         }
     }
 }
@@ -532,7 +559,41 @@ pub fn build_mode(
                 config.clock,
             ))
         }
+        PlannerMode::LineGan => {
+            let generator = line_generator(config, &site)
+                .map_err(context("line generator ([planner.models] line_generator)"))?;
+            line_gan_with(config, site, generator)?
+        }
     })
+}
+
+/// The configured line generator, planned for the line GAN's samples:
+/// loaded apart from [`line_gan_with`] so that the learned planner can read
+/// its training checks before serving it.
+fn line_generator(config: &PlannerConfig, site: &Site) -> Result<LineGenerator, ModelError> {
+    LineGenerator::load(
+        &config.models.line_generator,
+        site,
+        Rows::for_batch(config.line_gan.samples),
+    )
+}
+
+/// The line GAN planner over `generator`.
+fn line_gan_with(
+    config: &PlannerConfig,
+    site: Arc<Site>,
+    generator: LineGenerator,
+) -> Result<Box<dyn Planner>, BuildError> {
+    Ok(Box::new(
+        line_gan::LineGan::new(
+            site,
+            config.connectivity,
+            generator,
+            config.line_gan.clone(),
+            config.clock,
+        )
+        .map_err(BuildError::Settings)?,
+    ))
 }
 
 /// The configured unconditional generator, planned for the rejection
@@ -605,6 +666,45 @@ fn model_version(models: &[&crate::model::runtime::Model]) -> String {
         })
         .collect::<Vec<_>>()
         .join("+")
+}
+
+/// `Err(Blocked)` naming the first of a request's ends `profile` may not
+/// use.
+pub(crate) fn passable_ends(
+    site: &Site,
+    profile: Profile,
+    from: Cell,
+    to: Cell,
+) -> Result<(), PlanError> {
+    match [from, to].into_iter().find(|&c| !profile.passable(site, c)) {
+        Some(c) => Err(PlanError::Blocked(c)),
+        None => Ok(()),
+    }
+}
+
+/// Where a generative planner's randomness comes from: each request's own
+/// generator, seeded by the request's number since start-up, so the same
+/// requests get the same answers from one start-up to the next.
+pub(crate) struct RequestSeeds(std::sync::atomic::AtomicU64);
+
+impl RequestSeeds {
+    pub(crate) fn new() -> RequestSeeds {
+        RequestSeeds(std::sync::atomic::AtomicU64::new(0))
+    }
+
+    /// The next request's generator.
+    pub(crate) fn next(&self) -> rand::rngs::Xoshiro256PlusPlus {
+        use rand::SeedableRng;
+        let n = self.0.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        rand::rngs::Xoshiro256PlusPlus::seed_from_u64(n)
+    }
+
+    /// The next request's noise: `rows × dim` standard normal values.
+    pub(crate) fn noise(&self, rows: usize, dim: usize) -> ndarray::Array2<f32> {
+        use rand_distr::Distribution;
+        let mut rng = self.next();
+        ndarray::Array2::from_shape_fn((rows, dim), |_| rand_distr::StandardNormal.sample(&mut rng))
+    }
 }
 
 fn model_error(e: ModelError) -> PlanError {

@@ -25,7 +25,6 @@
 //!   paper's "minor noise" and repairs gaps, so the route is always valid.
 
 use std::collections::BTreeMap;
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
 use ndarray::Array2;
@@ -36,7 +35,9 @@ use serde::Deserialize;
 
 use super::astar::profile_search;
 use super::frame::route_from_frame;
-use super::{Connectivity, Origin, PlanError, Planned, Planner, Profile, Timings, model_error};
+use super::{
+    Connectivity, Origin, PlanError, Planned, Planner, Profile, RequestSeeds, Timings, model_error,
+};
 use crate::clock::Clock;
 use crate::model::PathClass;
 use crate::model::runtime::{PathClassifier, PathGenerator};
@@ -77,8 +78,8 @@ pub(crate) struct Rejection {
     config: RejectionConfig,
     clock: Clock,
     version: String,
-    /// Seeds the noise of each request: reproducible runs, no lock.
-    requests: AtomicU64,
+    /// Each request's noise: reproducible runs, no lock.
+    seeds: RequestSeeds,
     /// Accepted frames not yet used, by class.
     bank: Mutex<Vec<Vec<Vec<f32>>>>,
 }
@@ -125,7 +126,7 @@ impl Rejection {
             config,
             clock,
             version,
-            requests: AtomicU64::new(0),
+            seeds: RequestSeeds::new(),
             bank: Mutex::new(vec![Vec::new(); classes]),
         };
         rejection
@@ -227,8 +228,7 @@ impl Planner for Rejection {
                 timings: Timings::default(),
             });
         }
-        let mut rng =
-            Xoshiro256PlusPlus::seed_from_u64(self.requests.fetch_add(1, Ordering::Relaxed));
+        let mut rng = self.seeds.next();
         let mut timings = Timings::default();
         let mut samples = 0;
         let mut best: Option<(usize, f32, Vec<f32>)> = None;

@@ -58,12 +58,13 @@ pub(crate) const PRIOR_WEIGHTS: [f32; 4] = [0.001, 0.03, 0.3, 3.0];
 /// Kernel masses below which the prior answers alone, tried.
 pub(crate) const MIN_MASSES: [f32; 7] = [0.0, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0];
 
-/// One walk ready for the bank and for validation.
-struct Walk {
+/// One walk ready for the bank and for validation (and for the line GAN:
+/// `train::job`).
+pub(super) struct Walk {
     /// Its end cells' centres, cell units: what a request for it asks.
-    ends: [GridPoint; 2],
+    pub(super) ends: [GridPoint; 2],
     /// Its shape normalised to run from 0 to 1, forwards.
-    shape: [[f32; 2]; POINTS],
+    pub(super) shape: [[f32; 2]; POINTS],
     /// Where the walker went, metres, for DTW.
     walked: Polyline,
 }
@@ -407,18 +408,22 @@ fn bank<'a>(walks: impl Iterator<Item = &'a Walk>, settings: Settings) -> Desire
         model.ends.push([a[0], a[1], b[0], b[1]]);
         model.shapes.push(w.shape);
         model.ends.push([b[0], b[1], a[0], a[1]]);
-        // Backwards: u'(s) = 1 − u(1 − s).
-        model.shapes.push(std::array::from_fn(|k| {
-            let [re, im] = w.shape[POINTS - 1 - k];
-            [1.0 - re, -im]
-        }));
+        model.shapes.push(backwards(&w.shape));
     }
     model
 }
 
+/// A walk's shape walked the other way: `u'(s) = 1 − u(1 − s)`.
+pub(super) fn backwards(shape: &[[f32; 2]; POINTS]) -> [[f32; 2]; POINTS] {
+    std::array::from_fn(|k| {
+        let [re, im] = shape[POINTS - 1 - k];
+        [1.0 - re, -im]
+    })
+}
+
 /// `walk` as a bank line; `None` when its recorded ends are less than a cell
 /// apart (a loop or a walker standing still has no direction to learn).
-fn prepare(site: &Site, walk: &Trajectory) -> Option<Walk> {
+pub(super) fn prepare(site: &Site, walk: &Trajectory) -> Option<Walk> {
     let points: Vec<GridPoint> = match &walk.positions_m {
         Some(p) if p.len() >= 2 => p.iter().map(|&w| point_of_world(site, w)).collect(),
         _ => walk.cells.iter().map(|&c| centre(c)).collect(),

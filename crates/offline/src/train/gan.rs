@@ -42,9 +42,20 @@ pub(crate) const REAL_LABEL: f32 = 0.9;
 
 /// Noise dimension of the generator (the paper's 100).
 pub(crate) const NOISE_DIM: usize = 100;
-/// Hidden widths of the generator and the discriminator.
-pub(crate) const GENERATOR_HIDDEN: [usize; 3] = [256, 512, 1024];
-pub(crate) const DISCRIMINATOR_HIDDEN: [usize; 2] = [512, 256];
+/// Hidden widths of a GAN's generator and discriminator.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Hidden {
+    pub generator: &'static [usize],
+    pub discriminator: &'static [usize],
+}
+
+impl Hidden {
+    /// The paper's: `256 → 512 → 1024` and `512 → 256`.
+    pub const PAPER: Hidden = Hidden {
+        generator: &[256, 512, 1024],
+        discriminator: &[512, 256],
+    };
+}
 
 /// Real paths to learn from.
 pub struct GanData {
@@ -62,6 +73,7 @@ pub struct GanConfig {
     /// Threads for the matrix products and Adam ([`Workers`]): a seed and a
     /// thread count give the same weights, bit for bit.
     pub threads: usize,
+    pub hidden: Hidden,
 }
 
 /// The access penalty's settings: which cells no path may light, and how
@@ -126,16 +138,19 @@ pub(crate) fn train_with_checkpoints<E: Send>(
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(config.seed);
     let workers = Workers::new(config.threads);
 
-    let g_sizes = [
-        &[NOISE_DIM + cond_dim][..],
-        &GENERATOR_HIDDEN[..],
-        &[cells][..],
-    ]
-    .concat();
-    let d_sizes = [&[cells + cond_dim][..], &DISCRIMINATOR_HIDDEN[..], &[1][..]].concat();
+    let hidden = config.hidden;
+    let g_sizes = [&[NOISE_DIM + cond_dim][..], hidden.generator, &[cells][..]].concat();
+    let d_sizes = [&[cells + cond_dim][..], hidden.discriminator, &[1][..]].concat();
+    // LeakyReLU after every hidden layer; tanh out of the generator, the
+    // discriminator's logit as it is.
+    let acts = |hidden: &[usize], last| {
+        let mut acts = vec![Act::LeakyRelu; hidden.len()];
+        acts.push(last);
+        acts
+    };
     let generator = Mlp::new(
         &g_sizes,
-        &[Act::LeakyRelu, Act::LeakyRelu, Act::LeakyRelu, Act::Tanh],
+        &acts(hidden.generator, Act::Tanh),
         batch,
         rng.random(),
     )
@@ -143,7 +158,7 @@ pub(crate) fn train_with_checkpoints<E: Send>(
     // The discriminator sees real and fake together: 2·batch rows.
     let discriminator = Mlp::new(
         &d_sizes,
-        &[Act::LeakyRelu, Act::LeakyRelu, Act::Identity],
+        &acts(hidden.discriminator, Act::Identity),
         2 * batch,
         rng.random(),
     )
@@ -331,6 +346,7 @@ mod tests {
             batch: 4,
             seed: 11,
             threads: 1,
+            hidden: Hidden::PAPER,
         };
         let mut last = GanLosses::default();
         let a = train(&data, config, |_, l| last = l);
@@ -376,6 +392,7 @@ mod tests {
             batch: 32,
             seed: 9,
             threads,
+            hidden: Hidden::PAPER,
         };
         let two = weights(&train(&data, config(2), |_, _| {}));
         assert_eq!(two, weights(&train(&data, config(2), |_, _| {})));
@@ -391,6 +408,7 @@ mod tests {
             batch: 4,
             seed: 3,
             threads: 1,
+            hidden: Hidden::PAPER,
         };
         let every = std::num::NonZeroUsize::new(3);
         let mut seen = Vec::new();
@@ -525,6 +543,7 @@ mod tests {
             batch: 4,
             seed: 5,
             threads: 1,
+            hidden: Hidden::PAPER,
         };
         let access = corners(1.0);
         let mut plain = train(&data, config, |_, _| {});
@@ -559,6 +578,7 @@ mod tests {
             batch: 4,
             seed: 2,
             threads: 1,
+            hidden: Hidden::PAPER,
         };
         let mut losses = Vec::new();
         let plain = train(&data, config, |_, _| {});
@@ -590,6 +610,7 @@ mod tests {
                 batch: 4,
                 seed: 1,
                 threads: 1,
+                hidden: Hidden::PAPER,
             },
             |_, _| {},
         );

@@ -28,7 +28,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
-use ndarray::{Array2, Axis, s};
+use ndarray::{Array2, ArrayView1, ArrayView2, Axis, s};
 use rand::SeedableRng;
 use rand::rngs::Xoshiro256PlusPlus;
 use rand_distr::{Distribution, StandardNormal};
@@ -36,14 +36,17 @@ use rand_distr::{Distribution, StandardNormal};
 use super::cells::CellSet;
 use super::classifier::{self, ClassifierConfig};
 use super::desire;
-use super::gan::{self, GanConfig, GanData, NOISE_DIM};
+use super::gan::{self, GanConfig, GanData, Hidden, NOISE_DIM};
 use super::mlp::{Adam, Mlp};
 use super::paths::PathSet;
 use super::trajectory::Trajectory;
 use crate::locate::survey::Survey;
 use crate::model::checks::{Check, checks};
 use crate::model::export::{ClipScale, Head, Spec, Weights};
+use crate::model::line_gan::{self, ENDPOINTS_LEN, SHAPE_LEN};
 use crate::model::{CellClassifierInput, Kind, Metadata, condition};
+use crate::plan::anyangle::{GridPoint, centre, traverse};
+use crate::plan::desire::walkable_line;
 use crate::plan::frame::{bright, route_from_frame};
 use crate::plan::{Connectivity, Origin, Profile, cells_off_area};
 use crate::site::{Cell, Site};
@@ -105,6 +108,21 @@ const EVAL_PAIRS: usize = 64;
 /// at least this probability.
 const CONFIDENT: f32 = 0.9;
 
+/// The line GAN's hidden widths. Its samples are 30 numbers and its
+/// condition 4, not `W·H` each: a generator of the paper's widths would
+/// spend most of a request's time in its 1024-wide layer for no better
+/// lines (measured on the sample site's walks, BENCHMARKS.md "Path models").
+const LINE_HIDDEN: Hidden = Hidden {
+    generator: &[256, 256],
+    discriminator: &[256, 128],
+};
+/// Walks' end pairs (each direction one request) the line generator is
+/// measured on, at most.
+const LINE_EVAL_REQUESTS: usize = 256;
+/// The step, in chords, to which two line shapes must differ to count as
+/// distinct.
+const SHAPE_STEP: f32 = 0.05;
+
 /// Whether `set` has the classes the paper's models (path classifier and
 /// GAN, the rejection mode) need: `Err` says why not.
 pub fn rejection_trainable(set: &PathSet) -> Result<(), String> {
@@ -142,12 +160,14 @@ pub fn train_paths(
         Err(_) => {}
     }
     if options.conditional {
-        let frame_len = set.frames.ncols();
         let conditional = GanRun {
             stage: "conditional GAN",
             kinds: [Kind::ConditionalGenerator, Kind::ConditionalDiscriminator],
             data: conditional_data(set),
-            condition: Some(condition::len(set.width, set.height)),
+            io: Io {
+                sample: ("frame", set.frames.ncols()),
+                condition: Some(("condition", condition::len(set.width, set.height))),
+            },
             access: Some(gan::Access {
                 blocked: site.blocked_indices().to_vec(),
                 weight: access_weight,
@@ -163,14 +183,94 @@ pub fn train_paths(
         written.extend(train_gan(
             out,
             conditional,
-            gan_config(options),
+            gan_config(options, Hidden::PAPER),
             options,
-            frame_len,
             progress,
             |generator| measure_conditional(site, set, generator, options.seed),
         )?);
     }
     Ok(written)
+}
+
+/// Trains the line GAN ([`crate::model::line_gan`]) on `walks`, each in both
+/// directions, measures its generator on the walks' ends and writes the
+/// pair to `out` (to `failed/` when it fails its checks, unless
+/// `accept_failed`).
+pub fn train_lines(
+    site: &Site,
+    walks: &[Trajectory],
+    options: &Options,
+    out: &Path,
+    progress: &mut dyn Progress,
+) -> anyhow::Result<Vec<Trained>> {
+    let prepared: Vec<desire::Walk> = walks
+        .iter()
+        .filter_map(|w| desire::prepare(site, w))
+        .collect();
+    anyhow::ensure!(
+        prepared.len() >= 2,
+        "the line GAN needs at least 2 walks whose ends are a cell or more apart; got {} of {}",
+        prepared.len(),
+        walks.len()
+    );
+    let (w, h) = (site.width(), site.height());
+    let n = prepared.len();
+    let mut frames = Array2::zeros((2 * n, SHAPE_LEN));
+    let mut conditions = Array2::zeros((2 * n, ENDPOINTS_LEN));
+    let mut requests = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    for (i, walk) in prepared.iter().enumerate() {
+        let [a, b] = walk.ends;
+        let rows = [
+            (i, (a, b), walk.shape),
+            (n + i, (b, a), desire::backwards(&walk.shape)),
+        ];
+        for (row, (from, to), shape) in rows {
+            frames
+                .row_mut(row)
+                .assign(&ArrayView1::from(&line_gan::shape_sample(&shape)));
+            conditions
+                .row_mut(row)
+                .assign(&ArrayView1::from(&line_gan::endpoints(w, h, from, to)));
+            let pair = (cell_at(from), cell_at(to));
+            if requests.len() < LINE_EVAL_REQUESTS && seen.insert(pair) {
+                requests.push((pair, row));
+            }
+        }
+    }
+    let mut meta = Metadata::for_site(Kind::LineGenerator, site);
+    meta.noise_dim = NOISE_DIM;
+    meta.iterations = options.iterations;
+    meta.seed = options.seed;
+    let walked = frames.select(Axis(0), &requests.iter().map(|r| r.1).collect::<Vec<_>>());
+    let requests: Vec<(Cell, Cell)> = requests.into_iter().map(|r| r.0).collect();
+    let run = GanRun {
+        stage: "line GAN",
+        kinds: [Kind::LineGenerator, Kind::LineDiscriminator],
+        data: GanData {
+            frames,
+            conditions: Some(conditions),
+        },
+        io: Io {
+            sample: ("shape", SHAPE_LEN),
+            condition: Some(("endpoints", ENDPOINTS_LEN)),
+        },
+        access: None,
+        meta,
+    };
+    train_gan(
+        out,
+        run,
+        gan_config(options, LINE_HIDDEN),
+        options,
+        progress,
+        |generator| measure_lines(site, &requests, walked.view(), generator, options.seed),
+    )
+}
+
+/// The cell a point (cell units) lies in.
+fn cell_at(p: GridPoint) -> Cell {
+    Cell::new(p[0].floor() as u16, p[1].floor() as u16)
 }
 
 /// The paper's models (rejection mode): the path classifier, 0/1 frames →
@@ -245,33 +345,35 @@ fn train_rejection(
         frames,
         conditions: None,
     };
-    let frame_len = set.frames.ncols();
     let plain = GanRun {
         stage: "GAN",
         kinds: [Kind::Generator, Kind::Discriminator],
         data,
-        condition: None,
+        io: Io {
+            sample: ("frame", set.frames.ncols()),
+            condition: None,
+        },
         access: None,
         meta: gan_metadata(Kind::Generator, site, set, options, 0.0),
     };
     written.extend(train_gan(
         out,
         plain,
-        gan_config(options),
+        gan_config(options, Hidden::PAPER),
         options,
-        frame_len,
         progress,
         |generator| measure_generator(site, generator, &mut path_classifier, options.seed),
     )?);
     Ok(written)
 }
 
-fn gan_config(options: &Options) -> GanConfig {
+fn gan_config(options: &Options, hidden: Hidden) -> GanConfig {
     GanConfig {
         iterations: options.iterations,
         batch: options.batch,
         seed: options.seed,
         threads: options.threads,
+        hidden,
     }
 }
 
@@ -281,11 +383,20 @@ struct GanRun<'a> {
     stage: &'a str,
     kinds: [Kind; 2],
     data: GanData,
-    /// Condition width (conditional GANs).
-    condition: Option<usize>,
+    io: Io,
     /// The generator's access penalty (`None`: the paper's plain loss).
     access: Option<gan::Access>,
     meta: Metadata,
+}
+
+/// What a GAN's networks are fed, as its exported graphs name them: the
+/// sample (a frame, or a line's shape) and the condition, if any; the
+/// generator takes `noise` and the condition, the discriminator the sample
+/// and the condition.
+#[derive(Clone, Copy)]
+struct Io {
+    sample: (&'static str, usize),
+    condition: Option<(&'static str, usize)>,
 }
 
 /// Trains `run` (writing checkpoints when asked for), measures its generator
@@ -295,7 +406,6 @@ fn train_gan(
     run: GanRun,
     config: GanConfig,
     options: &Options,
-    frame_len: usize,
     progress: &mut dyn Progress,
     measure: impl FnOnce(&mut Mlp) -> BTreeMap<String, f64>,
 ) -> anyhow::Result<Vec<Trained>> {
@@ -307,7 +417,7 @@ fn train_gan(
         run.access.as_ref(),
         options.checkpoint_every,
         |i, l| progress.step(i, &gan_losses(l)),
-        |i, gan| write_checkpoint(out, i, run.kinds, gan, frame_len, run.condition, &run.meta),
+        |i, gan| write_checkpoint(out, i, run.kinds, gan, run.io, &run.meta),
     )?;
     progress.done();
     let seconds = started.elapsed().as_secs_f64();
@@ -317,14 +427,7 @@ fn train_gan(
     let checks = checks(run.kinds[0], &metrics);
     let dir = destination(out, &checks, options)?;
     let mut written = write_gan(
-        &dir,
-        run.kinds,
-        &trained,
-        frame_len,
-        run.condition,
-        run.meta,
-        &metrics,
-        started,
+        &dir, run.kinds, &trained, run.io, run.meta, &metrics, started,
     )?;
     for t in &mut written {
         t.checks = checks.clone();
@@ -503,23 +606,19 @@ fn gan_losses(l: gan::GanLosses) -> [(&'static str, f32); 3] {
 }
 
 /// Writes a trained GAN's generator and discriminator (`kinds`, in that order)
-/// with the same metadata and metrics. Frames are `frame_len` wide; a
-/// conditional GAN takes its `condition` of the given width as a second input
-/// to both.
-#[allow(clippy::too_many_arguments)]
+/// with the same metadata and metrics, fed as `io` says.
 fn write_gan(
     out: &Path,
     kinds: [Kind; 2],
     trained: &gan::Gan,
-    frame_len: usize,
-    condition: Option<usize>,
+    io: Io,
     meta: Metadata,
     metrics: &BTreeMap<String, f64>,
     started: Instant,
 ) -> anyhow::Result<Vec<Trained>> {
     let with_condition = |first: (&'static str, usize)| {
         let mut inputs = vec![first];
-        inputs.extend(condition.map(|len| ("condition", len)));
+        inputs.extend(io.condition);
         inputs
     };
     let [generator, discriminator] = kinds;
@@ -529,14 +628,14 @@ fn write_gan(
             &trained.generator,
             Weights::F16,
             with_condition(("noise", NOISE_DIM)),
-            "frame",
+            io.sample.0,
             Head::None,
         ),
         (
             discriminator,
             &trained.discriminator,
             Weights::F32,
-            with_condition(("frame", frame_len)),
+            with_condition(io.sample),
             "real",
             Head::Sigmoid,
         ),
@@ -573,8 +672,7 @@ fn write_checkpoint(
     iteration: usize,
     kinds: [Kind; 2],
     gan: &gan::Gan,
-    frame_len: usize,
-    condition: Option<usize>,
+    io: Io,
     meta: &Metadata,
 ) -> anyhow::Result<()> {
     let dir = out.join("checkpoints").join(format!("iter-{iteration:07}"));
@@ -583,16 +681,7 @@ fn write_checkpoint(
         iterations: iteration,
         ..meta.clone()
     };
-    write_gan(
-        &dir,
-        kinds,
-        gan,
-        frame_len,
-        condition,
-        meta,
-        &BTreeMap::new(),
-        Instant::now(),
-    )?;
+    write_gan(&dir, kinds, gan, io, meta, &BTreeMap::new(), Instant::now())?;
     Ok(())
 }
 
@@ -707,6 +796,92 @@ fn distinct_share(binary: &Array2<f32>) -> f64 {
         .map(|r| r.iter().map(|&v| v > 0.0).collect())
         .collect();
     distinct.len() as f64 / binary.nrows().max(1) as f64
+}
+
+/// How well the line generator answers `requests` (source and destination
+/// cells), [`EVAL_SAMPLES`] lines in all: the share of the cells its lines
+/// cross, as generated, that are walkable; the share the planner must
+/// repair ([`walkable_line`]: a wall or the floor's edge crossed); and how
+/// many distinct shapes it gives for the requests, one line each, against
+/// how many the `walked` shapes of those requests' walks have (both to
+/// [`SHAPE_STEP`] of the chord): near `1/requests` when it collapsed to one
+/// shape. Against the walks, because people's walks between most pairs of
+/// a plaza are near straight lines: the same shape, to any step a map would
+/// show. (Whether it heeds the walls between the ends it is asked for is
+/// what the walkable and repaired shares measure.)
+fn measure_lines(
+    site: &Site,
+    requests: &[(Cell, Cell)],
+    walked: ArrayView2<f32>,
+    generator: &mut Mlp,
+    seed: u64,
+) -> BTreeMap<String, f64> {
+    let (w, h) = (site.width(), site.height());
+    let ends = |&(from, to): &(Cell, Cell)| line_gan::endpoints(w, h, centre(from), centre(to));
+    let per = EVAL_SAMPLES / requests.len().max(1) + 1;
+    let rows = per * requests.len();
+    let mut input = Array2::zeros((rows, NOISE_DIM + ENDPOINTS_LEN));
+    input
+        .slice_mut(s![.., ..NOISE_DIM])
+        .assign(&noise(rows, seed));
+    for (row, request) in (0..rows).zip(requests.iter().flat_map(|r| std::iter::repeat_n(r, per))) {
+        input
+            .slice_mut(s![row, NOISE_DIM..])
+            .assign(&ArrayView1::from(&ends(request)));
+    }
+    let samples = generator.predict(input.view());
+    let (mut crossed, mut walkable, mut repaired) = (0usize, 0usize, 0usize);
+    for (row, k) in samples.rows().into_iter().zip(0..) {
+        let (from, to) = requests[k / per];
+        let sample = row.to_slice().expect("standard layout");
+        let line = line_gan::line(centre(from), centre(to), sample);
+        for (i, seg) in line.windows(2).enumerate() {
+            // Each segment after the first starts in the cell the one
+            // before ended in.
+            for &[x, y] in &traverse(seg[0], seg[1]).cells[usize::from(i > 0)..] {
+                crossed += 1;
+                let cell = u16::try_from(x)
+                    .ok()
+                    .zip(u16::try_from(y).ok())
+                    .map(|(x, y)| Cell::new(x, y));
+                walkable += usize::from(cell.is_some_and(|c| site.contains(c) && site.walkable(c)));
+            }
+        }
+        if !matches!(
+            walkable_line(site, Profile::Default, &line, from, to),
+            Ok((_, false))
+        ) {
+            repaired += 1;
+        }
+    }
+    let distinct = |shapes: ArrayView2<f32>| {
+        let steps: std::collections::HashSet<Vec<i32>> = shapes
+            .rows()
+            .into_iter()
+            .map(|r| r.iter().map(|&v| (v / SHAPE_STEP).round() as i32).collect())
+            .collect();
+        steps.len() as f64
+    };
+    let firsts: Vec<usize> = (0..requests.len()).map(|k| k * per).collect();
+    let generated = distinct(samples.select(Axis(0), &firsts).view());
+    let walks = distinct(walked);
+    BTreeMap::from([
+        (
+            "walkable_share".to_owned(),
+            walkable as f64 / crossed.max(1) as f64,
+        ),
+        ("repaired_share".to_owned(), repaired as f64 / rows as f64),
+        (
+            "distinct_share".to_owned(),
+            generated / requests.len().max(1) as f64,
+        ),
+        (
+            "walks_distinct_share".to_owned(),
+            walks / requests.len().max(1) as f64,
+        ),
+        ("distinct_vs_walks".to_owned(), generated / walks.max(1.0)),
+        ("requests".to_owned(), requests.len() as f64),
+    ])
 }
 
 /// How well the conditional generator answers each class pair (or, without
