@@ -65,8 +65,9 @@ pub(super) struct Args {
     line_gan: bool,
     /// Weight of the conditional generator's access penalty: a hinge that
     /// pushes back any non-walkable cell a generated frame lights (no walk
-    /// lights one), ramped in linearly over the run. 0 trains the paper's plain
-    /// loss. The unconditional GAN always keeps the paper's loss. On the sample
+    /// lights one), ramped in linearly over the run; and of the line GAN's,
+    /// which pushes back its lines' points off the floor. 0 trains the
+    /// paper's plain loss. The unconditional GAN always keeps the paper's loss. On the sample
     /// site 1 removes every off-area cell and keeps routes human-like
     /// (docs/trajectories.md).
     #[arg(long, default_value_t = 1.0)]
@@ -209,7 +210,12 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
                 }
                 if args.line_gan {
                     written.extend(job::train_lines(
-                        &site, &all, &options, &args.out, &mut bars,
+                        &site,
+                        &all,
+                        &options,
+                        args.access_weight,
+                        &args.out,
+                        &mut bars,
                     )?);
                 }
                 PathSet::from_trajectories(&site, &all, args.min_class_walks)
@@ -288,8 +294,8 @@ pub(super) fn run(args: Args) -> anyhow::Result<ExitCode> {
             "batch": args.batch,
             "seed": args.seed,
             "threads": threads,
-            // Only the conditional generator has the penalty.
-            "access_weight": if args.conditional { args.access_weight } else { 0.0 },
+            // Only the conditional generators have the penalty.
+            "access_weight": if args.conditional || args.line_gan { args.access_weight } else { 0.0 },
             "models": models,
             "notes": notes,
             "default_planner": verdict.default_planner.as_ref().map(|c| serde_json::json!({

@@ -179,7 +179,7 @@ fn shipped_models_run_in_tract_and_write_reference_outputs() {
         accept_failed: true,
         threads: 1,
     };
-    gangway::train::job::train_lines(&site, &walks[..300], &options, &out_dir, &mut Silent)
+    gangway::train::job::train_lines(&site, &walks[..300], &options, 1.0, &out_dir, &mut Silent)
         .unwrap();
     models.extend(
         [Kind::LineGenerator, Kind::LineDiscriminator]

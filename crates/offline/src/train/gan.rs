@@ -76,6 +76,26 @@ pub struct GanConfig {
     pub hidden: Hidden,
 }
 
+/// A term of the generator's loss beside the adversarial one: how far the
+/// generated samples leave the site's public-access area (frames:
+/// [`Access`]; lines: [`super::line_access::LineAccess`]).
+pub(crate) trait Penalty: Sync {
+    /// Its weight λ at the last iteration (it grows linearly, λ·i/N at
+    /// iteration i of N); a penalty of weight 0 is off.
+    fn weight(&self) -> f32;
+
+    /// The penalty of the generated `out` (tanh outputs, one row per data row
+    /// of `picks`) times `weight`; writes its gradient with respect to each
+    /// output's pre-activation into `grad` (zero where it does not act).
+    fn apply(
+        &self,
+        out: ArrayView2<f32>,
+        picks: &[usize],
+        weight: f32,
+        grad: &mut Array2<f32>,
+    ) -> f32;
+}
+
 /// The access penalty's settings: which cells no path may light, and how
 /// much lighting them costs.
 #[derive(Clone, Debug)]
@@ -87,6 +107,26 @@ pub(crate) struct Access {
     /// iteration (it grows linearly, λ·i/N at iteration i of N); 0 trains the paper's
     /// plain loss (the same weights, bit for bit, as no penalty).
     pub weight: f32,
+}
+
+impl Penalty for Access {
+    fn weight(&self) -> f32 {
+        if self.blocked.is_empty() {
+            0.0
+        } else {
+            self.weight
+        }
+    }
+
+    fn apply(
+        &self,
+        out: ArrayView2<f32>,
+        _picks: &[usize],
+        weight: f32,
+        grad: &mut Array2<f32>,
+    ) -> f32 {
+        access_penalty(out, &self.blocked, weight, grad)
+    }
 }
 
 /// Losses at one iteration, for progress output.
@@ -120,12 +160,12 @@ pub fn train(
 }
 
 /// [`train`], with the `access` penalty in the generator's loss (`None`:
-/// none), and handing the networks to `checkpoint` after every `every`-th
+/// none, as a weight of 0), and handing the networks to `checkpoint` after every `every`-th
 /// iteration (`None`: never); the first error it returns stops training.
 pub(crate) fn train_with_checkpoints<E: Send>(
     data: &GanData,
     config: GanConfig,
-    access: Option<&Access>,
+    access: Option<&dyn Penalty>,
     every: Option<std::num::NonZeroUsize>,
     mut progress: impl FnMut(usize, GanLosses) + Send,
     mut checkpoint: impl FnMut(usize, &Gan) -> Result<(), E> + Send,
@@ -173,8 +213,9 @@ pub(crate) fn train_with_checkpoints<E: Send>(
         let mut g_input = Array2::<f32>::zeros((batch, NOISE_DIM + cond_dim));
         let mut d_input = Array2::<f32>::zeros((2 * batch, cells + cond_dim));
         let mut d_grad = Array2::<f32>::zeros((2 * batch, 1));
-        let access = access.filter(|a| a.weight != 0.0 && !a.blocked.is_empty());
-        // Zero outside the blocked columns, which are rewritten every iteration.
+        let access = access.filter(|a| a.weight() != 0.0);
+        // Zero where the penalty does not act; the rest is rewritten every
+        // iteration.
         let mut access_grad = Array2::<f32>::zeros((batch, cells));
         let mut picks = vec![0usize; batch];
         for iteration in 1..=config.iterations {
@@ -214,15 +255,15 @@ pub(crate) fn train_with_checkpoints<E: Send>(
             let g_loss = bce_with_logits(logits, 1.0, grad);
             // The fakes the discriminator just judged are the generator's output.
             let access_loss = access.map_or(0.0, |a| {
-                access_penalty(
+                a.apply(
                     d_input.slice(s![batch.., ..cells]),
-                    &a.blocked,
+                    &picks,
                     // Ramped in from 0: at the start every output sits near 0 and
                     // every blocked cell counts as lit, so the full weight would
                     // drive all outputs to saturated off before the adversarial
                     // loss taught the generator any path (it then never learns
                     // one: tanh's gradient vanishes there).
-                    a.weight * iteration as f32 / config.iterations as f32,
+                    a.weight() * iteration as f32 / config.iterations as f32,
                     &mut access_grad,
                 )
             });

@@ -37,6 +37,7 @@ use super::cells::CellSet;
 use super::classifier::{self, ClassifierConfig};
 use super::desire;
 use super::gan::{self, GanConfig, GanData, Hidden, NOISE_DIM};
+use super::line_access::LineAccess;
 use super::mlp::{Adam, Mlp};
 use super::paths::PathSet;
 use super::trajectory::Trajectory;
@@ -168,10 +169,10 @@ pub fn train_paths(
                 sample: ("frame", set.frames.ncols()),
                 condition: Some(("condition", condition::len(set.width, set.height))),
             },
-            access: Some(gan::Access {
+            penalty: Some(Box::new(gan::Access {
                 blocked: site.blocked_indices().to_vec(),
                 weight: access_weight,
-            }),
+            })),
             meta: gan_metadata(
                 Kind::ConditionalGenerator,
                 site,
@@ -193,13 +194,15 @@ pub fn train_paths(
 }
 
 /// Trains the line GAN ([`crate::model::line_gan`]) on `walks`, each in both
-/// directions, measures its generator on the walks' ends and writes the
-/// pair to `out` (to `failed/` when it fails its checks, unless
-/// `accept_failed`).
+/// directions, with the access penalty of `access_weight`
+/// ([`super::line_access`], 0: the plain loss), measures its generator on the
+/// walks' ends and writes the pair to `out` (to `failed/` when it fails its
+/// checks, unless `accept_failed`).
 pub fn train_lines(
     site: &Site,
     walks: &[Trajectory],
     options: &Options,
+    access_weight: f32,
     out: &Path,
     progress: &mut dyn Progress,
 ) -> anyhow::Result<Vec<Trained>> {
@@ -219,6 +222,7 @@ pub fn train_lines(
     let mut conditions = Array2::zeros((2 * n, ENDPOINTS_LEN));
     let mut requests = Vec::new();
     let mut seen = std::collections::HashSet::new();
+    let mut ends = vec![[[0.0; 2]; 2]; 2 * n];
     for (i, walk) in prepared.iter().enumerate() {
         let [a, b] = walk.ends;
         let rows = [
@@ -232,6 +236,7 @@ pub fn train_lines(
             conditions
                 .row_mut(row)
                 .assign(&ArrayView1::from(&line_gan::endpoints(w, h, from, to)));
+            ends[row] = [from, to];
             let pair = (cell_at(from), cell_at(to));
             if requests.len() < LINE_EVAL_REQUESTS && seen.insert(pair) {
                 requests.push((pair, row));
@@ -242,6 +247,7 @@ pub fn train_lines(
     meta.noise_dim = NOISE_DIM;
     meta.iterations = options.iterations;
     meta.seed = options.seed;
+    meta.access_weight = access_weight;
     let walked = frames.select(Axis(0), &requests.iter().map(|r| r.1).collect::<Vec<_>>());
     let requests: Vec<(Cell, Cell)> = requests.into_iter().map(|r| r.0).collect();
     let run = GanRun {
@@ -255,7 +261,7 @@ pub fn train_lines(
             sample: ("shape", SHAPE_LEN),
             condition: Some(("endpoints", ENDPOINTS_LEN)),
         },
-        access: None,
+        penalty: Some(Box::new(LineAccess::new(site, ends, access_weight))),
         meta,
     };
     train_gan(
@@ -353,7 +359,7 @@ fn train_rejection(
             sample: ("frame", set.frames.ncols()),
             condition: None,
         },
-        access: None,
+        penalty: None,
         meta: gan_metadata(Kind::Generator, site, set, options, 0.0),
     };
     written.extend(train_gan(
@@ -385,7 +391,7 @@ struct GanRun<'a> {
     data: GanData,
     io: Io,
     /// The generator's access penalty (`None`: the paper's plain loss).
-    access: Option<gan::Access>,
+    penalty: Option<Box<dyn gan::Penalty>>,
     meta: Metadata,
 }
 
@@ -414,7 +420,7 @@ fn train_gan(
     let mut trained = gan::train_with_checkpoints(
         &run.data,
         config,
-        run.access.as_ref(),
+        run.penalty.as_deref(),
         options.checkpoint_every,
         |i, l| progress.step(i, &gan_losses(l)),
         |i, gan| write_checkpoint(out, i, run.kinds, gan, run.io, &run.meta),

@@ -8,6 +8,7 @@
 //! - [`workers`]: its threads (matrix products split by output blocks, so a
 //!   seed and a thread count give the same weights);
 //! - [`gan`] and [`classifier`]: the paper's GAN and the softmax classifiers;
+//! - [`line_access`]: the line GAN's access penalty;
 //! - [`desire`]: the desire-line model (the walks' shapes, settings by
 //!   cross-validation);
 //! - [`recorded`]: walks and rated routes from the daemon's learning store;
@@ -23,6 +24,7 @@ pub mod desire;
 pub(crate) mod frame;
 pub mod gan;
 pub mod job;
+pub(crate) mod line_access;
 pub(crate) mod mlp;
 pub mod paths;
 pub mod recorded;
