@@ -77,6 +77,19 @@ fn input_for(
             }
             out
         }
+        // ... and the offsets of its prior, the any-angle route between them.
+        "prior" if line_gan => {
+            let mut out = Array2::zeros((ROWS, width));
+            for (r, walk) in walks.iter().take(ROWS).enumerate() {
+                let prior = line_gan::offsets(
+                    &desire_prior_points(site, walk),
+                    centre(walk.source()),
+                    centre(walk.destination()),
+                );
+                out.row_mut(r).assign(&ndarray::ArrayView1::from(&prior));
+            }
+            out
+        }
         // Line shapes for its discriminator: offsets of up to half a chord.
         "shape" => Array2::from_shape_fn((ROWS, width), |(i, j)| {
             ((i * 7 + j * 3) % 11) as f32 / 11.0 - 0.5
@@ -110,6 +123,14 @@ fn input_for(
 
 /// The prior the desire planner passes for `walk`'s ends.
 fn desire_prior(site: &Site, walk: &trajectory::Trajectory) -> Vec<[f32; 2]> {
+    desire_prior_points(site, walk)
+        .into_iter()
+        .map(|p| [p[0] as f32, p[1] as f32])
+        .collect()
+}
+
+/// The any-angle prior of `walk`'s ends, evenly resampled (cell units).
+fn desire_prior_points(site: &Site, walk: &trajectory::Trajectory) -> Vec<[f64; 2]> {
     use gangway::plan::desire::{prior_line, resample};
     let line = prior_line(
         site,
@@ -119,9 +140,6 @@ fn desire_prior(site: &Site, walk: &trajectory::Trajectory) -> Vec<[f32; 2]> {
     )
     .unwrap();
     resample(&line, gangway::model::desire::POINTS)
-        .into_iter()
-        .map(|p| [p[0] as f32, p[1] as f32])
-        .collect()
 }
 
 /// Training without progress bars.

@@ -13,7 +13,7 @@
 
 use std::path::Path;
 
-use crate::common::{gangway, gangway_ok, shared_data, write};
+use crate::common::{self, gangway, gangway_ok, shared_data, write};
 use gangway::site::Site;
 use gangway::train::trajectory;
 use serde_json::Value;
@@ -260,12 +260,7 @@ fn the_line_gan_passes_its_checks_on_a_scene_of_ten_thousand_cells_and_more() {
         "--json",
     ]))
     .unwrap();
-    let generator = summary["models"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|m| m["kind"] == "line_generator")
-        .unwrap();
+    let generator = common::trained(&summary, "line_generator");
     assert_eq!(generator["passed"], true, "{generator}");
     assert!(models.join("line_generator.onnx").is_file());
     assert_eq!(

@@ -72,3 +72,13 @@ pub(crate) fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
     std::fs::write(&p, text).expect("write a test file");
     p
 }
+
+/// The model of `kind` in the JSON summary of `gangway train --json`.
+pub(crate) fn trained<'a>(summary: &'a serde_json::Value, kind: &str) -> &'a serde_json::Value {
+    summary["models"]
+        .as_array()
+        .expect("a train summary lists its models")
+        .iter()
+        .find(|m| m["kind"] == kind)
+        .unwrap_or_else(|| panic!("no {kind} in {summary}"))
+}

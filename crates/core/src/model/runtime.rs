@@ -372,13 +372,14 @@ impl LineGenerator {
         use super::line_gan::{ENDPOINTS_LEN, SHAPE_LEN};
         let model = Model::load(path, site, &[Kind::LineGenerator], rows)?;
         let widths: Vec<usize> = model.inputs.iter().map(|i| i.1).collect();
-        if widths != [model.meta.noise_dim, ENDPOINTS_LEN] || model.output.1 != SHAPE_LEN {
+        if widths != [model.meta.noise_dim, ENDPOINTS_LEN, SHAPE_LEN] || model.output.1 != SHAPE_LEN
+        {
             return Err(ModelError::Corrupt {
                 path: model.path.clone(),
                 reason: format!(
-                    "a line generator takes `noise` [N, {}] and `endpoints` [N, {ENDPOINTS_LEN}] \
-                     and gives `shape` [N, {SHAPE_LEN}]; a model from an older gangway must be \
-                     retrained (`gangway train --line-gan`)",
+                    "a line generator takes `noise` [N, {}], `endpoints` [N, {ENDPOINTS_LEN}] and \
+                     `prior` [N, {SHAPE_LEN}] and gives `shape` [N, {SHAPE_LEN}]; a model from an \
+                     older gangway must be retrained (`gangway train --line-gan`)",
                     model.meta.noise_dim
                 ),
             });
@@ -396,13 +397,15 @@ impl LineGenerator {
 
     /// One sample ([`super::line_gan::SHAPE_LEN`] values) per noise row,
     /// for the request of the same row of `endpoints`
-    /// ([`super::line_gan::endpoints`]).
+    /// ([`super::line_gan::endpoints`]) and `prior` (its prior's
+    /// [`super::line_gan::offsets`]).
     pub fn generate(
         &self,
         noise: ArrayView2<f32>,
         endpoints: ArrayView2<f32>,
+        prior: ArrayView2<f32>,
     ) -> Result<Array2<f32>, ModelError> {
-        self.0.run(&[noise, endpoints])
+        self.0.run(&[noise, endpoints, prior])
     }
 }
 

@@ -3,7 +3,10 @@
 //! ([`crate::model::line_gan`]), checked against the site and turned into a
 //! route.
 //!
-//! `samples` lines are generated in one call. Each is made walkable as a
+//! A request first gets its prior ([`super::desire::prior_line`]: the
+//! any-angle route, what the planner serves without walks), which the
+//! generator is conditioned on ([`crate::model::line_gan`]). `samples`
+//! lines are generated in one call. Each is made walkable as a
 //! desire line is ([`super::desire::walkable_line`]: a point on a cell the profile
 //! may not use is dropped, a segment that crosses one is replaced by the
 //! any-angle way between its ends); the winner is the one that needed no
@@ -18,12 +21,13 @@ use ndarray::ArrayView2;
 use serde::Deserialize;
 
 use super::anyangle::{GridPoint, centre};
-use super::desire::{prior_line, serve_walkable, walkable_line};
+use super::desire::{prior_line, resample, serve_walkable, walkable_line};
 use super::{
     Connectivity, PlanError, Planned, Planner, Profile, RequestSeeds, Timings, model_error,
     passable_ends,
 };
 use crate::clock::Clock;
+use crate::model::desire::POINTS;
 use crate::model::line_gan;
 use crate::model::runtime::LineGenerator;
 use crate::site::{Cell, Site};
@@ -91,13 +95,17 @@ impl Planner for LineGan {
         let rows = self.config.samples;
         let noise = self.seeds.noise(rows, self.generator.noise_dim());
         let (a, b) = (centre(from), centre(to));
+        let prior = prior_line(site, profile, from, to)?;
+        let prior_offsets = line_gan::offsets(&resample(&prior, POINTS), a, b);
         let ends = line_gan::endpoints(site.width(), site.height(), a, b);
-        let one = ArrayView2::from_shape((1, ends.len()), &ends).expect("one row");
-        let ends_rows = one.broadcast((rows, ends.len())).expect("a row repeats");
         let started = self.clock.start();
         let shapes = self
             .generator
-            .generate(noise.view(), ends_rows)
+            .generate(
+                noise.view(),
+                repeated(&ends, rows),
+                repeated(&prior_offsets, rows),
+            )
             .map_err(model_error)?;
         let timings = Timings {
             gen_us: started.elapsed_us(),
@@ -110,8 +118,8 @@ impl Planner for LineGan {
             let sample = sample
                 .as_slice()
                 .expect("a model's output is laid out by row");
-            let (line, repaired) =
-                walkable_line(site, profile, &line_gan::line(a, b, sample), from, to)?;
+            let line = line_gan::line(a, b, &prior_offsets, sample);
+            let (line, repaired) = walkable_line(site, profile, &line, from, to)?;
             let length = length(&line);
             if best
                 .as_ref()
@@ -123,7 +131,7 @@ impl Planner for LineGan {
         let (line, repaired, _) = best.expect("samples ≥ 1");
         let walkable = (line, repaired);
         let planned = serve_walkable(site, self.connectivity, profile, walkable, from, to, || {
-            prior_line(site, profile, from, to)
+            Ok(prior)
         })?;
         Ok(Planned {
             samples: rows,
@@ -131,6 +139,14 @@ impl Planner for LineGan {
             ..planned
         })
     }
+}
+
+/// `row` as `rows` rows: every sample of a request has the same condition
+/// (the model's input is laid out from the view).
+fn repeated(row: &[f32], rows: usize) -> ArrayView2<'_, f32> {
+    use ndarray::ShapeBuilder;
+    // A stride of 0 between rows: the one row, seen `rows` times.
+    ArrayView2::from_shape((rows, row.len()).strides((0, 1)), row).expect("a row repeats")
 }
 
 /// A line's length, cells.

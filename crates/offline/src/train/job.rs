@@ -32,22 +32,24 @@ use ndarray::{Array2, ArrayView1, ArrayView2, Axis, s};
 use rand::SeedableRng;
 use rand::rngs::Xoshiro256PlusPlus;
 use rand_distr::{Distribution, StandardNormal};
+use rayon::prelude::*;
 
 use super::cells::CellSet;
 use super::classifier::{self, ClassifierConfig};
 use super::desire;
 use super::gan::{self, GanConfig, GanData, Hidden, NOISE_DIM};
-use super::line_access::LineAccess;
+use super::line_access::{LineAccess, LineRequest};
 use super::mlp::{Adam, Mlp};
 use super::paths::PathSet;
 use super::trajectory::Trajectory;
 use crate::locate::survey::Survey;
 use crate::model::checks::{Check, checks};
+use crate::model::desire::POINTS;
 use crate::model::export::{ClipScale, Head, Spec, Weights};
 use crate::model::line_gan::{self, ENDPOINTS_LEN, SHAPE_LEN};
 use crate::model::{CellClassifierInput, Kind, Metadata, condition};
 use crate::plan::anyangle::{GridPoint, centre, traverse};
-use crate::plan::desire::walkable_line;
+use crate::plan::desire::{prior_line, resample, walkable_line};
 use crate::plan::frame::{bright, route_from_frame};
 use crate::plan::{Connectivity, Origin, Profile, cells_off_area};
 use crate::site::{Cell, Site};
@@ -120,6 +122,8 @@ const LINE_HIDDEN: Hidden = Hidden {
 /// Walks' end pairs (each direction one request) the line generator is
 /// measured on, at most.
 const LINE_EVAL_REQUESTS: usize = 256;
+/// Width of the line GAN's condition: the request's ends, then its prior.
+const CONDITION_LEN: usize = ENDPOINTS_LEN + SHAPE_LEN;
 /// The step, in chords, to which two line shapes must differ to count as
 /// distinct.
 const SHAPE_STEP: f32 = 0.05;
@@ -167,7 +171,7 @@ pub fn train_paths(
             data: conditional_data(set),
             io: Io {
                 sample: ("frame", set.frames.ncols()),
-                condition: Some(("condition", condition::len(set.width, set.height))),
+                condition: vec![("condition", condition::len(set.width, set.height))],
             },
             penalty: Some(Box::new(gan::Access {
                 blocked: site.blocked_indices().to_vec(),
@@ -216,31 +220,54 @@ pub fn train_lines(
         prepared.len(),
         walks.len()
     );
+    // Each walk in both directions, with the prior its request gets (the
+    // any-angle route: per walk and independent, on the threads of the
+    // rayon pool this runs in, collected in walk order); a walk whose ends
+    // no route joins is left out.
+    let directions: Vec<([GridPoint; 2], [[f32; 2]; POINTS])> = prepared
+        .iter()
+        .flat_map(|w| {
+            let [a, b] = w.ends;
+            [([a, b], w.shape), ([b, a], desire::backwards(&w.shape))]
+        })
+        .collect();
+    let rows: Vec<(LineRequest, [[f32; 2]; POINTS])> = directions
+        .par_iter()
+        .filter_map(|&([a, b], shape)| {
+            let prior = prior_line(site, Profile::Default, cell_at(a), cell_at(b)).ok()?;
+            let prior = line_gan::offsets(&resample(&prior, POINTS), a, b);
+            Some((
+                LineRequest {
+                    ends: [a, b],
+                    prior,
+                },
+                shape,
+            ))
+        })
+        .collect();
     let (w, h) = (site.width(), site.height());
-    let n = prepared.len();
-    let mut frames = Array2::zeros((2 * n, SHAPE_LEN));
-    let mut conditions = Array2::zeros((2 * n, ENDPOINTS_LEN));
+    let mut frames = Array2::zeros((rows.len(), SHAPE_LEN));
+    let mut conditions = Array2::zeros((rows.len(), CONDITION_LEN));
     let mut requests = Vec::new();
     let mut seen = std::collections::HashSet::new();
-    let mut ends = vec![[[0.0; 2]; 2]; 2 * n];
-    for (i, walk) in prepared.iter().enumerate() {
-        let [a, b] = walk.ends;
-        let rows = [
-            (i, (a, b), walk.shape),
-            (n + i, (b, a), desire::backwards(&walk.shape)),
-        ];
-        for (row, (from, to), shape) in rows {
-            frames
-                .row_mut(row)
-                .assign(&ArrayView1::from(&line_gan::shape_sample(&shape)));
-            conditions
-                .row_mut(row)
-                .assign(&ArrayView1::from(&line_gan::endpoints(w, h, from, to)));
-            ends[row] = [from, to];
-            let pair = (cell_at(from), cell_at(to));
-            if requests.len() < LINE_EVAL_REQUESTS && seen.insert(pair) {
-                requests.push((pair, row));
-            }
+    for (row, (request, shape)) in rows.iter().enumerate() {
+        let [a, b] = request.ends;
+        frames
+            .row_mut(row)
+            .assign(&ArrayView1::from(&line_gan::shape_sample(
+                shape,
+                &request.prior,
+            )));
+        let mut condition = conditions.row_mut(row);
+        condition
+            .slice_mut(s![..ENDPOINTS_LEN])
+            .assign(&ArrayView1::from(&line_gan::endpoints(w, h, a, b)));
+        condition
+            .slice_mut(s![ENDPOINTS_LEN..])
+            .assign(&ArrayView1::from(&request.prior));
+        let pair = (cell_at(a), cell_at(b));
+        if requests.len() < LINE_EVAL_REQUESTS && seen.insert(pair) {
+            requests.push((pair, row));
         }
     }
     let mut meta = Metadata::for_site(Kind::LineGenerator, site);
@@ -248,8 +275,11 @@ pub fn train_lines(
     meta.iterations = options.iterations;
     meta.seed = options.seed;
     meta.access_weight = access_weight;
-    let walked = frames.select(Axis(0), &requests.iter().map(|r| r.1).collect::<Vec<_>>());
+    let measured: Vec<usize> = requests.iter().map(|r| r.1).collect();
+    let walked = frames.select(Axis(0), &measured);
+    let asked = conditions.select(Axis(0), &measured);
     let requests: Vec<(Cell, Cell)> = requests.into_iter().map(|r| r.0).collect();
+    let penalty = LineAccess::new(site, rows.into_iter().map(|r| r.0).collect(), access_weight);
     let run = GanRun {
         stage: "line GAN",
         kinds: [Kind::LineGenerator, Kind::LineDiscriminator],
@@ -259,9 +289,9 @@ pub fn train_lines(
         },
         io: Io {
             sample: ("shape", SHAPE_LEN),
-            condition: Some(("endpoints", ENDPOINTS_LEN)),
+            condition: vec![("endpoints", ENDPOINTS_LEN), ("prior", SHAPE_LEN)],
         },
-        penalty: Some(Box::new(LineAccess::new(site, ends, access_weight))),
+        penalty: Some(Box::new(penalty)),
         meta,
     };
     train_gan(
@@ -270,7 +300,16 @@ pub fn train_lines(
         gan_config(options, LINE_HIDDEN),
         options,
         progress,
-        |generator| measure_lines(site, &requests, walked.view(), generator, options.seed),
+        |generator| {
+            measure_lines(
+                site,
+                &requests,
+                asked.view(),
+                walked.view(),
+                generator,
+                options.seed,
+            )
+        },
     )
 }
 
@@ -357,7 +396,7 @@ fn train_rejection(
         data,
         io: Io {
             sample: ("frame", set.frames.ncols()),
-            condition: None,
+            condition: Vec::new(),
         },
         penalty: None,
         meta: gan_metadata(Kind::Generator, site, set, options, 0.0),
@@ -396,13 +435,12 @@ struct GanRun<'a> {
 }
 
 /// What a GAN's networks are fed, as its exported graphs name them: the
-/// sample (a frame, or a line's shape) and the condition, if any; the
-/// generator takes `noise` and the condition, the discriminator the sample
-/// and the condition.
-#[derive(Clone, Copy)]
+/// sample (a frame, or a line's shape) and the condition's parts, if any;
+/// the generator takes `noise` and the condition, the discriminator the
+/// sample and the condition.
 struct Io {
     sample: (&'static str, usize),
-    condition: Option<(&'static str, usize)>,
+    condition: Vec<(&'static str, usize)>,
 }
 
 /// Trains `run` (writing checkpoints when asked for), measures its generator
@@ -423,7 +461,7 @@ fn train_gan(
         run.penalty.as_deref(),
         options.checkpoint_every,
         |i, l| progress.step(i, &gan_losses(l)),
-        |i, gan| write_checkpoint(out, i, run.kinds, gan, run.io, &run.meta),
+        |i, gan| write_checkpoint(out, i, run.kinds, gan, &run.io, &run.meta),
     )?;
     progress.done();
     let seconds = started.elapsed().as_secs_f64();
@@ -433,7 +471,7 @@ fn train_gan(
     let checks = checks(run.kinds[0], &metrics);
     let dir = destination(out, &checks, options)?;
     let mut written = write_gan(
-        &dir, run.kinds, &trained, run.io, run.meta, &metrics, started,
+        &dir, run.kinds, &trained, &run.io, run.meta, &metrics, started,
     )?;
     for t in &mut written {
         t.checks = checks.clone();
@@ -617,14 +655,14 @@ fn write_gan(
     out: &Path,
     kinds: [Kind; 2],
     trained: &gan::Gan,
-    io: Io,
+    io: &Io,
     meta: Metadata,
     metrics: &BTreeMap<String, f64>,
     started: Instant,
 ) -> anyhow::Result<Vec<Trained>> {
     let with_condition = |first: (&'static str, usize)| {
         let mut inputs = vec![first];
-        inputs.extend(io.condition);
+        inputs.extend(io.condition.iter().copied());
         inputs
     };
     let [generator, discriminator] = kinds;
@@ -678,7 +716,7 @@ fn write_checkpoint(
     iteration: usize,
     kinds: [Kind; 2],
     gan: &gan::Gan,
-    io: Io,
+    io: &Io,
     meta: &Metadata,
 ) -> anyhow::Result<()> {
     let dir = out.join("checkpoints").join(format!("iter-{iteration:07}"));
@@ -818,29 +856,30 @@ fn distinct_share(binary: &Array2<f32>) -> f64 {
 fn measure_lines(
     site: &Site,
     requests: &[(Cell, Cell)],
+    conditions: ArrayView2<f32>,
     walked: ArrayView2<f32>,
     generator: &mut Mlp,
     seed: u64,
 ) -> BTreeMap<String, f64> {
-    let (w, h) = (site.width(), site.height());
-    let ends = |&(from, to): &(Cell, Cell)| line_gan::endpoints(w, h, centre(from), centre(to));
     let per = EVAL_SAMPLES / requests.len().max(1) + 1;
     let rows = per * requests.len();
-    let mut input = Array2::zeros((rows, NOISE_DIM + ENDPOINTS_LEN));
+    let mut input = Array2::zeros((rows, NOISE_DIM + CONDITION_LEN));
     input
         .slice_mut(s![.., ..NOISE_DIM])
         .assign(&noise(rows, seed));
-    for (row, request) in (0..rows).zip(requests.iter().flat_map(|r| std::iter::repeat_n(r, per))) {
+    for row in 0..rows {
         input
             .slice_mut(s![row, NOISE_DIM..])
-            .assign(&ArrayView1::from(&ends(request)));
+            .assign(&conditions.row(row / per));
     }
     let samples = generator.predict(input.view());
     let (mut crossed, mut walkable, mut repaired) = (0usize, 0usize, 0usize);
     for (row, k) in samples.rows().into_iter().zip(0..) {
         let (from, to) = requests[k / per];
         let sample = row.to_slice().expect("standard layout");
-        let line = line_gan::line(centre(from), centre(to), sample);
+        let condition = conditions.row(k / per);
+        let prior = &condition.as_slice().expect("standard layout")[ENDPOINTS_LEN..];
+        let line = line_gan::line(centre(from), centre(to), prior, sample);
         for (i, seg) in line.windows(2).enumerate() {
             // Each segment after the first starts in the cell the one
             // before ended in.

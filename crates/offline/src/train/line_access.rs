@@ -17,7 +17,7 @@
 use ndarray::{Array2, ArrayView2};
 
 use super::gan::Penalty;
-use crate::model::line_gan::{self, INNER};
+use crate::model::line_gan::{self, INNER, SHAPE_LEN};
 use crate::site::{Cell, Site};
 
 pub(crate) struct LineAccess {
@@ -27,14 +27,22 @@ pub(crate) struct LineAccess {
     distance: Vec<f32>,
     width: usize,
     height: usize,
-    /// Per data row, the request's ends (cell units).
-    ends: Vec<[[f64; 2]; 2]>,
+    /// Per data row, what its line was generated for.
+    rows: Vec<LineRequest>,
     weight: f32,
 }
 
+/// What a data row's line is generated for: the request's ends (cell units)
+/// and its prior's offsets (`model::line_gan`).
+pub(crate) struct LineRequest {
+    pub(crate) ends: [[f64; 2]; 2],
+    pub(crate) prior: [f32; SHAPE_LEN],
+}
+
 impl LineAccess {
-    /// The penalty on `site` for data rows asking `ends`, at `weight`.
-    pub(crate) fn new(site: &Site, ends: Vec<[[f64; 2]; 2]>, weight: f32) -> LineAccess {
+    /// The penalty on `site` for data rows generated for `rows`, at
+    /// `weight`.
+    pub(crate) fn new(site: &Site, rows: Vec<LineRequest>, weight: f32) -> LineAccess {
         let (width, height) = (usize::from(site.width()), usize::from(site.height()));
         let far = (width + height) as f32;
         let mut distance: Vec<f32> = (0..width * height)
@@ -73,7 +81,7 @@ impl LineAccess {
             distance,
             width,
             height,
-            ends,
+            rows,
             weight,
         }
     }
@@ -133,9 +141,12 @@ impl Penalty for LineAccess {
         let scale = weight / out.nrows() as f32;
         let mut loss = 0.0;
         for ((row, &pick), mut g) in out.rows().into_iter().zip(picks).zip(grad.rows_mut()) {
-            let [a, b] = self.ends[pick];
-            let sample = row.to_vec();
-            let points = line_gan::line(a, b, &sample);
+            let LineRequest {
+                ends: [a, b],
+                prior,
+            } = &self.rows[pick];
+            let (a, b) = (*a, *b);
+            let points = line_gan::line(a, b, prior, &row.to_vec());
             let chord = [(b[0] - a[0]) as f32, (b[1] - a[1]) as f32];
             let length = chord[0].hypot(chord[1]).max(1.0);
             // d(penalty)/d(point k), for the inner points 1..=INNER.
@@ -181,7 +192,6 @@ impl Penalty for LineAccess {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::line_gan::SHAPE_LEN;
 
     /// A site of `map` (`#` open floor, `.` blocked).
     fn site(map: &str) -> Site {
@@ -194,10 +204,18 @@ mod tests {
         site("#########\n####.####\n####.####\n####.####\n#########\n#########\n#########")
     }
 
+    /// A request from `a` to `b` whose prior is the straight line.
+    fn straight(a: [f64; 2], b: [f64; 2]) -> LineRequest {
+        LineRequest {
+            ends: [a, b],
+            prior: [0.0; SHAPE_LEN],
+        }
+    }
+
     #[test]
     fn the_distance_is_zero_on_the_floor_and_grows_into_walls() {
         let s = site(".....\n.###.\n.....");
-        let access = LineAccess::new(&s, vec![], 1.0);
+        let access = LineAccess::new(&s, Vec::new(), 1.0);
         assert_eq!(access.at([2.5, 1.5]).0, 0.0);
         assert!((access.at([0.5, 0.5]).0 - std::f32::consts::SQRT_2).abs() < 1e-6);
         // Halfway between a floor cell and the wall beside it.
@@ -209,8 +227,7 @@ mod tests {
     #[test]
     fn the_gradient_matches_finite_differences() {
         let s = walled();
-        let ends = vec![[[1.5, 2.5], [7.5, 2.5]]];
-        let access = LineAccess::new(&s, ends, 1.5);
+        let access = LineAccess::new(&s, vec![straight([1.5, 2.5], [7.5, 2.5])], 1.5);
         // A line bowing through the wall, off the cells' edges.
         let out = Array2::from_shape_fn((1, SHAPE_LEN), |(_, j)| {
             if j < INNER {
@@ -243,7 +260,7 @@ mod tests {
     fn a_line_on_the_floor_costs_and_pulls_nothing() {
         let s = walled();
         // Along the bottom row, two rows clear of the wall.
-        let access = LineAccess::new(&s, vec![[[0.5, 6.5], [8.5, 6.5]]], 1.0);
+        let access = LineAccess::new(&s, vec![straight([0.5, 6.5], [8.5, 6.5])], 1.0);
         let out = Array2::zeros((1, SHAPE_LEN));
         let mut grad = Array2::from_elem((1, SHAPE_LEN), 9.0);
         assert_eq!(access.apply(out.view(), &[0], 1.0, &mut grad), 0.0);
