@@ -163,8 +163,9 @@ fn walk_segment(a: GridPoint, b: GridPoint, mut visit: impl FnMut([i64; 2], bool
     true
 }
 
-/// `[x, y]` as a cell on `site`'s grid, when it is on it.
-fn on_grid(site: &Site, [x, y]: [i64; 2]) -> Option<Cell> {
+/// `[x, y]` as a cell on `site`'s grid, when it is on it (a [`traverse`]
+/// cell may be off it).
+pub fn on_grid(site: &Site, [x, y]: [i64; 2]) -> Option<Cell> {
     let cell = Cell::new(u16::try_from(x).ok()?, u16::try_from(y).ok()?);
     site.contains(cell).then_some(cell)
 }

@@ -454,6 +454,7 @@ fn metres(site: &Site, points: &[GridPoint]) -> Polyline {
     Polyline(points.iter().map(|&p| world_of_point(site, p)).collect())
 }
 
-fn cell_of(p: GridPoint) -> Cell {
+/// The cell a point (cell units) lies in.
+pub(super) fn cell_of(p: GridPoint) -> Cell {
     Cell::new(p[0].floor() as u16, p[1].floor() as u16)
 }

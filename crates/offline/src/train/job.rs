@@ -36,7 +36,7 @@ use rayon::prelude::*;
 
 use super::cells::CellSet;
 use super::classifier::{self, ClassifierConfig};
-use super::desire;
+use super::desire::{self, cell_of};
 use super::gan::{self, GanConfig, GanData, Hidden, NOISE_DIM};
 use super::line_access::{LineAccess, LineRequest};
 use super::mlp::{Adam, Mlp};
@@ -48,7 +48,7 @@ use crate::model::desire::POINTS;
 use crate::model::export::{ClipScale, Head, Spec, Weights};
 use crate::model::line_gan::{self, ENDPOINTS_LEN, SHAPE_LEN};
 use crate::model::{CellClassifierInput, Kind, Metadata, condition};
-use crate::plan::anyangle::{GridPoint, centre, traverse};
+use crate::plan::anyangle::{GridPoint, centre, on_grid, traverse};
 use crate::plan::desire::{prior_line, resample, walkable_line};
 use crate::plan::frame::{bright, route_from_frame};
 use crate::plan::{Connectivity, Origin, Profile, cells_off_area};
@@ -234,7 +234,7 @@ pub fn train_lines(
     let rows: Vec<(LineRequest, [[f32; 2]; POINTS])> = directions
         .par_iter()
         .filter_map(|&([a, b], shape)| {
-            let prior = prior_line(site, Profile::Default, cell_at(a), cell_at(b)).ok()?;
+            let prior = prior_line(site, Profile::Default, cell_of(a), cell_of(b)).ok()?;
             let prior = line_gan::offsets(&resample(&prior, POINTS), a, b);
             Some((
                 LineRequest {
@@ -265,7 +265,7 @@ pub fn train_lines(
         condition
             .slice_mut(s![ENDPOINTS_LEN..])
             .assign(&ArrayView1::from(&request.prior));
-        let pair = (cell_at(a), cell_at(b));
+        let pair = (cell_of(a), cell_of(b));
         if requests.len() < LINE_EVAL_REQUESTS && seen.insert(pair) {
             requests.push((pair, row));
         }
@@ -311,11 +311,6 @@ pub fn train_lines(
             )
         },
     )
-}
-
-/// The cell a point (cell units) lies in.
-fn cell_at(p: GridPoint) -> Cell {
-    Cell::new(p[0].floor() as u16, p[1].floor() as u16)
 }
 
 /// The paper's models (rejection mode): the path classifier, 0/1 frames →
@@ -883,13 +878,9 @@ fn measure_lines(
         for (i, seg) in line.windows(2).enumerate() {
             // Each segment after the first starts in the cell the one
             // before ended in.
-            for &[x, y] in &traverse(seg[0], seg[1]).cells[usize::from(i > 0)..] {
+            for &raw in &traverse(seg[0], seg[1]).cells[usize::from(i > 0)..] {
                 crossed += 1;
-                let cell = u16::try_from(x)
-                    .ok()
-                    .zip(u16::try_from(y).ok())
-                    .map(|(x, y)| Cell::new(x, y));
-                walkable += usize::from(cell.is_some_and(|c| site.contains(c) && site.walkable(c)));
+                walkable += usize::from(on_grid(site, raw).is_some_and(|c| site.walkable(c)));
             }
         }
         if !matches!(
