@@ -1465,9 +1465,8 @@ fn spread_cell(n: &[u32], stay: f32, mass: f32, to: &mut [f32]) {
 const LANES: usize = 16;
 
 /// Σ `v`, in [`LANES`] interleaved partial sums added at the end: one chain
-/// of dependent adds over a floor of cells waits on every add's latency
-/// (a quarter of a fix on a 5,000-cell floor); independent lanes do not,
-/// and vectorise.
+/// of dependent adds over a floor of cells waits on every add's latency;
+/// independent lanes do not, and vectorise.
 fn lane_sum(v: &[f32]) -> f32 {
     let chunks = v.chunks_exact(LANES);
     let rest: f32 = chunks.remainder().iter().sum();
