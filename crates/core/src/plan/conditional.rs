@@ -9,12 +9,12 @@
 
 use std::sync::Arc;
 
-use ndarray::ArrayView2;
 use serde::Deserialize;
 
 use super::frame::{bright, route_from_frame};
 use super::{
     Connectivity, PlanError, Planned, Planner, Profile, RequestSeeds, Timings, model_error,
+    repeated,
 };
 use crate::clock::Clock;
 use crate::model::condition;
@@ -92,10 +92,7 @@ impl Planner for Conditional {
         // repeated (the model's input is laid out from the view).
         let mut condition = vec![0.0; condition::len(w, h)];
         condition::encode(w, h, from, to, &mut condition);
-        let one = ArrayView2::from_shape((1, condition.len()), &condition).expect("one row");
-        let conditions = one
-            .broadcast((rows, condition.len()))
-            .expect("a row repeats");
+        let conditions = repeated(&condition, rows);
         let started = self.clock.start();
         let frames = self
             .generator

@@ -17,14 +17,13 @@
 
 use std::sync::Arc;
 
-use ndarray::ArrayView2;
 use serde::Deserialize;
 
 use super::anyangle::{GridPoint, centre};
 use super::desire::{prior_line, resample, serve_walkable, walkable_line};
 use super::{
     Connectivity, PlanError, Planned, Planner, Profile, RequestSeeds, Timings, model_error,
-    passable_ends,
+    passable_ends, repeated,
 };
 use crate::clock::Clock;
 use crate::model::desire::POINTS;
@@ -139,14 +138,6 @@ impl Planner for LineGan {
             ..planned
         })
     }
-}
-
-/// `row` as `rows` rows: every sample of a request has the same condition
-/// (the model's input is laid out from the view).
-fn repeated(row: &[f32], rows: usize) -> ArrayView2<'_, f32> {
-    use ndarray::ShapeBuilder;
-    // A stride of 0 between rows: the one row, seen `rows` times.
-    ArrayView2::from_shape((rows, row.len()).strides((0, 1)), row).expect("a row repeats")
 }
 
 /// A line's length, cells.

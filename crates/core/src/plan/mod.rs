@@ -682,6 +682,15 @@ pub(crate) fn passable_ends(
     }
 }
 
+/// `row` as `rows` rows: every sample a generative planner draws for a
+/// request has the same condition (a model's input is laid out from the
+/// view, so the row is not copied).
+pub(crate) fn repeated(row: &[f32], rows: usize) -> ndarray::ArrayView2<'_, f32> {
+    use ndarray::ShapeBuilder;
+    // A stride of 0 between rows: the one row, seen `rows` times.
+    ndarray::ArrayView2::from_shape((rows, row.len()).strides((0, 1)), row).expect("a row repeats")
+}
+
 /// Where a generative planner's randomness comes from: each request's own
 /// generator, seeded by the request's number since start-up, so the same
 /// requests get the same answers from one start-up to the next.
