@@ -204,24 +204,43 @@ pub fn anchors(
 pub struct PathLoss {
     n_cells: usize,
     n_anchors: usize,
-    /// Expected RSSI, `[cell][anchor]` row-major; NaN for anchors without a position.
+    /// Expected RSSI, `[anchor][cell]`: one anchor's cells side by side, so
+    /// that scoring a window streams the heard anchors' columns through the
+    /// cache and vector lanes. Cell-major rows made every cell fetch a
+    /// row of every anchor for the few heard (4 MB per fix on a 5,500-cell
+    /// mall floor of 60 beacons: memory-bound). NaN for anchors without a
+    /// position.
     expected: Vec<f32>,
     /// ln P(heard), same layout.
     log_hit: Vec<f32>,
-    /// ln P(not heard), same layout.
-    log_miss: Vec<f32>,
-    /// Per cell, the sum of `log_miss` over every anchor: the log-likelihood
-    /// of hearing nothing. A window hears a few of a building's hundreds of
-    /// beacons, so a fix starts from this and visits the heard anchors only
-    /// (`cells × heard`, not `cells × anchors`).
+    /// What hearing the anchor at a cell adds to hearing nothing, the
+    /// Gaussian's exponent aside: `ln P(heard) − ln P(not heard) + ln(1/σ)`;
+    /// `−ln P(not heard)` where the expected RSSI is NaN. Same layout.
+    gain: Vec<f32>,
+    /// Per cell, the sum of ln P(not heard) over every anchor: the
+    /// log-likelihood of hearing nothing. A window hears a few of a
+    /// building's hundreds of beacons, so a fix starts from this and visits
+    /// the heard anchors only (`cells × heard`, not `cells × anchors`).
     miss_total: Vec<f32>,
     /// The anchors heard in the window being scored.
     heard_scratch: Vec<usize>,
     /// 1/σ per anchor.
     inv_sigma: Vec<f32>,
-    /// ln(1/σ) per anchor: the Gaussian's normalising term, taken once here
-    /// rather than once per cell and window (it was a tenth of a replay).
-    ln_inv_sigma: Vec<f32>,
+}
+
+/// A model's tables as they are built, `[cell][anchor]` row-major (a cell's
+/// row is worked out at once), before [`Tables::model`] lays them out per
+/// anchor.
+struct Tables {
+    n_cells: usize,
+    /// Expected RSSI; NaN for anchors without a position.
+    expected: Vec<f32>,
+    /// ln P(heard).
+    log_hit: Vec<f32>,
+    /// ln P(not heard).
+    log_miss: Vec<f32>,
+    /// 1/σ per anchor.
+    inv_sigma: Vec<f32>,
 }
 
 impl PathLoss {
@@ -247,9 +266,10 @@ impl PathLoss {
         config: &PathLossConfig,
         calibration: Option<&super::calibration::Calibration>,
     ) -> Result<Self, LocalizerError> {
-        let mut model = Self::with_anchors(site, &anchors(site, orientation, config, calibration))?;
+        let mut tables =
+            Tables::of_anchors(site, &anchors(site, orientation, config, calibration))?;
         let Some(calibration) = calibration else {
-            return Ok(model);
+            return Ok(tables.model());
         };
         // The calibration's anchors in the orientation's order.
         let ids = super::window::anchor_ids(site, orientation);
@@ -258,7 +278,7 @@ impl PathLoss {
             .iter()
             .map(|a| ids.iter().position(|id| *id == a.id))
             .collect();
-        let n = model.n_anchors;
+        let n = tables.inv_sigma.len();
         for cell in &calibration.cells {
             let Some(c) = site.open_index(crate::site::Cell::new(cell.at[0], cell.at[1])) else {
                 continue;
@@ -266,21 +286,27 @@ impl PathLoss {
             for (j, slot) in slots.iter().enumerate() {
                 let Some(a) = *slot else { continue };
                 let i = c * n + a;
-                if model.expected[i].is_nan() {
+                if tables.expected[i].is_nan() {
                     continue;
                 }
                 let p = cell.detection[j].clamp(DETECTION_BOUNDS.0, DETECTION_BOUNDS.1);
-                model.expected[i] = cell.rssi_dbm[j] as f32;
-                model.log_hit[i] = p.ln() as f32;
-                model.log_miss[i] = (1.0 - p).ln() as f32;
+                tables.expected[i] = cell.rssi_dbm[j] as f32;
+                tables.log_hit[i] = p.ln() as f32;
+                tables.log_miss[i] = (1.0 - p).ln() as f32;
             }
         }
-        model.miss_total = miss_totals(&model.log_miss, n, model.n_cells);
-        Ok(model)
+        Ok(tables.model())
     }
 
     /// The model for given anchors (calibration and evaluation build these).
     pub(crate) fn with_anchors(site: &Site, anchors: &[Anchor]) -> Result<Self, LocalizerError> {
+        Ok(Tables::of_anchors(site, anchors)?.model())
+    }
+}
+
+impl Tables {
+    /// The tables of given anchors.
+    fn of_anchors(site: &Site, anchors: &[Anchor]) -> Result<Self, LocalizerError> {
         if anchors.iter().all(Option::is_none) {
             return Err(LocalizerError::NoAnchorPositions);
         }
@@ -314,13 +340,64 @@ impl PathLoss {
             .iter()
             .map(|a| a.map_or(0.0, |(_, r)| (1.0 / r.shadowing_db) as f32))
             .collect();
-        Ok(PathLoss::from_tables(
-            cells.len(),
+        Ok(Tables {
+            n_cells: cells.len(),
             expected,
             log_hit,
             log_miss,
             inv_sigma,
-        ))
+        })
+    }
+
+    /// The model: the tables laid out per anchor, with what a fix starts
+    /// from (hearing nothing) and what each heard anchor adds.
+    fn model(self) -> PathLoss {
+        let Tables {
+            n_cells,
+            expected,
+            log_hit,
+            log_miss,
+            inv_sigma,
+        } = self;
+        let n = inv_sigma.len();
+        let miss_total = if n == 0 {
+            vec![0.0; n_cells]
+        } else {
+            log_miss
+                .chunks_exact(n)
+                .map(|row| row.iter().sum())
+                .collect()
+        };
+        // Each entry of the `[anchor][cell]` table from the row-major index.
+        // A building's tables are tens of MB: each row-major one is dropped
+        // once laid out, so at most four are held at once.
+        let by_anchor = |entry: &dyn Fn(usize) -> f32| -> Vec<f32> {
+            let mut out = Vec::with_capacity(n * n_cells);
+            for a in 0..n {
+                out.extend((0..n_cells).map(|c| entry(c * n + a)));
+            }
+            out
+        };
+        let gain = by_anchor(&|i| {
+            if expected[i].is_nan() {
+                -log_miss[i]
+            } else {
+                log_hit[i] - log_miss[i] + inv_sigma[i % n].ln()
+            }
+        });
+        drop(log_miss);
+        let expected_by_anchor = by_anchor(&|i| expected[i]);
+        drop(expected);
+        PathLoss {
+            n_cells,
+            n_anchors: n,
+            expected: expected_by_anchor,
+            log_hit: by_anchor(&|i| log_hit[i]),
+            gain,
+            miss_total,
+            heard_scratch: Vec::new(),
+            inv_sigma,
+        }
     }
 }
 
@@ -328,9 +405,14 @@ impl PathLoss {
     /// Expected RSSI and detection probability per cell and anchor,
     /// `[cell][anchor]`; NaN expected RSSI for anchors without a position.
     pub(crate) fn tables(&self) -> (Vec<f64>, Vec<f64>) {
+        let by_cell = |table: &[f32], f: fn(f32) -> f64| -> Vec<f64> {
+            (0..self.n_cells)
+                .flat_map(|c| (0..self.n_anchors).map(move |a| f(table[a * self.n_cells + c])))
+                .collect()
+        };
         (
-            self.expected.iter().map(|&v| f64::from(v)).collect(),
-            self.log_hit.iter().map(|&v| f64::from(v).exp()).collect(),
+            by_cell(&self.expected, f64::from),
+            by_cell(&self.log_hit, |v| f64::from(v).exp()),
         )
     }
 
@@ -372,17 +454,14 @@ impl PathLoss {
         log_miss: Vec<f32>,
         inv_sigma: Vec<f32>,
     ) -> Self {
-        PathLoss {
+        Tables {
             n_cells,
-            n_anchors: inv_sigma.len(),
-            miss_total: miss_totals(&log_miss, inv_sigma.len(), n_cells),
-            heard_scratch: Vec::new(),
             expected,
             log_hit,
             log_miss,
-            ln_inv_sigma: inv_sigma.iter().map(|s| s.ln()).collect(),
             inv_sigma,
         }
+        .model()
     }
 }
 
@@ -429,7 +508,7 @@ impl PathLoss {
     /// Expected RSSI and detection probability of `anchor` at the open cell
     /// `cell`; none for an anchor without a position.
     pub(crate) fn heard_at(&self, cell: usize, anchor: usize) -> Option<(f32, f64)> {
-        let i = cell * self.n_anchors + anchor;
+        let i = anchor * self.n_cells + cell;
         let mu = self.expected[i];
         (!mu.is_nan()).then(|| (mu, f64::from(self.log_hit[i]).exp()))
     }
@@ -438,44 +517,30 @@ impl PathLoss {
     fn score(&self, scratch: &mut Vec<usize>, rssi: &[f32], heard: &[bool], out: &mut [f32]) {
         debug_assert_eq!(rssi.len(), self.n_anchors);
         debug_assert_eq!(out.len(), self.n_cells);
-        let n = self.n_anchors;
+        let n = self.n_cells;
         scratch.clear();
-        scratch.extend((0..n).filter(|&a| heard[a]));
-        let rows = self
-            .expected
-            .chunks_exact(n)
-            .zip(self.log_hit.chunks_exact(n))
-            .zip(self.log_miss.chunks_exact(n));
-        for ((slot, ((expected, log_hit), log_miss)), &nothing) in
-            out.iter_mut().zip(rows).zip(&self.miss_total)
-        {
-            // Hearing nothing, then each heard anchor's miss swapped for
-            // its hit (an anchor without a position weighs nothing).
-            let mut ll = nothing;
-            for &a in scratch.iter() {
-                ll -= log_miss[a];
-                let mu = expected[a];
-                if mu.is_nan() {
-                    continue;
-                }
-                let z = (rssi[a] - mu) * self.inv_sigma[a];
-                ll += log_hit[a] - 0.5 * z * z + self.ln_inv_sigma[a];
+        scratch.extend((0..self.n_anchors).filter(|&a| heard[a]));
+        // Hearing nothing, then each heard anchor's miss swapped for its
+        // hit, one anchor's column at a time (an anchor without a position
+        // weighs nothing: its gain is 0 and its expected RSSI NaN).
+        out.copy_from_slice(&self.miss_total);
+        for &a in scratch.iter() {
+            let (r, inv_sigma) = (rssi[a], self.inv_sigma[a]);
+            let column = a * n..(a + 1) * n;
+            for ((slot, &mu), &gain) in out
+                .iter_mut()
+                .zip(&self.expected[column.clone()])
+                .zip(&self.gain[column])
+            {
+                let z = (r - mu) * inv_sigma;
+                *slot += if mu.is_nan() {
+                    gain
+                } else {
+                    gain - 0.5 * z * z
+                };
             }
-            *slot = ll;
         }
     }
-}
-
-/// Per cell of `n_cells`, the sum of its row of `log_miss` (`n` anchors a
-/// row).
-fn miss_totals(log_miss: &[f32], n: usize, n_cells: usize) -> Vec<f32> {
-    if n == 0 {
-        return vec![0.0; n_cells];
-    }
-    log_miss
-        .chunks_exact(n)
-        .map(|row| row.iter().sum())
-        .collect()
 }
 
 #[cfg(test)]
