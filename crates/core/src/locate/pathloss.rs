@@ -207,9 +207,9 @@ pub struct PathLoss {
     /// Expected RSSI, `[anchor][cell]`: one anchor's cells side by side, so
     /// that scoring a window streams the heard anchors' columns through the
     /// cache and vector lanes. Cell-major rows made every cell fetch a
-    /// row of every anchor for the few heard (4 MB per fix on a 5,500-cell
-    /// mall floor of 60 beacons: memory-bound). NaN for anchors without a
-    /// position.
+    /// row of every anchor for the few heard (megabytes per fix on a
+    /// 5,500-cell mall floor of ~200 beacons: memory-bound). NaN for
+    /// anchors without a position.
     expected: Vec<f32>,
     /// ln P(heard), same layout.
     log_hit: Vec<f32>,
