@@ -228,9 +228,8 @@ pub struct PathLoss {
     inv_sigma: Vec<f32>,
 }
 
-/// A model's tables as they are built, `[cell][anchor]` row-major (a cell's
-/// row is worked out at once), before [`Tables::model`] lays them out per
-/// anchor.
+/// A model's tables as they are built, `[anchor][cell]` like the model's,
+/// before [`Tables::model`] folds them into what a fix reads.
 struct Tables {
     n_cells: usize,
     /// Expected RSSI; NaN for anchors without a position.
@@ -278,14 +277,13 @@ impl PathLoss {
             .iter()
             .map(|a| ids.iter().position(|id| *id == a.id))
             .collect();
-        let n = tables.inv_sigma.len();
         for cell in &calibration.cells {
             let Some(c) = site.open_index(crate::site::Cell::new(cell.at[0], cell.at[1])) else {
                 continue;
             };
             for (j, slot) in slots.iter().enumerate() {
                 let Some(a) = *slot else { continue };
-                let i = c * n + a;
+                let i = a * tables.n_cells + c;
                 if tables.expected[i].is_nan() {
                     continue;
                 }
@@ -310,16 +308,19 @@ impl Tables {
         if anchors.iter().all(Option::is_none) {
             return Err(LocalizerError::NoAnchorPositions);
         }
-        let cells = site.open_cells();
-        let n = cells.len() * anchors.len();
+        let places: Vec<_> = site
+            .open_cells()
+            .iter()
+            .map(|&cell| site.world_of_cell(cell))
+            .collect();
+        let n = places.len() * anchors.len();
         let (mut expected, mut log_hit, mut log_miss) = (
             Vec::with_capacity(n),
             Vec::with_capacity(n),
             Vec::with_capacity(n),
         );
-        for &cell in cells {
-            let here = site.world_of_cell(cell);
-            for anchor in anchors {
+        for anchor in anchors {
+            for &here in &places {
                 match anchor {
                     Some((mount, radio)) => {
                         let d = mount.distance_m(here);
@@ -341,7 +342,7 @@ impl Tables {
             .map(|a| a.map_or(0.0, |(_, r)| (1.0 / r.shadowing_db) as f32))
             .collect();
         Ok(Tables {
-            n_cells: cells.len(),
+            n_cells: places.len(),
             expected,
             log_hit,
             log_miss,
@@ -349,50 +350,73 @@ impl Tables {
         })
     }
 
-    /// The model: the tables laid out per anchor, with what a fix starts
-    /// from (hearing nothing) and what each heard anchor adds.
+    /// The tables of `[cell][anchor]` row-major ones, each laid out per
+    /// anchor and dropped in turn (one table more than the three at most).
+    fn by_cell(
+        n_cells: usize,
+        expected: Vec<f32>,
+        log_hit: Vec<f32>,
+        log_miss: Vec<f32>,
+        inv_sigma: Vec<f32>,
+    ) -> Self {
+        let n = inv_sigma.len();
+        let by_anchor = |table: Vec<f32>| -> Vec<f32> {
+            let mut out = Vec::with_capacity(table.len());
+            for a in 0..n {
+                out.extend((0..n_cells).map(|c| table[c * n + a]));
+            }
+            out
+        };
+        Tables {
+            n_cells,
+            expected: by_anchor(expected),
+            log_hit: by_anchor(log_hit),
+            log_miss: by_anchor(log_miss),
+            inv_sigma,
+        }
+    }
+
+    /// The model: what a fix starts from (hearing nothing) and what each
+    /// heard anchor adds, the latter in place of ln P(not heard) (a
+    /// building's tables are tens of MB: never one more than these three).
     fn model(self) -> PathLoss {
         let Tables {
             n_cells,
             expected,
             log_hit,
-            log_miss,
+            log_miss: mut gain,
             inv_sigma,
         } = self;
-        let n = inv_sigma.len();
-        let miss_total = if n == 0 {
-            vec![0.0; n_cells]
-        } else {
-            log_miss
-                .chunks_exact(n)
-                .map(|row| row.iter().sum())
-                .collect()
-        };
-        // Each entry of the `[anchor][cell]` table from the row-major index.
-        // A building's tables are tens of MB: each row-major one is dropped
-        // once laid out, so at most four are held at once.
-        let by_anchor = |entry: &dyn Fn(usize) -> f32| -> Vec<f32> {
-            let mut out = Vec::with_capacity(n * n_cells);
-            for a in 0..n {
-                out.extend((0..n_cells).map(|c| entry(c * n + a)));
+        // Each cell's sum over the anchors in their order.
+        let mut miss_total = vec![0.0f32; n_cells];
+        if n_cells > 0 {
+            for column in gain.chunks_exact(n_cells) {
+                for (total, &miss) in miss_total.iter_mut().zip(column) {
+                    *total += miss;
+                }
             }
-            out
-        };
-        let gain = by_anchor(&|i| {
-            if expected[i].is_nan() {
-                -log_miss[i]
-            } else {
-                log_hit[i] - log_miss[i] + inv_sigma[i % n].ln()
+            for (((gain, expected), log_hit), &inv_sigma) in gain
+                .chunks_exact_mut(n_cells)
+                .zip(expected.chunks_exact(n_cells))
+                .zip(log_hit.chunks_exact(n_cells))
+                .zip(&inv_sigma)
+            {
+                let ln_inv_sigma = inv_sigma.ln();
+                for ((gain, &mu), &hit) in gain.iter_mut().zip(expected).zip(log_hit) {
+                    let miss = *gain;
+                    *gain = if mu.is_nan() {
+                        -miss
+                    } else {
+                        hit - miss + ln_inv_sigma
+                    };
+                }
             }
-        });
-        drop(log_miss);
-        let expected_by_anchor = by_anchor(&|i| expected[i]);
-        drop(expected);
+        }
         PathLoss {
             n_cells,
-            n_anchors: n,
-            expected: expected_by_anchor,
-            log_hit: by_anchor(&|i| log_hit[i]),
+            n_anchors: inv_sigma.len(),
+            expected,
+            log_hit,
             gain,
             miss_total,
             heard_scratch: Vec::new(),
@@ -454,14 +478,7 @@ impl PathLoss {
         log_miss: Vec<f32>,
         inv_sigma: Vec<f32>,
     ) -> Self {
-        Tables {
-            n_cells,
-            expected,
-            log_hit,
-            log_miss,
-            inv_sigma,
-        }
-        .model()
+        Tables::by_cell(n_cells, expected, log_hit, log_miss, inv_sigma).model()
     }
 }
 
