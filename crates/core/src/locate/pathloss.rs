@@ -350,32 +350,6 @@ impl Tables {
         })
     }
 
-    /// The tables of `[cell][anchor]` row-major ones, each laid out per
-    /// anchor and dropped in turn (one table more than the three at most).
-    fn by_cell(
-        n_cells: usize,
-        expected: Vec<f32>,
-        log_hit: Vec<f32>,
-        log_miss: Vec<f32>,
-        inv_sigma: Vec<f32>,
-    ) -> Self {
-        let n = inv_sigma.len();
-        let by_anchor = |table: Vec<f32>| -> Vec<f32> {
-            let mut out = Vec::with_capacity(table.len());
-            for a in 0..n {
-                out.extend((0..n_cells).map(|c| table[c * n + a]));
-            }
-            out
-        };
-        Tables {
-            n_cells,
-            expected: by_anchor(expected),
-            log_hit: by_anchor(log_hit),
-            log_miss: by_anchor(log_miss),
-            inv_sigma,
-        }
-    }
-
     /// The model: what a fix starts from (hearing nothing) and what each
     /// heard anchor adds, the latter in place of ln P(not heard) (a
     /// building's tables are tens of MB: never one more than these three).
@@ -470,7 +444,9 @@ impl PathLoss {
         )
     }
 
-    /// Likelihood tables made elsewhere (the radio map), `[cell][anchor]`.
+    /// Likelihood tables made elsewhere (the radio map), `[cell][anchor]`
+    /// row-major: each laid out per anchor and dropped in turn (one table
+    /// more than the three at most).
     pub(crate) fn from_tables(
         n_cells: usize,
         expected: Vec<f32>,
@@ -478,7 +454,22 @@ impl PathLoss {
         log_miss: Vec<f32>,
         inv_sigma: Vec<f32>,
     ) -> Self {
-        Tables::by_cell(n_cells, expected, log_hit, log_miss, inv_sigma).model()
+        let n = inv_sigma.len();
+        let by_anchor = |table: Vec<f32>| -> Vec<f32> {
+            let mut out = Vec::with_capacity(table.len());
+            for a in 0..n {
+                out.extend((0..n_cells).map(|c| table[c * n + a]));
+            }
+            out
+        };
+        Tables {
+            n_cells,
+            expected: by_anchor(expected),
+            log_hit: by_anchor(log_hit),
+            log_miss: by_anchor(log_miss),
+            inv_sigma,
+        }
+        .model()
     }
 }
 
