@@ -157,6 +157,11 @@ struct LocalizationArgs {
     /// smoothing; 0 is the online filter a live gateway runs).
     #[arg(long, default_value_t = 0)]
     smooth_lag: usize,
+    /// Add this many dB to every held-out reading: what a phone that hears
+    /// that much louder (negative: deafer) than the survey's and the
+    /// model's would get.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    receiver_offset_db: f32,
     /// Take [window], [localizer] and [tracker] settings from this gateway config
     /// instead of the defaults.
     #[arg(long)]
@@ -336,6 +341,7 @@ fn floors(args: &LocalizationArgs, walks: &Path) -> anyhow::Result<ExitCode> {
         },
         floor_switch: args.floor_switch,
         recalibrate: args.recalibrate,
+        receiver_offset_db: args.receiver_offset_db,
     };
     let started = Instant::now();
     let report = crate::eval::floors::evaluate(&building, walks, &setup)?;
@@ -421,6 +427,7 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
         smooth_lag: args.smooth_lag,
         calibrate_from: calibrate_from.clone(),
         calibrate_cells: args.calibrate_cells.unwrap_or(0),
+        receiver_offset_db: args.receiver_offset_db,
     };
     let method = args.method.unwrap_or(localizer.method);
     let outcome = evaluate(&site, &survey, &setup(method, args.tracker))?;

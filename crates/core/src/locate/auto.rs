@@ -21,6 +21,7 @@ use std::sync::Arc;
 
 use super::crossval::{Folds, choose};
 use super::knn::Knn;
+use super::pathloss::PathLoss;
 use super::radiomap::RadioMap;
 use super::reliability::Mapped;
 use super::survey::{Sample, Survey};
@@ -126,5 +127,10 @@ impl Localizer for Gated {
         if !self.knn.familiar() {
             self.map.log_likelihood(rssi, heard, out);
         }
+    }
+
+    /// The radio map's: the vote has no model of what a cell hears.
+    fn radio_model(&mut self) -> Option<&mut PathLoss> {
+        self.map.radio_model()
     }
 }

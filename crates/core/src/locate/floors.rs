@@ -151,7 +151,7 @@ impl FloorFilter {
     /// Takes one window's log-evidence per floor; returns the most likely
     /// floor and its probability.
     pub fn update(&mut self, evidence: &[f64]) -> (usize, f64) {
-        let ln_all = log_sum_exp(&self.ln_belief);
+        let ln_all = log_sum_exp(self.ln_belief.iter().copied());
         let prior: Vec<f64> = self
             .ln_belief
             .iter()
@@ -164,7 +164,7 @@ impl FloorFilter {
         for ((b, p), e) in self.ln_belief.iter_mut().zip(prior).zip(evidence) {
             *b = p + e;
         }
-        let norm = log_sum_exp(&self.ln_belief);
+        let norm = log_sum_exp(self.ln_belief.iter().copied());
         for b in &mut self.ln_belief {
             *b -= norm;
         }
@@ -189,16 +189,17 @@ impl FloorFilter {
     }
 }
 
-fn log_sum_exp(values: &[f64]) -> f64 {
-    let max = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+/// ln Σ e^v, without overflow.
+pub(crate) fn log_sum_exp(values: impl Iterator<Item = f64> + Clone) -> f64 {
+    let max = values.clone().fold(f64::NEG_INFINITY, f64::max);
     if max == f64::NEG_INFINITY {
         return max;
     }
-    max + values.iter().map(|v| (v - max).exp()).sum::<f64>().ln()
+    max + values.map(|v| (v - max).exp()).sum::<f64>().ln()
 }
 
 fn log_add_exp(a: f64, b: f64) -> f64 {
-    log_sum_exp(&[a, b])
+    log_sum_exp([a, b].into_iter())
 }
 
 /// ln(e^a − e^b) for a ≥ b; −∞ when they are equal.

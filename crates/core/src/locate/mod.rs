@@ -13,6 +13,7 @@ pub mod calibration;
 pub(crate) mod crossval;
 pub mod floor_track;
 pub mod floors;
+pub mod gain;
 pub mod knn;
 pub mod onnx;
 pub mod pathloss;
@@ -51,6 +52,14 @@ pub trait Localizer: Send + Sync {
         let _ = heard;
         raw
     }
+
+    /// The radio model behind the scores, where there is one: what a
+    /// device's gain is measured against ([`gain`]). A localizer without
+    /// one (a vote over fingerprints, a classifier) has none, and its
+    /// devices keep their gains.
+    fn radio_model(&mut self) -> Option<&mut pathloss::PathLoss> {
+        None
+    }
 }
 
 impl Default for LocalizerConfig {
@@ -58,6 +67,7 @@ impl Default for LocalizerConfig {
         LocalizerConfig {
             method: Method::default(),
             min_confidence: default_min_confidence(),
+            device_gains: default_device_gains(),
             pathloss: Default::default(),
             knn: Default::default(),
             radiomap: Default::default(),
@@ -78,6 +88,11 @@ pub struct LocalizerConfig {
     /// is under this is published as an unknown location, not a guessed cell.
     #[serde(default = "default_min_confidence")]
     pub min_confidence: f32,
+    /// Learn each device's receiver gain from its own fixes and correct its
+    /// windows by it where that explains its readings better ([`gain`]):
+    /// for sites whose visitors' phones hear differently from the model.
+    #[serde(default = "default_device_gains")]
+    pub device_gains: bool,
     /// `[localizer.pathloss]`: the radio model.
     #[serde(default)]
     pub pathloss: pathloss::PathLossConfig,
@@ -105,6 +120,13 @@ pub struct LocalizerConfig {
 
 fn default_min_confidence() -> f32 {
     0.15
+}
+
+/// Off: on the paper's floor, where every phone is the surveyor's, the
+/// gate let louder-than-modelled estimates through and guidance got worse
+/// (BENCHMARKS.md "Each phone's gain").
+fn default_device_gains() -> bool {
+    false
 }
 
 impl LocalizerConfig {

@@ -483,6 +483,10 @@ impl Localizer for PathLoss {
         self.score(&mut scratch, rssi, heard, out);
         self.heard_scratch = scratch;
     }
+
+    fn radio_model(&mut self) -> Option<&mut PathLoss> {
+        Some(self)
+    }
 }
 
 /// The model scored through a shared borrow, with its own scratch: what a

@@ -200,6 +200,10 @@ impl Localizer for RadioMap {
     fn confidence(&self, raw: f32, heard: usize) -> f32 {
         self.confidence.apply(raw, heard)
     }
+
+    fn radio_model(&mut self) -> Option<&mut PathLoss> {
+        Some(&mut self.tables)
+    }
 }
 
 /// The survey-free model fitted to the survey with its positions known: the

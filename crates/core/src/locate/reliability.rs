@@ -18,6 +18,7 @@
 //! survey worse, 0.069 → 0.112), four thousand rehearsed ones do not.
 
 use super::Localizer;
+use super::pathloss::PathLoss;
 
 /// A fix whose truth is known: its raw confidence, its error in cells, how
 /// many anchors its window heard and the group it came in (a walking
@@ -134,6 +135,10 @@ impl<L: Localizer> Localizer for Mapped<L> {
 
     fn confidence(&self, raw: f32, heard: usize) -> f32 {
         self.confidence.apply(raw, heard)
+    }
+
+    fn radio_model(&mut self) -> Option<&mut PathLoss> {
+        self.inner.radio_model()
     }
 }
 

@@ -7,6 +7,7 @@
 use std::sync::Arc;
 
 use crate::guide::{Guide, Located};
+use crate::locate::gain::Gains;
 use crate::locate::recalibrate::Heard;
 use crate::locate::tracker::{Fix, Tracker};
 use crate::locate::window::Fingerprint;
@@ -23,6 +24,9 @@ pub(super) struct FloorStages {
     /// For each anchor of this floor, in its site's order: the index of the
     /// same anchor in the building's fingerprints.
     anchors: Vec<usize>,
+    /// Each device's gain over this floor's radio model (devices' windows
+    /// are corrected by it), when `[localizer] device_gains` is on.
+    gains: Option<Gains>,
     /// The floor's part of one fingerprint, rebuilt per fix.
     rssi: Vec<f32>,
     heard: Vec<bool>,
@@ -45,7 +49,7 @@ impl FloorStages {
     /// survey-free one, and the replacement said in `fallbacks`.
     pub(super) fn build(
         config: &PipelineConfig,
-        localizer: &locate::LocalizerConfig,
+        localizer_config: &locate::LocalizerConfig,
         site: Arc<Site>,
         anchors: Vec<usize>,
         fall_back: bool,
@@ -54,14 +58,17 @@ impl FloorStages {
         let build = |localizer: &locate::LocalizerConfig| {
             locate::build(localizer, &site, &config.window, &config.tracker)
         };
-        let localizer = match build(localizer) {
+        let localizer = match build(localizer_config) {
             Err(e) if fall_back && e.is_file_failure() => {
-                let failed = format!("[localizer] method = \"{}\": {e}", localizer.method.name());
+                let failed = format!(
+                    "[localizer] method = \"{}\": {e}",
+                    localizer_config.method.name()
+                );
                 // The survey-free model stands in; without its calibration
                 // file when that is what failed.
                 let mut pathloss = locate::LocalizerConfig {
                     method: locate::Method::Pathloss,
-                    ..localizer.clone()
+                    ..localizer_config.clone()
                 };
                 if matches!(e, locate::LocalizerError::Calibration(_)) {
                     pathloss.pathloss.calibration = None;
@@ -84,6 +91,9 @@ impl FloorStages {
                 config.guidance.clone(),
                 config.guidance.fix_lag_s(&config.window),
             ),
+            gains: localizer_config
+                .device_gains
+                .then(|| Gains::bounded(limits.max_devices, limits.device_idle_s)),
             rssi: vec![0.0; anchors.len()],
             heard: vec![false; anchors.len()],
             anchors,
@@ -101,8 +111,19 @@ impl FloorStages {
             self.heard[i] = fp.heard[anchor];
         }
         let heard = self.heard.iter().filter(|&&h| h).count();
-        self.localizer
-            .log_likelihood(&self.rssi, &self.heard, &mut self.log_likelihood);
+        match &mut self.gains {
+            Some(gains) => gains.log_likelihood(
+                self.localizer.as_mut(),
+                &fp.entity,
+                &self.rssi,
+                &self.heard,
+                &mut self.log_likelihood,
+            ),
+            None => {
+                self.localizer
+                    .log_likelihood(&self.rssi, &self.heard, &mut self.log_likelihood)
+            }
+        }
         let (fix, walked_mean) = match entered {
             Some(cells) => (
                 self.tracker
@@ -115,6 +136,16 @@ impl FloorStages {
                     .update_walking(&fp.entity, fp.t, &self.log_likelihood, walk.as_ref())
             }
         };
+        if let (Some(gains), Some(cell)) = (&mut self.gains, self.site.open_index(fix.cell)) {
+            gains.learn(
+                self.localizer.as_mut(),
+                &fp.entity,
+                fp.t,
+                &self.rssi,
+                &self.heard,
+                cell,
+            );
+        }
         FloorFix {
             confidence: self.localizer.confidence(fix.confidence, heard),
             fix,

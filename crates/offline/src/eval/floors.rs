@@ -49,6 +49,7 @@ use super::planning::percentile;
 use crate::locate::calibration::Calibration;
 use crate::locate::floor_track::{self, FloorChange, FloorTracks};
 use crate::locate::floors::FloorEvidence;
+use crate::locate::gain::Gains;
 use crate::locate::recalibrate::{self, Heard as HeardWindow};
 use crate::locate::survey::Sample;
 use crate::locate::tracker::{Tracker, TrackerConfig};
@@ -77,6 +78,8 @@ pub struct FloorsSetup {
     /// Fit each floor's survey-free model to its training walks' windows
     /// first, as the gateway's recalibration would.
     pub recalibrate: bool,
+    /// Added to every held-out reading: a phone hearing that much louder.
+    pub receiver_offset_db: f32,
 }
 
 /// Floor accuracy and errors on the right floor.
@@ -270,7 +273,8 @@ pub fn evaluate(
         let localizer = localizer(setup, &site, &refs, calibration.as_ref())
             .with_context(|| format!("floor `{}`: its localizer", floor.name))?;
         let tracker = Tracker::new(setup.tracker.clone(), site.clone());
-        localizers.push((site, ids, localizer, tracker));
+        let gains = setup.localizer.device_gains.then(Gains::default);
+        localizers.push((site, ids, localizer, tracker, gains));
     }
     let baseline = Baseline::new(&baseline_train, all.len());
 
@@ -283,7 +287,11 @@ pub fn evaluate(
         for (w, walk) in walks.test.iter().enumerate() {
             let entity: Arc<str> = Arc::from(format!("{truth_floor}-{w}"));
             let mut on_floor: Option<usize> = None;
-            for (t, heard) in survey::windows(walk, &keys, &all, &options) {
+            for (t, mut heard) in survey::windows(walk, &keys, &all, &options) {
+                // Every consumer hears the same phone: floors, fixes, baseline.
+                for (_, r) in &mut heard {
+                    *r = (f32::from(*r) + setup.receiver_offset_db).round() as i16;
+                }
                 let truth = survey::labelled(truth_site, walk, t, &options);
                 let started = Instant::now();
                 let heard_f: Vec<(usize, f32)> =
@@ -299,7 +307,7 @@ pub fn evaluate(
                     continue;
                 };
                 let localize = Instant::now();
-                let (site, ids, localizer, tracker) = &mut localizers[floor];
+                let (site, ids, localizer, tracker, gains) = &mut localizers[floor];
                 let mut rssi = vec![setup.window.missing_dbm; ids.len()];
                 let mut heard_on_floor = vec![false; ids.len()];
                 for &(a, r) in &heard {
@@ -309,13 +317,25 @@ pub fn evaluate(
                     }
                 }
                 let mut ll = vec![0.0f32; site.open_cells().len()];
-                localizer.log_likelihood(&rssi, &heard_on_floor, &mut ll);
+                match gains {
+                    Some(gains) => gains.log_likelihood(
+                        localizer.as_mut(),
+                        &entity,
+                        &rssi,
+                        &heard_on_floor,
+                        &mut ll,
+                    ),
+                    None => localizer.log_likelihood(&rssi, &heard_on_floor, &mut ll),
+                }
                 let fix = match step.change {
                     FloorChange::From(from) => {
                         tracker.enter(&entity, t, floor_tracks.entries(from, floor), &ll)
                     }
                     FloorChange::Starts | FloorChange::Stays => tracker.update(&entity, t, &ll),
                 };
+                if let (Some(gains), Some(cell)) = (gains, site.open_index(fix.cell)) {
+                    gains.learn(localizer.as_mut(), &entity, t, &rssi, &heard_on_floor, cell);
+                }
                 fix_us.push((localize - started + localize.elapsed()).as_secs_f64() * 1e6);
                 let at = site.world_of_cell(fix.cell);
                 ours.push(Outcome {

@@ -21,6 +21,7 @@ use serde::Serialize;
 
 use crate::locate::calibrate::{DEFAULT_CELL_PRIOR_READINGS, FitOptions, Window, calibrate};
 use crate::locate::calibration::Calibration;
+use crate::locate::gain::Gains;
 use crate::locate::knn;
 use crate::locate::onnx::Onnx;
 use crate::locate::pathloss::anchors;
@@ -71,6 +72,8 @@ pub struct Setup {
     pub calibrate_from: Option<UnlabelledRows>,
     /// EM iterations refining a radio map per cell in that calibration (0: none).
     pub calibrate_cells: usize,
+    /// Added to every held-out reading: a phone hearing that much louder.
+    pub receiver_offset_db: f32,
 }
 
 /// The figures, averaged over seeds, and the reliability of the published
@@ -340,25 +343,52 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
             .iter()
             .map(|rows| rows.iter().copied().filter(|&r| test[r]).collect())
             .collect();
+        // Each session is one device, its gain learned as the daemon learns
+        // it: online, from the fixes before (so not under smoothing, whose
+        // fixes come after the windows they correct).
+        let mut gains =
+            (setup.localizer.device_gains && setup.smooth_lag == 0).then(Gains::default);
         for (s, rows) in sequences.iter().enumerate().filter(|(_, r)| !r.is_empty()) {
             let mut windows = Vec::with_capacity(rows.len());
+            let mut fixes = Vec::with_capacity(rows.len());
             for &row in rows {
                 for (a, r) in survey.samples[row].rssi.iter().enumerate() {
                     heard[a] = r.is_some();
-                    rssi[a] = r.map_or(setup.window.missing_dbm, f32::from);
+                    rssi[a] = r.map_or(setup.window.missing_dbm, |r| {
+                        f32::from(r) + setup.receiver_offset_db
+                    });
                 }
                 let mut ll = vec![0.0f32; site.open_cells().len()];
-                localizer.log_likelihood(&rssi, &heard, &mut ll);
-                windows.push((times[row], ll));
+                match &mut gains {
+                    Some(gains) => gains.log_likelihood(
+                        localizer.as_mut(),
+                        &entities[s],
+                        &rssi,
+                        &heard,
+                        &mut ll,
+                    ),
+                    None => localizer.log_likelihood(&rssi, &heard, &mut ll),
+                }
+                if setup.smooth_lag > 0 {
+                    windows.push((times[row], ll));
+                    continue;
+                }
+                let fix = tracker.update(&entities[s], times[row], &ll);
+                if let (Some(gains), Some(cell)) = (&mut gains, site.open_index(fix.cell)) {
+                    gains.learn(
+                        localizer.as_mut(),
+                        &entities[s],
+                        times[row],
+                        &rssi,
+                        &heard,
+                        cell,
+                    );
+                }
+                fixes.push(fix);
             }
-            let fixes = if setup.smooth_lag == 0 {
-                windows
-                    .iter()
-                    .map(|(t, ll)| tracker.update(&entities[s], *t, ll))
-                    .collect()
-            } else {
-                tracker.smooth(&windows, setup.smooth_lag)
-            };
+            if setup.smooth_lag > 0 {
+                fixes = tracker.smooth(&windows, setup.smooth_lag);
+            }
             for (fix, &row) in fixes.iter().zip(rows) {
                 let truth = survey.samples[row].cell;
                 let error = fix.cell.distance(truth);
