@@ -103,7 +103,9 @@ struct LocalizationArgs {
     /// The site file.
     #[arg(long)]
     site: PathBuf,
-    /// The labelled survey (CSV), split 70/30 by `--split`.
+    /// The labelled survey (CSV), split 70/30 by `--split` (`session`: 30%
+    /// of the walking sessions, so the share of rows held out varies with
+    /// their lengths).
     #[arg(
         long,
         required_unless_present_any = ["train", "walks"],

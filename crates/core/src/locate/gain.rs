@@ -91,6 +91,8 @@ struct Gain {
     evidence: f64,
     /// Windows localized with an estimate worth weighing.
     windows: u64,
+    /// Whether its offset was applied when last said (in the log).
+    announced: bool,
     last_t: f64,
 }
 
@@ -153,33 +155,47 @@ impl Gains {
             return localizer.log_likelihood(rssi, heard, out);
         };
         let estimate = gain.estimate();
-        if estimate.abs() < NEGLIGIBLE_DB {
-            return localizer.log_likelihood(rssi, heard, out);
-        }
-        self.corrected.clear();
-        self.corrected.extend(
-            rssi.iter()
-                .zip(heard)
-                .map(|(&r, &h)| if h { r - estimate as f32 } else { r }),
-        );
-        gain.windows += 1;
-        let settled = gain.evidence.abs() >= SETTLED * STRONG_EVIDENCE;
-        let weigh = !settled || gain.windows % SETTLED_STRIDE == 0;
-        if let Some(model) = localizer.radio_model().filter(|_| weigh) {
-            let cells = out.len();
-            let marginal = |scores: &mut Vec<f32>, rssi: &[f32], model: &mut PathLoss| {
-                scores.resize(cells, 0.0);
-                model.log_likelihood(rssi, heard, scores);
-                log_sum_exp(scores.iter().map(|&v| f64::from(v)))
-            };
-            let without = marginal(&mut self.as_heard, rssi, model);
-            let with = marginal(&mut self.if_corrected, &self.corrected, model);
-            let keep = 1.0 - 1.0 / MEMORY_READINGS;
-            if (with - without).is_finite() {
-                gain.evidence = gain.evidence * keep + (with - without);
+        if estimate.abs() >= NEGLIGIBLE_DB {
+            self.corrected.clear();
+            self.corrected.extend(
+                rssi.iter()
+                    .zip(heard)
+                    .map(|(&r, &h)| if h { r - estimate as f32 } else { r }),
+            );
+            gain.windows += 1;
+            let settled = gain.evidence.abs() >= SETTLED * STRONG_EVIDENCE;
+            let weigh = !settled || gain.windows % SETTLED_STRIDE == 0;
+            if let Some(model) = localizer.radio_model().filter(|_| weigh) {
+                let cells = out.len();
+                let marginal = |scores: &mut Vec<f32>, rssi: &[f32], model: &mut PathLoss| {
+                    scores.resize(cells, 0.0);
+                    model.log_likelihood(rssi, heard, scores);
+                    log_sum_exp(scores.iter().map(|&v| f64::from(v)))
+                };
+                let without = marginal(&mut self.as_heard, rssi, model);
+                let with = marginal(&mut self.if_corrected, &self.corrected, model);
+                let keep = 1.0 - 1.0 / MEMORY_READINGS;
+                if (with - without).is_finite() {
+                    gain.evidence = gain.evidence * keep + (with - without);
+                }
             }
         }
-        let rssi = if gain.applied() != 0.0 {
+        let applied = gain.applied();
+        // What a user turning this on needs to see: which devices it
+        // corrects, by how much, and when it stops.
+        if (applied != 0.0) != gain.announced {
+            gain.announced = applied != 0.0;
+            tracing::debug!(
+                device,
+                offset_db = applied,
+                estimate_db = estimate,
+                evidence = gain.evidence,
+                "device gain {}",
+                if gain.announced { "applied" } else { "dropped" }
+            );
+        }
+        // Applied only past NEGLIGIBLE_DB, where `corrected` was just filled.
+        let rssi = if applied != 0.0 {
             &self.corrected[..]
         } else {
             rssi
