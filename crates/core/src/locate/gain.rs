@@ -134,12 +134,6 @@ impl Gains {
         }
     }
 
-    /// The offset `device`'s windows are corrected by (0 for a device not
-    /// known or whose offset has not earned its place).
-    pub fn offset_db(&self, device: &str) -> f64 {
-        self.devices.get(device).map_or(0.0, Gain::applied)
-    }
-
     /// [`Localizer::log_likelihood`] of `device`'s window, corrected by its
     /// offset where that has earned its place; first weighs the window's
     /// evidence for its current estimate.
@@ -340,7 +334,7 @@ mod tests {
         (
             error_with / half,
             error_without / half,
-            gains.offset_db(&device),
+            gains.devices.get(&device).map_or(0.0, Gain::applied),
         )
     }
 
