@@ -10,7 +10,9 @@ use clap::Subcommand;
 
 use crate::config::Config;
 use crate::eval::floors::FloorsSetup;
-use crate::eval::localization::{Holdout, RowFix, Setup, Split, UnlabelledRows, evaluate};
+use crate::eval::localization::{
+    Holdout, ReliabilityBin, RowFix, Setup, Split, UnlabelledRows, evaluate,
+};
 use crate::eval::similarity::TrainingFrames;
 use crate::locate::survey::{Survey, SurveyRows};
 use crate::locate::tracker::{TrackerConfig, TrackerKind};
@@ -379,6 +381,11 @@ fn floors(args: &LocalizationArgs, walks: &Path) -> anyhow::Result<ExitCode> {
         line(&format!("ours {name}"), m);
         line(&format!("k-NN {name}"), &report.baseline.floors[name]);
     }
+    print_reliability(
+        &report.reliability,
+        report.confidence_gap_max,
+        report.confidence_gap_mean,
+    );
     eprintln!("took {:.1} s", started.elapsed().as_secs_f64());
     Ok(ExitCode::SUCCESS)
 }
@@ -464,18 +471,7 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
             "error m:     mean {:.3}  median {:.3}  p75 {:.3}  p90 {:.3}",
             e.mean_error_m, e.median_error_m, e.p75_error_m, e.p90_error_m
         );
-        println!("confidence   fixes  mean   within 1 cell");
-        for bin in m.reliability.iter().filter(|b| b.fixes > 0) {
-            println!(
-                "{:.1}–{:.1}  {:>7}  {:.3}  {:.3}",
-                bin.from, bin.to, bin.fixes, bin.mean_confidence, bin.within_1
-            );
-        }
-        println!(
-            "largest calibration gap (bins of {}+ fixes): {:.3}",
-            crate::eval::localization::RELIABLE_BIN,
-            m.confidence_gap_max
-        );
+        print_reliability(&m.reliability, m.confidence_gap_max, m.confidence_gap_mean);
     }
     if let Some(path) = &args.plot {
         let mut curves = Vec::new();
@@ -499,6 +495,21 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
 }
 
 /// Reads scans with times and any (or no) positions for calibration.
+/// Published confidence against what it promises, in tenths, and its gaps.
+fn print_reliability(bins: &[ReliabilityBin], gap_max: f64, gap_mean: f64) {
+    println!("published confidence   fixes  mean   within 1 cell");
+    for bin in bins.iter().filter(|b| b.fixes > 0) {
+        println!(
+            "{:.1}–{:.1}  {:>17}  {:.3}  {:.3}",
+            bin.from, bin.to, bin.fixes, bin.mean_confidence, bin.within_1
+        );
+    }
+    println!(
+        "calibration gap: largest {gap_max:.3} (bins of {}+ fixes), mean {gap_mean:.3} (over fixes)",
+        crate::eval::localization::RELIABLE_BIN,
+    );
+}
+
 fn unlabelled(
     path: &std::path::Path,
     site: &Site,

@@ -35,6 +35,11 @@
 //!
 //! Errors are metres between the fix (its cell's centre) and the
 //! interpolated truth, counted only where the floor is right.
+//!
+//! **Published confidence** is judged as on a survey
+//! ([`super::localization::reliability`]): the localizer's confidence times
+//! the floor's probability, as the daemon publishes it, against whether the
+//! fix is on the right floor within one of its cells of the truth.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
@@ -44,7 +49,7 @@ use std::time::Instant;
 use anyhow::Context;
 use serde::Serialize;
 
-use super::localization::{Surveyed, surveyed_localizer};
+use super::localization::{ReliabilityBin, Surveyed, reliability, surveyed_localizer};
 use super::planning::percentile;
 use crate::locate::calibration::Calibration;
 use crate::locate::floor_track::{self, FloorChange, FloorTracks};
@@ -119,6 +124,13 @@ pub struct FloorsReport {
     /// window); the median and the mean.
     pub us_per_fix_p50: f64,
     pub us_per_fix_mean: f64,
+    /// Our fixes by published confidence, in tenths.
+    pub reliability: Vec<ReliabilityBin>,
+    /// The largest |mean confidence − share within one cell| over the bins
+    /// holding enough fixes to judge by: 0 is perfectly calibrated.
+    pub confidence_gap_max: f64,
+    /// The same gap averaged over every fix (the expected calibration error).
+    pub confidence_gap_mean: f64,
     /// With `--recalibrate`, per floor: what its recalibration kept, or why
     /// it kept the defaults.
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
@@ -282,6 +294,8 @@ pub fn evaluate(
     let mut theirs = Vec::new();
     let mut refused_windows = 0;
     let mut fix_us = Vec::new();
+    // (published confidence, error in cells: infinite on a wrong floor).
+    let mut confidences = Vec::new();
     for (truth_floor, walks) in split.iter().enumerate() {
         let truth_site = &floors[truth_floor].site;
         for (w, walk) in walks.test.iter().enumerate() {
@@ -338,11 +352,21 @@ pub fn evaluate(
                 }
                 fix_us.push((localize - started + localize.elapsed()).as_secs_f64() * 1e6);
                 let at = site.world_of_cell(fix.cell);
-                ours.push(Outcome {
+                let outcome = Outcome {
                     truth_floor,
                     floor: (step.probability >= floor_track::KNOWN).then_some(floor),
                     error_m: (at[0] - truth[0]).hypot(at[1] - truth[1]),
-                });
+                };
+                let heard_count = heard_on_floor.iter().filter(|&&h| h).count();
+                confidences.push((
+                    localizer.confidence(fix.confidence, heard_count) * step.probability as f32,
+                    if floor == truth_floor {
+                        outcome.error_m / site.cell_m
+                    } else {
+                        f64::INFINITY
+                    },
+                ));
+                ours.push(outcome);
                 let (floor, at) = baseline.predict(&heard);
                 theirs.push(Outcome {
                     truth_floor,
@@ -353,6 +377,7 @@ pub fn evaluate(
         }
     }
     let names: Vec<&str> = floors.iter().map(|f| f.name.as_str()).collect();
+    let (reliability, confidence_gap_max, confidence_gap_mean) = reliability(&confidences);
     Ok(FloorsReport {
         method: setup.method.name().into(),
         ours: summarise(&ours, &names),
@@ -362,6 +387,9 @@ pub fn evaluate(
         refused_windows,
         us_per_fix_mean: fix_us.iter().sum::<f64>() / fix_us.len().max(1) as f64,
         us_per_fix_p50: percentile(&mut fix_us, 0.5).unwrap_or(0.0),
+        reliability,
+        confidence_gap_max,
+        confidence_gap_mean,
         recalibrated,
     })
 }

@@ -89,6 +89,9 @@ pub struct Metrics {
     /// The largest |mean confidence − share within one cell| over the bins
     /// holding at least [`RELIABLE_BIN`] fixes: 0 is perfectly calibrated.
     pub confidence_gap_max: f64,
+    /// The same gap averaged over every fix (the expected calibration
+    /// error): less noisy than the largest, which one sparse bin can set.
+    pub confidence_gap_mean: f64,
 }
 
 /// Fixes whose confidence fell in `[from, to)`.
@@ -105,8 +108,9 @@ pub struct ReliabilityBin {
 /// Bins with fewer fixes are listed but too noisy to judge calibration by.
 pub const RELIABLE_BIN: usize = 30;
 
-/// The reliability table of (confidence, error in cells) pairs.
-fn reliability(fixes: &[(f32, f64)]) -> (Vec<ReliabilityBin>, f64) {
+/// The reliability table of (confidence, error in cells) pairs, its largest
+/// gap and its mean gap over the fixes.
+pub(super) fn reliability(fixes: &[(f32, f64)]) -> (Vec<ReliabilityBin>, f64, f64) {
     let mut bins: Vec<ReliabilityBin> = (0..10)
         .map(|i| ReliabilityBin {
             from: f64::from(i) / 10.0,
@@ -120,17 +124,19 @@ fn reliability(fixes: &[(f32, f64)]) -> (Vec<ReliabilityBin>, f64) {
         bin.mean_confidence += f64::from(confidence);
         bin.within_1 += f64::from(u8::from(error <= 1.0 + 1e-9));
     }
-    let mut gap = 0.0f64;
+    let (mut gap_max, mut gap_sum) = (0.0f64, 0.0f64);
     for bin in &mut bins {
         if bin.fixes > 0 {
             bin.mean_confidence /= bin.fixes as f64;
             bin.within_1 /= bin.fixes as f64;
         }
+        let gap = (bin.mean_confidence - bin.within_1).abs();
+        gap_sum += gap * bin.fixes as f64;
         if bin.fixes >= RELIABLE_BIN {
-            gap = gap.max((bin.mean_confidence - bin.within_1).abs());
+            gap_max = gap_max.max(gap);
         }
     }
-    (bins, gap)
+    (bins, gap_max, gap_sum / fixes.len().max(1) as f64)
 }
 
 /// Metrics plus every error (all seeds), for plotting.
@@ -412,11 +418,12 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
         per_seed.push(metrics(&seed_errors, site.cell_m, us_per_fix));
         errors.extend(seed_errors);
     }
-    let (reliability, confidence_gap_max) = reliability(&confidences);
+    let (reliability, confidence_gap_max, confidence_gap_mean) = reliability(&confidences);
     Ok(Outcome {
         metrics: Metrics {
             reliability,
             confidence_gap_max,
+            confidence_gap_mean,
             ..average(&per_seed)
         },
         errors,
