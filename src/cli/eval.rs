@@ -494,7 +494,6 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// Reads scans with times and any (or no) positions for calibration.
 /// Published confidence against what it promises, in tenths, and its gaps.
 fn print_reliability(bins: &[ReliabilityBin], gap_max: f64, gap_mean: f64) {
     println!("published confidence   fixes  mean   within 1 cell");
@@ -510,6 +509,7 @@ fn print_reliability(bins: &[ReliabilityBin], gap_max: f64, gap_mean: f64) {
     );
 }
 
+/// Reads scans with times and any (or no) positions for calibration.
 fn unlabelled(
     path: &std::path::Path,
     site: &Site,

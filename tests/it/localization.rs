@@ -1023,9 +1023,9 @@ fn imported_mall(dir: &std::path::Path) -> Option<(String, String)> {
 /// same split (BENCHMARKS.md, "Floors"), each window's floor decided by
 /// the gateway's own floor tracks. Guards what is reached: the floor told
 /// apart at least as often as the baseline does, and the published
-/// confidence (times the floor's probability) as honest as it is. The targets
-/// (floor ≥ 97%, error on the right floor 15% below the baseline's) are not
-/// met; the figures are printed, not gated.
+/// confidence (times the floor's probability) as honest as it is. The
+/// issue's targets (floor ≥ 97%, error on the right floor 15% below the
+/// baseline's) are not met; the figures are printed, not gated.
 #[test]
 fn the_mall_s_floors_are_told_apart_at_least_as_well_as_the_baseline() {
     let dir = tempfile::tempdir().unwrap();
