@@ -88,7 +88,8 @@ fn the_real_survey_stays_at_or_above_the_reached_targets() {
 /// (`locate::rehearsal`). Before either: auto 0.228, knn 0.26, pathloss
 /// 0.79, calibrated 0.48, strongest 0.52. Calibrated, the mean gap over
 /// fixes too: 0.091 while a calibration narrowed the rehearsal's doubt,
-/// 0.049 since it does not.
+/// 0.049 since it does not; `auto`'s 0.092 before its held-out fixes were
+/// weighed by the ground they stood on (`locate::crossval`), 0.056 since.
 #[test]
 fn published_confidence_stays_as_honest_as_reached() {
     let Some(survey) = common::uci_survey() else {
@@ -97,23 +98,28 @@ fn published_confidence_stays_as_honest_as_reached() {
     let unlabelled = survey.with_file_name("iBeacon_RSSI_Unlabeled.csv");
     let (survey, unlabelled) = (survey.to_str().unwrap(), unlabelled.to_str().unwrap());
     let site = "config/sites/waldo.toml";
-    // (method flags, the largest gap allowed), measured gap beside each.
-    let cases: [(&[&str], f64); 6] = [
-        (&["--method", "auto"], 0.16),     // 0.138 measured
-        (&["--method", "radiomap"], 0.10), // 0.069
-        (&["--method", "knn"], 0.26),      // 0.247
-        (&["--method", "pathloss"], 0.33), // 0.307
-        (&["--method", "pathloss", "--calibrate", unlabelled], 0.13), // 0.119
-        (&["--method", "strongest"], 0.26), // 0.243
+    // (method flags, the largest gap allowed, the mean gap allowed where
+    // one is guarded), measured gaps beside each.
+    let cases: [(&[&str], f64, Option<f64>); 6] = [
+        (&["--method", "auto"], 0.14, Some(0.065)), // 0.127, 0.056 measured
+        (&["--method", "radiomap"], 0.10, None),    // 0.069
+        (&["--method", "knn"], 0.18, None),         // 0.161
+        (&["--method", "pathloss"], 0.33, None),    // 0.307
+        (
+            &["--method", "pathloss", "--calibrate", unlabelled],
+            0.13,
+            Some(0.06),
+        ), // 0.119, 0.049
+        (&["--method", "strongest"], 0.26, None),   // 0.243
     ];
-    for (flags, allowed) in cases {
+    for (flags, largest, mean) in cases {
         let m = eval(&[&["--site", site, "--survey", survey][..], flags].concat());
         assert!(
-            figure(&m, "confidence_gap_max") <= allowed,
+            figure(&m, "confidence_gap_max") <= largest,
             "{flags:?}: {m}"
         );
-        if flags.contains(&"--calibrate") {
-            assert!(figure(&m, "confidence_gap_mean") <= 0.06, "{m}");
+        if let Some(mean) = mean {
+            assert!(figure(&m, "confidence_gap_mean") <= mean, "{flags:?}: {m}");
         }
     }
 }

@@ -249,6 +249,7 @@ fn rehearse(
                 error_cells: fix.cell.distance(cells[here]),
                 heard: heard.iter().filter(|&&h| h).count(),
                 group: walk,
+                weight: 1.0,
             });
         }
         start += (WALK_WINDOWS as f64 + 1.0) * stride_s + tracker.reset_after_s;

@@ -29,6 +29,9 @@ pub(crate) struct KnownFix {
     pub error_cells: f64,
     pub heard: usize,
     pub group: usize,
+    /// How much the fix counts in a fit: held-out fixes are weighed so
+    /// that the ground they cover is the ground the served model meets.
+    pub weight: f64,
 }
 
 impl KnownFix {
@@ -147,9 +150,10 @@ impl<L: Localizer> Localizer for Mapped<L> {
 fn brier(map: &ConfidenceMap, fixes: &[KnownFix]) -> f64 {
     let sum: f64 = fixes
         .iter()
-        .map(|f| (f64::from(map.apply(f.raw, f.heard)) - f.within_one_cell()).powi(2))
+        .map(|f| f.weight * (f64::from(map.apply(f.raw, f.heard)) - f.within_one_cell()).powi(2))
         .sum();
-    sum / fixes.len().max(1) as f64
+    let total: f64 = fixes.iter().map(|f| f.weight).sum();
+    if total > 0.0 { sum / total } else { 0.0 }
 }
 
 /// `(raw, published)` knots, linear between them; none is the identity.
@@ -160,22 +164,30 @@ impl Knots {
     /// Isotonic regression (pool adjacent violators) of "within one cell"
     /// on raw confidence.
     fn fit<'a>(fixes: impl Iterator<Item = &'a KnownFix>) -> Knots {
-        let mut sorted: Vec<(f32, f64)> = fixes.map(|f| (f.raw, f.within_one_cell())).collect();
+        let mut sorted: Vec<(f32, f64, f64)> = fixes
+            .filter(|f| f.weight > 0.0)
+            .map(|f| (f.raw, f.within_one_cell(), f.weight))
+            .collect();
         if sorted.len() < MIN_FIXES {
             return Knots::default();
         }
         sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
-        // Blocks of (sum of raw, sum of hits, count), merged while decreasing.
+        // Blocks of (weighted sums of raw and of hits, total weight), merged
+        // while decreasing.
         // Fixes of one raw value are one block from the start: they must get
         // one published value, whatever order the sort left them in.
         let mut blocks: Vec<(f64, f64, f64)> = Vec::new();
         let mut last_raw = f32::NAN;
-        for (raw, hit) in sorted {
+        for (raw, hit, weight) in sorted {
             if raw == last_raw {
                 let last = blocks.last_mut().expect("a block of this raw value");
-                *last = (last.0 + f64::from(raw), last.1 + hit, last.2 + 1.0);
+                *last = (
+                    last.0 + weight * f64::from(raw),
+                    last.1 + weight * hit,
+                    last.2 + weight,
+                );
             } else {
-                blocks.push((f64::from(raw), hit, 1.0));
+                blocks.push((weight * f64::from(raw), weight * hit, weight));
                 last_raw = raw;
             }
             while blocks.len() > 1 {
@@ -255,12 +267,35 @@ mod tests {
         assert!((map.apply(0.95, 2) - 0.55).abs() < 1e-6);
     }
 
+    #[test]
+    fn a_fix_weighing_two_counts_as_two_fixes() {
+        let mut weighed = Vec::new();
+        let mut repeated = Vec::new();
+        for i in 0..60 {
+            let (raw, error) = (0.2 + 0.01 * i as f32, if i % 3 == 0 { 0.0 } else { 2.0 });
+            let weight = if i % 2 == 0 { 2.0 } else { 1.0 };
+            weighed.push(KnownFix {
+                weight,
+                ..known(raw, error, 3, i)
+            });
+            repeated.push(known(raw, error, 3, i));
+            if weight == 2.0 {
+                repeated.push(known(raw, error, 3, i));
+            }
+        }
+        let (a, b) = (ConfidenceMap::fit(&weighed), ConfidenceMap::fit(&repeated));
+        for raw in [0.1, 0.3, 0.5, 0.7, 0.9] {
+            assert!((a.apply(raw, 3) - b.apply(raw, 3)).abs() < 1e-5, "{raw}");
+        }
+    }
+
     fn known(raw: f32, error_cells: f64, heard: usize, group: usize) -> KnownFix {
         KnownFix {
             raw,
             error_cells,
             heard,
             group,
+            weight: 1.0,
         }
     }
 }
