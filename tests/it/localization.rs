@@ -89,7 +89,8 @@ fn the_real_survey_stays_at_or_above_the_reached_targets() {
 /// 0.79, calibrated 0.48, strongest 0.52. Calibrated, the mean gap over
 /// fixes too: 0.091 while a calibration narrowed the rehearsal's doubt,
 /// 0.049 since it does not; `auto`'s 0.092 before its held-out fixes were
-/// weighed by the ground they stood on (`locate::crossval`), 0.056 since.
+/// weighed by the ground they stood on (`locate::crossval`), 0.056 since,
+/// 0.062 once no block of a map publishes above the rule of succession.
 #[test]
 fn published_confidence_stays_as_honest_as_reached() {
     let Some(survey) = common::uci_survey() else {
@@ -101,15 +102,15 @@ fn published_confidence_stays_as_honest_as_reached() {
     // (method flags, the largest gap allowed, the mean gap allowed where
     // one is guarded), measured gaps beside each.
     let cases: [(&[&str], f64, Option<f64>); 6] = [
-        (&["--method", "auto"], 0.14, Some(0.065)), // 0.127, 0.056 measured
-        (&["--method", "radiomap"], 0.10, None),    // 0.069
-        (&["--method", "knn"], 0.18, None),         // 0.161
+        (&["--method", "auto"], 0.14, Some(0.065)), // 0.118, 0.062 measured
+        (&["--method", "radiomap"], 0.10, None),    // 0.068
+        (&["--method", "knn"], 0.18, None),         // 0.167
         (&["--method", "pathloss"], 0.33, None),    // 0.307
         (
             &["--method", "pathloss", "--calibrate", unlabelled],
             0.13,
             Some(0.06),
-        ), // 0.119, 0.049
+        ), // 0.123, 0.050
         (&["--method", "strongest"], 0.26, None),   // 0.243
     ];
     for (flags, largest, mean) in cases {
