@@ -6,7 +6,12 @@
 //! within one cell is mapped through a monotone function fitted on held-out
 //! fixes whose truth is known: isotonic regression (pool adjacent violators),
 //! the standard non-parametric calibrator. Where nothing held out is known,
-//! the map is the identity.
+//! the map is the identity. Two things keep the fit honest where its fixes
+//! are few or lopsided: each fix carries a weight, so held-out fixes can
+//! count as often as the ground they stood on is met in service
+//! ([`super::crossval`]), and no block of the fit publishes more than
+//! Laplace's rule of succession grants its fixes, so a handful of right
+//! fixes at the top never publishes certainty.
 //!
 //! Windows that heard one anchor are not as good as windows of the same raw
 //! belief that heard five, so the map may be fitted per class of window
