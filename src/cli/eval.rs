@@ -9,7 +9,7 @@ use anyhow::Context;
 use clap::Subcommand;
 
 use crate::config::Config;
-use crate::eval::floors::FloorsSetup;
+use crate::eval::floors::{FloorsSetup, WindowFix};
 use crate::eval::localization::{
     Holdout, ReliabilityBin, RowFix, Setup, Split, UnlabelledRows, evaluate,
 };
@@ -124,7 +124,7 @@ struct LocalizationArgs {
     walks: Option<PathBuf>,
     /// With `--walks`: the floor filter's probability of changing floor
     /// between two windows (the gateway's own by default).
-    #[arg(long, default_value_t = crate::locate::floor_track::SWITCH)]
+    #[arg(long, conflicts_with_all = ["survey", "train"], default_value_t = crate::locate::floor_track::SWITCH)]
     floor_switch: f64,
     /// With `--walks` and `--method pathloss`: first fit each floor's radio
     /// model to what its training walks heard, their positions unused, as
@@ -139,17 +139,19 @@ struct LocalizationArgs {
     #[arg(long, requires = "train")]
     test: Option<PathBuf>,
     /// A gap longer than this (seconds) between rows starts a new walking session.
-    #[arg(long, default_value_t = crate::eval::localization::SESSION_GAP_S)]
+    #[arg(long, conflicts_with = "walks", default_value_t = crate::eval::localization::SESSION_GAP_S)]
     session_gap: f64,
     /// Write every held-out row's fix as CSV (seed, session, row, t, truth,
-    /// fix, confidence, error).
+    /// fix, confidence, error in cells); with `--walks`, every held-out
+    /// window's (floor, walk, t, truth, the floor and fix published,
+    /// confidence, error in metres in the plane).
     #[arg(long)]
     rows: Option<PathBuf>,
     /// `session` holds out whole walking sessions (honest); `random` holds out rows.
-    #[arg(long, value_enum, default_value = "session")]
+    #[arg(long, value_enum, conflicts_with = "walks", default_value = "session")]
     split: Split,
     /// Seeds to average over.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, conflicts_with = "walks", default_value_t = 5)]
     seeds: u64,
     /// The localizer [default: what the daemon would use: `--config`'s
     /// `[localizer] method`, else `auto`, the default with a survey].
@@ -159,7 +161,7 @@ struct LocalizationArgs {
     tracker: TrackerKind,
     /// Smooth each recorded walk over this many later windows (fixed-lag
     /// smoothing; 0 is the online filter a live gateway runs).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, conflicts_with = "walks", default_value_t = 0)]
     smooth_lag: usize,
     /// Add this many dB to every held-out reading: what a phone that hears
     /// that much louder (negative: deafer) than the survey's and the
@@ -174,16 +176,17 @@ struct LocalizationArgs {
     #[arg(long)]
     json: bool,
     /// Write the error CDF of every method, with and without tracking, as SVG.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "walks")]
     plot: Option<PathBuf>,
     /// The files' "not heard" RSSI value (default: the config's
     /// `[localizer.knn] not_heard`, -200).
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, conflicts_with = "walks", allow_negative_numbers = true)]
     not_heard: Option<i16>,
     /// Unlabelled scans (the same CSV layouts; `location` may be `?`) that
     /// the survey-free model is calibrated on before measuring, as `gangway
-    /// calibrate` does. Only `--method pathloss` uses them.
-    #[arg(long)]
+    /// calibrate` does. Only `--method pathloss` uses them (with `--walks`:
+    /// `--recalibrate`).
+    #[arg(long, conflicts_with = "walks")]
     calibrate: Option<PathBuf>,
     /// With `--calibrate`: then refine a radio map per cell by EM for this
     /// many iterations (8 when given without a value), as `gangway calibrate
@@ -348,7 +351,10 @@ fn floors(args: &LocalizationArgs, walks: &Path) -> anyhow::Result<ExitCode> {
         receiver_offset_db: args.receiver_offset_db,
     };
     let started = Instant::now();
-    let report = crate::eval::floors::evaluate(&building, walks, &setup)?;
+    let (report, window_fixes) = crate::eval::floors::evaluate(&building, walks, &setup)?;
+    if let Some(path) = &args.rows {
+        write_window_fixes(path, &window_fixes)?;
+    }
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
         return Ok(ExitCode::SUCCESS);
@@ -527,6 +533,40 @@ fn unlabelled(
         .map(|row| row.map(|r| (r.t.expect("checked: the file has a clock"), r.rssi)))
         .collect::<Result<Vec<_>, _>>()?;
     Ok(UnlabelledRows { rows })
+}
+
+/// Writes per-window fixes of `--walks` as CSV.
+fn write_window_fixes(path: &std::path::Path, fixes: &[WindowFix]) -> anyhow::Result<()> {
+    let mut out =
+        csv::Writer::from_path(path).with_context(|| format!("cannot write {}", path.display()))?;
+    out.write_record([
+        "floor",
+        "walk",
+        "t",
+        "truth_x_m",
+        "truth_y_m",
+        "fix_floor",
+        "x_m",
+        "y_m",
+        "confidence",
+        "error_m",
+    ])?;
+    for f in fixes {
+        out.write_record([
+            f.floor.clone(),
+            f.walk.clone(),
+            format!("{:.3}", f.t),
+            format!("{:.2}", f.truth[0]),
+            format!("{:.2}", f.truth[1]),
+            f.fix_floor.clone().unwrap_or_default(),
+            format!("{:.2}", f.fix[0]),
+            format!("{:.2}", f.fix[1]),
+            format!("{:.4}", f.confidence),
+            format!("{:.2}", f.error_m),
+        ])?;
+    }
+    out.flush()?;
+    Ok(())
 }
 
 /// Writes per-row fixes as CSV.

@@ -137,6 +137,26 @@ pub struct FloorsReport {
     pub recalibrated: BTreeMap<String, String>,
 }
 
+/// One held-out window as the gateway published it, for `--rows`.
+#[derive(Clone, Debug)]
+pub struct WindowFix {
+    /// The floor the walk was on, and the walk (its file's name).
+    pub floor: String,
+    pub walk: String,
+    /// The window's end, seconds (the walk file's clock).
+    pub t: f64,
+    /// Where the walker was, metres in the building's frame.
+    pub truth: [f64; 2],
+    /// The floor published, `None` while it is unknown; the fix is on the
+    /// floor the gateway located on either way.
+    pub fix_floor: Option<String>,
+    pub fix: [f64; 2],
+    /// The published confidence: the localizer's times the floor's.
+    pub confidence: f32,
+    /// Metres between fix and truth in the plane, whatever the floor.
+    pub error_m: f64,
+}
+
 /// One floor's walks, split.
 struct FloorWalks {
     train: Vec<Walk>,
@@ -157,7 +177,7 @@ pub fn evaluate(
     building: &Building,
     walks_dir: &Path,
     setup: &FloorsSetup,
-) -> anyhow::Result<FloorsReport> {
+) -> anyhow::Result<(FloorsReport, Vec<WindowFix>)> {
     let options = Options {
         window_s: setup.window.length_s,
         stride_s: setup.window.stride_s,
@@ -296,6 +316,7 @@ pub fn evaluate(
     let mut fix_us = Vec::new();
     // (published confidence, error in cells: infinite on a wrong floor).
     let mut confidences = Vec::new();
+    let mut window_fixes = Vec::new();
     for (truth_floor, walks) in split.iter().enumerate() {
         let truth_site = &floors[truth_floor].site;
         for (w, walk) in walks.test.iter().enumerate() {
@@ -358,8 +379,20 @@ pub fn evaluate(
                     error_m: (at[0] - truth[0]).hypot(at[1] - truth[1]),
                 };
                 let heard_count = heard_on_floor.iter().filter(|&&h| h).count();
+                let confidence =
+                    localizer.confidence(fix.confidence, heard_count) * step.probability as f32;
+                window_fixes.push(WindowFix {
+                    floor: floors[truth_floor].name.clone(),
+                    walk: walk.name.clone(),
+                    t,
+                    truth,
+                    fix_floor: outcome.floor.map(|f| floors[f].name.clone()),
+                    fix: at,
+                    confidence,
+                    error_m: outcome.error_m,
+                });
                 confidences.push((
-                    localizer.confidence(fix.confidence, heard_count) * step.probability as f32,
+                    confidence,
                     if floor == truth_floor {
                         outcome.error_m / site.cell_m
                     } else {
@@ -378,7 +411,7 @@ pub fn evaluate(
     }
     let names: Vec<&str> = floors.iter().map(|f| f.name.as_str()).collect();
     let (reliability, confidence_gap_max, confidence_gap_mean) = reliability(&confidences);
-    Ok(FloorsReport {
+    let report = FloorsReport {
         method: setup.method.name().into(),
         ours: summarise(&ours, &names),
         baseline: summarise(&theirs, &names),
@@ -391,7 +424,8 @@ pub fn evaluate(
         confidence_gap_max,
         confidence_gap_mean,
         recalibrated,
-    })
+    };
+    Ok((report, window_fixes))
 }
 
 /// One floor's survey-free model recalibrated from what its training walks

@@ -164,6 +164,8 @@ pub(crate) struct Reading {
 /// One walk file: its waypoints (seconds, metres) in time order and readings.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub(crate) struct Walk {
+    /// The file's name without its extension: how reports name the walk.
+    pub(crate) name: String,
     pub(crate) waypoints: Vec<(f64, [f64; 2])>,
     pub(crate) readings: Vec<Reading>,
 }
@@ -171,7 +173,12 @@ pub(crate) struct Walk {
 /// Reads one walk file's text; each line that does not parse adds a problem
 /// naming `path`, its line and field, and is skipped.
 pub(crate) fn read_walk(path: &Path, text: &str, problems: &mut Vec<String>) -> Walk {
-    let mut walk = Walk::default();
+    let mut walk = Walk {
+        name: path
+            .file_stem()
+            .map_or_else(String::new, |stem| stem.to_string_lossy().into_owned()),
+        ..Walk::default()
+    };
     for (n, line) in text.lines().enumerate() {
         let line = line.trim_end_matches('\r');
         if line.is_empty() || line.starts_with('#') {
