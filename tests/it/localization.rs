@@ -5,12 +5,17 @@ use crate::common;
 
 use std::fmt::Write;
 
-use crate::common::{gangway, gangway_ok, write};
+use crate::common::{gangway_ok, gangway_refused, write};
 use serde_json::Value;
 
 fn eval(args: &[&str]) -> Value {
     let out = gangway_ok(&[&["eval", "localization", "--json"], args].concat());
     serde_json::from_str(out.trim()).expect("one JSON object")
+}
+
+/// `gangway eval localization` with `args` must refuse, saying `says`.
+fn eval_refused(args: &[&str], says: &str) {
+    gangway_refused(&[&["eval", "localization"], args].concat(), says);
 }
 
 fn figure(v: &Value, key: &str) -> f64 {
@@ -1024,6 +1029,11 @@ fn imported_mall(dir: &std::path::Path) -> Option<(String, String)> {
     Some((site1, building))
 }
 
+/// `eval localization`'s arguments for the imported mall's walks, then `more`.
+fn on_the_mall<'a>(building: &'a str, site1: &'a str, more: &[&'a str]) -> Vec<&'a str> {
+    [&["--site", building, "--walks", site1][..], more].concat()
+}
+
 /// The five-floor mall: its plans imported as a building, its walks split by
 /// time (the later 30% of each floor's held out), located floor by floor
 /// with the surveyed k-NN beside the plain k-NN regressor baseline on the
@@ -1042,16 +1052,11 @@ fn the_mall_s_floors_are_told_apart_at_least_as_well_as_the_baseline() {
     };
     let (site1, building) = (site1.as_str(), building.as_str());
     let rows = dir.path().join("rows.csv");
-    let v = eval(&[
-        "--site",
+    let v = eval(&on_the_mall(
         building,
-        "--walks",
         site1,
-        "--method",
-        "knn",
-        "--rows",
-        rows.to_str().unwrap(),
-    ]);
+        &["--method", "knn", "--rows", rows.to_str().unwrap()],
+    ));
     let mut windows = csv::Reader::from_path(&rows).unwrap();
     let header = windows.headers().unwrap().clone();
     let column = |name: &str| header.iter().position(|h| h == name).unwrap();
@@ -1075,21 +1080,7 @@ fn the_mall_s_floors_are_told_apart_at_least_as_well_as_the_baseline() {
     assert!((right as f64 / count as f64 - figure(&v, "floor_accuracy")).abs() < 1e-9);
     assert!((error_sum / right as f64 - figure(&v, "mean_error_m")).abs() < 0.01);
     // What `--walks` does not use is refused, not silently ignored.
-    let seeds = gangway(&[
-        "eval",
-        "localization",
-        "--site",
-        building,
-        "--walks",
-        site1,
-        "--seeds",
-        "3",
-    ]);
-    let said = String::from_utf8_lossy(&seeds.stderr);
-    assert!(
-        !seeds.status.success() && said.contains("--seeds"),
-        "{said}"
-    );
+    eval_refused(&on_the_mall(building, site1, &["--seeds", "3"]), "--seeds");
     let baseline = &v["baseline"];
     println!(
         "mall, knn: floor {:.3} (baseline {:.3}), mean {:.1} m (baseline {:.1} m) over {} fixes",
@@ -1130,21 +1121,9 @@ fn the_mall_served_survey_free_and_recalibrated_is_no_worse_than_the_baseline() 
         return;
     };
     let (site1, building) = (site1.as_str(), building.as_str());
-    let surveyed = gangway(&[
-        "eval",
-        "localization",
-        "--site",
-        building,
-        "--walks",
-        site1,
-        "--method",
-        "knn",
-        "--recalibrate",
-    ]);
-    let stderr = String::from_utf8_lossy(&surveyed.stderr);
-    assert!(
-        !surveyed.status.success() && stderr.contains("give --method pathloss"),
-        "{stderr}"
+    eval_refused(
+        &on_the_mall(building, site1, &["--method", "knn", "--recalibrate"]),
+        "give --method pathloss",
     );
     // The daemon's default waits for 2,000 windows; a floor's training walks
     // hold 1,000–1,700. Cells off: the same figures to 0.03 m, a third faster.
@@ -1154,17 +1133,17 @@ fn the_mall_served_survey_free_and_recalibrated_is_no_worse_than_the_baseline() 
         "gateway_id = \"mall\"\nsite = \"mall.toml\"\n\
          [localizer.recalibration]\nmin_windows = 500\ncells = false\n",
     );
-    let v = eval(&[
-        "--site",
+    let v = eval(&on_the_mall(
         building,
-        "--walks",
         site1,
-        "--method",
-        "pathloss",
-        "--recalibrate",
-        "--config",
-        config.to_str().unwrap(),
-    ]);
+        &[
+            "--method",
+            "pathloss",
+            "--recalibrate",
+            "--config",
+            config.to_str().unwrap(),
+        ],
+    ));
     let baseline = &v["baseline"];
     for key in ["mean_error_m", "median_error_m", "p90_error_m"] {
         println!(

@@ -31,6 +31,17 @@ pub(crate) fn gangway_ok(args: &[&str]) -> String {
     String::from_utf8(out.stdout).expect("UTF-8 output")
 }
 
+/// Runs `gangway`, failing the test unless it exits non-zero saying `says`
+/// on stderr.
+pub(crate) fn gangway_refused(args: &[&str], says: &str) {
+    let out = gangway(args);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains(says),
+        "gangway {args:?} should have refused, saying `{says}`: {stderr}"
+    );
+}
+
 /// The real survey beside the checkout (`../shared/data/uci-ble-rssi`);
 /// without it the test cannot run ([`cannot_run`]).
 pub(crate) fn uci_survey() -> Option<PathBuf> {
