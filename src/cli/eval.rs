@@ -537,9 +537,7 @@ fn unlabelled(
 
 /// Writes per-window fixes of `--walks` as CSV.
 fn write_window_fixes(path: &std::path::Path, fixes: &[WindowFix]) -> anyhow::Result<()> {
-    let mut out =
-        csv::Writer::from_path(path).with_context(|| format!("cannot write {}", path.display()))?;
-    out.write_record([
+    let header = [
         "floor",
         "walk",
         "t",
@@ -550,9 +548,9 @@ fn write_window_fixes(path: &std::path::Path, fixes: &[WindowFix]) -> anyhow::Re
         "y_m",
         "confidence",
         "error_m",
-    ])?;
-    for f in fixes {
-        out.write_record([
+    ];
+    let records = fixes.iter().map(|f| {
+        [
             f.floor.clone(),
             f.walk.clone(),
             format!("{:.3}", f.t),
@@ -563,17 +561,14 @@ fn write_window_fixes(path: &std::path::Path, fixes: &[WindowFix]) -> anyhow::Re
             format!("{:.2}", f.fix[1]),
             format!("{:.4}", f.confidence),
             format!("{:.2}", f.error_m),
-        ])?;
-    }
-    out.flush()?;
-    Ok(())
+        ]
+    });
+    write_csv(path, header, records)
 }
 
 /// Writes per-row fixes as CSV.
 fn write_rows(path: &std::path::Path, rows: &[RowFix]) -> anyhow::Result<()> {
-    let mut out =
-        csv::Writer::from_path(path).with_context(|| format!("cannot write {}", path.display()))?;
-    out.write_record([
+    let header = [
         "seed",
         "session",
         "row",
@@ -584,9 +579,9 @@ fn write_rows(path: &std::path::Path, rows: &[RowFix]) -> anyhow::Result<()> {
         "y",
         "confidence",
         "error_cells",
-    ])?;
-    for r in rows {
-        out.write_record([
+    ];
+    let records = rows.iter().map(|r| {
+        [
             r.seed.to_string(),
             r.session.to_string(),
             r.row.to_string(),
@@ -597,7 +592,22 @@ fn write_rows(path: &std::path::Path, rows: &[RowFix]) -> anyhow::Result<()> {
             r.cell.y.to_string(),
             format!("{:.4}", r.confidence),
             format!("{:.4}", r.error_cells),
-        ])?;
+        ]
+    });
+    write_csv(path, header, records)
+}
+
+/// Writes `header` then `records` to `path` as CSV.
+fn write_csv<const N: usize>(
+    path: &std::path::Path,
+    header: [&str; N],
+    records: impl Iterator<Item = [String; N]>,
+) -> anyhow::Result<()> {
+    let mut out =
+        csv::Writer::from_path(path).with_context(|| format!("cannot write {}", path.display()))?;
+    out.write_record(header)?;
+    for record in records {
+        out.write_record(record)?;
     }
     out.flush()?;
     Ok(())
