@@ -10,9 +10,7 @@ use clap::Subcommand;
 
 use crate::config::Config;
 use crate::eval::floors::{FloorsSetup, WindowFix};
-use crate::eval::localization::{
-    Holdout, ReliabilityBin, RowFix, Setup, Split, UnlabelledRows, evaluate,
-};
+use crate::eval::localization::{Holdout, RowFix, Setup, Split, UnlabelledRows, evaluate};
 use crate::eval::similarity::TrainingFrames;
 use crate::locate::survey::{Survey, SurveyRows};
 use crate::locate::tracker::{TrackerConfig, TrackerKind};
@@ -387,11 +385,7 @@ fn floors(args: &LocalizationArgs, walks: &Path) -> anyhow::Result<ExitCode> {
         line(&format!("ours {name}"), m);
         line(&format!("k-NN {name}"), &report.baseline.floors[name]);
     }
-    print_reliability(
-        &report.reliability,
-        report.confidence_gap_max,
-        report.confidence_gap_mean,
-    );
+    println!("{}", report.confidence);
     eprintln!("took {:.1} s", started.elapsed().as_secs_f64());
     Ok(ExitCode::SUCCESS)
 }
@@ -477,7 +471,7 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
             "error m:     mean {:.3}  median {:.3}  p75 {:.3}  p90 {:.3}",
             e.mean_error_m, e.median_error_m, e.p75_error_m, e.p90_error_m
         );
-        print_reliability(&m.reliability, m.confidence_gap_max, m.confidence_gap_mean);
+        println!("{}", m.confidence);
     }
     if let Some(path) = &args.plot {
         let mut curves = Vec::new();
@@ -498,21 +492,6 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
         eprintln!("wrote {}", path.display());
     }
     Ok(ExitCode::SUCCESS)
-}
-
-/// Published confidence against what it promises, in tenths, and its gaps.
-fn print_reliability(bins: &[ReliabilityBin], gap_max: f64, gap_mean: f64) {
-    println!("published confidence   fixes  mean   within 1 cell");
-    for bin in bins.iter().filter(|b| b.fixes > 0) {
-        println!(
-            "{:.1}–{:.1}  {:>17}  {:.3}  {:.3}",
-            bin.from, bin.to, bin.fixes, bin.mean_confidence, bin.within_1
-        );
-    }
-    println!(
-        "calibration gap: largest {gap_max:.3} (bins of {}+ fixes), mean {gap_mean:.3} (over fixes)",
-        crate::eval::localization::RELIABLE_BIN,
-    );
 }
 
 /// Reads scans with times and any (or no) positions for calibration.

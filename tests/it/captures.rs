@@ -14,7 +14,7 @@ use gangway::source::log::{LogReader, LogWriter};
 use serde_json::Value;
 
 const FIXTURE: &str = "fixtures/walk-waldo.jsonl";
-const SCORE_KEYS: [&str; 9] = [
+const SCORE_KEYS: [&str; 12] = [
     "exact",
     "within_1",
     "within_2",
@@ -24,6 +24,9 @@ const SCORE_KEYS: [&str; 9] = [
     "matched",
     "truths",
     "tolerance_s",
+    "reliability",
+    "confidence_gap_max",
+    "confidence_gap_mean",
 ];
 
 /// The one JSON object `--score --json` prints.

@@ -36,8 +36,8 @@ pub struct Scorer {
     /// Per device: (t, floor, cell) in arrival order.
     truths: HashMap<String, Vec<(f64, Option<String>, Cell)>>,
     truth_count: u64,
-    /// (device, t, floor, cell).
-    fixes: Vec<(String, f64, Option<String>, Cell)>,
+    /// (device, t, floor, cell, published confidence).
+    fixes: Vec<(String, f64, Option<String>, Cell, f32)>,
 }
 
 /// How well the fixes of a replay match its truth.
@@ -62,6 +62,12 @@ pub struct Score {
     /// Truth events seen.
     pub truths: u64,
     pub tolerance_s: f64,
+    /// The matched fixes' published confidence against the share of them
+    /// within one cell on the true floor. Fixes published as unknown (under
+    /// `[localizer] min_confidence`) name no cell and are not in it; with
+    /// `min_confidence = 0` every fix is.
+    #[serde(flatten)]
+    pub confidence: Reliability,
 }
 
 impl Scorer {
@@ -88,8 +94,13 @@ impl Scorer {
     pub(crate) fn location(&mut self, location: &Location) {
         if let Some(cell) = location.cell {
             let floor = location.floor.as_ref().map(|f| f.name.clone());
-            self.fixes
-                .push((location.device.clone(), location.t, floor, cell));
+            self.fixes.push((
+                location.device.clone(),
+                location.t,
+                floor,
+                cell,
+                location.confidence,
+            ));
         }
     }
 
@@ -117,8 +128,8 @@ impl Scorer {
             truths.sort_by(|a, b| a.0.total_cmp(&b.0));
         }
         let floors = building.floors();
-        let (mut matched, mut on_floor) = (0u64, Vec::new());
-        for (device, t, floor, cell) in &self.fixes {
+        let (mut matched, mut on_floor, mut confidences) = (0u64, Vec::new(), Vec::new());
+        for (device, t, floor, cell, confidence) in &self.fixes {
             let Some((_, truth_floor, truth)) = self
                 .truths
                 .get(device)
@@ -132,11 +143,15 @@ impl Scorer {
                 Some(name) => building.floor_named(name),
                 None => Some(0),
             };
-            if let Some(f) = floor_of(truth_floor)
-                && floor_of(floor) == Some(f)
-            {
-                on_floor.push((f, cell.distance(*truth)));
-            }
+            let error = match floor_of(truth_floor) {
+                Some(f) if floor_of(floor) == Some(f) => {
+                    let error = cell.distance(*truth);
+                    on_floor.push((f, error));
+                    error
+                }
+                _ => f64::INFINITY,
+            };
+            confidences.push((*confidence, error));
         }
         let cells: Vec<f64> = on_floor.iter().map(|&(_, e)| e).collect();
         // Metres per cell of the floors the errors are on, when they agree
@@ -169,6 +184,7 @@ impl Scorer {
             matched,
             truths: self.truth_count,
             tolerance_s: self.tolerance_s,
+            confidence: Reliability::of(&confidences),
         }
     }
 }
@@ -259,6 +275,89 @@ impl ErrorSummary {
     }
 }
 
+/// Published confidence against what it promises: fixes by confidence in
+/// tenths, each tenth's share within one cell of the truth, and the gaps.
+/// Shared by replay scoring and offline evaluation, as [`ErrorSummary`] is.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Reliability {
+    pub reliability: Vec<ReliabilityBin>,
+    /// The largest |mean confidence − share within one cell| over the bins
+    /// holding at least [`RELIABLE_BIN`] fixes: 0 is perfectly calibrated.
+    pub confidence_gap_max: f64,
+    /// The same gap averaged over every fix (the expected calibration
+    /// error): less noisy than the largest, which one sparse bin can set.
+    pub confidence_gap_mean: f64,
+}
+
+/// Fixes whose confidence fell in `[from, to)`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct ReliabilityBin {
+    pub from: f64,
+    pub to: f64,
+    pub fixes: usize,
+    pub mean_confidence: f64,
+    /// Share of them within one cell of the truth (what confidence promises).
+    pub within_1: f64,
+}
+
+/// Bins with fewer fixes are listed but too noisy to judge calibration by.
+pub const RELIABLE_BIN: usize = 30;
+
+impl Reliability {
+    /// The table of (published confidence, error in cells) pairs; an
+    /// infinite error (a fix on the wrong floor) is never within one cell.
+    pub fn of(fixes: &[(f32, f64)]) -> Reliability {
+        let mut bins: Vec<ReliabilityBin> = (0..10)
+            .map(|i| ReliabilityBin {
+                from: f64::from(i) / 10.0,
+                to: f64::from(i + 1) / 10.0,
+                ..ReliabilityBin::default()
+            })
+            .collect();
+        for &(confidence, error) in fixes {
+            let bin = &mut bins[((confidence * 10.0) as usize).min(9)];
+            bin.fixes += 1;
+            bin.mean_confidence += f64::from(confidence);
+            bin.within_1 += f64::from(u8::from(error <= 1.0 + 1e-9));
+        }
+        let (mut gap_max, mut gap_sum) = (0.0f64, 0.0f64);
+        for bin in &mut bins {
+            if bin.fixes > 0 {
+                bin.mean_confidence /= bin.fixes as f64;
+                bin.within_1 /= bin.fixes as f64;
+            }
+            let gap = (bin.mean_confidence - bin.within_1).abs();
+            gap_sum += gap * bin.fixes as f64;
+            if bin.fixes >= RELIABLE_BIN {
+                gap_max = gap_max.max(gap);
+            }
+        }
+        Reliability {
+            reliability: bins,
+            confidence_gap_max: gap_max,
+            confidence_gap_mean: gap_sum / fixes.len().max(1) as f64,
+        }
+    }
+}
+
+impl std::fmt::Display for Reliability {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "published confidence   fixes  mean   within 1 cell")?;
+        for bin in self.reliability.iter().filter(|b| b.fixes > 0) {
+            writeln!(
+                f,
+                "{:.1}–{:.1}  {:>17}  {:.3}  {:.3}",
+                bin.from, bin.to, bin.fixes, bin.mean_confidence, bin.within_1
+            )?;
+        }
+        write!(
+            f,
+            "calibration gap: largest {:.3} (bins of {RELIABLE_BIN}+ fixes), mean {:.3} (over fixes)",
+            self.confidence_gap_max, self.confidence_gap_mean
+        )
+    }
+}
+
 /// The truth nearest to `t` in a time-sorted list (the earlier one on a tie).
 fn nearest<T>(truths: &[(f64, T, Cell)], t: f64) -> Option<&(f64, T, Cell)> {
     let after = truths.partition_point(|(truth_t, ..)| *truth_t < t);
@@ -290,7 +389,8 @@ impl std::fmt::Display for Score {
         writeln!(f, "within_1         {}", show(self.within_1))?;
         writeln!(f, "within_2         {}", show(self.within_2))?;
         writeln!(f, "mean_error_cells {}", show(self.mean_error_cells))?;
-        write!(f, "mean_error_m     {}", show(self.mean_error_m))
+        writeln!(f, "mean_error_m     {}", show(self.mean_error_m))?;
+        write!(f, "{}", self.confidence)
     }
 }
 

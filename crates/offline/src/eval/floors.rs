@@ -49,7 +49,7 @@ use std::time::Instant;
 use anyhow::Context;
 use serde::Serialize;
 
-use super::localization::{ReliabilityBin, Surveyed, reliability, surveyed_localizer};
+use super::localization::{Surveyed, surveyed_localizer};
 use super::planning::percentile;
 use crate::locate::calibration::Calibration;
 use crate::locate::floor_track::{self, FloorChange, FloorTracks};
@@ -61,6 +61,7 @@ use crate::locate::tracker::{Tracker, TrackerConfig};
 use crate::locate::window::WindowConfig;
 use crate::locate::{Localizer, LocalizerConfig, Method};
 use crate::score::ErrorSummary;
+use crate::score::Reliability;
 use crate::site::{Beacon, Building, Mount, Site};
 use crate::survey::{self, Key, Keys, Options, Report, Walk};
 
@@ -124,13 +125,10 @@ pub struct FloorsReport {
     /// window); the median and the mean.
     pub us_per_fix_p50: f64,
     pub us_per_fix_mean: f64,
-    /// Our fixes by published confidence, in tenths.
-    pub reliability: Vec<ReliabilityBin>,
-    /// The largest |mean confidence − share within one cell| over the bins
-    /// holding enough fixes to judge by: 0 is perfectly calibrated.
-    pub confidence_gap_max: f64,
-    /// The same gap averaged over every fix (the expected calibration error).
-    pub confidence_gap_mean: f64,
+    /// Our published confidence against the share of fixes on the right
+    /// floor within one cell.
+    #[serde(flatten)]
+    pub confidence: Reliability,
     /// With `--recalibrate`, per floor: what its recalibration kept, or why
     /// it kept the defaults.
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
@@ -410,7 +408,6 @@ pub fn evaluate(
         }
     }
     let names: Vec<&str> = floors.iter().map(|f| f.name.as_str()).collect();
-    let (reliability, confidence_gap_max, confidence_gap_mean) = reliability(&confidences);
     let report = FloorsReport {
         method: setup.method.name().into(),
         ours: summarise(&ours, &names),
@@ -420,9 +417,7 @@ pub fn evaluate(
         refused_windows,
         us_per_fix_mean: fix_us.iter().sum::<f64>() / fix_us.len().max(1) as f64,
         us_per_fix_p50: percentile(&mut fix_us, 0.5).unwrap_or(0.0),
-        reliability,
-        confidence_gap_max,
-        confidence_gap_mean,
+        confidence: Reliability::of(&confidences),
         recalibrated,
     };
     Ok((report, window_fixes))

@@ -32,7 +32,7 @@ use crate::locate::tracker::TrackerConfig;
 use crate::locate::tracker::{Tracker, TrackerKind};
 use crate::locate::window::WindowConfig;
 use crate::locate::{Localizer, LocalizerConfig, LocalizerError, Method};
-use crate::score::ErrorSummary;
+use crate::score::{ErrorSummary, Reliability};
 use crate::site::Site;
 use crate::train::job::{Options, Progress, train_cells};
 
@@ -84,59 +84,9 @@ pub struct Metrics {
     pub errors: ErrorSummary,
     /// Localizer plus tracker time per fix, single-threaded.
     pub us_per_fix: f64,
-    /// Fixes by published confidence, in tenths.
-    pub reliability: Vec<ReliabilityBin>,
-    /// The largest |mean confidence − share within one cell| over the bins
-    /// holding at least [`RELIABLE_BIN`] fixes: 0 is perfectly calibrated.
-    pub confidence_gap_max: f64,
-    /// The same gap averaged over every fix (the expected calibration
-    /// error): less noisy than the largest, which one sparse bin can set.
-    pub confidence_gap_mean: f64,
-}
-
-/// Fixes whose confidence fell in `[from, to)`.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
-pub struct ReliabilityBin {
-    pub from: f64,
-    pub to: f64,
-    pub fixes: usize,
-    pub mean_confidence: f64,
-    /// Share of them within one cell of the truth (what confidence promises).
-    pub within_1: f64,
-}
-
-/// Bins with fewer fixes are listed but too noisy to judge calibration by.
-pub const RELIABLE_BIN: usize = 30;
-
-/// The reliability table of (confidence, error in cells) pairs, its largest
-/// gap and its mean gap over the fixes.
-pub(super) fn reliability(fixes: &[(f32, f64)]) -> (Vec<ReliabilityBin>, f64, f64) {
-    let mut bins: Vec<ReliabilityBin> = (0..10)
-        .map(|i| ReliabilityBin {
-            from: f64::from(i) / 10.0,
-            to: f64::from(i + 1) / 10.0,
-            ..ReliabilityBin::default()
-        })
-        .collect();
-    for &(confidence, error) in fixes {
-        let bin = &mut bins[((confidence * 10.0) as usize).min(9)];
-        bin.fixes += 1;
-        bin.mean_confidence += f64::from(confidence);
-        bin.within_1 += f64::from(u8::from(error <= 1.0 + 1e-9));
-    }
-    let (mut gap_max, mut gap_sum) = (0.0f64, 0.0f64);
-    for bin in &mut bins {
-        if bin.fixes > 0 {
-            bin.mean_confidence /= bin.fixes as f64;
-            bin.within_1 /= bin.fixes as f64;
-        }
-        let gap = (bin.mean_confidence - bin.within_1).abs();
-        gap_sum += gap * bin.fixes as f64;
-        if bin.fixes >= RELIABLE_BIN {
-            gap_max = gap_max.max(gap);
-        }
-    }
-    (bins, gap_max, gap_sum / fixes.len().max(1) as f64)
+    /// Published confidence against the share of fixes within one cell.
+    #[serde(flatten)]
+    pub confidence: Reliability,
 }
 
 /// Metrics plus every error (all seeds), for plotting.
@@ -418,12 +368,9 @@ pub fn evaluate(site: &Arc<Site>, survey: &Survey, setup: &Setup) -> Result<Outc
         per_seed.push(metrics(&seed_errors, site.cell_m, us_per_fix));
         errors.extend(seed_errors);
     }
-    let (reliability, confidence_gap_max, confidence_gap_mean) = reliability(&confidences);
     Ok(Outcome {
         metrics: Metrics {
-            reliability,
-            confidence_gap_max,
-            confidence_gap_mean,
+            confidence: Reliability::of(&confidences),
             ..average(&per_seed)
         },
         errors,
