@@ -629,11 +629,12 @@ fn the_surveyed_methods_beat_a_plain_knn_regressor_on_a_metric_site() {
     let test: Vec<_> = test.into_iter().map(|(_, r)| r).collect();
     let train_file = write(dir.path(), "train.csv", &csv(&train, 0));
     let test_file = write(dir.path(), "test.csv", &csv(&test, train.len()));
-    // A surveyed method's mean error in metres: its fix is a cell, whose
-    // centre in world metres is set against the row's true position.
-    let surveyed_error = |method: &str| -> f64 {
+    // A surveyed method's mean error in metres (its fix is a cell, whose
+    // centre in world metres is set against the row's true position) and
+    // the largest gap of its published confidence.
+    let surveyed_error = |method: &str| -> (f64, f64) {
         let per_row = dir.path().join(format!("rows-{method}.csv"));
-        eval(&[
+        let metrics = eval(&[
             "--site",
             site,
             "--train",
@@ -669,7 +670,7 @@ fn the_surveyed_methods_beat_a_plain_knn_regressor_on_a_metric_site() {
             fixed += 1;
         }
         assert_eq!(fixed, test.len(), "{method}: one fix per held-out row");
-        error / fixed as f64
+        (error / fixed as f64, figure(&metrics, "confidence_gap_max"))
     };
 
     // The plain regressor on the same split.
@@ -699,12 +700,14 @@ fn the_surveyed_methods_beat_a_plain_knn_regressor_on_a_metric_site() {
     // The radio map, and the shipped default (`auto`: the k-NN vote for
     // fingerprints the survey recorded, the map for the others).
     for method in ["radiomap", "auto"] {
-        let error = surveyed_error(method);
+        let (error, gap) = surveyed_error(method);
         assert!(
             error < knn_error,
             "{method} {error:.3} m against a plain kNN regressor {knn_error:.3} m"
         );
-        eprintln!("{method} {error:.3} m, plain kNN regressor {knn_error:.3} m");
+        eprintln!(
+            "{method} {error:.3} m, plain kNN regressor {knn_error:.3} m; confidence gap {gap:.3}"
+        );
     }
 }
 
