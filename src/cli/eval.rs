@@ -141,8 +141,9 @@ struct LocalizationArgs {
     session_gap: f64,
     /// Write every held-out row's fix as CSV (seed, session, row, t, truth,
     /// fix, confidence, error in cells); with `--walks`, every held-out
-    /// window's (floor, walk, t, truth, the floor and fix published,
-    /// confidence, error in metres in the plane).
+    /// window with a known position (floor, walk, t, truth, the floor
+    /// located on and whether it is known, fix, confidence, error in
+    /// metres on the right floor).
     #[arg(long)]
     rows: Option<PathBuf>,
     /// `session` holds out whole walking sessions (honest); `random` holds out rows.
@@ -155,8 +156,9 @@ struct LocalizationArgs {
     /// `[localizer] method`, else `auto`, the default with a survey].
     #[arg(long, value_enum)]
     method: Option<Method>,
-    #[arg(long, value_enum, default_value = "hmm")]
-    tracker: TrackerKind,
+    /// The tracker [default: `--config`'s `[tracker] kind`, else `hmm`].
+    #[arg(long, value_enum)]
+    tracker: Option<TrackerKind>,
     /// Smooth each recorded walk over this many later windows (fixed-lag
     /// smoothing; 0 is the online filter a live gateway runs).
     #[arg(long, conflicts_with = "walks", default_value_t = 0)]
@@ -189,7 +191,7 @@ struct LocalizationArgs {
     /// With `--calibrate`: then refine a radio map per cell by EM for this
     /// many iterations (8 when given without a value), as `gangway calibrate
     /// --cells` does.
-    #[arg(long, requires = "calibrate", num_args = 0..=1, default_missing_value = "8")]
+    #[arg(long, requires = "calibrate", conflicts_with = "walks", num_args = 0..=1, default_missing_value = "8")]
     calibrate_cells: Option<usize>,
 }
 
@@ -341,7 +343,7 @@ fn floors(args: &LocalizationArgs, walks: &Path) -> anyhow::Result<ExitCode> {
         localizer,
         window,
         tracker: TrackerConfig {
-            kind: args.tracker,
+            kind: args.tracker.unwrap_or(tracker.kind),
             ..tracker
         },
         floor_switch: args.floor_switch,
@@ -439,7 +441,8 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
         receiver_offset_db: args.receiver_offset_db,
     };
     let method = args.method.unwrap_or(localizer.method);
-    let outcome = evaluate(&site, &survey, &setup(method, args.tracker))?;
+    let tracker_kind = args.tracker.unwrap_or(tracker.kind);
+    let outcome = evaluate(&site, &survey, &setup(method, tracker_kind))?;
     if let Some(path) = &args.rows {
         write_rows(path, &outcome.rows)?;
     }
@@ -456,7 +459,7 @@ fn localization(args: LocalizationArgs) -> anyhow::Result<ExitCode> {
                 Holdout::Fixed(_) => "fixed split".to_owned(),
             },
             method.name(),
-            args.tracker
+            tracker_kind
         );
         let e = &m.errors;
         println!(
@@ -522,7 +525,8 @@ fn write_window_fixes(path: &std::path::Path, fixes: &[WindowFix]) -> anyhow::Re
         "t",
         "truth_x_m",
         "truth_y_m",
-        "fix_floor",
+        "located_floor",
+        "floor_known",
         "x_m",
         "y_m",
         "confidence",
@@ -535,11 +539,12 @@ fn write_window_fixes(path: &std::path::Path, fixes: &[WindowFix]) -> anyhow::Re
             format!("{:.3}", f.t),
             format!("{:.2}", f.truth[0]),
             format!("{:.2}", f.truth[1]),
-            f.fix_floor.clone().unwrap_or_default(),
+            f.located_floor.clone(),
+            f.floor_known.to_string(),
             format!("{:.2}", f.fix[0]),
             format!("{:.2}", f.fix[1]),
             format!("{:.4}", f.confidence),
-            format!("{:.2}", f.error_m),
+            f.error_m.map_or_else(String::new, |e| format!("{e:.2}")),
         ]
     });
     write_csv(path, header, records)

@@ -64,8 +64,9 @@ pub struct Score {
     pub tolerance_s: f64,
     /// The matched fixes' published confidence against the share of them
     /// within one cell on the true floor. Fixes published as unknown (under
-    /// `[localizer] min_confidence`) name no cell and are not in it; with
-    /// `min_confidence = 0` every fix is.
+    /// `[localizer] min_confidence`, or on a building with the floor
+    /// unknown) name no cell and are not in it; `min_confidence = 0` puts
+    /// every fix of a known floor in.
     #[serde(flatten)]
     pub confidence: Reliability,
 }
@@ -282,7 +283,8 @@ impl ErrorSummary {
 pub struct Reliability {
     pub reliability: Vec<ReliabilityBin>,
     /// The largest |mean confidence − share within one cell| over the bins
-    /// holding at least [`RELIABLE_BIN`] fixes: 0 is perfectly calibrated.
+    /// holding at least [`RELIABLE_BIN`] fixes: 0 is perfectly calibrated,
+    /// or no bin held that many (the bins say which).
     pub confidence_gap_max: f64,
     /// The same gap averaged over every fix (the expected calibration
     /// error): less noisy than the largest, which one sparse bin can set.
@@ -350,10 +352,15 @@ impl std::fmt::Display for Reliability {
                 bin.from, bin.to, bin.fixes, bin.mean_confidence, bin.within_1
             )?;
         }
+        let largest = if self.reliability.iter().any(|b| b.fixes >= RELIABLE_BIN) {
+            format!("{:.3}", self.confidence_gap_max)
+        } else {
+            "-".to_owned()
+        };
         write!(
             f,
-            "calibration gap: largest {:.3} (bins of {RELIABLE_BIN}+ fixes), mean {:.3} (over fixes)",
-            self.confidence_gap_max, self.confidence_gap_mean
+            "calibration gap: largest {largest} (bins of {RELIABLE_BIN}+ fixes), mean {:.3} (over fixes)",
+            self.confidence_gap_mean
         )
     }
 }
@@ -490,6 +497,7 @@ mod tests {
                 level,
                 name: floor.into(),
             }),
+            confidence: 0.95,
             ..fix(device, 0.0, cell)
         };
         let on_l1 = |device: &str, cell: Cell| Truth {
@@ -509,6 +517,11 @@ mod tests {
         assert_eq!(score.mean_error_cells, Some(1.0));
         assert_eq!(score.exact, Some(0.0));
         assert!((score.mean_error_m.unwrap() - 1.25).abs() < 1e-12);
+        // The fix on the wrong floor is judged too, and was not within a cell.
+        let top = &score.confidence.reliability[9];
+        assert_eq!((top.fixes, top.within_1), (3, 2.0 / 3.0));
+        // Three fixes are too few to judge a tenth by.
+        assert!(score.to_string().contains("largest - "), "{score}");
         // A one-floor site has no floor accuracy to report.
         assert_eq!(Scorer::new(1.0).score(&site()).floor_accuracy, None);
     }

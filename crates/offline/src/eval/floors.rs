@@ -37,7 +37,7 @@
 //! interpolated truth, counted only where the floor is right.
 //!
 //! **Published confidence** is judged as on a survey
-//! ([`super::localization::reliability`]): the localizer's confidence times
+//! ([`crate::score::Reliability`]): the localizer's confidence times
 //! the floor's probability, as the daemon publishes it, against whether the
 //! fix is on the right floor within one of its cells of the truth.
 
@@ -60,8 +60,7 @@ use crate::locate::survey::Sample;
 use crate::locate::tracker::{Tracker, TrackerConfig};
 use crate::locate::window::WindowConfig;
 use crate::locate::{Localizer, LocalizerConfig, Method};
-use crate::score::ErrorSummary;
-use crate::score::Reliability;
+use crate::score::{ErrorSummary, Reliability};
 use crate::site::{Beacon, Building, Mount, Site};
 use crate::survey::{self, Key, Keys, Options, Report, Walk};
 
@@ -135,24 +134,29 @@ pub struct FloorsReport {
     pub recalibrated: BTreeMap<String, String>,
 }
 
-/// One held-out window as the gateway published it, for `--rows`.
+/// One held-out window with a known position, and the gateway's fix for
+/// it (published, or withheld: floor unknown or confidence under
+/// `min_confidence`), for `--rows`.
 #[derive(Clone, Debug)]
 pub struct WindowFix {
     /// The floor the walk was on, and the walk (its file's name).
     pub floor: String,
     pub walk: String,
-    /// The window's end, seconds (the walk file's clock).
+    /// The mean time of the window's readings, seconds (the walk file's
+    /// clock).
     pub t: f64,
-    /// Where the walker was, metres in the building's frame.
+    /// Where the walker was, metres in `floor`'s frame.
     pub truth: [f64; 2],
-    /// The floor published, `None` while it is unknown; the fix is on the
-    /// floor the gateway located on either way.
-    pub fix_floor: Option<String>,
+    /// The floor the gateway located the window on, and whether it would
+    /// publish that floor (else the floor is unknown).
+    pub located_floor: String,
+    pub floor_known: bool,
+    /// The fix, metres in `located_floor`'s frame.
     pub fix: [f64; 2],
     /// The published confidence: the localizer's times the floor's.
     pub confidence: f32,
-    /// Metres between fix and truth in the plane, whatever the floor.
-    pub error_m: f64,
+    /// Metres from the truth, when located on the walk's floor.
+    pub error_m: Option<f64>,
 }
 
 /// One floor's walks, split.
@@ -384,10 +388,11 @@ pub fn evaluate(
                     walk: walk.name.clone(),
                     t,
                     truth,
-                    fix_floor: outcome.floor.map(|f| floors[f].name.clone()),
+                    located_floor: floors[floor].name.clone(),
+                    floor_known: outcome.floor.is_some(),
                     fix: at,
                     confidence,
-                    error_m: outcome.error_m,
+                    error_m: (floor == truth_floor).then_some(outcome.error_m),
                 });
                 confidences.push((
                     confidence,
